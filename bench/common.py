@@ -1,0 +1,36 @@
+"""Shared bench helpers: timing statistics and the header every bench prints."""
+from __future__ import annotations
+
+import os
+import platform
+import shlex
+import sys
+import time
+
+
+def header(title: str) -> None:
+    """Print what produced the figures: the command, the machine, the interpreter."""
+    print(f"# {title}")
+    print(f"command: python {shlex.join(sys.orig_argv[1:])}")
+    print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, "
+          f"{platform.python_implementation()} {platform.python_version()}, {time.strftime('%Y-%m-%d')}")
+
+
+def percentiles(samples: list[float], points=(50, 99, 99.9)) -> dict[str, float]:
+    """Nearest-rank percentiles and the maximum of ``samples``."""
+    ordered = sorted(samples)
+    n = len(ordered)
+    out = {f"p{p:g}": ordered[min(n - 1, max(0, int(round(p / 100.0 * n + 0.5)) - 1))] for p in points}
+    out["max"] = ordered[-1]
+    return out
+
+
+def per_call_us(fn, repeat: int, rounds: int = 5) -> float:
+    """Best-of-rounds mean time per call [us] (the least disturbed round on a shared machine)."""
+    best = float("inf")
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        for _ in range(repeat):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / repeat)
+    return best * 1e6

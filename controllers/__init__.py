@@ -1,0 +1,1 @@
+"""Controller plugins, reference paths and trajectories."""

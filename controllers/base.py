@@ -1,0 +1,144 @@
+"""The controller contract, after ros2_control's split of hardware from controllers.
+
+A controller is built and validated off the loop, then swapped in at a cycle boundary.
+``reset(state, last_output)`` initialises it from the measured state and the output in
+force, so the switch is bumpless; ``step(state, reference)`` runs once per cycle and returns
+the manipulated variable per joint: V_MV [V], the head-chamber command relative to its bias
+(rig-facts §1 [2-30]). Everything else is SI (rad, rad/s, s).
+
+Parameters are described (unit, bounds, doc) and are per joint. A change is validated whole
+and applied whole, or refused with a message naming the parameter, the joint and the bound.
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import ClassVar
+
+
+class ParamError(ValueError):
+    """A parameter change is refused; nothing was applied."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    unit: str
+    low: float
+    high: float
+    default: tuple[float, ...]  # one value per joint of the default 2-joint rig; repeated for more
+    doc: str
+
+    def describe(self) -> dict:
+        return {"name": self.name, "unit": self.unit, "low": self.low, "high": self.high, "doc": self.doc}
+
+
+@dataclass(frozen=True)
+class ControllerContext:
+    """What a controller knows of the rig, fixed when it is built."""
+
+    joint_names: tuple[str, ...]
+    dt: float  # loop period [s]
+    u_min: tuple[float, ...]  # V_MV range per joint, from the bias and the 0-10 V span [V]
+    u_max: tuple[float, ...]
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+
+@dataclass(slots=True)
+class JointState:
+    """Measured state at one cycle."""
+
+    t: float  # [s]
+    angles: Sequence[float]  # [rad]
+    velocities: Sequence[float]  # [rad/s], filtered differences of the angles
+
+
+@dataclass(slots=True)
+class Reference:
+    """Desired motion at one cycle."""
+
+    angles: Sequence[float]  # [rad]
+    velocities: Sequence[float]  # [rad/s]
+    accelerations: Sequence[float]  # [rad/s^2]
+
+
+class Controller(ABC):
+    """Subclasses set ``name`` and ``params`` and implement ``reset`` and ``step``."""
+
+    name: ClassVar[str] = ""
+    params: ClassVar[tuple[ParamSpec, ...]] = ()
+
+    def __init__(self, context: ControllerContext, **values: Sequence[float] | float):
+        self.context = context
+        defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
+        self._values = self.validate_params({**defaults, **values}, base=defaults)
+        self.configure()
+
+    def configure(self) -> None:
+        """Derive internal constants from the parameters (called on build and on every change)."""
+
+    @abstractmethod
+    def reset(self, state: JointState, last_output: Sequence[float]) -> None:
+        """Initialise from the measured state and the output in force (bumpless transfer)."""
+
+    @abstractmethod
+    def step(self, state: JointState, reference: Reference) -> list[float]:
+        """V_MV per joint [V] for this cycle."""
+
+    # -- parameters ---------------------------------------------------------------------
+    def get_params(self) -> dict[str, list[float]]:
+        return {k: list(v) for k, v in self._values.items()}
+
+    def validate_params(self, changes: Mapping[str, object], base: Mapping[str, tuple] | None = None) -> dict:
+        """The full parameter set after ``changes``, or :class:`ParamError`; applies nothing."""
+        specs = {p.name: p for p in self.params}
+        merged = dict(self._values if base is None else base)
+        n = self.context.n
+        for key, raw in changes.items():
+            spec = specs.get(key)
+            if spec is None:
+                raise ParamError(f"{self.name}: unknown parameter {key!r} (known: {', '.join(specs) or 'none'})")
+            values = raw if isinstance(raw, (list, tuple)) else [raw] * n
+            if len(values) != n:
+                raise ParamError(f"{self.name}.{key}: expected {n} values (one per joint), got {len(values)}")
+            checked = []
+            for joint, v in zip(self.context.joint_names, values):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ParamError(f"{self.name}.{key}[{joint}]: expected a finite number, got {v!r}")
+                if not spec.low <= v <= spec.high:
+                    raise ParamError(f"{self.name}.{key}[{joint}] = {v} {spec.unit} is outside "
+                                     f"{spec.low}..{spec.high} {spec.unit}")
+                checked.append(float(v))
+            merged[key] = tuple(checked)
+        return merged
+
+    def set_params(self, changes: Mapping[str, object]) -> None:
+        """Validate the whole change, then apply it at once (from the loop's cycle boundary)."""
+        self.apply_params(self.validate_params(changes))
+
+    def apply_params(self, validated: dict) -> None:
+        """Swap in a parameter set returned by :meth:`validate_params`."""
+        self._values = validated
+        self.configure()
+
+    def p(self, name: str) -> tuple[float, ...]:
+        return self._values[name]
+
+    @classmethod
+    def describe(cls) -> dict:
+        return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
+                "params": [p.describe() for p in cls.params]}
+
+
+def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:
+    """Stretch a default to n joints, repeating the last value (the top joint takes the middle's)."""
+    return tuple(default[min(i, len(default) - 1)] for i in range(n))
+
+
+def clamp(value: float, low: float, high: float) -> float:
+    return low if value < low else high if value > high else value

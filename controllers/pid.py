@@ -1,0 +1,73 @@
+"""PID with a filtered derivative and back-calculation anti-windup (rig-facts §1, [3-3, 3-4]).
+
+    C(s) = Kp (1 + 1/(Ti s) + Td s / ((Td/N) s + 1))
+
+Error e = r - th in rad, output V_MV in V, so Kp is in V/rad: the thesis's gains (in V/deg)
+times 180/pi. Discretised at the loop period h: integral by forward Euler, derivative by
+backward difference of the filtered form (Åström & Hägglund). When the output saturates,
+the integral is bled back at the rate (u_sat - u)/Tt so it cannot wind up.
+
+The thesis gives no anti-windup; Tt = 0.2 s is our choice. With it the bottom joint's 10 deg
+step (which saturates V_MV at +6 V) gives about 6 % overshoot and settles in about 2 s,
+the thesis's own figures; with Tt = Ti the same step overshoots about 18 %.
+"""
+from __future__ import annotations
+
+import math
+
+from controllers.base import Controller, JointState, ParamSpec, Reference, clamp
+
+DEG = 180.0 / math.pi
+
+
+class PID(Controller):
+    """PID per joint, thesis gains by default (bottom Kp 0.81 V/deg, Ti 1.3 s; middle 0.88, 2.0 s)."""
+
+    name = "pid"
+    params = (
+        ParamSpec("Kp", "V/rad", 0.0, 1.0e4, (0.81 * DEG, 0.88 * DEG), "proportional gain"),
+        ParamSpec("Ti", "s", 0.0, 1.0e6, (1.30, 2.0), "integral time; 0 turns integral action off"),
+        ParamSpec("Td", "s", 0.0, 100.0, (0.0, 0.0), "derivative time"),
+        ParamSpec("N", "-", 1.0, 1000.0, (200.0, 200.0), "derivative filter: the pole sits at N/Td"),
+        ParamSpec("Tt", "s", 1e-3, 1.0e4, (0.2, 0.2), "anti-windup tracking time"),
+    )
+
+    def __init__(self, context, **values):
+        self._i = [0.0] * context.n  # integral part [V]
+        self._d = [0.0] * context.n  # filtered derivative part [V]
+        self._e_prev = [0.0] * context.n  # last error [rad]
+        self._taking_over = False
+        super().__init__(context, **values)
+
+    def configure(self) -> None:
+        h = self.context.dt
+        kp, ti, td, n = self.p("Kp"), self.p("Ti"), self.p("Td"), self.p("N")
+        self._ki = [k * h / t if t > 0 else 0.0 for k, t in zip(kp, ti)]
+        self._ad = [t / (t + nn * h) for t, nn in zip(td, n)]
+        self._bd = [k * t * nn / (t + nn * h) for k, t, nn in zip(kp, td, n)]
+        self._kt = [h / tt for tt in self.p("Tt")]
+
+    def reset(self, state: JointState, last_output) -> None:
+        """Take over bumplessly: the integral carries the output in force."""
+        self._d = [0.0] * self.context.n
+        self._e_prev = [0.0] * self.context.n
+        self._i = list(last_output)
+        self._taking_over = True
+
+    def step(self, state: JointState, reference: Reference) -> list[float]:
+        out = []
+        kp = self.p("Kp")
+        first = self._taking_over
+        for j in range(self.context.n):
+            e = reference.angles[j] - state.angles[j]
+            if first:  # bumpless: the P part at the switch goes into the integral's account
+                self._i[j] -= kp[j] * e
+                self._e_prev[j] = e
+            self._d[j] = self._ad[j] * self._d[j] + self._bd[j] * (e - self._e_prev[j])
+            v = kp[j] * e + self._i[j] + self._d[j]
+            u = clamp(v, self.context.u_min[j], self.context.u_max[j])
+            self._i[j] += self._ki[j] * e + self._kt[j] * (u - v)
+            self._e_prev[j] = e
+            out.append(u)
+        self._taking_over = False
+        return out

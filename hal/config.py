@@ -1,0 +1,171 @@
+"""The rig configuration: one TOML file names the transport, the channel map, every device's
+calibration, joint limits, pressure limits and the safe state.
+
+Config files use engineering units named in each key (``_deg``, ``_mpa``, ``_mm``); the
+properties here give SI values to the code. With no file the daemon runs a built-in rig
+(:data:`BUILTIN_RIGS`): the simulated 2-joint arm, or the 3-joint one with the top joint.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from hal.errors import ConfigError
+from hal.force_sensor import ForceSensorConfig
+from hal.potentiometer import PotentiometerConfig
+from hal.regulator import RegulatorConfig
+from hal.schema import build, require
+
+BUILTIN_RIGS = {"sim": "sim_2joint.toml", "sim-3joint": "sim_3joint.toml"}
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """One cylinder-driven joint: its angle sensor, its two chamber regulators and its limits."""
+
+    name: str
+    min_angle_deg: float  # software limits the supervisor enforces [deg]
+    max_angle_deg: float
+    sensor: PotentiometerConfig
+    head: RegulatorConfig  # head-side chamber, commanded V_INI + V_MV [2-30]
+    rod: RegulatorConfig  # rod-side chamber, held at V_INI [2-31]
+    max_speed_deg_s: float = 60.0  # faster than this is a trip [deg/s]
+
+    def __post_init__(self):
+        require(bool(self.name), "name", "must not be empty")
+        require(self.min_angle_deg < self.max_angle_deg, "max_angle_deg",
+                f"limits inverted: min {self.min_angle_deg} >= max {self.max_angle_deg}")
+        require(self.max_speed_deg_s > 0, "max_speed_deg_s", "must be > 0")
+
+    @property
+    def limits_rad(self) -> tuple[float, float]:
+        return math.radians(self.min_angle_deg), math.radians(self.max_angle_deg)
+
+
+@dataclass(frozen=True)
+class ArmConfig:
+    """Planar arm geometry (rig-facts §1; link lengths are an interpretation, default 100 mm)."""
+
+    link_lengths_mm: tuple[float, ...] = (100.0, 100.0)
+    elbow: int = -1  # IK branch: sign of the second joint angle
+
+    def __post_init__(self):
+        require(all(l > 0 for l in self.link_lengths_mm), "link_lengths_mm", "every link must be > 0 mm")
+        require(self.elbow in (1, -1), "elbow", f"must be +1 or -1, got {self.elbow}")
+
+    @property
+    def link_lengths_m(self) -> tuple[float, ...]:
+        return tuple(l * 1e-3 for l in self.link_lengths_mm)
+
+
+@dataclass(frozen=True)
+class LimitsConfig:
+    """Rig-wide pressure limits, tighter than or equal to the regulators' own range."""
+
+    max_pressure_mpa: float = 0.9
+    max_pressure_rate_mpa_s: float = 50.0  # slew limit on each chamber command [MPa/s]
+
+    def __post_init__(self):
+        require(0 < self.max_pressure_mpa <= 0.9, "max_pressure_mpa",
+                f"must be within (0, 0.9] MPa (the ITV0051 range), got {self.max_pressure_mpa}")
+        require(self.max_pressure_rate_mpa_s > 0, "max_pressure_rate_mpa_s", "must be > 0")
+
+
+@dataclass(frozen=True)
+class TransportConfig:
+    """Which backend moves the raw values; ``options`` are validated by that backend."""
+
+    backend: str = "sim"
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RigInfo:
+    name: str
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    rig: RigInfo
+    transport: TransportConfig
+    joints: tuple[JointConfig, ...]
+    arm: ArmConfig = ArmConfig()
+    limits: LimitsConfig = LimitsConfig()
+    force_sensor: ForceSensorConfig | None = None
+    source: str = field(default="", init=False, compare=False)  # the TOML text it was built from
+    origin: str = field(default="", init=False, compare=False)  # a path or "builtin:NAME"
+
+    def __post_init__(self):
+        require(len(self.joints) >= 1, "joints", "at least one joint is needed")
+        names = [j.name for j in self.joints]
+        dup = _first_duplicate(names)
+        require(dup is None, "joints", f"joint name {dup!r} is used twice")
+        require(len(self.arm.link_lengths_mm) == len(self.joints), "arm.link_lengths_mm",
+                f"{len(self.arm.link_lengths_mm)} links given for {len(self.joints)} joints")
+        outputs = [(f"joints.{j.name}.{side}", getattr(j, side).channel) for j in self.joints for side in ("head", "rod")]
+        signals = [(f"joints.{j.name}.sensor", j.sensor.channel) for j in self.joints]
+        if self.force_sensor is not None:
+            signals.append(("force_sensor", self.force_sensor.channel))
+        for group in (outputs, signals):
+            seen: dict[str, str] = {}
+            for where, channel in group:
+                require(channel not in seen, where + ".channel",
+                        f"channel {channel!r} is already mapped to {seen.get(channel)}")
+                seen[channel] = where
+        supplies = {j.sensor.supply_channel for j in self.joints} - {""}
+        clash = supplies & {c for _, c in signals}
+        require(not clash, "joints", f"channel {sorted(clash)} is both a supply and a signal channel")
+        for j in self.joints:
+            for side in ("head", "rod"):
+                reg = getattr(j, side)
+                require(reg.safe_mpa <= self.limits.max_pressure_mpa, f"joints.{j.name}.{side}.safe_mpa",
+                        f"{reg.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
+
+    @property
+    def hash(self) -> str:
+        """SHA-256 of the source text: what a recording names to say which rig it came from."""
+        return hashlib.sha256(self.source.encode()).hexdigest()
+
+
+def _first_duplicate(items):
+    seen = set()
+    for item in items:
+        if item in seen:
+            return item
+        seen.add(item)
+    return None
+
+
+def parse(text: str, origin: str = "<string>") -> RigConfig:
+    """Build and validate a rig configuration from TOML text."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{origin}: not valid TOML: {exc}") from None
+    try:
+        config = build(RigConfig, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{origin}: {exc}") from None
+    object.__setattr__(config, "source", text)
+    object.__setattr__(config, "origin", origin)
+    return config
+
+
+def load(path: str | Path | None = None) -> RigConfig:
+    """Load a rig file, a built-in rig by name (``sim``, ``sim-3joint``), or the default."""
+    if path is None or str(path) in BUILTIN_RIGS:
+        name = "sim" if path is None else str(path)
+        text = resources.files("hal").joinpath(BUILTIN_RIGS[name]).read_text()
+        return parse(text, f"builtin:{name}")
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read rig file: {exc.strerror}") from None
+    return parse(text, str(p))

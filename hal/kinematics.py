@@ -1,0 +1,52 @@
+"""Planar serial-arm kinematics (rig-facts §1, [2-7] and [2-9..2-14]).
+
+Angles in rad, lengths and positions in m. Joint i's angle is relative to link i-1, so the
+tip is ``sum_i l_i * (cos, sin)(t_1 + ... + t_i)``.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+
+def forward(angles: Sequence[float], lengths: Sequence[float]) -> tuple[float, float]:
+    """Tip position (x, y) [m] for joint angles [rad] and link lengths [m], [2-7]."""
+    x = y = phi = 0.0
+    for q, l in zip(angles, lengths):
+        phi += q
+        x += l * math.cos(phi)
+        y += l * math.sin(phi)
+    return x, y
+
+
+def jacobian(angles: Sequence[float], lengths: Sequence[float]) -> list[tuple[float, float]]:
+    """Column i is d(tip)/d(angle_i) [m/rad]; joint torques from a tip force are J^T F."""
+    phis, phi = [], 0.0
+    for q in angles:
+        phi += q
+        phis.append(phi)
+    columns = []
+    for i in range(len(angles)):
+        dx = -sum(l * math.sin(p) for l, p in zip(lengths[i:], phis[i:]))
+        dy = sum(l * math.cos(p) for l, p in zip(lengths[i:], phis[i:]))
+        columns.append((dx, dy))
+    return columns
+
+
+def inverse_2link(x: float, y: float, l1: float, l2: float, elbow: int = -1) -> tuple[float, float]:
+    """Joint angles [rad] reaching (x, y) [m] by the law of cosines [2-9..2-14].
+
+    ``elbow`` picks the branch by the sign of the second angle; -1 is the branch on which the
+    rig-facts speed figures for the reference paths were computed. Raises ValueError when
+    the point is out of reach.
+    """
+    if elbow not in (1, -1):
+        raise ValueError(f"elbow must be +1 or -1, got {elbow}")
+    c2 = (x * x + y * y - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+    if not -1.0 <= c2 <= 1.0:
+        reach = math.hypot(x, y)
+        raise ValueError(f"point ({x * 1e3:.1f}, {y * 1e3:.1f}) mm is out of reach "
+                         f"({reach * 1e3:.1f} mm from the base; reach {abs(l1 - l2) * 1e3:.1f}..{(l1 + l2) * 1e3:.1f} mm)")
+    t2 = elbow * math.acos(c2)
+    t1 = math.atan2(y, x) - math.atan2(l2 * math.sin(t2), l1 + l2 * math.cos(t2))
+    return t1, t2

@@ -1,0 +1,150 @@
+"""The transport contract: one small interface every DAQ backend implements.
+
+A transport moves raw channel values (volts, 0/1 for digital lines) in and out, one sweep
+each way per cycle. It declares its channels up front so the rig configuration can be
+checked against it before anything moves. Values cross the contract as plain tuples of
+floats in the declared channel order, so the 1 ms path allocates no per-channel objects.
+
+Backends are plugins, named in the rig file (``transport.backend``): the built-in names in
+:data:`BACKENDS` or any ``module:Class`` path.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+from hal.errors import CommandError, ConfigError
+
+
+class ChannelKind(str, Enum):
+    ANALOG_IN = "ai"
+    ANALOG_OUT = "ao"
+    DIGITAL_IN = "di"
+    DIGITAL_OUT = "do"
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One raw channel: its name in the rig file, its kind and its electrical range [V]."""
+
+    name: str
+    kind: ChannelKind
+    low: float = 0.0
+    high: float = 10.0
+
+    @property
+    def is_input(self) -> bool:
+        return self.kind in (ChannelKind.ANALOG_IN, ChannelKind.DIGITAL_IN)
+
+
+@dataclass(slots=True)
+class InputSweep:
+    """All inputs from one read: values in declared order and when they were sampled."""
+
+    seq: int  # the transport's sample counter; a repeat means no new sample
+    t: float  # sample time on the loop's clock [s]
+    values: tuple[float, ...]
+
+
+@dataclass
+class TransportHealth:
+    """Counters a supervisor and an operator can read; never hidden, never reset silently."""
+
+    is_open: bool = False
+    reads: int = 0
+    writes: int = 0
+    errors: int = 0
+    last_error: str = ""
+    last_sample_t: float = math.nan
+    counters: dict[str, int] = field(default_factory=dict)  # backend-specific (e.g. crc_errors)
+
+
+class Transport(ABC):
+    """A DAQ backend. Subclasses set ``inputs``/``outputs``/``rate_hz`` and implement the sweeps."""
+
+    backend: str = "abstract"
+    inputs: tuple[Channel, ...] = ()
+    outputs: tuple[Channel, ...] = ()
+    rate_hz: float = 1000.0  # the sweep rate the backend can sustain
+
+    def __init__(self):
+        self._health = TransportHealth()
+
+    @classmethod
+    def from_config(cls, rig, clock: Callable[[], float]) -> "Transport":
+        """Build from a :class:`hal.config.RigConfig`; backends validate ``rig.transport.options``."""
+        raise NotImplementedError(f"{cls.__name__} cannot be built from a rig file")
+
+    def open(self) -> None:
+        self._health.is_open = True
+
+    def close(self) -> None:
+        self._health.is_open = False
+
+    def __enter__(self):
+        self.open()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @abstractmethod
+    def read(self) -> InputSweep:
+        """Sample every input once. Raises :class:`hal.errors.TransportError` on failure."""
+
+    def write(self, values: Sequence[float]) -> None:
+        """Write every output once, in declared order; a bad vector is refused whole."""
+        if len(values) != len(self.outputs):
+            raise CommandError(f"{self.backend}: expected {len(self.outputs)} output values, got {len(values)}")
+        for ch, v in zip(self.outputs, values):
+            if not (ch.low <= v <= ch.high):  # also false for NaN
+                raise CommandError(f"{self.backend}: output {ch.name} = {v!r} is outside {ch.low}..{ch.high} V")
+        self._write(values)
+        self._health.writes += 1
+
+    @abstractmethod
+    def _write(self, values: Sequence[float]) -> None:
+        """Backend part of :meth:`write`; the values are already checked."""
+
+    def health(self) -> TransportHealth:
+        return self._health
+
+    def index(self, name: str, *, output: bool) -> int:
+        """Position of channel ``name`` in the input or output sweep."""
+        channels = self.outputs if output else self.inputs
+        for i, ch in enumerate(channels):
+            if ch.name == name:
+                return i
+        kind = "output" if output else "input"
+        names = ", ".join(ch.name for ch in channels) or "none"
+        raise ConfigError(f"{self.backend}: no {kind} channel named {name!r} (it has: {names})")
+
+
+BACKENDS: dict[str, str] = {
+    "sim": "sim_backend.transport:SimTransport",
+}
+
+
+def load_backend(name: str) -> type[Transport]:
+    """The transport class for a backend name or a ``module:Class`` path."""
+    target = BACKENDS.get(name, name)
+    if ":" not in target:
+        raise ConfigError(f"transport.backend: unknown backend {name!r} (built-in: {', '.join(BACKENDS)}; "
+                          f"or give module:Class)")
+    module_name, _, class_name = target.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"transport.backend: cannot load {target!r}: {exc}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Transport)):
+        raise ConfigError(f"transport.backend: {target!r} is not a Transport")
+    return cls
+
+
+def create_transport(rig, clock: Callable[[], float]) -> Transport:
+    """Build the transport the rig file names, with its backend options validated."""
+    return load_backend(rig.transport.backend).from_config(rig, clock)

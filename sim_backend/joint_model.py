@@ -1,0 +1,148 @@
+"""One pneumatic-cylinder joint, simulated exactly at a fixed step (rig-facts §1).
+
+Model [2-30..2-39, 2-45], in the model's own units (deg; see :mod:`sim_backend.joint_params`):
+
+    T_ep P_i' = P_set,i(t - T_dly) - P_i                    (regulator lag and dead time, per chamber)
+    J th'' + D th' + K (th - th_0) = K_mdl L (A_H P_H - A_L P_L) + tau_ext - tau_s(th')
+    tau_s(w) = (Fc + (Fs - Fc) exp(-(|w|/vs)^alpha)) tanh(beta w / vs)   [2-45]
+
+The viscous term D th' appears once (the linear model's D); tau_s is the Coulomb/Stribeck part
+of [2-45]. With tau_s = 0 the transfer function from the head command V_MV to th is exactly
+[2-50]: K_mdl L A_H K_ep / ((J s^2 + D s + K)(T_ep s + 1)) e^{-T_dly s}.
+
+**Discretisation.** The linear part is discretised exactly (zero-order hold, matrix
+exponential), including a dead time that is not a whole number of steps (Åström &
+Wittenmark's split of the hold interval), so the simulated step response equals the
+continuous one at every sample. Friction enters as a torque held over the step. Its tanh
+is far too stiff to integrate explicitly at 1 ms, so sticking is resolved as in Karnopp's
+model: when the velocity would reach or cross zero within a step, the torque needed to stop
+the joint is computed, and the joint sticks if that is within the breakaway torque Fs.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import expm
+
+from sim_backend.joint_params import JointParams
+
+
+def zoh(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(e^{A t}, integral_0^t e^{A s} ds B), from one matrix exponential."""
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a * t
+    block[:n, n:] = b * t
+    e = expm(block)
+    return e[:n, :n], e[:n, n:]
+
+
+class JointModel:
+    """State: angle ``th`` [deg], velocity ``w`` [deg/s], chamber pressures [Pa]."""
+
+    def __init__(self, params: JointParams, dt: float, neutral_deg: float, stops_deg: tuple[float, float],
+                 initial_deg: float, initial_pset: tuple[float, float], friction: bool = True,
+                 dead_time: bool = True):
+        self.params = params
+        self.dt = dt
+        self.friction = friction
+        self.neutral_deg = neutral_deg
+        self.stop_lo, self.stop_hi = stops_deg
+        p = params
+        self._c = p.K_mdl * p.L  # force -> torque [m]
+        self._ah, self._al = p.area_head, p.area_rod
+
+        # x = [T, th, w], T = K_mdl L (A_H P_H - A_L P_L) the pneumatic torque [N m]
+        a = np.array([[-1.0 / p.T_ep, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0 / p.J, -p.K / p.J, -p.D / p.J]])
+        b_set = np.array([[1.0 / p.T_ep], [0.0], [0.0]])
+        b_tau = np.array([[0.0], [0.0], [1.0 / p.J]])
+        delay = p.T_dly if dead_time else 0.0
+        self.delay_steps = int(math.floor(delay / dt + 1e-9))
+        frac = max(delay - self.delay_steps * dt, 0.0)
+        if frac < 1e-12:
+            frac = 0.0
+        phi, _ = zoh(a, b_set, dt)
+        e_late, g_late = zoh(a, b_set, dt - frac)  # the part of the step driven by u(k-n)
+        _, g_early = zoh(a, b_set, frac)  # the first `frac` seconds, still driven by u(k-n-1)
+        g_prev = e_late @ g_early
+        _, g_tau = zoh(a, b_tau, dt)
+        # Rows for th and w, as plain floats: numpy's per-call cost would dominate at this size.
+        (self._p10, self._p11, self._p12), (self._p20, self._p21, self._p22) = phi[1].tolist(), phi[2].tolist()
+        self._g0_th, self._g0_w = float(g_late[1, 0]), float(g_late[2, 0])
+        self._g1_th, self._g1_w = float(g_prev[1, 0]), float(g_prev[2, 0])
+        self._gt_th, self._gt_w = float(g_tau[1, 0]), float(g_tau[2, 0])
+        # Scalar chamber lag with the same split: P(k+1) = a P + b0 u(k-n) + b1 u(k-n-1)
+        self._pa = math.exp(-dt / p.T_ep)
+        self._pb0 = 1.0 - math.exp(-(dt - frac) / p.T_ep)
+        self._pb1 = math.exp(-(dt - frac) / p.T_ep) - self._pa
+
+        size = self.delay_steps + 2
+        self._buf_head = [initial_pset[0]] * size
+        self._buf_rod = [initial_pset[1]] * size
+        self._k = 0
+        self.p_head, self.p_rod = initial_pset
+        self.th = min(max(initial_deg, self.stop_lo), self.stop_hi)
+        self.w = 0.0
+
+    def pneumatic_torque(self, p_head: float, p_rod: float) -> float:
+        """K_mdl L (A_H P_H - A_L P_L) [N m]."""
+        return self._c * (self._ah * p_head - self._al * p_rod)
+
+    def equilibrium_deg(self, p_head: float, p_rod: float) -> float:
+        """Angle [deg] at which the spring balances steady chamber pressures (friction aside)."""
+        return self.neutral_deg + self.pneumatic_torque(p_head, p_rod) / self.params.K
+
+    def step(self, pset_head: float, pset_rod: float, tau_ext: float = 0.0) -> None:
+        """Advance one step with the regulators asked for these set pressures [Pa] and an
+        external torque [N m], both held over the step."""
+        size = len(self._buf_head)
+        k = self._k
+        self._buf_head[k % size] = pset_head
+        self._buf_rod[k % size] = pset_rod
+        i_now, i_prev = (k - self.delay_steps) % size, (k - self.delay_steps - 1) % size
+        h_now, r_now = self._buf_head[i_now], self._buf_rod[i_now]
+        h_prev, r_prev = self._buf_head[i_prev], self._buf_rod[i_prev]
+        t_now = self.pneumatic_torque(h_now, r_now)
+        t_prev = self.pneumatic_torque(h_prev, r_prev)
+        torque = self.pneumatic_torque(self.p_head, self.p_rod)
+        tau = self.params.K * self.neutral_deg + tau_ext
+        th, w = self.th, self.w
+        th_lin = (self._p10 * torque + self._p11 * th + self._p12 * w
+                  + self._g0_th * t_now + self._g1_th * t_prev + self._gt_th * tau)
+        w_lin = (self._p20 * torque + self._p21 * th + self._p22 * w
+                 + self._g0_w * t_now + self._g1_w * t_prev + self._gt_w * tau)
+        if self.friction:
+            f, sticking = self._friction_torque(w, w_lin)
+            if sticking and w == 0.0:
+                th_new, w_new = th, 0.0  # stuck all step: not a hair of motion
+            else:
+                th_new = th_lin - self._gt_th * f
+                w_new = 0.0 if sticking else w_lin - self._gt_w * f
+        else:
+            th_new, w_new = th_lin, w_lin
+        if th_new <= self.stop_lo:
+            th_new, w_new = self.stop_lo, max(w_new, 0.0)
+        elif th_new >= self.stop_hi:
+            th_new, w_new = self.stop_hi, min(w_new, 0.0)
+        self.th, self.w = th_new, w_new
+        a, b0, b1 = self._pa, self._pb0, self._pb1
+        self.p_head = a * self.p_head + b0 * h_now + b1 * h_prev
+        self.p_rod = a * self.p_rod + b0 * r_now + b1 * r_prev
+        self._k = k + 1
+
+    def _friction_torque(self, w: float, w_lin: float) -> tuple[float, bool]:
+        """Friction torque [N m] held over this step, given the velocity without friction,
+        and whether it holds the joint still."""
+        p = self.params
+        if w != 0.0:
+            magnitude = p.Fc + (p.Fs - p.Fc) * math.exp(-((abs(w) / p.vs) ** p.alpha))
+            f = magnitude * math.tanh(p.beta * w / p.vs)
+            w_try = w_lin - self._gt_w * f
+            if (w_try > 0.0) == (w > 0.0) and w_try != 0.0:
+                return f, False  # slipping on, same direction
+        # At rest, or the step would stop or reverse the joint: can static friction hold it?
+        hold = w_lin / self._gt_w
+        if abs(hold) <= p.Fs:
+            return hold, True
+        return math.copysign(p.Fs, hold), False  # breakaway: moves in the direction of the net torque

@@ -1,0 +1,61 @@
+"""Options of the simulated rig: the ``[transport.options]`` table when ``backend = "sim"``."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from hal.schema import require
+
+
+@dataclass(frozen=True)
+class SimJointOptions:
+    """Plant choices for one joint (``[transport.options.joints.NAME]``)."""
+
+    model: str = ""  # identified parameter set (bottom/middle/top); default: the joint's name
+    neutral_angle_deg: float | None = None  # th_0 of the spring; default: middle of the joint's range
+    initial_angle_deg: float | None = None  # default: equilibrium at the bias pressures
+    end_stop_margin_deg: float = 10.0  # mechanical stops this far beyond the software limits
+    overrides: dict[str, float] = field(default_factory=dict)  # e.g. {T_dly = 0.04}
+
+    def __post_init__(self):
+        require(self.end_stop_margin_deg >= 0, "end_stop_margin_deg", "must be >= 0")
+
+
+@dataclass(frozen=True)
+class WallOptions:
+    """A compliant wall the tip can press on; the force sensor reads the contact force."""
+
+    enabled: bool = False
+    point_mm: tuple[float, ...] = (0.0, 250.0)  # a point on the wall surface [mm]
+    normal: tuple[float, ...] = (0.0, -1.0)  # unit normal pointing out of the wall, into free space
+    stiffness_n_per_mm: float = 2.0
+
+    def __post_init__(self):
+        require(len(self.point_mm) == 2, "point_mm", "must be [x, y]")
+        require(len(self.normal) == 2 and math.hypot(*self.normal) > 0, "normal", "must be a non-zero [x, y]")
+        require(self.stiffness_n_per_mm > 0, "stiffness_n_per_mm", "must be > 0")
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    seed: int = 0
+    step_s: float = 0.001  # plant step [s]
+    friction: bool = True
+    dead_time: bool = True
+    supply_mpa: float = 1.0  # regulator supply pressure [MPa]
+    supply_volts: float = 5.0  # potentiometer supply [V]
+    adc_bits: int = 16
+    dac_bits: int = 16
+    adc_noise_volts: float = 0.0  # standard deviation of seeded Gaussian noise on every input [V]
+    max_catch_up_s: float = 0.1  # real-time mode: a longer stall pauses the plant instead
+    joints: dict[str, SimJointOptions] = field(default_factory=dict)
+    wall: WallOptions = WallOptions()
+
+    def __post_init__(self):
+        require(0 < self.step_s <= 0.01, "step_s", f"must be within (0, 0.01] s, got {self.step_s}")
+        require(0 <= self.supply_mpa <= 1.0, "supply_mpa", "must be within 0-1.0 MPa (ITV0051 maximum)")
+        require(0 < self.supply_volts <= 10, "supply_volts", "must be within (0, 10] V")
+        require(2 <= self.adc_bits <= 24, "adc_bits", "must be within 2-24")
+        require(2 <= self.dac_bits <= 24, "dac_bits", "must be within 2-24")
+        require(self.adc_noise_volts >= 0, "adc_noise_volts", "must be >= 0")
+        require(self.max_catch_up_s >= self.step_s, "max_catch_up_s", "must be at least one step")

@@ -1,0 +1,95 @@
+"""The simulated arm as a whole: joints, regulators, planar geometry, wall contact, force.
+
+Inputs are the regulator command volts; outputs are true physical quantities (angles,
+contact force). Turning those into sensor volts is the simulated transport's job.
+"""
+from __future__ import annotations
+
+import math
+
+from hal import kinematics
+from hal.config import RigConfig
+from hal.errors import ConfigError
+from sim_backend.joint_model import JointModel
+from sim_backend.joint_params import IDENTIFIED, K_EP, P_OFFSET, P_SET_MAX, P_SET_MIN, SUPPLY_HEADROOM
+from sim_backend.options import SimJointOptions, SimOptions
+
+
+def regulator_output(volts: float, supply_pa: float) -> float:
+    """The pressure [Pa] an ITV0051 regulates to for a command [V], [2-29], limited by its
+    supply (the set pressure needs supply + 0.1 MPa; with no supply the chamber exhausts)."""
+    v = min(max(volts, 0.0), 10.0)
+    p = min(max(K_EP * v + P_OFFSET, P_SET_MIN), P_SET_MAX)
+    return min(p, max(supply_pa - SUPPLY_HEADROOM, 0.0))
+
+
+class SimArm:
+    """All joints of the rig stepped together, with the tip contact coupling them."""
+
+    def __init__(self, rig: RigConfig, options: SimOptions):
+        self.options = options
+        self.supply_pa = options.supply_mpa * 1e6
+        self.lengths = rig.arm.link_lengths_m
+        unknown = sorted(set(options.joints) - {j.name for j in rig.joints})
+        if unknown:
+            raise ConfigError(f"transport.options.joints.{unknown[0]}: no joint of that name in the rig")
+        self.joints: list[JointModel] = []
+        for jc in rig.joints:
+            jo = options.joints.get(jc.name, SimJointOptions())
+            model = jo.model or jc.name
+            if model not in IDENTIFIED:
+                raise ConfigError(f"transport.options.joints.{jc.name}.model: no identified model {model!r} "
+                                  f"(known: {', '.join(IDENTIFIED)})")
+            try:
+                params = IDENTIFIED[model].replace(jo.overrides)
+            except (KeyError, ValueError) as exc:
+                raise ConfigError(f"transport.options.joints.{jc.name}.overrides: {exc}") from None
+            neutral = jo.neutral_angle_deg
+            if neutral is None:
+                neutral = 0.5 * (jc.min_angle_deg + jc.max_angle_deg)
+            stops = (jc.min_angle_deg - jo.end_stop_margin_deg, jc.max_angle_deg + jo.end_stop_margin_deg)
+            bias = (regulator_output(jc.head.bias_volts, self.supply_pa),
+                    regulator_output(jc.rod.bias_volts, self.supply_pa))
+            joint = JointModel(params, options.step_s, neutral, stops, initial_deg=neutral, initial_pset=bias,
+                               friction=options.friction, dead_time=options.dead_time)
+            initial = jo.initial_angle_deg
+            joint.th = min(max(initial if initial is not None else joint.equilibrium_deg(*bias), stops[0]), stops[1])
+            self.joints.append(joint)
+        self.disturbance_nm = [0.0] * len(self.joints)  # external torque per joint [N m]
+        wall = options.wall
+        norm = math.hypot(*wall.normal)
+        self._wall = (wall.enabled, wall.point_mm[0] * 1e-3, wall.point_mm[1] * 1e-3,
+                      wall.normal[0] / norm, wall.normal[1] / norm, wall.stiffness_n_per_mm * 1e3)
+        self.contact_force_n = 0.0
+        self._contact_torque = [0.0] * len(self.joints)
+
+    def angles_rad(self) -> list[float]:
+        return [math.radians(j.th) for j in self.joints]
+
+    def tip_m(self) -> tuple[float, float]:
+        return kinematics.forward(self.angles_rad(), self.lengths)
+
+    def step(self, volts: list[float]) -> None:
+        """One plant step; ``volts`` holds (head, rod) command volts per joint, flattened."""
+        supply = self.supply_pa
+        for i, joint in enumerate(self.joints):
+            joint.step(regulator_output(volts[2 * i], supply), regulator_output(volts[2 * i + 1], supply),
+                       self.disturbance_nm[i] + self._contact_torque[i])
+        self._update_contact()
+
+    def _update_contact(self) -> None:
+        """Penalty contact with the wall: F = k * penetration along the normal [N]; joint
+        torques J^T F [N m] act on the next step."""
+        enabled, px, py, nx, ny, k = self._wall
+        if not enabled:
+            return
+        q = self.angles_rad()
+        x, y = kinematics.forward(q, self.lengths)
+        depth = -((x - px) * nx + (y - py) * ny)
+        if depth <= 0.0:
+            self.contact_force_n = 0.0
+            self._contact_torque = [0.0] * len(self.joints)
+            return
+        f = k * depth
+        self.contact_force_n = f
+        self._contact_torque = [dx * f * nx + dy * f * ny for dx, dy in kinematics.jacobian(q, self.lengths)]

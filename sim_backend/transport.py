@@ -1,0 +1,179 @@
+"""The simulated rig behind the transport contract: volts in, volts out, on a clock.
+
+Each :meth:`SimTransport.read` first advances the plant to the clock's present time in
+whole plant steps, then samples the sensors. Handed a virtual clock, the plant runs in
+lockstep with the loop (deterministic, faster than real time); handed ``time.monotonic``,
+it runs in real time. Sensor volts come from the rig file's own calibrations read
+backwards, plus seeded noise and ADC quantisation; output volts go through DAC quantisation.
+
+Faults can be injected to exercise the supervisor: a disconnected sensor (reads the 0 V
+rail), a stuck sensor, a noise burst, a transport timeout, and loss of supply pressure.
+"""
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Callable, Sequence
+
+from hal.config import RigConfig
+from hal.errors import ConfigError, TransportTimeout
+from hal.force_sensor import ASFS
+from hal.potentiometer import RDC506
+from hal.schema import build
+from hal.transport import Channel, ChannelKind, InputSweep, Transport
+from sim_backend.options import SimOptions
+from sim_backend.plant import SimArm
+
+FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
+
+
+def quantise(value: float, low: float, high: float, bits: int) -> float:
+    """The value a converter with ``bits`` over ``low..high`` [V] represents (clipped)."""
+    lsb = (high - low) / ((1 << bits) - 1)
+    v = min(max(value, low), high)
+    return low + round((v - low) / lsb) * lsb
+
+
+class SimTransport(Transport):
+    backend = "sim"
+    rate_hz = 1000.0
+
+    def __init__(self, rig: RigConfig, options: SimOptions, clock: Callable[[], float]):
+        super().__init__()
+        self.options = options
+        self.clock = clock
+        self.arm = SimArm(rig, options)
+        self._rng = random.Random(options.seed)
+        vsup = options.supply_volts
+        inputs: list[Channel] = []
+        self._sources: list[tuple[str, int]] = []  # what each input channel measures
+        for i, j in enumerate(rig.joints):
+            inputs.append(Channel(j.sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
+            self._sources.append(("angle", i))
+        for supply in dict.fromkeys(j.sensor.supply_channel for j in rig.joints if j.sensor.supply_channel):
+            inputs.append(Channel(supply, ChannelKind.ANALOG_IN, 0.0, 10.0))
+            self._sources.append(("supply", 0))
+        if rig.force_sensor is not None:
+            inputs.append(Channel(rig.force_sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
+            self._sources.append(("force", 0))
+        self.inputs = tuple(inputs)
+        self.outputs = tuple(Channel(getattr(j, side).channel, ChannelKind.ANALOG_OUT, 0.0, 10.0)
+                             for j in rig.joints for side in ("head", "rod"))
+        # The "true" sensors: the rig file's calibrations, read backwards.
+        self._pots = [RDC506(j.sensor, *j.limits_rad) for j in rig.joints]
+        self._force = ASFS(rig.force_sensor) if rig.force_sensor else None
+        self._vsup = vsup
+        self._out = [0.0] * len(self.outputs)
+        for i, j in enumerate(rig.joints):
+            self._out[2 * i], self._out[2 * i + 1] = j.head.bias_volts, j.rod.bias_volts
+        self._faults: dict[tuple[str, str], dict] = {}
+        self._last = [0.0] * len(self.inputs)
+        self._seq = 0
+        self._t0 = clock()
+        self._steps = 0
+
+    @classmethod
+    def from_config(cls, rig: RigConfig, clock: Callable[[], float]) -> "SimTransport":
+        return cls(rig, build(SimOptions, rig.transport.options, "transport.options"), clock)
+
+    # -- the sweeps ---------------------------------------------------------------------
+    def read(self) -> InputSweep:
+        if ("timeout", "") in self._faults:
+            self._health.errors += 1
+            self._health.last_error = "simulated transport timeout"
+            raise TransportTimeout("sim: simulated transport timeout (injected fault)")
+        now = self.clock()
+        self._advance(now)
+        values = self._sample()
+        self._seq += 1
+        self._health.reads += 1
+        self._health.last_sample_t = now
+        return InputSweep(self._seq, now, values)
+
+    def _write(self, values: Sequence[float]) -> None:
+        if ("timeout", "") in self._faults:
+            self._health.errors += 1
+            raise TransportTimeout("sim: simulated transport timeout (injected fault)")
+        bits = self.options.dac_bits
+        self._out = [quantise(v, ch.low, ch.high, bits) for v, ch in zip(values, self.outputs)]
+
+    @property
+    def output_volts(self) -> tuple[float, ...]:
+        """What the simulated DAC is driving now (what a scope on the outputs would show)."""
+        return tuple(self._out)
+
+    def _advance(self, now: float) -> None:
+        h = self.options.step_s
+        due = int((now - self._t0) / h + 1e-6) - self._steps
+        limit = int(self.options.max_catch_up_s / h)
+        if due > limit:  # a stall in real-time mode: pause the plant rather than block the loop
+            self._health.counters["plant_steps_skipped"] = self._health.counters.get("plant_steps_skipped", 0) + due - limit
+            self._steps += due - limit
+            due = limit
+        for _ in range(due):
+            self.arm.step(self._out)
+        self._steps += max(due, 0)
+
+    def _sample(self) -> tuple[float, ...]:
+        arm, rng, sigma, bits = self.arm, self._rng, self.options.adc_noise_volts, self.options.adc_bits
+        out = []
+        for idx, ((what, i), ch) in enumerate(zip(self._sources, self.inputs)):
+            if what == "angle":
+                v = self._vsup * self._pots[i].ratio_for(math.radians(arm.joints[i].th))
+            elif what == "supply":
+                v = self._vsup
+            else:
+                v = self._force.volts_for(arm.contact_force_n)
+            s = sigma
+            if self._faults:
+                fault_v, s = self._apply_faults(ch.name, idx, v, s)
+                if fault_v is not None:
+                    out.append(fault_v)
+                    continue
+            if s > 0.0:
+                v += rng.gauss(0.0, s)
+            out.append(quantise(v, ch.low, ch.high, bits))
+        self._last = out
+        return tuple(out)
+
+    def _apply_faults(self, channel: str, idx: int, v: float, sigma: float) -> tuple[float | None, float]:
+        if ("disconnect", channel) in self._faults:
+            return 0.0, sigma
+        if ("stuck", channel) in self._faults:
+            return self._faults[("stuck", channel)]["value"], sigma
+        burst = self._faults.get(("noise_burst", channel))
+        if burst is not None:
+            burst["samples"] -= 1
+            if burst["samples"] <= 0:
+                del self._faults[("noise_burst", channel)]
+            return None, math.hypot(sigma, burst["sigma_volts"])
+        return None, sigma
+
+    # -- fault injection ----------------------------------------------------------------
+    def inject(self, fault: str, channel: str = "", *, sigma_volts: float = 1.0, samples: int = 10) -> None:
+        """Start a fault: ``disconnect``/``stuck``/``noise_burst`` on an input ``channel``, or
+        ``timeout``/``supply_lost`` on the whole rig."""
+        if fault not in FAULTS:
+            raise ValueError(f"unknown fault {fault!r} (known: {', '.join(FAULTS)})")
+        per_channel = fault in ("disconnect", "stuck", "noise_burst")
+        if per_channel:
+            names = [ch.name for ch in self.inputs]
+            if channel not in names:
+                raise ConfigError(f"sim: no input channel {channel!r} to fault (inputs: {', '.join(names)})")
+        else:
+            channel = ""
+        state: dict = {}
+        if fault == "stuck":
+            state["value"] = self._last[[ch.name for ch in self.inputs].index(channel)]
+        elif fault == "noise_burst":
+            state.update(sigma_volts=sigma_volts, samples=samples)
+        elif fault == "supply_lost":
+            self.arm.supply_pa = 0.0
+        self._faults[(fault, channel)] = state
+
+    def clear(self, fault: str | None = None) -> None:
+        """End one kind of fault (every channel), or all faults."""
+        for key in [k for k in self._faults if fault in (None, k[0])]:
+            del self._faults[key]
+        if fault in (None, "supply_lost"):
+            self.arm.supply_pa = self.options.supply_mpa * 1e6

@@ -1,0 +1,83 @@
+"""Test helpers: a simulated rig on a virtual clock, and a lockstep closed loop for it."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from controllers.base import Controller, ControllerContext, JointState, Reference
+from daemon.clock import VirtualClock
+from hal import config
+from hal.actuation import BiasedHeadActuation
+from hal.rig import RigIO
+from hal.transport import create_transport
+
+DT = 0.001
+
+
+@dataclass
+class SimRig:
+    clock: VirtualClock
+    rig: config.RigConfig
+    io: RigIO
+    actuation: BiasedHeadActuation
+
+    @property
+    def transport(self):
+        return self.io.transport
+
+    @property
+    def arm(self):
+        return self.io.transport.arm
+
+    def context(self) -> ControllerContext:
+        return ControllerContext(self.io.joint_names, DT, self.actuation.u_min, self.actuation.u_max)
+
+
+def make_rig(options: str = "", name: str = "sim", replace: dict[str, str] | None = None) -> SimRig:
+    """The built-in rig with extra ``[transport.options]`` lines (TOML) and text replacements."""
+    text = config.load(name).source
+    for old, new in (replace or {}).items():
+        assert old in text, old
+        text = text.replace(old, new)
+    if options:  # appended to the end of [transport.options], which the [arm] table follows
+        text = text.replace("\n[arm]\n", "\n" + options + "\n\n[arm]\n", 1)
+    rig = config.parse(text)
+    clock = VirtualClock()
+    transport = create_transport(rig, clock.now)
+    transport.open()
+    io = RigIO(rig, transport)
+    return SimRig(clock, rig, io, BiasedHeadActuation(io.head, io.rod))
+
+
+def closed_loop(sim: SimRig, controller: Controller, reference, seconds: float):
+    """Run read -> control -> write in lockstep; ``reference(t)`` gives joint angles [rad].
+    Returns (times, measured angles, outputs) per cycle."""
+    snap = sim.io.read()
+    controller.reset(JointState(snap.t, snap.angles, [0.0] * len(snap.angles)), [0.0] * len(snap.angles))
+    times, angles, outputs = [], [], []
+    zeros = [0.0] * len(snap.angles)
+    for _ in range(int(round(seconds / DT))):
+        u = controller.step(JointState(snap.t, snap.angles, zeros), Reference(reference(snap.t), zeros, zeros))
+        sim.io.write_pressures(*sim.actuation.pressures(u))
+        sim.clock.sleep_until(sim.clock.now() + DT)
+        snap = sim.io.read()
+        times.append(snap.t)
+        angles.append(snap.angles)
+        outputs.append(u)
+    return times, angles, outputs
+
+
+def step_metrics(t, y, y0, step, t_step):
+    """Overshoot [% of step] and 5 % settling time [s after t_step] of a step response."""
+    pairs = [(ti, yi - y0) for ti, yi in zip(t, y) if ti >= t_step]
+    peak = max(v for _, v in pairs) if step > 0 else min(v for _, v in pairs)
+    overshoot = (peak - step) / step * 100.0
+    settle = 0.0
+    for ti, v in pairs:
+        if abs(v - step) > 0.05 * abs(step):
+            settle = ti - t_step
+    return overshoot, settle
+
+
+def deg(x: float) -> float:
+    return math.degrees(x)

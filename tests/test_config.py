@@ -1,0 +1,92 @@
+"""Rig configuration: the built-in rigs load; every kind of mistake names its key, before anything moves."""
+import pytest
+
+from hal import config
+from hal.errors import ConfigError
+from hal.rig import RigIO
+from hal.transport import create_transport
+from tests.simrig import make_rig
+
+BASE = config.load("sim").source
+
+
+def parse_with(old: str, new: str):
+    assert old in BASE, old
+    return config.parse(BASE.replace(old, new, 1))
+
+
+def test_builtin_rigs_load():
+    two = config.load()
+    assert [j.name for j in two.joints] == ["bottom", "middle"]
+    three = config.load("sim-3joint")
+    assert [j.name for j in three.joints] == ["bottom", "middle", "top"]
+    assert two.origin == "builtin:sim" and len(two.hash) == 64
+
+
+def test_file_round_trip(tmp_path):
+    path = tmp_path / "rig.toml"
+    path.write_text(BASE)
+    assert config.load(path) == config.load()
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('channel = "ai0"', 'chanel = "ai0"', r"joints\[0\]\.sensor\.chanel: unknown key"),
+    ("[arm]", "[arms]", r"arms: unknown key"),
+    ('min_angle_deg = 85.0', '', r"joints\[0\]\.min_angle_deg: missing required key"),
+    ('min_angle_deg = 85.0', 'min_angle_deg = "85"', r"joints\[0\]\.min_angle_deg: expected a number"),
+    ('min_angle_deg = 85.0', 'min_angle_deg = 170.0', r"joints\[0\]\.max_angle_deg: limits inverted"),
+    ('newtons_per_volt = 6.86', 'newtons_per_volt = 0.0', r"force_sensor\.newtons_per_volt: must not be zero"),
+    ('deg_per_ratio = 333.3', 'deg_per_ratio = 0.0', r"joints\[0\]\.sensor\.deg_per_ratio: must be > 0"),
+    ('direction = 1', 'direction = 2', r"joints\[0\]\.sensor\.direction: must be \+1 or -1"),
+    ('channel = "ao2"', 'channel = "ao0"', r"joints\.middle\.head\.channel: channel 'ao0' is already mapped"),
+    ('channel = "ai1"', 'channel = "ai0"', r"joints\.middle\.sensor\.channel: channel 'ai0' is already mapped"),
+    ('channel = "ai7"', 'channel = "ai6"', r"both a supply and a signal"),
+    ('safe_mpa = 0.001          # 0 V: vent', 'safe_mpa = 1.5', r"joints\[0\]\.head\.safe_mpa: must be within"),
+    ('max_pressure_mpa = 0.9', 'max_pressure_mpa = 0.0001', r"safe_mpa.*exceeds limits\.max_pressure_mpa"),
+    ('max_pressure_mpa = 0.9', 'max_pressure_mpa = nan', r"limits\.max_pressure_mpa: must be finite"),
+    ('elbow = -1 ', 'elbow = 0 ', r"arm\.elbow: must be \+1 or -1"),
+    ('link_lengths_mm = [100.0, 100.0]', 'link_lengths_mm = [100.0]', r"1 links given for 2 joints"),
+    ('bias_volts = 4.0\nsafe_mpa = 0.001          # 0 V', 'bias_volts = 11.0\nsafe_mpa = 0.001 # 0 V',
+     r"joints\[0\]\.head\.bias_volts: must be within 0.0-10.0 V"),
+])
+def test_bad_config_names_the_key(old, new, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_with(old, new)
+
+
+def test_duplicate_joint_name():
+    with pytest.raises(ConfigError, match="joint name 'bottom' is used twice"):
+        parse_with('name = "middle"', 'name = "bottom"')
+
+
+def test_invalid_toml_and_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        config.parse("[rig\nname=1")
+    with pytest.raises(ConfigError, match="cannot read rig file"):
+        config.load(tmp_path / "absent.toml")
+
+
+def test_unknown_backend_is_refused():
+    rig = parse_with('backend = "sim"', 'backend = "warp-drive"')
+    with pytest.raises(ConfigError, match="unknown backend 'warp-drive'"):
+        create_transport(rig, lambda: 0.0)
+
+
+@pytest.mark.parametrize("options, message", [
+    ("sead = 3", r"transport\.options\.sead: unknown key"),
+    ("step_s = 0.5", r"transport\.options\.step_s: must be within"),
+    ("[transport.options.joints.elbow]\nmodel = 'bottom'", r"joints\.elbow: no joint of that name"),
+    ("[transport.options.joints.bottom]\nmodel = 'knee'", r"joints\.bottom\.model: no identified model 'knee'"),
+    ("[transport.options.joints.bottom]\noverrides = {Jay = 1.0}", r"unknown joint parameter 'Jay'"),
+    ("[transport.options.joints.bottom]\noverrides = {J = -1.0}", r"J must be finite and >= 0"),
+])
+def test_bad_sim_options_name_the_key(options, message):
+    with pytest.raises(ConfigError, match=message):
+        make_rig(options.replace("[transport.options.joints", "\n[transport.options.joints"))
+
+
+def test_mapping_checked_against_the_transports_channels():
+    sim = make_rig()
+    other = parse_with('channel = "ai7"', 'channel = "ai5"')
+    with pytest.raises(ConfigError, match="no input channel named 'ai5'"):
+        RigIO(other, sim.transport)

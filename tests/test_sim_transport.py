@@ -1,0 +1,169 @@
+"""The simulated transport: seeded noise, converters, clocks and injected faults, seen
+through the real drivers (hal.rig.RigIO) as the daemon will see them."""
+import math
+import statistics
+import time
+
+import pytest
+
+from hal.errors import CommandError, ConfigError, TransportTimeout
+from hal.kinematics import jacobian
+from sim_backend.transport import SimTransport, quantise
+from tests.simrig import DT, make_rig
+
+
+def run(sim, seconds, v_mv=(0.0, 0.0)):
+    snaps = []
+    for _ in range(int(round(seconds / DT))):
+        sim.io.write_pressures(*sim.actuation.pressures(v_mv))
+        sim.clock.sleep_until(sim.clock.now() + DT)
+        snaps.append(sim.io.read())
+    return snaps
+
+
+def test_same_seed_same_run_different_seed_different_noise():
+    a, b, c = make_rig(), make_rig(), make_rig(replace={"seed = 1": "seed = 2"})
+    va = [s.volts for s in run(a, 0.2, (1.0, 0.5))]
+    assert va == [s.volts for s in run(b, 0.2, (1.0, 0.5))]
+    assert va != [s.volts for s in run(c, 0.2, (1.0, 0.5))]
+
+
+def test_noise_has_the_configured_size():
+    sim = make_rig(replace={"adc_noise_volts = 0.0005": "adc_noise_volts = 0.01"})
+    supply = [s.volts[2] for s in run(sim, 1.0)]  # inputs: ai0, ai1, ai6 (supply), ai7
+    assert statistics.pstdev(supply) == pytest.approx(0.01, rel=0.15)
+    assert statistics.fmean(supply) == pytest.approx(5.0, abs=0.002)
+
+
+def test_adc_resolution_is_applied():
+    sim = make_rig("adc_bits = 8", replace={"adc_noise_volts = 0.0005": "adc_noise_volts = 0.0"})
+    lsb = 10.0 / 255
+    for v in run(sim, 0.05)[-1].volts:
+        assert abs(v / lsb - round(v / lsb)) < 1e-9
+    assert quantise(3.3, 0.0, 10.0, 8) == pytest.approx(round(3.3 / lsb) * lsb)
+    assert quantise(12.0, 0.0, 10.0, 8) == 10.0
+
+
+def test_dac_resolution_is_applied():
+    sim = make_rig("dac_bits = 4")
+    sim.io.write_pressures(*sim.actuation.pressures([0.3, 0.0]))
+    lsb = 10.0 / 15
+    for v in sim.transport.output_volts:
+        assert abs(v / lsb - round(v / lsb)) < 1e-9
+
+
+def test_out_of_range_or_wrong_length_output_is_refused_whole():
+    sim = make_rig()
+    before = sim.transport.output_volts
+    with pytest.raises(CommandError, match="ao1"):
+        sim.transport.write([1.0, 11.0, 1.0, 1.0])
+    with pytest.raises(CommandError, match="expected 4"):
+        sim.transport.write([1.0])
+    with pytest.raises(CommandError, match="non-finite"):
+        sim.io.write_pressures([math.nan, 0.3e6], [0.3e6, 0.3e6])
+    assert sim.transport.output_volts == before
+
+
+def test_disconnected_sensor_is_a_fault_not_an_angle():
+    sim = make_rig()
+    sim.transport.inject("disconnect", "ai0")
+    snap = run(sim, 0.01)[-1]
+    assert math.isnan(snap.angles[0]) and not math.isnan(snap.angles[1])
+    assert any("bottom" in f and "rail" in f for f in snap.faults)
+    sim.transport.clear()
+    snap = run(sim, 0.01)[-1]
+    assert snap.faults == () and not math.isnan(snap.angles[0])
+
+
+def test_stuck_sensor_holds_while_the_joint_moves():
+    sim = make_rig()
+    run(sim, 0.01)
+    sim.transport.inject("stuck", "ai0")
+    snaps = run(sim, 1.0, (3.0, 0.0))
+    assert len({s.volts[0] for s in snaps}) == 1  # the wiper channel is frozen
+    # the angle still moves by the supply's noise (ratiometric reading), but not with the joint
+    assert max(abs(s.angles[0] - snaps[0].angles[0]) for s in snaps) < math.radians(0.2)
+    assert sim.arm.joints[0].th - math.degrees(snaps[0].angles[0]) > 5.0  # the real joint moved
+
+
+def test_noise_burst_ends_after_its_samples():
+    sim = make_rig(replace={"adc_noise_volts = 0.0005": "adc_noise_volts = 0.0"})
+    run(sim, 0.01)
+    sim.transport.inject("noise_burst", "ai6", sigma_volts=0.5, samples=50)
+    burst = [s.volts[2] for s in run(sim, 0.05)]
+    after = [s.volts[2] for s in run(sim, 0.05)]
+    assert statistics.pstdev(burst) > 0.2
+    assert statistics.pstdev(after) == 0.0
+
+
+def test_transport_timeout_raises_and_is_counted():
+    sim = make_rig()
+    sim.transport.inject("timeout")
+    with pytest.raises(TransportTimeout):
+        sim.io.read()
+    with pytest.raises(TransportTimeout):
+        sim.io.write_safe()
+    assert sim.transport.health().errors == 2
+    sim.transport.clear("timeout")
+    assert sim.io.read().faults == ()
+
+
+def test_supply_lost_exhausts_the_chambers():
+    sim = make_rig()
+    sim.transport.inject("supply_lost")
+    run(sim, 1.0)
+    joint = sim.arm.joints[0]
+    assert joint.p_head < 1e3 and joint.p_rod < 1e3
+    sim.transport.clear("supply_lost")
+    run(sim, 1.0)
+    assert joint.p_head > 0.3e6
+
+
+def test_unknown_fault_or_channel_is_refused():
+    sim = make_rig()
+    with pytest.raises(ValueError, match="unknown fault"):
+        sim.transport.inject("gremlins")
+    with pytest.raises(ConfigError, match="no input channel 'ao0'"):
+        sim.transport.inject("stuck", "ao0")
+
+
+def test_virtual_clock_lockstep_steps_once_per_millisecond():
+    sim = make_rig()
+    run(sim, 0.5)
+    assert sim.arm.joints[0]._k == 500
+
+
+def test_real_time_mode_follows_the_wall_clock():
+    from hal import config
+    transport = SimTransport.from_config(config.load(), time.monotonic)
+    transport.open()
+    time.sleep(0.02)
+    transport.read()
+    assert transport.arm.joints[0]._k >= 15  # at least most of 20 ms, however loaded the machine
+
+
+def test_a_long_stall_pauses_the_plant_instead_of_blocking():
+    sim = make_rig()
+    sim.clock.sleep_until(5.0)
+    sim.io.read()
+    assert sim.arm.joints[0]._k == 100  # max_catch_up_s = 0.1 s of steps
+    assert sim.transport.health().counters["plant_steps_skipped"] == 4900
+
+
+def test_wall_contact_reads_on_the_force_sensor():
+    sim = make_rig()
+    q = sim.arm.angles_rad()
+    x, y = sim.arm.tip_m()
+    dx, dy = jacobian(q, sim.arm.lengths)[0]  # where the tip goes when the bottom joint opens
+    norm = math.hypot(dx, dy)
+    px, py = (x + 0.002 * dx / norm) * 1e3, (y + 0.002 * dy / norm) * 1e3
+    wall = (f"\n[transport.options.wall]\nenabled = true\npoint_mm = [{px}, {py}]\n"
+            f"normal = [{-dx / norm}, {-dy / norm}]\nstiffness_n_per_mm = 2.0")
+    sim = make_rig(wall)
+    free = run(sim, 0.5)[-1]
+    assert free.force == pytest.approx(0.0, abs=0.05)
+    pressed = run(sim, 4.0, (3.0, 0.0))[-1]
+    assert 1.0 < pressed.force < 27.44
+    assert pressed.force == pytest.approx(sim.arm.contact_force_n, abs=0.05)
+    sim.io.tare_force()
+    assert sim.io.read().force == pytest.approx(0.0, abs=0.05)
