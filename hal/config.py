@@ -77,6 +77,24 @@ class LimitsConfig:
 
 
 @dataclass(frozen=True)
+class SafetyConfig:
+    """When the supervisor trips to the safe state."""
+
+    bad_samples_to_trip: int = 3  # implausible samples in a row before a sensor fault trips
+    stale_after_s: float = 0.005  # input older than this is stale [s]
+    stall_after_s: float = 0.05  # a cycle woken this late trips [s]
+    velocity_filter_hz: float = 10.0  # low-pass on the differenced angle [Hz]
+    lease_ttl_s: float = 2.0  # default lease life without a renewal [s]
+
+    def __post_init__(self):
+        require(1 <= self.bad_samples_to_trip <= 1000, "bad_samples_to_trip", "must be within 1-1000")
+        require(0 < self.stale_after_s <= 1.0, "stale_after_s", "must be within (0, 1] s")
+        require(0 < self.stall_after_s <= 10.0, "stall_after_s", "must be within (0, 10] s")
+        require(0 < self.velocity_filter_hz <= 500, "velocity_filter_hz", "must be within (0, 500] Hz")
+        require(0.1 <= self.lease_ttl_s <= 60, "lease_ttl_s", "must be within 0.1-60 s")
+
+
+@dataclass(frozen=True)
 class TransportConfig:
     """Which backend moves the raw values; ``options`` are validated by that backend."""
 
@@ -97,6 +115,7 @@ class RigConfig:
     joints: tuple[JointConfig, ...]
     arm: ArmConfig = ArmConfig()
     limits: LimitsConfig = LimitsConfig()
+    safety: SafetyConfig = SafetyConfig()
     force_sensor: ForceSensorConfig | None = None
     source: str = field(default="", init=False, compare=False)  # the TOML text it was built from
     origin: str = field(default="", init=False, compare=False)  # a path or "builtin:NAME"

@@ -1,0 +1,206 @@
+"""A Python client for pneumad, over the documented protocol (docs/protocol.md).
+
+    from daemon.client import Client
+    with Client() as c:
+        c.acquire_lease()
+        c.enable()
+        c.path("circle", duration_s=40)
+
+Replies are matched to requests by id; a reply that never comes raises TimeoutError
+instead of hanging. ``keep_lease()`` renews the lease from a background thread.
+"""
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+
+import msgpack
+import zmq
+
+from daemon import protocol
+from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+
+
+class RemoteError(RuntimeError):
+    """The daemon answered with an error."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(f"{code}: {message}")
+        self.code, self.message = code, message
+
+
+class Client:
+    def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
+                 telemetry: str = DEFAULT_TELEMETRY, timeout: float = 2.0, context: zmq.Context | None = None):
+        self.context = context or zmq.Context.instance()
+        self.endpoints = {"command": command, "control": control, "telemetry": telemetry}
+        self.timeout = timeout
+        self._ids = itertools.count(1)
+        self._sockets = {name: self._dealer(ep) for name, ep in (("command", command), ("control", control))}
+        self._lock = threading.Lock()
+        self.lease: str | None = None
+        self._keeper: threading.Thread | None = None
+        self._keeping = threading.Event()
+
+    def _dealer(self, endpoint: str) -> zmq.Socket:
+        sock = self.context.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(endpoint)
+        return sock
+
+    def close(self) -> None:
+        self._keeping.clear()
+        if self._keeper is not None:
+            self._keeper.join()
+        for sock in self._sockets.values():
+            sock.close(linger=0)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.lease is not None:
+            try:
+                self.release_lease()
+            except (RemoteError, TimeoutError):
+                pass
+        self.close()
+
+    # -- requests -------------------------------------------------------------------------
+    def call(self, cmd: str, args: dict | None = None, control: bool = False, timeout: float | None = None):
+        """Send one request and wait for its reply; raise RemoteError or TimeoutError."""
+        with self._lock:
+            sock = self._sockets["control" if control else "command"]
+            request_id = next(self._ids)
+            sock.send(protocol.encode_request(request_id, cmd, args, self.lease))
+            deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+            while True:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not sock.poll(remaining * 1e3):
+                    raise TimeoutError(f"no reply to {cmd!r} within {self.timeout if timeout is None else timeout} s "
+                                       f"from {self.endpoints['control' if control else 'command']}")
+                reply = msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+                if reply.get("id") == request_id:
+                    break  # earlier replies that arrived after their timeout are dropped
+        if not reply.get("ok"):
+            error = reply.get("error", {})
+            raise RemoteError(error.get("code", "?"), error.get("message", ""))
+        return reply.get("result")
+
+    def ping(self):
+        return self.call("ping")
+
+    def status(self):
+        return self.call("status")
+
+    def describe(self):
+        return self.call("describe")
+
+    def estop(self, who: str = "client"):
+        """On the control socket: never queued behind other requests."""
+        return self.call("estop", {"who": who}, control=True)
+
+    def abort(self):
+        return self.call("abort", control=True)
+
+    def enable(self):
+        return self.call("enable")
+
+    def disable(self):
+        return self.call("disable")
+
+    def reset(self):
+        return self.call("reset")
+
+    def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0):
+        args = {"duration_s": duration_s}
+        if angles_deg is not None:
+            args["angles_deg"] = list(angles_deg)
+        if xy_mm is not None:
+            args["xy_mm"] = list(xy_mm)
+        return self.call("set", args)
+
+    def path(self, name: str, duration_s: float | None = None, approach_s: float | None = None):
+        args = {"name": name}
+        if duration_s is not None:
+            args["duration_s"] = duration_s
+        if approach_s is not None:
+            args["approach_s"] = approach_s
+        return self.call("path", args)
+
+    def controllers(self):
+        return self.call("controller.list")
+
+    def controller(self):
+        return self.call("controller.get")
+
+    def switch_controller(self, name: str, params: dict | None = None):
+        return self.call("controller.switch", {"name": name, "params": params or {}})
+
+    def set_params(self, **params):
+        return self.call("controller.set", {"params": params})
+
+    # -- lease ----------------------------------------------------------------------------
+    def acquire_lease(self, ttl_s: float | None = None):
+        result = self.call("lease.acquire", {} if ttl_s is None else {"ttl_s": ttl_s})
+        self.lease = result["lease"]
+        return result
+
+    def renew_lease(self):
+        return self.call("lease.renew")
+
+    def release_lease(self):
+        try:
+            return self.call("lease.release")
+        finally:
+            self.lease = None
+
+    def keep_lease(self, every_s: float = 0.5) -> None:
+        """Renew the lease from a background thread until close()."""
+        self._keeping.set()
+
+        def renew():
+            while self._keeping.is_set() and self.lease is not None:
+                try:
+                    self.renew_lease()
+                except (RemoteError, TimeoutError):
+                    pass
+                time.sleep(every_s)
+
+        self._keeper = threading.Thread(target=renew, name="pneumad-lease", daemon=True)
+        self._keeper.start()
+
+    # -- telemetry ------------------------------------------------------------------------
+    def subscribe(self, topics=(b"state", b"stats", b"event")) -> "Subscription":
+        return Subscription(self.context, self.endpoints["telemetry"], topics)
+
+
+class Subscription:
+    """Telemetry messages as (topic, dict), with a count of messages lost (by sequence)."""
+
+    def __init__(self, context: zmq.Context, endpoint: str, topics):
+        self.sock = context.socket(zmq.SUB)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.RCVHWM, 100000)
+        for topic in topics:
+            self.sock.setsockopt(zmq.SUBSCRIBE, topic)
+        self.sock.connect(endpoint)
+        self.last_seq: dict[bytes, int] = {}
+        self.lost = 0
+
+    def receive(self, timeout: float = 1.0):
+        """The next (topic, message), or None after ``timeout`` seconds."""
+        if not self.sock.poll(timeout * 1e3):
+            return None
+        topic, payload = self.sock.recv_multipart()
+        message = msgpack.unpackb(payload, raw=False)
+        seq = message.get("seq")
+        last = self.last_seq.get(topic)
+        if last is not None and seq is not None and seq > last + 1:
+            self.lost += seq - last - 1
+        self.last_seq[topic] = seq
+        return topic.decode(), message
+
+    def close(self) -> None:
+        self.sock.close(linger=0)

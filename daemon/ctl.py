@@ -1,0 +1,166 @@
+"""``pneumactl``: drive pneumad from a terminal (a thin layer over daemon.client)."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+
+from daemon import recording
+from daemon.client import Client, RemoteError
+from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+
+
+def with_lease(client: Client, fn):
+    """One-shot commands take the lease, act, and hand it back (the arm keeps its state)."""
+    client.acquire_lease()
+    try:
+        return fn()
+    finally:
+        client.release_lease()
+
+
+def watch(client: Client, seconds: float | None) -> None:
+    sub = client.subscribe((b"state", b"event"))
+    end = None if seconds is None else time.monotonic() + seconds
+    last_print = 0.0
+    try:
+        while end is None or time.monotonic() < end:
+            item = sub.receive(1.0)
+            if item is None:
+                print("(no telemetry)", flush=True)
+                continue
+            topic, m = item
+            if topic == "event":
+                print(f"EVENT {m.get('kind')}: {m.get('cause', '')} {m.get('to', '')}", flush=True)
+            elif time.monotonic() - last_print >= 0.1:
+                last_print = time.monotonic()
+                q = "  ".join(f"{math.degrees(a):8.2f}" for a in m["angle_rad"][-1])
+                e = "  ".join(f"{math.degrees(a):6.2f}" for a in m["error_rad"][-1])
+                print(f"{m['mode'][-1]:8s} cycle {m['cycle'][-1]:9d}  angle deg {q}   error deg {e}  "
+                      f"lost {sub.lost}", flush=True)
+    except (KeyboardInterrupt, BrokenPipeError):
+        pass
+    finally:
+        sub.close()
+
+
+def record(client: Client, path: str, seconds: float) -> int:
+    describe = client.describe()
+    controller = client.controller()
+    sub = client.subscribe()
+    time.sleep(0.2)  # let the subscription reach the publisher
+    n = 0
+    end = time.monotonic() + seconds
+    with open(path, "wb") as f:
+        recording.write_header(f, describe, controller, describe["rig"]["source"])
+        while time.monotonic() < end:
+            item = sub.receive(0.5)
+            if item is not None:
+                recording.write_message(f, *item)
+                n += 1
+    sub.close()
+    print(f"recorded {n} messages to {path} (lost {sub.lost})")
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
+    p.add_argument("--command", default=DEFAULT_COMMAND)
+    p.add_argument("--control", default=DEFAULT_CONTROL)
+    p.add_argument("--telemetry", default=DEFAULT_TELEMETRY)
+    p.add_argument("--timeout", type=float, default=2.0)
+    sub = p.add_subparsers(dest="what", required=True)
+    for name in ("status", "describe", "enable", "disable", "estop", "reset", "abort"):
+        sub.add_parser(name)
+    w = sub.add_parser("watch", help="live text view")
+    w.add_argument("--seconds", type=float, default=None)
+    s = sub.add_parser("set", help="move to joint angles [deg] or a tip point [mm]")
+    s.add_argument("values", type=float, nargs="+")
+    s.add_argument("--xy", action="store_true", help="values are x y in mm")
+    s.add_argument("--duration", type=float, default=0.0)
+    pa = sub.add_parser("path", help="run a reference path")
+    pa.add_argument("name", choices=["translation", "circle"])
+    pa.add_argument("--duration", type=float, default=None)
+    pa.add_argument("--approach", type=float, default=None)
+    c = sub.add_parser("controller", help="list, get, switch, set")
+    c.add_argument("action", choices=["list", "get", "switch", "set"])
+    c.add_argument("args", nargs="*", help="switch: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
+    r = sub.add_parser("record", help="record telemetry to a self-describing file")
+    r.add_argument("file")
+    r.add_argument("--seconds", type=float, default=10.0)
+    e = sub.add_parser("export", help="export a recording to CSV")
+    e.add_argument("file")
+    e.add_argument("csv")
+    return p
+
+
+def key_values(items) -> dict:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
+        out[key] = json.loads(value)  # a number, or a JSON list with one value per joint
+    return out
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    if args.what == "export":
+        rows = recording.export_csv(args.file, args.csv)
+        print(f"wrote {rows} rows to {args.csv}")
+        return 0
+    client = Client(args.command, args.control, args.telemetry, timeout=args.timeout)
+    try:
+        result = run(client, args)
+    except RemoteError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except TimeoutError as exc:
+        print(f"error: {exc} (is pneumad running?)", file=sys.stderr)
+        return 2
+    finally:
+        client.close()
+    if result is not None:
+        print(json.dumps(result, indent=2))
+    return 0
+
+
+def run(client: Client, args):
+    w = args.what
+    if w in ("status", "describe"):
+        return getattr(client, w)()
+    if w == "estop":
+        return client.estop("pneumactl")
+    if w == "abort":
+        return client.abort()
+    if w in ("enable", "disable", "reset"):
+        return with_lease(client, getattr(client, w))
+    if w == "watch":
+        watch(client, args.seconds)
+        return None
+    if w == "set":
+        kw = {"xy_mm": args.values} if args.xy else {"angles_deg": args.values}
+        return with_lease(client, lambda: client.set(duration_s=args.duration, **kw))
+    if w == "path":
+        return with_lease(client, lambda: client.path(args.name, args.duration, args.approach))
+    if w == "controller":
+        if args.action == "list":
+            return client.controllers()
+        if args.action == "get":
+            return client.controller()
+        if args.action == "switch":
+            if not args.args:
+                raise SystemExit("controller switch NAME [KEY=VALUE ...]")
+            return with_lease(client, lambda: client.switch_controller(args.args[0], key_values(args.args[1:])))
+        return with_lease(client, lambda: client.set_params(**key_values(args.args)))
+    if w == "record":
+        record(client, args.file, args.seconds)
+        return None
+    raise SystemExit(f"unknown command {w}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,256 @@
+"""The fixed-rate control loop: one cycle = read -> check -> control -> clamp -> write ->
+telemetry -> commands, on absolute deadlines (no drift).
+
+Everything here runs in one thread and does bounded work. Commands are handled at the end
+of a cycle, so whatever they change takes effect at the next cycle boundary. An overrun is
+counted and the loop skips ahead to the next deadline, holding the last command; it never
+bursts to catch up. The clock is injectable: on a virtual clock the same loop runs in
+lockstep with the simulator.
+"""
+from __future__ import annotations
+
+import math
+
+from controllers import registry
+from controllers.base import Controller, ControllerContext, JointState, Reference
+from controllers.hold import Hold
+from controllers.trajectory import Hold as HoldPosition
+from controllers.trajectory import Trajectory
+from daemon.safety import State, Supervisor
+from daemon.stats import LoopStats
+from hal.actuation import BiasedHeadActuation
+from hal.errors import CommandError, TransportError
+from hal.rig import RigIO, Snapshot
+
+
+class ControlLoop:
+    def __init__(self, io: RigIO, clock, period: float = 0.001, controller: str = "pid",
+                 telemetry=None, server=None):
+        self.io = io
+        self.rig = io.config
+        self.clock = clock
+        self.period = period
+        self.n = len(io.joint_names)
+        self.actuation = BiasedHeadActuation(io.head, io.rod)
+        self.context = ControllerContext(io.joint_names, period, self.actuation.u_min, self.actuation.u_max)
+        self.supervisor = Supervisor(self.rig, period)
+        self.controller: Controller = registry.build(controller, self.context)
+        self.telemetry = telemetry
+        self.server = server
+        self.stats = LoopStats()
+        self.cycle = 0
+        self.stop_requested = False
+        self.trajectory: Trajectory = HoldPosition([0.0] * self.n)
+        self.trajectory_name = "hold"
+        self.trajectory_t0 = 0.0
+        self.u = [0.0] * self.n  # last V_MV [V]
+        self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
+        self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
+        self.angles = [0.0] * self.n  # last valid angles [rad]
+        self.velocities = [0.0] * self.n  # filtered [rad/s]
+        self.force = math.nan
+        self.snapshot: Snapshot | None = None
+        self._alpha = 1.0 - math.exp(-2 * math.pi * self.rig.safety.velocity_filter_hz * period)
+        self._deadline = 0.0
+        self._stats_due = 0.0
+        self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
+        self.heartbeat_interval = 1.0
+        self._heartbeat_due = 0.0
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def start(self) -> None:
+        """Write the safe state, take a first reading, and go IDLE; the first deadline is one
+        period from now, so call :meth:`run` straight after."""
+        self._write_safe()
+        try:
+            snap = self.io.read()
+            self.angles = [a if a == a else 0.0 for a in snap.angles]
+            self.snapshot = snap
+        except TransportError as exc:
+            self.supervisor.trip(f"transport: {exc}")
+        self.hold_position()
+        self.supervisor.started()
+        self._deadline = self.clock.now() + self.period
+        self._stats_due = self._deadline + 1.0
+        self._heartbeat_due = self._deadline
+        self._drain_events()
+
+    def run(self, cycles: int | None = None) -> None:
+        """Run until :meth:`stop` (or for ``cycles`` cycles), then leave the outputs safe."""
+        done = 0
+        clock, period, stats = self.clock, self.period, self.stats
+        while not self.stop_requested and (cycles is None or done < cycles):
+            clock.sleep_until(self._deadline)
+            wake = clock.now()
+            lateness = wake - self._deadline
+            stats.latency.add(lateness)
+            if lateness > self.rig.safety.stall_after_s:
+                self.supervisor.trip(f"loop stalled: woke {lateness * 1e3:.1f} ms late "
+                                     f"(limit {self.rig.safety.stall_after_s * 1e3:.1f} ms)")
+            self._cycle(wake)
+            done += 1
+            self._deadline += period
+            end = clock.now()
+            if end > self._deadline:  # overrun: skip the deadlines already missed, hold the output
+                missed = int((end - self._deadline) / period) + 1
+                self._deadline += missed * period
+                stats.overruns += missed
+                stats.overruns_total += missed
+
+    def stop(self) -> None:
+        self.stop_requested = True
+
+    def shutdown(self, reason: str = "shutdown") -> None:
+        """Safe outputs, then close the transport (on SIGTERM, SIGINT, or any exit)."""
+        self.supervisor.events.append({"kind": "shutdown", "cause": reason})
+        self._write_safe()
+        self._drain_events()
+        self.io.transport.close()
+
+    # -- one cycle ------------------------------------------------------------------------
+    def _cycle(self, wake: float) -> None:
+        clock, sup, st = self.clock, self.supervisor, self.stats.stages
+        t0 = clock.now()
+        try:
+            snap = self.io.read()
+        except TransportError as exc:
+            snap = None
+            sup.trip(f"transport read failed: {exc}")
+        t1 = clock.now()
+        if snap is not None:
+            self._update_measurement(snap)
+            sup.check(snap.angles, self.velocities, snap.faults, wake - snap.t)
+        if sup.enabled:
+            self._control(wake)
+        t2 = clock.now()
+        if sup.enabled:
+            self._write_command()
+        else:
+            self._write_safe()
+        t3 = clock.now()
+        self.cycle += 1
+        self.stats.cycles += 1
+        self.stats.cycles_total += 1
+        if self.telemetry is not None:
+            self.telemetry.record(self)
+        self._drain_events()
+        if wake >= self._stats_due - 0.5 * self.period:  # half a period absorbs float rounding
+            self._stats_due += 1.0
+            if self.telemetry is not None:
+                self.telemetry.stats(self.stats.summary(self.period))
+            self.stats.reset()
+        if self.heartbeat is not None and wake >= self._heartbeat_due:
+            self._heartbeat_due += self.heartbeat_interval
+            self.heartbeat(self)
+        if self.server is not None:
+            self.server.poll(self)
+        t4 = clock.now()
+        st["read"].add(t1 - t0)
+        st["control"].add(t2 - t1)
+        st["write"].add(t3 - t2)
+        st["publish"].add(t4 - t3)
+        st["total"].add(t4 - t0)
+
+    def _update_measurement(self, snap: Snapshot) -> None:
+        """Keep the last valid angle per joint (one bad sample is not yet a fault) and a
+        low-pass filtered velocity."""
+        self.snapshot = snap
+        a, inv_dt = self._alpha, 1.0 / self.period
+        for i, q in enumerate(snap.angles):
+            if q == q:
+                raw = (q - self.angles[i]) * inv_dt
+                self.velocities[i] += a * (raw - self.velocities[i])
+                self.angles[i] = q
+        self.force = snap.force
+
+    def _control(self, now: float) -> None:
+        ref = self.trajectory.sample(now - self.trajectory_t0)
+        self.reference = ref
+        try:
+            u = self.controller.step(JointState(now, self.angles, self.velocities), Reference(*ref))
+            if len(u) != self.n or not all(math.isfinite(v) for v in u):
+                raise ValueError(f"returned {u!r}: expected {self.n} finite values")
+        except Exception as exc:  # a plugin's failure must never take the loop down
+            self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
+            return
+        self.u = u
+
+    def replace_failed_controller(self, cause: str) -> None:
+        """Trip to the safe state and put the hold controller in the failed one's place."""
+        failed = self.controller.name
+        self.supervisor.trip(cause)
+        hold = Hold(self.context)
+        hold.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        self.controller = hold
+        self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause})
+
+    def _write_command(self) -> None:
+        p_head, p_rod = self.actuation.pressures(self.u)
+        clamp = self.supervisor.clamp
+        p_head, p_rod = clamp(p_head, self.p_head), clamp(list(p_rod), self.p_rod)
+        try:
+            self.io.write_pressures(p_head, p_rod)
+        except (TransportError, CommandError) as exc:
+            self.supervisor.trip(f"output write failed: {exc}")
+            self._write_safe()
+            return
+        self.p_head, self.p_rod = p_head, p_rod
+
+    def _write_safe(self) -> None:
+        try:
+            self.io.write_safe()
+        except TransportError as exc:
+            self.supervisor.trip(f"cannot write the safe state: {exc}")  # retried every cycle
+        self.p_head, self.p_rod = list(self.io.safe_pressures[0]), list(self.io.safe_pressures[1])
+
+    def _drain_events(self) -> None:
+        events = self.supervisor.events
+        if events:
+            if self.telemetry is not None:
+                for ev in events:
+                    self.telemetry.event(self, ev)
+            events.clear()
+
+    # -- changes, applied at a cycle boundary (called from command handling) --------------
+    def hold_position(self) -> None:
+        self.set_trajectory(HoldPosition(self.angles), "hold")
+
+    def set_trajectory(self, trajectory: Trajectory, name: str) -> None:
+        self.trajectory, self.trajectory_name = trajectory, name
+        self.trajectory_t0 = self.clock.now() + self.period  # sampled from the next cycle on
+        self.reference = trajectory.sample(0.0)
+
+    def enable(self) -> None:
+        self.supervisor.enable()
+        self.u = [0.0] * self.n
+        self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        self.hold_position()
+
+    def disable(self) -> None:
+        self.supervisor.disable()
+
+    def estop(self, who: str = "") -> None:
+        """Latch the e-stop and write the safe outputs now, in this very cycle."""
+        self.supervisor.estop(who)
+        self._write_safe()
+        self._drain_events()
+
+    def reset(self) -> None:
+        faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)
+        self.supervisor.reset(faults)
+
+    def switch_controller(self, new: Controller) -> None:
+        """Swap in a controller built and validated beforehand; bumpless via reset()."""
+        new.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        old = self.controller.name
+        self.controller = new
+        self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": "switch"})
+
+    @property
+    def state(self) -> State:
+        return self.supervisor.state
+
+    @property
+    def healthy(self) -> bool:
+        """Cycling on time: fewer than 10 % of this window's cycles overran."""
+        return self.stats.overruns * 10 <= max(self.stats.cycles, 1)

@@ -1,0 +1,151 @@
+"""``pneumad``: the daemon (``run``, the default), the latency qualification, and the
+dead-man command that writes the safe state (``safe-state``, for systemd's ExecStopPost)."""
+from __future__ import annotations
+
+import argparse
+import gc
+import logging
+import signal
+import sys
+import time
+
+from daemon import realtime
+from daemon.clock import MonotonicClock
+from daemon.loop import ControlLoop
+from daemon.notify import Notifier
+from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
+from daemon.telemetry import Telemetry
+from hal import config
+from hal.errors import ConfigError, TransportError
+from hal.rig import RigIO
+from hal.transport import create_transport
+
+log = logging.getLogger("pneumad")
+
+
+def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
+    rig = config.load(args.config)
+    transport = create_transport(rig, clock.now)
+    transport.open()
+    io = RigIO(rig, transport)
+    telemetry = Telemetry(telemetry_send) if telemetry_send is not None else None
+    return ControlLoop(io, clock, args.period, controller=args.controller, telemetry=telemetry)
+
+
+def cmd_run(args) -> int:
+    clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
+    server = ZmqServer(args.command, args.control, args.telemetry)  # before RT set-up: its I/O threads stay normal
+    loop = build_loop(args, clock, server.publish)
+    server.attach(loop)
+    notifier = Notifier()
+    stop_reason = []
+
+    def on_signal(signum, _frame):
+        stop_reason.append(signal.Signals(signum).name)
+        loop.stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    def heartbeat(lp: ControlLoop) -> None:
+        if lp.healthy:
+            notifier.watchdog()
+        notifier.status(f"{lp.state.value}; controller {lp.controller.name}; cycle {lp.cycle}; "
+                        f"overruns {lp.stats.overruns_total}")
+
+    loop.heartbeat = heartbeat
+    if notifier.watchdog_interval:
+        loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
+    for warning in realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt):
+        log.warning(warning)
+    gc.collect()
+    gc.freeze()  # start-up objects never scanned again
+    gc.disable()  # and no collection inside the loop
+    loop.start()
+    log.info("pneumad %s: rig %s (%s), %s, period %.3f ms; commands %s, control %s, telemetry %s",
+             "running", loop.rig.rig.name, loop.rig.origin, realtime.describe(), args.period * 1e3,
+             *server.endpoints.values())
+    notifier.ready(f"{loop.state.value}; rig {loop.rig.rig.name}")
+    try:
+        loop.run()
+    finally:
+        notifier.stopping()
+        loop.shutdown(stop_reason[0] if stop_reason else "exit")
+        server.close()
+        gc.enable()
+        log.info("stopped (%s): safe state written", stop_reason[0] if stop_reason else "exit")
+    return 0
+
+
+def cmd_safe_state(args) -> int:
+    """Write the configured safe state through the transport once, in a fresh process."""
+    rig = config.load(args.config)
+    transport = create_transport(rig, time.monotonic)
+    transport.open()
+    try:
+        io = RigIO(rig, transport)
+        io.write_safe()
+        print(f"safe state written to {rig.rig.name} via {transport.backend}: "
+              + ", ".join(f"{ch.name}={v:.3f} V" for ch, v in zip(transport.outputs, io.safe_volts)))
+    finally:
+        transport.close()
+    return 0
+
+
+def cmd_latency(args) -> int:
+    from daemon.latency import qualify
+    return qualify(args)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pneumad", description=__doc__)
+    sub = p.add_subparsers(dest="command_name", required=True)
+
+    def common(sp):
+        sp.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+        sp.add_argument("--config", default=None,
+                        help="rig file, or a built-in rig name (sim, sim-3joint); default: the simulated 2-joint rig")
+
+    def timing(sp):
+        sp.add_argument("--period", type=float, default=0.001, help="loop period [s] (default 0.001)")
+        sp.add_argument("--rt-priority", type=int, default=80, help="SCHED_FIFO priority (default 80)")
+        sp.add_argument("--cpus", type=lambda s: [int(c) for c in s.split(",")], default=None,
+                        help="CPU affinity, e.g. 1 or 2,3")
+        sp.add_argument("--no-rt", action="store_true", help="no SCHED_FIFO, no mlockall")
+        sp.add_argument("--spin-us", type=float, default=200.0, help="spin this long before each deadline [us]")
+        sp.add_argument("--controller", default="pid", help="controller active at start (default pid)")
+
+    run = sub.add_parser("run", help="run the daemon (the default)")
+    common(run)
+    timing(run)
+    run.add_argument("--command", default=DEFAULT_COMMAND, help=f"command endpoint (default {DEFAULT_COMMAND})")
+    run.add_argument("--control", default=DEFAULT_CONTROL, help=f"control endpoint (default {DEFAULT_CONTROL})")
+    run.add_argument("--telemetry", default=DEFAULT_TELEMETRY, help=f"telemetry endpoint (default {DEFAULT_TELEMETRY})")
+    safe = sub.add_parser("safe-state", help="write the rig's safe state once and exit (dead-man path)")
+    common(safe)
+    lat = sub.add_parser("latency", help="qualify this PC: run the loop on the simulator and judge its latency")
+    common(lat)
+    timing(lat)
+    lat.add_argument("--seconds", type=float, default=10.0)
+    return p
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in ("run", "safe-state", "latency", "-h", "--help"):
+        argv = ["run", *argv]  # plain `pneumad [options]` runs the daemon
+    args = parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(name)s %(levelname)s: %(message)s")
+    handlers = {"run": cmd_run, "safe-state": cmd_safe_state, "latency": cmd_latency}
+    try:
+        return handlers[args.command_name](args)
+    except ConfigError as exc:
+        log.error("configuration: %s", exc)
+        return 2
+    except TransportError as exc:
+        log.error("transport: %s", exc)
+        return 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

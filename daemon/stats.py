@@ -1,0 +1,70 @@
+"""Loop timing statistics: wake-up latency and per-stage compute time, with fixed histograms.
+
+Recording is O(1) and allocation-free per cycle (a bin increment and a max); percentiles
+are read from the cumulative histogram once a window, off the per-cycle path.
+"""
+from __future__ import annotations
+
+import math
+
+BIN_US = 1.0  # histogram resolution [us]
+BINS = 20000  # up to 20 ms; later samples land in the last bin (and in max)
+STAGES = ("read", "control", "write", "publish", "total")
+
+
+class Histogram:
+    def __init__(self):
+        self.counts = [0] * BINS
+        self.n = 0
+        self.max = 0.0
+
+    def add(self, seconds: float) -> None:
+        us = seconds * 1e6
+        i = int(us / BIN_US)
+        self.counts[i if 0 <= i < BINS else (BINS - 1 if i >= BINS else 0)] += 1
+        self.n += 1
+        if us > self.max:
+            self.max = us
+
+    def percentiles(self, points=(50.0, 99.0, 99.9)) -> dict[str, float]:
+        """Upper bin edges [us] at the given percentiles, and the maximum."""
+        out = {}
+        targets = [(p, math.ceil(p / 100.0 * self.n)) for p in points]
+        running, k = 0, 0
+        for i, c in enumerate(self.counts):
+            running += c
+            while k < len(targets) and running >= targets[k][1] and self.n:
+                out[f"p{targets[k][0]:g}"] = (i + 1) * BIN_US
+                k += 1
+            if k == len(targets):
+                break
+        for p, _ in targets[k:]:
+            out[f"p{p:g}"] = math.nan
+        out["max"] = self.max
+        return out
+
+
+class LoopStats:
+    """Counters and histograms since the last reset (the 'stats' telemetry reads and resets a window)."""
+
+    def __init__(self):
+        self.reset()
+        self.overruns_total = 0
+        self.cycles_total = 0
+
+    def reset(self) -> None:
+        self.latency = Histogram()
+        self.stages = {name: Histogram() for name in STAGES}
+        self.overruns = 0
+        self.cycles = 0
+
+    def summary(self, period: float) -> dict:
+        return {
+            "period_us": period * 1e6,
+            "cycles": self.cycles,
+            "cycles_total": self.cycles_total,
+            "overruns": self.overruns,
+            "overruns_total": self.overruns_total,
+            "latency_us": self.latency.percentiles(),
+            "compute_us": {name: h.percentiles() for name, h in self.stages.items()},
+        }

@@ -1,0 +1,92 @@
+"""Test helpers: the real loop on a virtual clock with the simulated rig, and ZeroMQ peers."""
+from __future__ import annotations
+
+import math
+
+import msgpack
+import zmq
+
+from daemon import protocol
+from daemon.clock import VirtualClock
+from daemon.loop import ControlLoop
+from daemon.server import ZmqServer
+from daemon.telemetry import Telemetry
+from hal import config
+from hal.rig import RigIO
+from hal.transport import create_transport
+
+
+class Captured:
+    """A telemetry sink that keeps every message, decoded."""
+
+    def __init__(self):
+        self.messages: list[tuple[str, dict]] = []
+
+    def __call__(self, topic: bytes, payload: bytes) -> None:
+        self.messages.append((topic.decode(), msgpack.unpackb(payload, raw=False)))
+
+    def of(self, topic: str) -> list[dict]:
+        return [m for t, m in self.messages if t == topic]
+
+
+def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid"):
+    rig = config.parse(rig_text) if rig_text else config.load()
+    clock = VirtualClock()
+    transport = create_transport(rig, clock.now)
+    transport.open()
+    io = RigIO(rig, transport)
+    srv = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*") if server else None
+    captured = Captured()
+    send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
+    loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send))
+    if srv is not None:
+        srv.attach(loop)
+    loop.start()
+    return loop, captured, srv
+
+
+def dealer(srv: ZmqServer, which: str = "command") -> zmq.Socket:
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(srv.endpoints[which])
+    return sock
+
+
+def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, max_cycles: int = 5000):
+    """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None)."""
+    sock.send(payload)
+    for _ in range(max_cycles):
+        loop.run(1)
+        if sock.poll(0):
+            return msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+        if _ > 50:
+            sock.poll(1)  # give ZeroMQ's I/O thread real time to deliver
+    return None
+
+
+_ids = iter(range(1, 10**9))
+
+
+def call(loop, sock, cmd, args=None, lease=None):
+    reply = exchange(loop, sock, protocol.encode_request(next(_ids), cmd, args, lease))
+    assert reply is not None, f"no reply to {cmd}"
+    return reply
+
+
+def ok(loop, sock, cmd, args=None, lease=None):
+    reply = call(loop, sock, cmd, args, lease)
+    assert reply["ok"], reply
+    return reply["result"]
+
+
+def run_seconds(loop: ControlLoop, seconds: float) -> None:
+    loop.run(int(round(seconds / loop.period)))
+
+
+def tracking(captured: Captured, after_cycle: int = 0) -> tuple[list[float], list[float]]:
+    """Max |error| per joint [deg] and RMS per joint [deg] over the state stream."""
+    errors = [e for m in captured.of("state") for c, e in zip(m["cycle"], m["error_rad"]) if c > after_cycle]
+    n = len(errors[0])
+    worst = [max(abs(math.degrees(e[j])) for e in errors) for j in range(n)]
+    rms = [math.sqrt(sum(math.degrees(e[j]) ** 2 for e in errors) / len(errors)) for j in range(n)]
+    return worst, rms

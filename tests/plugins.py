@@ -1,0 +1,81 @@
+"""Plugins the tests load through the real plugin paths (``module:Class``): a transport that
+records what was written to it, and controllers that misbehave."""
+from __future__ import annotations
+
+import json
+import math
+
+from controllers.base import Controller
+from hal.schema import build
+from sim_backend.options import SimOptions
+from sim_backend.transport import SimTransport
+
+
+class RecordingTransport(SimTransport):
+    """The simulated rig, which on close() leaves its last output vectors in a JSON file
+    (``[transport.options] record_to = PATH``), so a test can see what a process wrote last."""
+
+    backend = "recording-sim"
+
+    @classmethod
+    def from_config(cls, rig, clock):
+        options = dict(rig.transport.options)
+        path = options.pop("record_to")
+        transport = cls(rig, build(SimOptions, options, "transport.options"), clock)
+        transport.record_to = path
+        transport.writes = []
+        return transport
+
+    def _write(self, values):
+        super()._write(values)
+        self.writes.append(list(values))
+        del self.writes[:-5]
+
+    def close(self):
+        with open(self.record_to, "w") as f:
+            json.dump({"writes": self.writes, "safe_closed": True}, f)
+        super().close()
+
+
+class Raising(Controller):
+    """Raises on its 5th step."""
+
+    name = "raising"
+
+    def reset(self, state, last_output):
+        self.steps = 0
+
+    def step(self, state, reference):
+        self.steps += 1
+        if self.steps >= 5:
+            raise RuntimeError("controller bug")
+        return [0.0] * self.context.n
+
+
+class ReturnsNaN(Controller):
+    """Returns NaN on its 5th step."""
+
+    name = "nan"
+
+    def reset(self, state, last_output):
+        self.steps = 0
+
+    def step(self, state, reference):
+        self.steps += 1
+        return [math.nan if self.steps >= 5 else 0.0] * self.context.n
+
+
+class Slow(Controller):
+    """Takes 3.5 periods of the (virtual) clock on every 100th step."""
+
+    name = "slow"
+    clock = None
+
+    def reset(self, state, last_output):
+        self.steps = 0
+
+    def step(self, state, reference):
+        self.steps += 1
+        if self.steps % 100 == 0:
+            self.clock.t += 3.5 * self.context.dt
+        return [0.0] * self.context.n
