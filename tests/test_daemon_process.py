@@ -1,0 +1,176 @@
+"""A real pneumad process: readiness and watchdog over sd_notify, SIGTERM leaves the safe
+state, the dead-man command writes it from a fresh process, pneumactl drives it."""
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon.client import Client
+from daemon.notify import Notifier
+from hal import config
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def rig_file(tmp_path: Path) -> Path:
+    text = config.load().source.replace('backend = "sim"', 'backend = "tests.plugins:RecordingTransport"')
+    text = text.replace("[transport.options]\n", f"[transport.options]\nrecord_to = \"{tmp_path / 'writes.json'}\"\n")
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return path
+
+
+def endpoints(tmp_path: Path) -> dict:
+    return {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
+
+
+def env_with(**extra) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **extra)
+    env.pop("NOTIFY_SOCKET", None)
+    env.update(extra)
+    return env
+
+
+class NotifyListener:
+    """A notify socket read continuously, as systemd reads it (a datagram queue holds ~10)."""
+
+    def __init__(self, path: str):
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(path)
+        self.sock.settimeout(0.1)
+        self.path = path
+        self.received: list[tuple[float, str]] = []
+        self._running = True
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self):
+        while self._running:
+            try:
+                self.received.append((time.monotonic(), self.sock.recv(4096).decode()))
+            except socket.timeout:
+                pass
+
+    def wait_for(self, text: str, limit: float = 15.0) -> bool:
+        end = time.monotonic() + limit
+        while time.monotonic() < end:
+            if any(text in d for _, d in self.received):
+                return True
+            time.sleep(0.02)
+        return False
+
+    def count(self, text: str, since: float) -> int:
+        return sum(text in d for t, d in self.received if t >= since)
+
+    def close(self):
+        self._running = False
+        self._thread.join()
+        self.sock.close()
+
+
+@pytest.fixture
+def notify_socket(tmp_path):
+    listener = NotifyListener(str(tmp_path / "notify"))
+    yield listener
+    listener.close()
+
+
+def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
+    eps = endpoints(tmp_path)
+    rig = rig_file(tmp_path)
+    proc = subprocess.Popen([BIN / "pneumad", "--config", str(rig), "--no-rt", *sum(([f"--{k}", v] for k, v in eps.items()), [])],
+                            env=env_with(NOTIFY_SOCKET=notify_socket.path, WATCHDOG_USEC="200000"), stderr=subprocess.PIPE, text=True)
+    try:
+        assert notify_socket.wait_for("READY=1")
+        since = time.monotonic()
+        time.sleep(0.8)
+        assert notify_socket.count("WATCHDOG=1", since) >= 3  # every 100 ms while healthy
+
+        with Client(**eps, timeout=5.0) as c:
+            c.acquire_lease()
+            c.enable()
+            c.set(angles_deg=[130.0, -75.0], duration_s=0.5)
+            time.sleep(1.0)
+            status = c.status()
+            assert status["state"] == "enabled"
+            assert abs(status["joints"]["bottom"]["angle_deg"] - 130.0) < 5.0
+            c.release_lease()
+
+        ctl = [BIN / "pneumactl", *sum(([f"--{k}", v] for k, v in eps.items()), [])]
+        out = subprocess.run([*ctl, "status"], capture_output=True, text=True, env=env_with(), timeout=30)
+        assert out.returncode == 0 and json.loads(out.stdout)["state"] == "enabled"
+        rec = tmp_path / "run.pnrec"
+        out = subprocess.run([*ctl, "record", str(rec), "--seconds", "1"], capture_output=True, text=True,
+                             env=env_with(), timeout=30)
+        assert out.returncode == 0, out.stderr
+        csv = tmp_path / "run.csv"
+        out = subprocess.run([*ctl, "export", str(rec), str(csv)], capture_output=True, text=True, env=env_with(), timeout=30)
+        assert out.returncode == 0, out.stderr
+        lines = csv.read_text().splitlines()
+        assert lines[0].startswith("cycle,t,bottom.angle_rad,middle.angle_rad") and len(lines) > 500
+        out = subprocess.run([*ctl, "controller", "set", "Kp=-3"], capture_output=True, text=True, env=env_with(), timeout=30)
+        assert out.returncode == 1 and "outside" in out.stderr
+
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+        assert notify_socket.wait_for("STOPPING=1", limit=3)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    written = json.loads((tmp_path / "writes.json").read_text())
+    safe = [0.0, 0.0, 0.0, 0.0]  # the built-in rig vents every chamber
+    assert written["writes"][-1] == pytest.approx(safe, abs=1e-3)
+    assert "SIGTERM" in proc.stderr.read()
+
+
+def test_dead_man_command_writes_the_safe_state(tmp_path):
+    rig = rig_file(tmp_path)
+    out = subprocess.run([BIN / "pneumad", "safe-state", "--config", str(rig)], capture_output=True, text=True,
+                         env=env_with(), timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "safe state written" in out.stdout
+    written = json.loads((tmp_path / "writes.json").read_text())
+    assert written["writes"] == [[0.0, 0.0, 0.0, 0.0]]
+
+
+def test_bad_config_exits_with_a_clear_message(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(config.load().source.replace("direction = 1", "direction = 7", 1))
+    out = subprocess.run([BIN / "pneumad", "--config", str(bad), "--no-rt"], capture_output=True, text=True,
+                         env=env_with(), timeout=60)
+    assert out.returncode == 2
+    assert "joints[0].sensor.direction: must be +1 or -1" in out.stderr
+
+
+def test_notifier_speaks_to_an_abstract_socket():
+    name = f"pneumad-test-{os.getpid()}"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind("\0" + name)
+    sock.settimeout(2)
+    n = Notifier({"NOTIFY_SOCKET": "@" + name, "WATCHDOG_USEC": "3000000"})
+    assert n.watchdog_interval == pytest.approx(1.5)
+    assert n.ready("idle")
+    assert sock.recv(4096).decode().splitlines()[:2] == ["READY=1", "STATUS=idle"]
+    assert n.watchdog() and sock.recv(4096) == b"WATCHDOG=1"
+    sock.close()
+    assert not Notifier({}).ready("x")  # not under systemd: a no-op
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed here")
+def test_unit_file_verifies(tmp_path):
+    unit = tmp_path / "pneumad.service"
+    text = (ROOT / "systemd" / "pneumad.service").read_text()
+    unit.write_text(text.replace("/opt/pneumad/.venv/bin/", str(BIN) + "/"))
+    out = subprocess.run(["systemd-analyze", "verify", str(unit)], capture_output=True, text=True)
+    problems = [line for line in out.stderr.splitlines() if str(unit) in line]  # a clean unit says nothing
+    assert not problems, out.stderr

@@ -1,0 +1,242 @@
+"""The command protocol over real ZeroMQ sockets, with the loop on a virtual clock: bad input
+of every kind gets its error (or is refused) while the loop keeps its cycles."""
+import math
+import threading
+
+import msgpack
+import pytest
+import zmq
+
+from daemon import protocol as P
+from daemon.safety import State
+from tests.loophelpers import call, dealer, exchange, make_loop, ok, run_seconds
+
+
+@pytest.fixture
+def daemon():
+    loop, captured, srv = make_loop(server=True)
+    loop.run(100)
+    yield loop, captured, srv
+    srv.close()
+
+
+def leased(loop, sock):
+    return ok(loop, sock, "lease.acquire")["lease"]
+
+
+def test_ping_status_describe(daemon):
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    assert ok(loop, sock, "ping")["pong"] is True
+    status = ok(loop, sock, "status")
+    assert status["state"] == "idle" and set(status["joints"]) == {"bottom", "middle"}
+    describe = ok(loop, sock, "describe")
+    assert [j["name"] for j in describe["joints"]] == ["bottom", "middle"]
+    assert describe["rig"]["hash"] == loop.rig.hash
+    assert {c["name"] for c in describe["controllers"]} >= {"pid", "hold"}
+
+
+def test_reply_carries_the_request_id_and_works_for_req_clients(daemon):
+    loop, _, srv = daemon
+    req = zmq.Context.instance().socket(zmq.REQ)
+    req.setsockopt(zmq.LINGER, 0)
+    req.connect(srv.endpoints["command"])
+    reply = exchange(loop, req, P.encode_request("abc-7", "ping"))
+    assert reply["id"] == "abc-7" and reply["ok"] and reply["v"] == P.VERSION
+
+
+@pytest.mark.parametrize("payload, code", [
+    (b"\xc1\xff garbage", P.BAD_MESSAGE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "ping"})[:-3], P.BAD_MESSAGE),  # truncated
+    (msgpack.packb([1, 2, 3]), P.BAD_MESSAGE),
+    (msgpack.packb({"v": 1, "id": 1.5, "cmd": "ping"}), P.BAD_MESSAGE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": 42}), P.BAD_MESSAGE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "ping", "args": [1]}), P.BAD_MESSAGE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "ping", "extra": 1}), P.BAD_MESSAGE),
+    (msgpack.packb({"v": 99, "id": 1, "cmd": "ping"}), P.BAD_VERSION),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "self_destruct"}), P.UNKNOWN_COMMAND),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "ping", "args": {"x": [[[[]]]] * 5000}}), P.BAD_MESSAGE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "set", "args": {"angles_deg": ["a", 1]}}), P.NO_LEASE),
+])
+def test_bad_messages_get_clear_errors(daemon, payload, code):
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    cycle = loop.cycle
+    reply = exchange(loop, sock, payload)
+    assert reply is not None and reply["ok"] is False
+    assert reply["error"]["code"] == code and reply["error"]["message"]
+    assert loop.cycle > cycle and loop.state is State.IDLE
+    assert ok(loop, sock, "ping")["pong"]  # and it still serves
+
+
+@pytest.mark.parametrize("args, code, words", [
+    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite numbers"),
+    ({"angles_deg": [120.0]}, P.BAD_ARGS, "list of 2"),
+    ({"angles_deg": [120.0, -80.0], "xy_mm": [1, 2]}, P.BAD_ARGS, "exactly one"),
+    ({"angles_deg": [170.0, -80.0]}, P.REFUSED, "outside its limits"),
+    ({"angles_deg": [float("nan"), -80.0]}, P.BAD_ARGS, "finite"),
+    ({"xy_mm": [500.0, 0.0]}, P.REFUSED, "out of reach"),
+    ({"angles_deg": [120.0, -80.0], "duration_s": -1}, P.BAD_ARGS, "duration_s"),
+    ({"angles_deg": [120.0, -80.0], "speed": 3}, P.BAD_ARGS, "unknown argument 'speed'"),
+])
+def test_bad_set_points_are_refused_with_reasons(daemon, args, code, words):
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    reference = list(loop.reference[0])
+    reply = call(loop, sock, "set", args, lease)
+    assert not reply["ok"] and reply["error"]["code"] == code and words in reply["error"]["message"]
+    assert loop.reference[0] == reference and loop.state is State.ENABLED
+
+
+def test_a_client_without_the_lease_cannot_move_the_arm(daemon):
+    loop, _, srv = daemon
+    owner, intruder = dealer(srv), dealer(srv)
+    lease = leased(loop, owner)
+    assert call(loop, intruder, "lease.acquire")["error"]["code"] == P.LEASE_HELD
+    for cmd, args in (("enable", {}), ("set", {"angles_deg": [120, -80]}), ("controller.switch", {"name": "hold"})):
+        for token in (None, "forged-token"):
+            reply = call(loop, intruder, cmd, args, token)
+            assert reply["error"]["code"] == P.NO_LEASE
+    assert loop.state is State.IDLE
+    ok(loop, owner, "enable", lease=lease)
+    assert loop.state is State.ENABLED
+    assert ok(loop, intruder, "status")["state"] == "enabled"  # observers may read
+
+
+def test_set_point_takes_effect_at_the_next_cycle(daemon):
+    loop, captured, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    run_seconds(loop, 0.5)
+    target = [125.0, -75.0]
+    ok(loop, sock, "set", {"angles_deg": target}, lease)
+    cycle = loop.cycle  # the reply came at the end of this cycle
+    loop.run(2)
+    loop.telemetry.flush()
+    rows = {c: s for m in captured.of("state") for c, s in zip(m["cycle"], m["setpoint_rad"])}
+    assert [math.degrees(a) for a in rows[cycle + 1]] == pytest.approx(target)
+
+
+def test_lease_expiry_trips_an_enabled_arm(daemon):
+    loop, captured, srv = daemon
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 0.5})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    for _ in range(3):
+        run_seconds(loop, 0.3)
+        ok(loop, sock, "lease.renew", lease=lease)
+    assert loop.state is State.ENABLED
+    run_seconds(loop, 0.6)
+    assert loop.state is State.FAULT and "lease lost" in loop.supervisor.cause
+    assert list(loop.io.transport.output_volts) == pytest.approx(list(loop.io.safe_volts), abs=1e-3)
+
+
+def test_estop_on_the_control_socket_does_not_queue_behind_a_flood(daemon):
+    loop, _, srv = daemon
+    sock, flood = dealer(srv), dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    for i in range(2000):
+        flood.send(P.encode_request(i, "status"))
+    sock.poll(50)  # let the flood land in the daemon's queue first
+    control = dealer(srv, "control")
+    reply = exchange(loop, control, P.encode_request(1, "estop", {"who": "test"}), max_cycles=20)
+    assert reply["ok"] and loop.state is State.ESTOP
+    answered = 0
+    for _ in range(3000):  # the flood is answered too, two per cycle, while the loop runs
+        loop.run(1)
+        while flood.poll(0):
+            flood.recv_multipart()
+            answered += 1
+        if answered == 2000:
+            break
+        flood.poll(0.1) if answered and _ % 200 == 0 else None
+    assert answered == 2000
+
+
+def test_control_socket_serves_only_safety_commands(daemon):
+    loop, _, srv = daemon
+    control = dealer(srv, "control")
+    reply = call(loop, control, "controller.switch", {"name": "hold"})
+    assert reply["error"]["code"] == P.BAD_ARGS and "control socket" in reply["error"]["message"]
+
+
+def test_huge_frames_are_refused_and_the_daemon_goes_on(daemon):
+    loop, _, srv = daemon
+    big = dealer(srv)
+    big.send(b"x" * (P.MAX_MESSAGE_BYTES + 1))
+    loop.run(200)
+    assert not big.poll(50)  # ZeroMQ dropped the peer; no reply, no crash
+    assert ok(loop, dealer(srv), "ping")["pong"]
+
+
+def test_controller_list_switch_and_params(daemon):
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    listing = ok(loop, sock, "controller.list")
+    assert listing["active"] == "pid"
+    pid = next(c for c in listing["available"] if c["name"] == "pid")
+    assert {p["name"] for p in pid["params"]} >= {"Kp", "Ti", "Td", "N"}
+    bad = call(loop, sock, "controller.set", {"params": {"Kp": [-5, 1]}}, lease)
+    assert bad["error"]["code"] == P.BAD_ARGS and "Kp[bottom]" in bad["error"]["message"]
+    half = call(loop, sock, "controller.set", {"params": {"Kp": 40.0, "Ti": [1.0, -1.0]}}, lease)
+    assert half["error"]["code"] == P.BAD_ARGS
+    assert loop.controller.p("Kp")[0] == pytest.approx(0.81 * 180 / math.pi)  # nothing half-applied
+    ok(loop, sock, "controller.set", {"params": {"Kp": 40.0}}, lease)
+    assert loop.controller.p("Kp") == (40.0, 40.0)
+    assert call(loop, sock, "controller.switch", {"name": "nope"}, lease)["error"]["code"] == P.BAD_ARGS
+    assert ok(loop, sock, "controller.switch", {"name": "hold"}, lease)["active"] == "hold"
+
+
+def test_path_command_runs_and_abort_holds(daemon):
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    assert call(loop, sock, "path", {"name": "circle"}, lease)["error"]["code"] == P.BAD_STATE
+    ok(loop, sock, "enable", lease=lease)
+    assert call(loop, sock, "path", {"name": "spiral"}, lease)["error"]["code"] == P.BAD_ARGS
+    started = ok(loop, sock, "path", {"name": "translation", "approach_s": 2.0}, lease)
+    assert started["total_s"] == pytest.approx(17.0)
+    run_seconds(loop, 4.0)
+    assert loop.trajectory_name == "translation"
+    ok(loop, dealer(srv, "control"), "abort")
+    assert loop.trajectory_name == "hold"
+
+
+def test_slow_subscriber_never_stalls_the_loop_and_healthy_ones_see_no_gaps(daemon):
+    loop, _, srv = daemon
+    ctx = zmq.Context.instance()
+    stalled = ctx.socket(zmq.SUB)
+    stalled.setsockopt(zmq.RCVHWM, 10)
+    stalled.setsockopt(zmq.SUBSCRIBE, b"")
+    stalled.connect(srv.endpoints["telemetry"])
+    healthy = ctx.socket(zmq.SUB)
+    healthy.setsockopt(zmq.SUBSCRIBE, b"state")
+    healthy.setsockopt(zmq.RCVHWM, 0)
+    healthy.connect(srv.endpoints["telemetry"])
+    stalled.poll(200)
+    healthy.poll(200)
+    seqs, done = [], threading.Event()
+
+    def read():
+        while not done.is_set() or healthy.poll(100):
+            if healthy.poll(10):
+                seqs.append(msgpack.unpackb(healthy.recv_multipart()[1])["seq"])
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    run_seconds(loop, 0.05)
+    seqs.clear()  # from here on the subscription is surely established
+    cycles = loop.cycle
+    run_seconds(loop, 30.0)  # 3000 batches: far beyond the stalled subscriber's queues
+    done.set()
+    reader.join()
+    assert loop.cycle - cycles == 30000
+    assert len(seqs) > 2900
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # no gaps
+    stalled.close(linger=0)
+    healthy.close(linger=0)
