@@ -89,6 +89,9 @@ class Commands:
         self.lease_ttl_active = self.lease_ttl
         self.requests = 0
         self.errors = 0
+        # Built once, off the loop: scanning entry points costs milliseconds.
+        self._controllers = self._describe_controllers()
+        self._describe = self._build_describe()
 
     # -- entry points -----------------------------------------------------------------------
     def handle_payload(self, payload: bytes, control: bool = False) -> bytes:
@@ -183,6 +186,9 @@ class Commands:
         }
 
     def describe(self, args):
+        return self._describe
+
+    def _build_describe(self) -> dict:
         loop, rig = self.loop, self.loop.rig
         return {
             "version": VERSION,
@@ -202,7 +208,7 @@ class Commands:
                           "outputs": [[c.name, c.kind.value, c.low, c.high] for c in loop.io.transport.outputs]},
             "units": {"angle": "rad (deg where a key says _deg)", "u": "V (V_MV, head chamber above its bias)",
                       "pressure": "Pa", "force": "N", "time": "s"},
-            "controllers": self.controller_list({})["available"],
+            "controllers": self._controllers,
             "states": [s.value for s in State],
             "commands": sorted(self.TABLE),
         }
@@ -267,7 +273,7 @@ class Commands:
                                                f"limits {j.min_angle_deg}..{j.max_angle_deg} deg")
         self._require_enabled()
         loop.set_trajectory(trajectory.JointMove(loop.reference[0], target, duration), "set")
-        return {"target_deg": [math.degrees(q) for q in target], "duration_s": duration}
+        return {"target_deg": [math.degrees(q) for q in target], "duration_s": duration, "cycle": loop.cycle}
 
     def path(self, args):
         """Run a reference path of rig-facts §1, after an approach move to its start."""
@@ -296,13 +302,17 @@ class Commands:
 
     # -- controllers ------------------------------------------------------------------------
     def controller_list(self, args):
+        return {"active": self.loop.controller.name, "available": self._controllers}
+
+    @staticmethod
+    def _describe_controllers() -> list[dict]:
         available = []
         for name in registry.available():
             try:
                 available.append(registry.load(name).describe())
             except LookupError as exc:
                 available.append({"name": name, "error": str(exc)})
-        return {"active": self.loop.controller.name, "available": available}
+        return available
 
     def controller_get(self, args):
         only(args)

@@ -51,6 +51,7 @@ class ControlLoop:
         self.force = math.nan
         self.snapshot: Snapshot | None = None
         self._alpha = 1.0 - math.exp(-2 * math.pi * self.rig.safety.velocity_filter_hz * period)
+        self.stats_period = 1.0  # [s] window of the 'stats' telemetry
         self._deadline = 0.0
         self._stats_due = 0.0
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
@@ -71,7 +72,7 @@ class ControlLoop:
         self.hold_position()
         self.supervisor.started()
         self._deadline = self.clock.now() + self.period
-        self._stats_due = self._deadline + 1.0
+        self._stats_due = self._deadline + self.stats_period
         self._heartbeat_due = self._deadline
         self._drain_events()
 
@@ -135,7 +136,7 @@ class ControlLoop:
             self.telemetry.record(self)
         self._drain_events()
         if wake >= self._stats_due - 0.5 * self.period:  # half a period absorbs float rounding
-            self._stats_due += 1.0
+            self._stats_due += self.stats_period
             if self.telemetry is not None:
                 self.telemetry.stats(self.stats.summary(self.period))
             self.stats.reset()
@@ -173,7 +174,7 @@ class ControlLoop:
         except Exception as exc:  # a plugin's failure must never take the loop down
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return
-        self.u = u
+        self.u = list(u)  # the loop's own copy: a plugin may reuse its buffer
 
     def replace_failed_controller(self, cause: str) -> None:
         """Trip to the safe state and put the hold controller in the failed one's place."""

@@ -54,6 +54,7 @@ def cmd_run(args) -> int:
                         f"overruns {lp.stats.overruns_total}")
 
     loop.heartbeat = heartbeat
+    loop.stats_period = args.stats_period
     if notifier.watchdog_interval:
         loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
     for warning in realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt):
@@ -121,6 +122,7 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--command", default=DEFAULT_COMMAND, help=f"command endpoint (default {DEFAULT_COMMAND})")
     run.add_argument("--control", default=DEFAULT_CONTROL, help=f"control endpoint (default {DEFAULT_CONTROL})")
     run.add_argument("--telemetry", default=DEFAULT_TELEMETRY, help=f"telemetry endpoint (default {DEFAULT_TELEMETRY})")
+    run.add_argument("--stats-period", type=float, default=1.0, help="window of the stats telemetry [s] (default 1)")
     safe = sub.add_parser("safe-state", help="write the rig's safe state once and exit (dead-man path)")
     common(safe)
     lat = sub.add_parser("latency", help="qualify this PC: run the loop on the simulator and judge its latency")

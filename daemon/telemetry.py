@@ -24,20 +24,23 @@ class Telemetry:
         self.seq = {b"state": 0, b"stats": 0, b"event": 0}
 
     def record(self, loop) -> None:
+        """Keep this cycle's row. Only angles and velocities are updated in place by the loop;
+        the other lists are replaced every cycle, so they are kept without copying."""
         snap = loop.snapshot
-        q, ref = list(loop.angles), list(loop.reference[0])
-        self._rows.append((loop.cycle, snap.t if snap is not None else loop.clock.now(), q, list(loop.velocities),
-                           ref, [r - a for r, a in zip(ref, q)], list(loop.u), list(loop.p_head), list(loop.p_rod),
-                           list(loop.io.last_volts), loop.force, loop.supervisor.state.value))
+        self._rows.append((loop.cycle, snap.t if snap is not None else loop.clock.now(), tuple(loop.angles),
+                           tuple(loop.velocities), loop.reference[0], loop.u, loop.p_head, loop.p_rod,
+                           loop.io.last_volts, loop.force, loop.supervisor.state.value))
         if len(self._rows) >= self.batch:
             self.flush()
 
     def flush(self) -> None:
         if not self._rows:
             return
-        message = dict(zip(STATE_FIELDS, map(list, zip(*self._rows))))
+        columns = [list(c) for c in zip(*self._rows)]
         self._rows.clear()
-        self._publish(b"state", message)
+        errors = [[r - a for r, a in zip(ref, q)] for ref, q in zip(columns[4], columns[2])]
+        columns.insert(5, errors)
+        self._publish(b"state", dict(zip(STATE_FIELDS, columns)))
 
     def event(self, loop, event: dict) -> None:
         self._publish(b"event", {"cycle": loop.cycle, "t": loop.clock.now(), **event})

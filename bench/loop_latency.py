@@ -1,0 +1,160 @@
+"""The daemon's loop under its full workload, against cyclictest run at the same time.
+
+Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80]
+
+Starts a real ``pneumad`` (simulated rig, PID enabled, SCHED_FIFO at --priority where
+permitted) and cyclictest at the same priority, then loads the daemon from this process:
+--subscribers telemetry subscribers (one of them never reads), a client pinging at about
+200 Hz (command round trip), reading status at 50 Hz and moving the set-point at 5 Hz
+(set-point-to-effect, in cycles, from the telemetry). Prints the daemon's wake-up latency
+and compute time over the whole run (one stats window), cyclictest's, and their ratios.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import msgpack
+import zmq
+
+from bench import cyclictest
+from bench.common import header, percentiles
+from daemon.client import Client
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=30.0)
+    ap.add_argument("--subscribers", type=int, default=10)
+    ap.add_argument("--priority", type=int, default=80)
+    args = ap.parse_args()
+    header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled")
+    tmp = tempfile.mkdtemp(prefix="pneumad-bench-")
+    eps = {k: f"ipc://{tmp}/{k}" for k in ("command", "control", "telemetry")}
+    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--rt-priority", str(args.priority),
+                               "--stats-period", str(args.seconds), "--log-level", "WARNING",
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    ctx = zmq.Context.instance()
+    try:
+        client = Client(**eps, timeout=5.0)
+        client.ping()
+        stats_sub = ctx.socket(zmq.SUB)
+        stats_sub.setsockopt(zmq.SUBSCRIBE, b"stats")
+        stats_sub.connect(eps["telemetry"])
+        stop = threading.Event()
+        healthy = [Reader(ctx, eps["telemetry"], stop, keep=(i == 0)) for i in range(max(args.subscribers - 1, 0))]
+        stalled = ctx.socket(zmq.SUB)
+        stalled.setsockopt(zmq.RCVHWM, 10)
+        stalled.setsockopt(zmq.SUBSCRIBE, b"")
+        if args.subscribers:
+            stalled.connect(eps["telemetry"])
+        client.acquire_lease()
+        client.keep_lease()
+        client.enable()
+        time.sleep(0.5)
+        ct = cyclictest.start(args.seconds, args.priority)
+        rtt, effects = [], []
+        start = time.monotonic()
+        n = 0
+        base = [math.degrees(a) for a in (client.status()["joints"][j]["angle_deg"] for j in ("bottom", "middle"))]
+        while time.monotonic() - start < args.seconds:
+            t0 = time.perf_counter()
+            client.ping()
+            rtt.append(time.perf_counter() - t0)
+            n += 1
+            if n % 4 == 0:
+                client.status()
+            if n % 40 == 0:
+                target = [130.0 + (n // 40 % 2) * 2.0, -75.0]
+                reply = client.set(angles_deg=target)
+                effects.append((reply["cycle"], math.radians(target[0])))
+            time.sleep(0.004)
+        ct_result = cyclictest.result(ct) if ct else None
+        stats = None
+        if stats_sub.poll(int((args.seconds + 5) * 1e3)):
+            stats = msgpack.unpackb(stats_sub.recv_multipart()[1], raw=False)
+        stop.set()
+        for r in healthy:
+            r.join()
+        client.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    report(args, stats, ct_result, rtt, effects, healthy, base)
+
+
+class Reader(threading.Thread):
+    """A healthy subscriber: reads every state message and counts gaps in its sequence."""
+
+    def __init__(self, ctx, endpoint, stop, keep=False):
+        super().__init__(daemon=True)
+        self.sock = ctx.socket(zmq.SUB)
+        self.sock.setsockopt(zmq.RCVHWM, 0)
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"state")
+        self.sock.connect(endpoint)
+        self.stop, self.keep = stop, keep
+        self.messages, self.lost, self.setpoints = 0, 0, {}
+        self.start()
+
+    def run(self):
+        last = None
+        while not self.stop.is_set():
+            if not self.sock.poll(100):
+                continue
+            m = msgpack.unpackb(self.sock.recv_multipart()[1], raw=False)
+            if last is not None and m["seq"] != last + 1:
+                self.lost += m["seq"] - last - 1
+            last = m["seq"]
+            self.messages += 1
+            if self.keep:
+                for c, sp in zip(m["cycle"], m["setpoint_rad"]):
+                    self.setpoints[c] = sp[0]
+        self.sock.close(linger=0)
+
+
+def effect_cycles(effects, setpoints) -> list[int]:
+    """For each set command handled at cycle k, how many cycles until the set-point shows."""
+    out = []
+    for cycle, target in effects:
+        later = [c for c in range(cycle, cycle + 50) if c in setpoints and abs(setpoints[c] - target) < 1e-9]
+        if later:
+            out.append(later[0] - cycle)
+    return out
+
+
+def fmt(d: dict) -> str:
+    return "  ".join(f"{k} {d[k]:7.1f}" for k in ("p50", "p99", "p99.9", "max"))
+
+
+def report(args, stats, ct, rtt, effects, healthy, base) -> None:
+    if stats is None:
+        print("no stats message from the daemon")
+        return
+    lat, comp = stats["latency_us"], stats["compute_us"]
+    print(f"cycles {stats['cycles']}, overruns {stats['overruns']}, run {args.seconds:.0f} s, "
+          f"priority {args.priority} (pid {os.getpid()})")
+    print(f"loop wake-up latency us   : {fmt(lat)}")
+    if ct:
+        print(f"cyclictest latency us     : {fmt(ct)}   ({ct['samples']} samples)")
+        print("ratio loop / cyclictest   : " + "  ".join(
+            f"{k} {lat[k] / ct[k]:7.2f}" for k in ("p50", "p99", "p99.9", "max")))
+    for stage in ("total", "read", "control", "write", "publish"):
+        print(f"compute {stage:8s} us       : {fmt(comp[stage])}")
+    r = percentiles([x * 1e6 for x in rtt])
+    print(f"command round trip us     : {fmt(r)}   ({len(rtt)} pings over ipc)")
+    cycles = effect_cycles(effects, healthy[0].setpoints) if healthy else []
+    if cycles:
+        print(f"set-point to effect       : max {max(cycles)} cycle(s), all {sorted(set(cycles))} ({len(cycles)} sets)")
+    if healthy:
+        print(f"healthy subscribers       : {len(healthy)}, messages {min(h.messages for h in healthy)}.."
+              f"{max(h.messages for h in healthy)}, lost {sum(h.lost for h in healthy)}")
+
+
+if __name__ == "__main__":
+    main()
