@@ -174,3 +174,20 @@ def test_unit_file_verifies(tmp_path):
     out = subprocess.run(["systemd-analyze", "verify", str(unit)], capture_output=True, text=True)
     problems = [line for line in out.stderr.splitlines() if str(unit) in line]  # a clean unit says nothing
     assert not problems, out.stderr
+
+
+def test_latency_qualification_reports_and_judges():
+    out = subprocess.run([BIN / "pneumad", "latency", "--seconds", "0.5", "--no-rt"], capture_output=True,
+                         text=True, env=env_with(), timeout=60)
+    assert out.returncode == 0, out.stderr
+    text = out.stdout
+    assert "wake-up latency histogram" in text and "p99.9" in text
+    assert any(text.split("verdict: ")[1].startswith(v) for v in ("GOOD", "USABLE", "NOT SUITABLE"))
+
+
+@pytest.mark.parametrize("p999, worst, overruns, word", [
+    (50.0, 200.0, 0, "GOOD"), (50.0, 200.0, 2, "USABLE"), (200.0, 900.0, 0, "USABLE"), (400.0, 900.0, 0, "NOT"),
+    (50.0, 1500.0, 0, "NOT")])
+def test_latency_verdict_bounds(p999, worst, overruns, word):
+    from daemon.latency import verdict
+    assert verdict({"p99.9": p999, "max": worst}, overruns, 0.001).startswith(word)

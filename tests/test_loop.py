@@ -165,3 +165,25 @@ def test_state_telemetry_is_batched_with_contiguous_sequence_numbers():
     assert [m["seq"] for m in states] == list(range(1, len(states) + 1))
     cycles = [c for m in states for c in m["cycle"]]
     assert cycles == list(range(cycles[0], cycles[0] + len(cycles)))
+
+
+def test_stale_transport_data_trips():
+    loop, _, _ = enabled_loop()
+    sup = loop.supervisor
+    sup.check(loop.angles, [0.0, 0.0], (), sample_age=0.004)  # within the 5 ms of the rig file
+    assert loop.state is State.ENABLED
+    sup.check(loop.angles, [0.0, 0.0], (), sample_age=0.012)
+    assert loop.state is State.FAULT and "stale" in sup.cause and "12.0 ms old" in sup.cause
+
+
+def test_a_joint_moving_too_fast_trips_after_consecutive_samples():
+    loop, _, _ = enabled_loop()
+    sup = loop.supervisor
+    fast = [math.radians(80.0), 0.0]  # the rig allows 60 deg/s
+    sup.check(loop.angles, fast, (), 0.0)
+    sup.check(loop.angles, [0.0, 0.0], (), 0.0)  # one fast sample, then calm: no trip
+    sup.check(loop.angles, fast, (), 0.0)
+    sup.check(loop.angles, fast, (), 0.0)
+    assert loop.state is State.ENABLED
+    sup.check(loop.angles, fast, (), 0.0)
+    assert loop.state is State.FAULT and "joint bottom moving at 80.0 deg/s" in sup.cause
