@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import functools
-import importlib
 from importlib.metadata import entry_points
 
 from controllers.base import Controller, ControllerContext
+from hal.plugins import load_class
 
 BUILTIN = {
     "pid": "controllers.pid:PID",
@@ -25,17 +25,8 @@ def available() -> dict[str, str]:
 
 
 def load(name: str) -> type[Controller]:
-    target = available().get(name, name)
-    if ":" not in target:
-        raise LookupError(f"unknown controller {name!r} (available: {', '.join(available())}; or give module:Class)")
-    module_name, _, class_name = target.partition(":")
-    try:
-        cls = getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError) as exc:
-        raise LookupError(f"cannot load controller {target!r}: {exc}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Controller)):
-        raise LookupError(f"{target!r} is not a Controller")
-    return cls
+    """The controller class for a name (built-in or entry point) or a ``module:Class`` path."""
+    return load_class(name, available(), Controller, "controller")
 
 
 def build(name: str, context: ControllerContext, params: dict | None = None) -> Controller:

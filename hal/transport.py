@@ -10,7 +10,6 @@ Backends are plugins, named in the rig file (``transport.backend``): the built-i
 """
 from __future__ import annotations
 
-import importlib
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -18,6 +17,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from hal.errors import CommandError, ConfigError
+from hal.plugins import load_class
 
 
 class ChannelKind(str, Enum):
@@ -131,18 +131,10 @@ BACKENDS: dict[str, str] = {
 
 def load_backend(name: str) -> type[Transport]:
     """The transport class for a backend name or a ``module:Class`` path."""
-    target = BACKENDS.get(name, name)
-    if ":" not in target:
-        raise ConfigError(f"transport.backend: unknown backend {name!r} (built-in: {', '.join(BACKENDS)}; "
-                          f"or give module:Class)")
-    module_name, _, class_name = target.partition(":")
     try:
-        cls = getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError) as exc:
-        raise ConfigError(f"transport.backend: cannot load {target!r}: {exc}") from None
-    if not (isinstance(cls, type) and issubclass(cls, Transport)):
-        raise ConfigError(f"transport.backend: {target!r} is not a Transport")
-    return cls
+        return load_class(name, BACKENDS, Transport, "backend")
+    except LookupError as exc:
+        raise ConfigError(f"transport.backend: {exc}") from None
 
 
 def create_transport(rig, clock: Callable[[], float]) -> Transport:
