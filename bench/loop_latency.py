@@ -62,7 +62,6 @@ def main() -> None:
         rtt, effects = [], []
         start = time.monotonic()
         n = 0
-        base = [math.degrees(a) for a in (client.status()["joints"][j]["angle_deg"] for j in ("bottom", "middle"))]
         while time.monotonic() - start < args.seconds:
             t0 = time.perf_counter()
             client.ping()
@@ -86,7 +85,7 @@ def main() -> None:
     finally:
         daemon.terminate()
         daemon.wait(10)
-    report(args, stats, ct_result, rtt, effects, healthy, base)
+    report(args, stats, ct_result, rtt, effects, healthy)
 
 
 class Reader(threading.Thread):
@@ -132,7 +131,7 @@ def fmt(d: dict) -> str:
     return "  ".join(f"{k} {d[k]:7.1f}" for k in ("p50", "p99", "p99.9", "max"))
 
 
-def report(args, stats, ct, rtt, effects, healthy, base) -> None:
+def report(args, stats, ct, rtt, effects, healthy) -> None:
     if stats is None:
         print("no stats message from the daemon")
         return

@@ -77,7 +77,7 @@ class ControlLoop:
         self._drain_events()
 
     def run(self, cycles: int | None = None) -> None:
-        """Run until :meth:`stop` (or for ``cycles`` cycles), then leave the outputs safe."""
+        """Run until :meth:`stop` (or for ``cycles`` cycles); :meth:`shutdown` leaves the outputs safe."""
         done = 0
         clock, period, stats = self.clock, self.period, self.stats
         while not self.stop_requested and (cycles is None or done < cycles):
@@ -188,7 +188,7 @@ class ControlLoop:
     def _write_command(self) -> None:
         p_head, p_rod = self.actuation.pressures(self.u)
         clamp = self.supervisor.clamp
-        p_head, p_rod = clamp(p_head, self.p_head), clamp(list(p_rod), self.p_rod)
+        p_head, p_rod = clamp(p_head, self.p_head), clamp(p_rod, self.p_rod)
         try:
             self.io.write_pressures(p_head, p_rod)
         except (TransportError, CommandError) as exc:
