@@ -39,7 +39,7 @@ def main() -> None:
     transport.open()
     io = RigIO(rig, transport)
     act = BiasedHeadActuation(io.head, io.rod)
-    pid = PID(ControllerContext(io.joint_names, 0.001, act.u_min, act.u_max))
+    pid = PID(ControllerContext.for_rig(rig, act, 0.001))
     q0 = list(io.read().angles)
     zeros = [0.0, 0.0]
     pid.reset(None, zeros)

@@ -17,6 +17,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+
+from controllers.nominal import NominalJoint
+
 
 class ParamError(ValueError):
     """A parameter change is refused; nothing was applied."""
@@ -43,10 +47,25 @@ class ControllerContext:
     dt: float  # loop period [s]
     u_min: tuple[float, ...]  # V_MV range per joint, from the bias and the 0-10 V span [V]
     u_max: tuple[float, ...]
+    models: tuple[NominalJoint | None, ...] = ()  # nominal plant per joint, None where none is identified
+
+    @classmethod
+    def for_rig(cls, rig, actuation, dt: float) -> "ControllerContext":
+        """The context of a configured rig: its joints, its V_MV range, its nominal models."""
+        return cls(tuple(j.name for j in rig.joints), dt, actuation.u_min, actuation.u_max,
+                   tuple(NominalJoint.from_rig(j) for j in rig.joints))
 
     @property
     def n(self) -> int:
         return len(self.joint_names)
+
+    def require_models(self, who: str) -> tuple[NominalJoint, ...]:
+        """The nominal models, or ParamError naming the joints that have none."""
+        missing = [name for name, m in zip(self.joint_names, self.models or [None] * self.n) if m is None]
+        if missing:
+            raise ParamError(f"{who} needs an identified model for joint(s) {', '.join(missing)}: "
+                             f"set [[joints]] model in the rig file (known: bottom, middle, top)")
+        return self.models
 
 
 @dataclass(slots=True)
@@ -76,11 +95,13 @@ class Controller(ABC):
     def __init__(self, context: ControllerContext, **values: Sequence[float] | float):
         self.context = context
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
-        self._values = self.validate_params({**defaults, **values}, base=defaults)
-        self.configure()
+        self._values = defaults
+        self.apply_params(self.prepare_params(values))
 
-    def configure(self) -> None:
-        """Derive internal constants from the parameters (called on build and on every change)."""
+    def derive(self, values: Mapping[str, tuple[float, ...]]) -> object:
+        """Constants the controller computes from a parameter set (gains, designs). Pure: it
+        runs off the loop, so it may be slow (a Riccati solve); ``self.k`` holds its result."""
+        return None
 
     @abstractmethod
     def reset(self, state: JointState, last_output: Sequence[float]) -> None:
@@ -94,10 +115,10 @@ class Controller(ABC):
     def get_params(self) -> dict[str, list[float]]:
         return {k: list(v) for k, v in self._values.items()}
 
-    def validate_params(self, changes: Mapping[str, object], base: Mapping[str, tuple] | None = None) -> dict:
+    def validate_params(self, changes: Mapping[str, object]) -> dict:
         """The full parameter set after ``changes``, or :class:`ParamError`; applies nothing."""
         specs = {p.name: p for p in self.params}
-        merged = dict(self._values if base is None else base)
+        merged = dict(self._values)
         n = self.context.n
         for key, raw in changes.items():
             spec = specs.get(key)
@@ -117,14 +138,23 @@ class Controller(ABC):
             merged[key] = tuple(checked)
         return merged
 
-    def set_params(self, changes: Mapping[str, object]) -> None:
-        """Validate the whole change, then apply it at once (from the loop's cycle boundary)."""
-        self.apply_params(self.validate_params(changes))
+    def prepare_params(self, changes: Mapping[str, object]) -> tuple[dict, object]:
+        """Validate a change and derive its constants, off the loop; applies nothing.
+        A design that cannot be made from the values is a ParamError too."""
+        values = self.validate_params(changes)
+        try:
+            return values, self.derive(values)
+        except ParamError:
+            raise
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            raise ParamError(f"{self.name}: no design for these parameters: {exc}") from None
 
-    def apply_params(self, validated: dict) -> None:
-        """Swap in a parameter set returned by :meth:`validate_params`."""
-        self._values = validated
-        self.configure()
+    def apply_params(self, prepared: tuple[dict, object]) -> None:
+        """Swap in what :meth:`prepare_params` returned: two assignments, at a cycle boundary."""
+        self._values, self.k = prepared
+
+    def set_params(self, changes: Mapping[str, object]) -> None:
+        self.apply_params(self.prepare_params(changes))
 
     def p(self, name: str) -> tuple[float, ...]:
         return self._values[name]

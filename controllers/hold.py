@@ -9,8 +9,9 @@ class Hold(Controller):
 
     name = "hold"
 
-    def configure(self) -> None:
-        self._u = [0.0] * self.context.n
+    def __init__(self, context, **values):
+        self._u = [0.0] * context.n
+        super().__init__(context, **values)
 
     def reset(self, state: JointState, last_output) -> None:
         self._u = [float(u) for u in last_output]

@@ -14,10 +14,22 @@ the thesis's own figures; with Tt = Ti the same step overshoots about 18 %.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from controllers.base import Controller, JointState, ParamSpec, Reference, clamp
 
 DEG = 180.0 / math.pi
+
+
+@dataclass(frozen=True)
+class _Gains:
+    """Discrete gains per joint at the loop period."""
+
+    kp: tuple[float, ...]  # [V/rad]
+    ki: list[float]  # Kp h / Ti [V/(rad cycle)]
+    ad: list[float]  # derivative filter pole
+    bd: list[float]  # derivative gain [V/rad]
+    kt: list[float]  # h / Tt
 
 
 class PID(Controller):
@@ -39,13 +51,13 @@ class PID(Controller):
         self._taking_over = False
         super().__init__(context, **values)
 
-    def configure(self) -> None:
+    def derive(self, values) -> _Gains:
         h = self.context.dt
-        kp, ti, td, n = self.p("Kp"), self.p("Ti"), self.p("Td"), self.p("N")
-        self._ki = [k * h / t if t > 0 else 0.0 for k, t in zip(kp, ti)]
-        self._ad = [t / (t + nn * h) for t, nn in zip(td, n)]
-        self._bd = [k * t * nn / (t + nn * h) for k, t, nn in zip(kp, td, n)]
-        self._kt = [h / tt for tt in self.p("Tt")]
+        kp, ti, td, n = values["Kp"], values["Ti"], values["Td"], values["N"]
+        return _Gains(kp=kp, ki=[k * h / t if t > 0 else 0.0 for k, t in zip(kp, ti)],
+                      ad=[t / (t + nn * h) for t, nn in zip(td, n)],
+                      bd=[k * t * nn / (t + nn * h) for k, t, nn in zip(kp, td, n)],
+                      kt=[h / tt for tt in values["Tt"]])
 
     def reset(self, state: JointState, last_output) -> None:
         """Take over bumplessly: the integral carries the output in force."""
@@ -56,17 +68,18 @@ class PID(Controller):
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
         out = []
-        kp = self.p("Kp")
+        g = self.k
+        kp = g.kp
         first = self._taking_over
         for j in range(self.context.n):
             e = reference.angles[j] - state.angles[j]
             if first:  # bumpless: the P part at the switch goes into the integral's account
                 self._i[j] -= kp[j] * e
                 self._e_prev[j] = e
-            self._d[j] = self._ad[j] * self._d[j] + self._bd[j] * (e - self._e_prev[j])
+            self._d[j] = g.ad[j] * self._d[j] + g.bd[j] * (e - self._e_prev[j])
             v = kp[j] * e + self._i[j] + self._d[j]
             u = clamp(v, self.context.u_min[j], self.context.u_max[j])
-            self._i[j] += self._ki[j] * e + self._kt[j] * (u - v)
+            self._i[j] += g.ki[j] * e + g.kt[j] * (u - v)
             self._e_prev[j] = e
             out.append(u)
         self._taking_over = False

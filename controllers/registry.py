@@ -8,6 +8,9 @@ from controllers.base import Controller, ControllerContext
 from hal.plugins import load_class
 
 BUILTIN = {
+    "smc": "controllers.smc:SMC",
+    "sac": "controllers.sac:SAC",
+    "smc_dob": "controllers.smc:SMCWithDOB",
     "pid": "controllers.pid:PID",
     "hold": "controllers.hold:Hold",
 }

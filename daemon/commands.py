@@ -15,6 +15,7 @@ import secrets
 
 from controllers import registry, trajectory
 from controllers.base import ParamError
+from controllers.feasibility import Authority, Infeasible
 from daemon import protocol as P
 from daemon.safety import State, StateError
 from hal import kinematics
@@ -92,6 +93,8 @@ class Commands:
         # Built once, off the loop: scanning entry points costs milliseconds.
         self._controllers = self._describe_controllers()
         self._describe = self._build_describe()
+        models_known = all(m is not None for m in loop.context.models)
+        self._authority = Authority.of(loop.rig, loop.context, loop.rig.limits.authority_fraction) if models_known else None
 
     # -- entry points -----------------------------------------------------------------------
     def handle_payload(self, payload: bytes, control: bool = False) -> bytes:
@@ -271,8 +274,9 @@ class Commands:
             if not lo <= q <= hi:
                 raise CommandFailed(P.REFUSED, f"joint {j.name} set-point {math.degrees(q):.2f} deg is outside its "
                                                f"limits {j.min_angle_deg}..{j.max_angle_deg} deg")
+        move = self._feasible("the move", lambda d: trajectory.JointMove(loop.reference[0], target, d), duration)
         self._require_enabled()
-        loop.set_trajectory(trajectory.JointMove(loop.reference[0], target, duration), "set")
+        loop.set_trajectory(move, "set")
         return {"target_deg": [math.degrees(q) for q in target], "duration_s": duration, "cycle": loop.cycle}
 
     def path(self, args):
@@ -286,8 +290,12 @@ class Commands:
         make, default_duration = makers[name]
         duration = number(args, "duration_s", 0.5, 3600.0, default_duration)
         approach = number(args, "approach_s", 0.0, 600.0, 3.0)
-        path = make(loop.rig.arm.link_lengths_m, loop.rig.arm.elbow, loop.n, duration)
-        chain = trajectory.Chain([trajectory.JointMove(loop.reference[0], path.sample(0.0)[0], approach), path])
+        lengths, elbow = loop.rig.arm.link_lengths_m, loop.rig.arm.elbow
+        path = self._feasible(f"the {name} path", lambda d: make(lengths, elbow, loop.n, d), duration)
+        start = path.sample(0.0)[0]
+        move = self._feasible("the approach to its start", lambda d: trajectory.JointMove(loop.reference[0], start, d),
+                              approach)
+        chain = trajectory.Chain([move, path])
         try:
             trajectory.check_within_limits(chain, [j.limits_rad for j in loop.rig.joints], loop.io.joint_names)
         except ValueError as exc:
@@ -295,6 +303,16 @@ class Commands:
         self._require_enabled()
         loop.set_trajectory(chain, name)
         return {"path": name, "duration_s": duration, "approach_s": approach, "total_s": chain.duration}
+
+    def _feasible(self, what: str, make, duration: float):
+        """``make(duration)`` if the rig's authority can deliver it, else a refusal with the
+        numbers and the shortest duration that would do (rig-facts §1 "Authority")."""
+        if self._authority is None or duration == 0.0:
+            return make(duration)
+        try:
+            return self._authority.check(make, duration)
+        except Infeasible as exc:
+            raise CommandFailed(P.REFUSED, f"{what} in {duration:g} s is {exc}") from None
 
     def _require_enabled(self):
         if not self.loop.supervisor.enabled:
@@ -343,8 +361,8 @@ class Commands:
             raise bad_args("'params' must be a non-empty map")
         c = self.loop.controller
         try:
-            validated = c.validate_params(params)
+            prepared = c.prepare_params(params)
         except ParamError as exc:
             raise bad_args(str(exc)) from None
-        c.apply_params(validated)
+        c.apply_params(prepared)
         return {"name": c.name, "params": c.get_params()}

@@ -32,7 +32,7 @@ class ControlLoop:
         self.period = period
         self.n = len(io.joint_names)
         self.actuation = BiasedHeadActuation(io.head, io.rod)
-        self.context = ControllerContext(io.joint_names, period, self.actuation.u_min, self.actuation.u_max)
+        self.context = ControllerContext.for_rig(self.rig, self.actuation, period)
         self.supervisor = Supervisor(self.rig, period)
         self.controller: Controller = registry.build(controller, self.context)
         self.telemetry = telemetry

@@ -17,6 +17,7 @@ from typing import Any
 
 from hal.errors import ConfigError
 from hal.force_sensor import ForceSensorConfig
+from hal.identified import IDENTIFIED
 from hal.potentiometer import PotentiometerConfig
 from hal.regulator import RegulatorConfig
 from hal.schema import build, require
@@ -35,16 +36,30 @@ class JointConfig:
     head: RegulatorConfig  # head-side chamber, commanded V_INI + V_MV [2-30]
     rod: RegulatorConfig  # rod-side chamber, held at V_INI [2-31]
     max_speed_deg_s: float = 60.0  # faster than this is a trip [deg/s]
+    model: str = ""  # identified model set (hal.identified) for model-based controllers; default: name
+    neutral_angle_deg: float | None = None  # th_0 of the joint's spring; default: mid-range [deg]
 
     def __post_init__(self):
         require(bool(self.name), "name", "must not be empty")
         require(self.min_angle_deg < self.max_angle_deg, "max_angle_deg",
                 f"limits inverted: min {self.min_angle_deg} >= max {self.max_angle_deg}")
         require(self.max_speed_deg_s > 0, "max_speed_deg_s", "must be > 0")
+        require(not self.model or self.model in IDENTIFIED, "model",
+                f"no identified model {self.model!r} (known: {', '.join(IDENTIFIED)})")
 
     @property
     def limits_rad(self) -> tuple[float, float]:
         return math.radians(self.min_angle_deg), math.radians(self.max_angle_deg)
+
+    @property
+    def model_name(self) -> str:
+        return self.model or self.name
+
+    @property
+    def neutral_deg(self) -> float:
+        if self.neutral_angle_deg is not None:
+            return self.neutral_angle_deg
+        return 0.5 * (self.min_angle_deg + self.max_angle_deg)
 
 
 @dataclass(frozen=True)
@@ -69,11 +84,13 @@ class LimitsConfig:
 
     max_pressure_mpa: float = 0.9
     max_pressure_rate_mpa_s: float = 50.0  # slew limit on each chamber command [MPa/s]
+    authority_fraction: float = 1.0  # of the V_MV range a reference may need in steady state (lower: a margin)
 
     def __post_init__(self):
         require(0 < self.max_pressure_mpa <= 0.9, "max_pressure_mpa",
                 f"must be within (0, 0.9] MPa (the ITV0051 range), got {self.max_pressure_mpa}")
         require(self.max_pressure_rate_mpa_s > 0, "max_pressure_rate_mpa_s", "must be > 0")
+        require(0 < self.authority_fraction <= 1, "authority_fraction", "must be within (0, 1]")
 
 
 @dataclass(frozen=True)

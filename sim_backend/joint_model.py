@@ -1,6 +1,6 @@
 """One pneumatic-cylinder joint, simulated exactly at a fixed step (rig-facts §1).
 
-Model [2-30..2-39, 2-45], in the model's own units (deg; see :mod:`sim_backend.joint_params`):
+Model [2-30..2-39, 2-45], in the model's own units (deg; see :mod:`hal.identified`):
 
     T_ep P_i' = P_set,i(t - T_dly) - P_i                    (regulator lag and dead time, per chamber)
     J th'' + D th' + K (th - th_0) = K_mdl L (A_H P_H - A_L P_L) + tau_ext - tau_s(th')
@@ -25,7 +25,7 @@ import math
 import numpy as np
 from scipy.linalg import expm
 
-from sim_backend.joint_params import JointParams
+from hal.identified import JointParams
 
 
 def zoh(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

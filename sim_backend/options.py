@@ -11,8 +11,8 @@ from hal.schema import require
 class SimJointOptions:
     """Plant choices for one joint (``[transport.options.joints.NAME]``)."""
 
-    model: str = ""  # identified parameter set (bottom/middle/top); default: the joint's name
-    neutral_angle_deg: float | None = None  # th_0 of the spring; default: middle of the joint's range
+    model: str = ""  # the true plant's identified set (bottom/middle/top); default: the rig's joint model
+    neutral_angle_deg: float | None = None  # th_0 of the spring; default: the rig's joint neutral angle
     initial_angle_deg: float | None = None  # default: equilibrium at the bias pressures
     end_stop_margin_deg: float = 10.0  # mechanical stops this far beyond the software limits
     overrides: dict[str, float] = field(default_factory=dict)  # e.g. {T_dly = 0.04}

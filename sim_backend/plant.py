@@ -11,7 +11,7 @@ from hal import kinematics
 from hal.config import RigConfig
 from hal.errors import ConfigError
 from sim_backend.joint_model import JointModel
-from sim_backend.joint_params import IDENTIFIED, K_EP, P_OFFSET, P_SET_MAX, P_SET_MIN, SUPPLY_HEADROOM
+from hal.identified import IDENTIFIED, K_EP, P_OFFSET, P_SET_MAX, P_SET_MIN, SUPPLY_HEADROOM
 from sim_backend.options import SimJointOptions, SimOptions
 
 
@@ -36,7 +36,7 @@ class SimArm:
         self.joints: list[JointModel] = []
         for jc in rig.joints:
             jo = options.joints.get(jc.name, SimJointOptions())
-            model = jo.model or jc.name
+            model = jo.model or jc.model_name
             if model not in IDENTIFIED:
                 raise ConfigError(f"transport.options.joints.{jc.name}.model: no identified model {model!r} "
                                   f"(known: {', '.join(IDENTIFIED)})")
@@ -44,9 +44,7 @@ class SimArm:
                 params = IDENTIFIED[model].replace(jo.overrides)
             except (KeyError, ValueError) as exc:
                 raise ConfigError(f"transport.options.joints.{jc.name}.overrides: {exc}") from None
-            neutral = jo.neutral_angle_deg
-            if neutral is None:
-                neutral = 0.5 * (jc.min_angle_deg + jc.max_angle_deg)
+            neutral = jo.neutral_angle_deg if jo.neutral_angle_deg is not None else jc.neutral_deg
             stops = (jc.min_angle_deg - jo.end_stop_margin_deg, jc.max_angle_deg + jo.end_stop_margin_deg)
             bias = (regulator_output(jc.head.bias_volts, self.supply_pa),
                     regulator_output(jc.rod.bias_volts, self.supply_pa))

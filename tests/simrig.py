@@ -30,7 +30,7 @@ class SimRig:
         return self.io.transport.arm
 
     def context(self) -> ControllerContext:
-        return ControllerContext(self.io.joint_names, DT, self.actuation.u_min, self.actuation.u_max)
+        return ControllerContext.for_rig(self.rig, self.actuation, DT)
 
 
 def make_rig(options: str = "", name: str = "sim", replace: dict[str, str] | None = None) -> SimRig:

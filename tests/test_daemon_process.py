@@ -104,8 +104,10 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         with Client(**eps, timeout=5.0) as c:
             c.acquire_lease()
             c.enable()
-            c.set(angles_deg=[130.0, -75.0], duration_s=0.5)
-            time.sleep(1.0)
+            c.set(angles_deg=[130.0, -88.0], duration_s=3.0)
+            for _ in range(4):
+                time.sleep(1.0)
+                c.renew_lease()
             status = c.status()
             assert status["state"] == "enabled"
             assert abs(status["joints"]["bottom"]["angle_deg"] - 130.0) < 5.0

@@ -205,11 +205,11 @@ def test_path_command_runs_and_abort_holds(daemon):
     loop, _, srv = daemon
     sock = dealer(srv)
     lease = leased(loop, sock)
-    assert call(loop, sock, "path", {"name": "circle"}, lease)["error"]["code"] == P.BAD_STATE
+    assert call(loop, sock, "path", {"name": "translation", "approach_s": 10.0}, lease)["error"]["code"] == P.BAD_STATE
     ok(loop, sock, "enable", lease=lease)
     assert call(loop, sock, "path", {"name": "spiral"}, lease)["error"]["code"] == P.BAD_ARGS
-    started = ok(loop, sock, "path", {"name": "translation", "approach_s": 2.0}, lease)
-    assert started["total_s"] == pytest.approx(17.0)
+    started = ok(loop, sock, "path", {"name": "translation", "approach_s": 10.0}, lease)
+    assert started["total_s"] == pytest.approx(25.0)
     run_seconds(loop, 4.0)
     assert loop.trajectory_name == "translation"
     ok(loop, dealer(srv, "control"), "abort")
@@ -249,3 +249,21 @@ def test_slow_subscriber_never_stalls_the_loop_and_healthy_ones_see_no_gaps(daem
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # no gaps
     stalled.close(linger=0)
     healthy.close(linger=0)
+
+
+def test_an_infeasible_path_is_refused_with_the_numbers_and_the_shortest_duration(daemon):
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    reply = call(loop, sock, "path", {"name": "circle", "duration_s": 20.0, "approach_s": 30.0}, lease)
+    assert reply["error"]["code"] == P.REFUSED
+    message = reply["error"]["message"]
+    assert "joint middle" in message and "needs V_MV" in message and "deg/s" in message
+    shortest = float(message.split("shortest feasible duration is ")[1].split(" s")[0])
+    assert 20.0 < shortest < 3600.0
+    assert loop.trajectory_name == "hold"  # nothing started
+    started = ok(loop, sock, "path", {"name": "circle", "duration_s": shortest, "approach_s": 30.0}, lease)
+    assert started["duration_s"] == shortest
+    slow = call(loop, sock, "set", {"angles_deg": [100.0, -60.0], "duration_s": 0.5}, lease)
+    assert slow["error"]["code"] == P.REFUSED and "shortest feasible duration" in slow["error"]["message"]

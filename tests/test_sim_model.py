@@ -12,7 +12,7 @@ import pytest
 from scipy import signal
 
 from sim_backend.joint_model import JointModel
-from sim_backend.joint_params import IDENTIFIED, K_EP, P_OFFSET
+from hal.identified import IDENTIFIED, K_EP, P_OFFSET
 from tests.simrig import make_rig
 
 H = 0.001

@@ -1,9 +1,13 @@
 """Identified parameters of the cylinder joints, rig-facts §1 (table "Identified values").
 
+They are a fact of the rig, so they live beside its configuration: the simulator takes them
+as the true plant, model-based controllers as their nominal plant (a rig file names the set
+per joint, ``[[joints]] model``, so the two can be made to differ on purpose).
+
 **Units.** As rig-facts §1 "Units" argues, the fit was made with the joint angle in degrees:
 th [deg], th' [deg/s], J [N m s^2/deg], D [N m s/deg], K [N m/deg], Fs, Fc [N m],
 vs [deg/s]. Torques (L F, friction) are in N m. The simulator works in these model units
-internally and converts to SI (rad) at its edges.
+internally and converts to SI (rad) at its edges; :mod:`controllers.nominal` converts to SI.
 """
 from __future__ import annotations
 
