@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 
 from controllers import registry, trajectory
-from controllers.feasibility import Authority
+from controllers.feasibility import Authority, Infeasible
 from daemon.clock import VirtualClock
 from daemon.loop import ControlLoop
 from hal import config, kinematics
@@ -59,8 +59,8 @@ def approach(loop: ControlLoop, target) -> None:
     auth = authority(loop)
     try:
         move = auth.check(lambda d: trajectory.JointMove(start, target, d), 3.0)
-    except Exception as exc:  # infeasible at 3 s: take the shortest feasible duration
-        move = trajectory.JointMove(start, target, getattr(exc, "shortest_s", None) or 30.0)
+    except Infeasible as exc:  # infeasible at 3 s: take the shortest feasible duration
+        move = trajectory.JointMove(start, target, exc.shortest_s or 30.0)
     loop.set_trajectory(move, "approach")
     loop.run(int((move.duration + SETTLE_S) / loop.period))
 
@@ -105,7 +105,7 @@ def shortest_feasible(loop: ControlLoop, name: str) -> float:
     try:
         auth.check(lambda d: make_path(loop, name, d), 1.0)
         return 1.0
-    except Exception as exc:
+    except Infeasible as exc:
         return exc.shortest_s
 
 

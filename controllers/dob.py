@@ -15,8 +15,6 @@ it the trade between rejection and noise. Both filters are discretised by Tustin
 """
 from __future__ import annotations
 
-import math
-
 from scipy.signal import cont2discrete
 
 from controllers.base import Controller, JointState, ParamSpec, Reference, clamp
@@ -87,7 +85,7 @@ class DisturbanceObserver:
 
     def _steady(self, j: int, angle: float, output: float) -> float:
         """d_hat at rest: the nominal model's input for this angle less what is applied."""
-        inverse, q = self._inverse[j], self._q[j]
+        inverse = self._inverse[j]
         return sum(inverse.b) / sum(inverse.a) * angle - output - self.u_off[j]
 
     def correct(self, angles, inner) -> list[float]:

@@ -28,13 +28,19 @@ the bottom joint's 81 ms delay). The constant spring and bias torques are fed fo
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from controllers.base import Controller, JointState, ParamError, ParamSpec, Reference, clamp
+from controllers.base import (
+    Controller,
+    JointState,
+    ParamError,
+    ParamSpec,
+    Reference,
+    clamp,
+)
 from controllers.dob import DOB_PARAMS, WithDisturbanceObserver
 from controllers.estimation import ESTIMATOR_PARAMS, DelayedStateEstimator
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from hal.regulator import V_MAX, V_MIN, ITV0051
+from hal.regulator import ITV0051, V_MAX, V_MIN
 
 
 class BiasedHeadActuation:

@@ -1,0 +1,111 @@
+"""Model-based controllers on the simulated rig, through the real loop on a virtual clock:
+tracking targets, disturbance rejection, bumpless switches, live gains, and the designs."""
+import math
+
+import numpy as np
+import pytest
+
+from bench import scenarios as S
+from controllers import registry
+from controllers.base import ControllerContext, ParamError
+from controllers.smc import sliding_hyperplane, sliding_poles
+
+DOB_AND_FRIENDS = ["smc", "smc_dob"]
+
+
+@pytest.mark.parametrize("eps", [0.0, 2.0, 10.0])
+def test_the_riccati_hyperplane_puts_every_sliding_pole_left_of_minus_eps(eps):
+    s = sliding_hyperplane(2e6, 1e4, 10.0, eps)
+    assert s[3] == 1.0 and s[0] < 0  # normalised on th''; z enters with the sign z' = r - th needs
+    assert max(sliding_poles(s).real) < -eps
+
+
+def test_the_thesis_hyperplane_is_a_stable_sliding_motion():
+    s = np.array([-341.06, 32.73, 0.83, 2.34e-3])  # rig-facts §1
+    assert max(sliding_poles(s).real) < 0
+
+
+@pytest.mark.parametrize("name", DOB_AND_FRIENDS)
+def test_translation_path_tracks_within_the_labs_targets(name):
+    loop = S.make_loop(name)
+    result = S.run_path(loop, S.make_path(loop, "translation", 15.0))
+    assert loop.state.value == "enabled", loop.supervisor.cause
+    assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
+
+
+def test_circle_at_the_shortest_feasible_period_tracks_within_the_targets():
+    loop = S.make_loop("smc_dob")
+    period = S.shortest_feasible(loop, "circle")
+    assert 20.0 < period < 600.0  # the thesis's 20 s is beyond the middle joint's authority
+    result = S.run_path(loop, S.make_path(loop, "circle", period))
+    assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
+
+
+def test_the_observer_rejects_a_step_torque_faster_than_smc_alone():
+    torque = S.make_loop("pid").context.models[0].kt * 1.0  # one volt's worth on the bottom joint
+    plain = S.disturbance_rejection(S.make_loop("smc"), 0, torque, 10.0)
+    observed = S.disturbance_rejection(S.make_loop("smc_dob"), 0, torque, 10.0)
+    assert observed.peak < plain.peak and observed.recovery < plain.recovery
+    assert observed.recovery < 2.0
+
+
+@pytest.mark.parametrize("old,new", [("pid", "smc"), ("smc", "smc_dob"), ("smc_dob", "sac"), ("sac", "pid"),
+                                     ("smc", "hold")])
+def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new):
+    loop = S.make_loop(old)
+    path = S.make_path(loop, "translation", 15.0)
+    S.approach(loop, path.sample(0.0)[0])
+    loop.set_trajectory(path, "path")
+    loop.run(5000)  # halfway along, moving
+    before, cycle = list(loop.u), loop.cycle
+    loop.switch_controller(registry.build(new, loop.context))
+    loop.run(1)
+    span = [hi - lo for lo, hi in zip(loop.context.u_min, loop.context.u_max)]
+    assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(loop.u, before, span)), (before, loop.u)
+    loop.run(2000)
+    assert loop.cycle == cycle + 2001 and loop.stats.overruns_total == 0
+    assert loop.state.value == "enabled" and loop.controller.name == new
+    if new != "hold":  # tracking continues
+        assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
+
+
+def test_a_live_gain_change_acts_next_cycle_and_a_bad_one_changes_nothing():
+    loop = S.make_loop("smc")
+    loop.run(2000)
+    target = list(loop.reference[0])
+    target[0] += math.radians(2.0)
+    from controllers.trajectory import JointMove
+    loop.set_trajectory(JointMove(loop.reference[0], target, 0.0), "step")
+    loop.run(20)
+    params = loop.controller.get_params()
+    with pytest.raises(ParamError, match=r"switch_volts\[bottom\] = 99.0 V is outside 0.0..10.0 V"):
+        loop.controller.set_params({"switch_volts": [99.0, 1.0]})
+    with pytest.raises(ParamError, match="q_z"):
+        loop.controller.set_params({"q_z": [2e6, "x"]})
+    assert loop.controller.get_params() == params
+    twin = S.make_loop("smc")  # the same run, but with the reaching term off from this cycle on
+    twin.run(2000)
+    twin.set_trajectory(JointMove(twin.reference[0], target, 0.0), "step")
+    twin.run(20)
+    assert twin.u == loop.u
+    twin.controller.set_params({"reach_rate": [0.0, 0.0]})
+    loop.run(1)
+    twin.run(1)
+    assert twin.u[0] != pytest.approx(loop.u[0], abs=1e-3)
+
+
+def test_a_model_based_controller_without_an_identified_model_is_refused_clearly():
+    ctx = S.make_loop("pid").context
+    bare = ControllerContext(ctx.joint_names, ctx.dt, ctx.u_min, ctx.u_max, (ctx.models[0], None))
+    with pytest.raises(ParamError, match=r"smc needs an identified model for joint\(s\) middle"):
+        registry.build("smc", bare)
+
+
+def test_feasibility_finds_the_shortest_duration_exactly():
+    loop = S.make_loop("pid")
+    auth = S.authority(loop)
+    make = lambda d: S.make_path(loop, "circle", d)  # noqa: E731
+    shortest = S.shortest_feasible(loop, "circle")
+    assert not auth.shortfalls(make(shortest))
+    assert auth.shortfalls(make(shortest - 0.2))
+    assert not auth.shortfalls(S.make_path(loop, "translation", 15.0))  # the thesis's own path
