@@ -90,8 +90,8 @@ def run_path(loop: ControlLoop, path: trajectory.Trajectory, on_cycle=None) -> T
         d = math.hypot(rx - mx, ry - my) * 1e3
         tip_sq += d * d
         tip_worst = max(tip_worst, d)
-    return Tracking([round(w, 2) for w in worst], [round(math.sqrt(s / cycles), 2) for s in sq],
-                    round(tip_worst, 2), round(math.sqrt(tip_sq / cycles), 2), path.duration, cycles, jumps)
+    return Tracking(worst, [math.sqrt(s / cycles) for s in sq], tip_worst, math.sqrt(tip_sq / cycles),
+                    path.duration, cycles, jumps)
 
 
 def make_path(loop: ControlLoop, name: str, duration: float) -> trajectory.Trajectory:
@@ -133,6 +133,7 @@ def step_response(loop: ControlLoop, joint: int, step_deg: float, seconds: float
 
 
 def step_metrics(t, y, step) -> StepResult:
+    """Rise, overshoot and settling of a response y(t) to a step of ``step`` at t = 0."""
     sign = 1.0 if step > 0 else -1.0
     rel = [sign * v / abs(step) for v in y]
     t10 = next((ti for ti, v in zip(t, rel) if v >= 0.1), math.nan)
@@ -141,7 +142,7 @@ def step_metrics(t, y, step) -> StepResult:
     for ti, v in zip(t, rel):
         if abs(v - 1.0) > 0.05:
             settle = ti
-    return StepResult(round(t90 - t10, 3), round(max(0.0, (max(rel) - 1.0) * 100.0), 1), round(settle, 2))
+    return StepResult(t90 - t10, max(0.0, (max(rel) - 1.0) * 100.0), settle)
 
 
 @dataclass
@@ -164,4 +165,4 @@ def disturbance_rejection(loop: ControlLoop, joint: int, torque_nm: float, secon
         if dev > 0.5:
             recovery = (i + 1) * loop.period
     loop.io.transport.arm.disturbance_nm[joint] = 0.0
-    return Rejection(round(peak, 2), round(recovery, 2))
+    return Rejection(peak, recovery)

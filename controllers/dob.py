@@ -59,8 +59,9 @@ class DisturbanceObserver:
     def __init__(self, models: tuple[NominalJoint, ...], dt: float, tau: tuple[float, ...], limit: tuple[float, ...]):
         self.n = len(models)
         self.limit = limit
-        self.delay = [max(int(round(m.T_dly / dt)), 0) for m in models]
-        self.u_off = [(m.bias_torque + m.K * m.neutral) / m.kt for m in models]
+        self.models = models
+        self.delay = [m.delay_steps(dt) for m in models]
+        self.u_off = [m.input_offset for m in models]
         self._inverse, self._q = [], []
         for m, t in zip(models, tau):
             plant_den = [m.J * m.T_ep, m.J + m.D * m.T_ep, m.D + m.K * m.T_ep, m.K]  # (J s^2 + D s + K)(T_ep s + 1)
@@ -80,13 +81,9 @@ class DisturbanceObserver:
             self._inverse[j].settle(angles[j])
             self._q[j].settle(last_output[j])
         self._k = 0
-        self.d_hat = [min(max(self._steady(j, angles[j], last_output[j]), -self.limit[j]),
-                          self.limit[j]) for j in range(self.n)]
-
-    def _steady(self, j: int, angle: float, output: float) -> float:
-        """d_hat at rest: the nominal model's input for this angle less what is applied."""
-        inverse = self._inverse[j]
-        return sum(inverse.b) / sum(inverse.a) * angle - output - self.u_off[j]
+        # at rest, d_hat is the nominal model's input for the angle less what is applied
+        self.d_hat = [clamp(m.static_volts(q, 0.0, 0.0) - u, -lim, lim)
+                      for m, q, u, lim in zip(self.models, angles, last_output, self.limit)]
 
     def correct(self, angles, inner) -> list[float]:
         """The outputs u = u_inner - d_hat [V], before clamping; updates d_hat."""
@@ -96,8 +93,7 @@ class DisturbanceObserver:
             buf = self._buf[j]
             delayed = buf[self._k % len(buf)]  # written N + 1 cycles ago: the input th now shows
             d = self._inverse[j](angles[j]) - self._q[j](delayed) - self.u_off[j]
-            lim = self.limit[j]
-            self.d_hat[j] = d = -lim if d < -lim else lim if d > lim else d
+            self.d_hat[j] = d = clamp(d, -self.limit[j], self.limit[j])
             out.append(inner[j] - d)
         return out
 

@@ -44,9 +44,9 @@ class DelayedStateEstimator:
         n = len(models)
         self.n = n
         phis, gammas, augmented, aug_in, gains = [], [], [], [], []
-        self.delay = np.array([max(int(round(m.T_dly / dt)), 0) for m in models])
-        self.u_off = np.array([(m.bias_torque + m.K * m.neutral) / m.kt for m in models])
-        self._steady = []  # a0 / b per joint: input [V] per rad of angle in steady state
+        self.models = models
+        self.delay = np.array([m.delay_steps(dt) for m in models])
+        self.u_off = np.array([m.input_offset for m in models])
         for m, noise, drift in zip(models, angle_noise_rad, disturbance_rate_v_s):
             a, b = m.state_space()
             phi, gamma = zoh(a, b, dt)
@@ -59,7 +59,6 @@ class DelayedStateEstimator:
             gains.append(p @ c.T / (c @ p @ c.T + noise ** 2))
             augmented.append(f)
             aug_in.append(np.vstack([gamma, [[0.0]]]))
-            self._steady.append(-a[2, 0] / b[2, 0])
         self._f = block_diag(*augmented)
         self._g = block_diag(*aug_in)
         self._m = block_diag(*gains)
@@ -79,7 +78,7 @@ class DelayedStateEstimator:
         th = np.asarray(angles, dtype=float)
         self.x[:] = 0.0
         self.x[self._theta_rows] = th
-        self.x[self._theta_rows + 3] = np.asarray(self._steady) * th - u - self.u_off
+        self.x[self._theta_rows + 3] = [m.static_volts(q, 0.0, 0.0) - v for m, q, v in zip(self.models, th, u)]
         self.dx[:] = 0.0
         self._buf[:] = u
         self._k = 0

@@ -4,12 +4,12 @@ Rig-facts §1 "Authority that follows": V_MV spans the bias to the 0-10 V edges 
 4 V bias), and the speed a joint reaches is what the viscous term, the spring about th_0 and
 Coulomb friction leave of that torque. Along the reference, sampled every ``step_s``, the
 volts that hold the motion in steady state (:meth:`NominalJoint.static_volts`,
-J th'' + D th' + K (th - th_0) + Fc sgn th' - tau_bias = kt V_MV) must stay within a fraction
-``authority`` of the range, leaving the rest to feedback. A refusal carries the numbers:
+J th'' + D th' + K (th - th_0) + Fc sgn th' - tau_bias = kt V_MV) must stay within the fraction
+``limits.authority_fraction`` of the range (below 1 leaves a margin to feedback). A refusal carries the numbers:
 needed and available volts, head-chamber pressure and speed, where and when.
 
-Set-point steps (zero-duration moves) are checked for their end points only: a step asks
-for nothing but the steady state, and the controller's saturation shapes the way there.
+The command layer does not check set-point steps (zero-duration moves): a step asks the
+controller for its saturation, and its end point is checked against the joint limits only.
 """
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ class Authority:
     u_min: Sequence[float]
     u_max: Sequence[float]
     bias_volts: Sequence[float]
-    fraction: float = 0.8  # of the V_MV range a reference may ask for in steady state
+    fraction: float  # of the V_MV range a reference may ask for in steady state (limits.authority_fraction)
 
     @classmethod
     def of(cls, rig, context, fraction: float) -> "Authority":

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hal.identified import IDENTIFIED, K_EP, P_OFFSET
+from hal.identified import IDENTIFIED
+from hal.regulator import ITV0051
 
 PER_DEG_TO_PER_RAD = 180.0 / math.pi
 
@@ -44,11 +45,20 @@ class NominalJoint:
         p = IDENTIFIED.get(model or joint.model_name)
         if p is None:
             return None
-        bias_head = K_EP * joint.head.bias_volts + P_OFFSET
-        bias_rod = K_EP * joint.rod.bias_volts + P_OFFSET
+        bias_head, bias_rod = ITV0051(joint.head).bias_pa, ITV0051(joint.rod).bias_pa  # the rig's calibration
         return cls(J=p.J * PER_DEG_TO_PER_RAD, D=p.D * PER_DEG_TO_PER_RAD, K=p.K * PER_DEG_TO_PER_RAD,
                    kt=p.torque_per_volt, T_ep=p.T_ep, T_dly=p.T_dly, Fc=p.Fc, neutral=math.radians(joint.neutral_deg),
                    bias_torque=p.K_mdl * p.L * (p.area_head * bias_head - p.area_rod * bias_rod))
+
+    @property
+    def input_offset(self) -> float:
+        """The constant torques as V_MV [V]: the linear model of [2-43] on the absolute angle
+        is driven by V_MV + input_offset, (bias torque + K th_0) / kt."""
+        return (self.bias_torque + self.K * self.neutral) / self.kt
+
+    def delay_steps(self, dt: float) -> int:
+        """The dead time in whole loop periods."""
+        return max(int(round(self.T_dly / dt)), 0)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray]:
         """(A, B) of [2-43] for x = [th, th', th'']; B per volt of V_MV."""

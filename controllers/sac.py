@@ -84,7 +84,7 @@ class SAC(Controller):
         self._ki = np.zeros((self.context.n, 6))
         for j, m in enumerate(self.models):  # start from the nominal static inverse, V = K th / kt - u_off
             self._ki[j, 4] = m.K / m.kt
-            self._ki[j, 5] = -k["estimator"].u_off[j]
+            self._ki[j, 5] = -m.input_offset
         self._first = np.asarray(last_output, dtype=float)
 
     def step(self, state: JointState, reference: Reference) -> list[float]:

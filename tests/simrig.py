@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from bench import scenarios
 from controllers.base import Controller, ControllerContext, JointState, Reference
 from daemon.clock import VirtualClock
 from hal import config
@@ -69,14 +70,9 @@ def closed_loop(sim: SimRig, controller: Controller, reference, seconds: float):
 
 def step_metrics(t, y, y0, step, t_step):
     """Overshoot [% of step] and 5 % settling time [s after t_step] of a step response."""
-    pairs = [(ti, yi - y0) for ti, yi in zip(t, y) if ti >= t_step]
-    peak = max(v for _, v in pairs) if step > 0 else min(v for _, v in pairs)
-    overshoot = (peak - step) / step * 100.0
-    settle = 0.0
-    for ti, v in pairs:
-        if abs(v - step) > 0.05 * abs(step):
-            settle = ti - t_step
-    return overshoot, settle
+    pairs = [(ti - t_step, yi - y0) for ti, yi in zip(t, y) if ti >= t_step]
+    result = scenarios.step_metrics([p[0] for p in pairs], [p[1] for p in pairs], step)
+    return result.overshoot, result.settling
 
 
 def deg(x: float) -> float:

@@ -9,6 +9,7 @@ from bench import scenarios as S
 from controllers import registry
 from controllers.base import ControllerContext, ParamError
 from controllers.smc import sliding_hyperplane, sliding_poles
+from controllers.trajectory import JointMove
 
 DOB_AND_FRIENDS = ["smc", "smc_dob"]
 
@@ -74,7 +75,6 @@ def test_a_live_gain_change_acts_next_cycle_and_a_bad_one_changes_nothing():
     loop.run(2000)
     target = list(loop.reference[0])
     target[0] += math.radians(2.0)
-    from controllers.trajectory import JointMove
     loop.set_trajectory(JointMove(loop.reference[0], target, 0.0), "step")
     loop.run(20)
     params = loop.controller.get_params()

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from sim_backend.joint_model import JointModel
 from hal.identified import IDENTIFIED, K_EP, P_OFFSET
+from sim_backend.joint_model import JointModel
 from tests.simrig import make_rig
 
 H = 0.001
