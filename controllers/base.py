@@ -8,6 +8,8 @@ the manipulated variable per joint: V_MV [V], the head-chamber command relative 
 
 Parameters are described (unit, bounds, doc) and are per joint. A change is validated whole
 and applied whole, or refused with a message naming the parameter, the joint and the bound.
+Options are what a controller is built from and keeps for its life (an LTI controller's
+matrices); they are checked when it is built and cannot change while it runs.
 """
 from __future__ import annotations
 
@@ -37,6 +39,18 @@ class ParamSpec:
 
     def describe(self) -> dict:
         return {"name": self.name, "unit": self.unit, "low": self.low, "high": self.high, "doc": self.doc}
+
+
+@dataclass(frozen=True)
+class OptionSpec:
+    """A construction option: fixed for the controller's life, checked by ``check_options``."""
+
+    name: str
+    doc: str
+    required: bool = False
+
+    def describe(self) -> dict:
+        return {"name": self.name, "doc": self.doc, "required": self.required}
 
 
 @dataclass(frozen=True)
@@ -87,13 +101,16 @@ class Reference:
 
 
 class Controller(ABC):
-    """Subclasses set ``name`` and ``params`` and implement ``reset`` and ``step``."""
+    """Subclasses set ``name`` and ``params`` (and ``options``) and implement ``reset`` and ``step``."""
 
     name: ClassVar[str] = ""
     params: ClassVar[tuple[ParamSpec, ...]] = ()
+    options: ClassVar[tuple[OptionSpec, ...]] = ()
 
-    def __init__(self, context: ControllerContext, **values: Sequence[float] | float):
+    def __init__(self, context: ControllerContext, options: Mapping[str, object] | None = None,
+                 **values: Sequence[float] | float):
         self.context = context
+        self.chosen = self.check_options(self._known_options(options or {}))
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
         self._values = defaults
         self.apply_params(self.prepare_params(values))
@@ -103,6 +120,24 @@ class Controller(ABC):
         runs off the loop, so it may be slow (a Riccati solve); ``self.k`` holds its result."""
         return None
 
+    def check_options(self, options: Mapping[str, object]) -> object:
+        """Parse and check the construction options (ParamError if they will not do); the
+        result is kept as ``self.chosen``. Runs before the parameters are derived."""
+        return None
+
+    def _known_options(self, options: Mapping[str, object]) -> Mapping[str, object]:
+        if not isinstance(options, Mapping):
+            raise ParamError(f"{self.name}: options must be a map")
+        known = {o.name for o in self.options}
+        unknown = sorted(map(str, set(options) - known))
+        if unknown:
+            raise ParamError(f"{self.name}: unknown option {unknown[0]!r} (known: {', '.join(sorted(known)) or 'none'})")
+        missing = [o.name for o in self.options if o.required and o.name not in options]
+        if missing:
+            raise ParamError(f"{self.name}: option {missing[0]!r} is required: "
+                             f"{next(o.doc for o in self.options if o.name == missing[0])}")
+        return options
+
     @abstractmethod
     def reset(self, state: JointState, last_output: Sequence[float]) -> None:
         """Initialise from the measured state and the output in force (bumpless transfer)."""
@@ -110,6 +145,10 @@ class Controller(ABC):
     @abstractmethod
     def step(self, state: JointState, reference: Reference) -> list[float]:
         """V_MV per joint [V] for this cycle."""
+
+    def applied(self, output: Sequence[float]) -> None:
+        """The output the loop applied this cycle when it was not this controller's own (a
+        shadow run): controllers that model the plant's input follow it. Default: nothing."""
 
     # -- parameters ---------------------------------------------------------------------
     def get_params(self) -> dict[str, list[float]]:
@@ -162,7 +201,7 @@ class Controller(ABC):
     @classmethod
     def describe(cls) -> dict:
         return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
-                "params": [p.describe() for p in cls.params]}
+                "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options]}
 
 
 def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:

@@ -75,27 +75,22 @@ class DisturbanceObserver:
         self.d_hat = [0.0] * self.n
 
     def reset(self, angles, last_output) -> None:
-        """Steady state at these angles with this output: d_hat is whatever balances them."""
+        """Filters at steady state for these angles and this output, as if at rest."""
         for j in range(self.n):
             self._buf[j] = [float(last_output[j])] * (self.delay[j] + 1)
             self._inverse[j].settle(angles[j])
             self._q[j].settle(last_output[j])
         self._k = 0
-        # at rest, d_hat is the nominal model's input for the angle less what is applied
-        self.d_hat = [clamp(m.static_volts(q, 0.0, 0.0) - u, -lim, lim)
-                      for m, q, u, lim in zip(self.models, angles, last_output, self.limit)]
 
-    def correct(self, angles, inner) -> list[float]:
-        """The outputs u = u_inner - d_hat [V], before clamping; updates d_hat."""
-        out = []
+    def estimate(self, angles) -> list[float]:
+        """d_hat per joint [V] from this cycle's angles (kept in ``d_hat``)."""
         self._k += 1
         for j in range(self.n):
             buf = self._buf[j]
             delayed = buf[self._k % len(buf)]  # written N + 1 cycles ago: the input th now shows
             d = self._inverse[j](angles[j]) - self._q[j](delayed) - self.u_off[j]
-            self.d_hat[j] = d = clamp(d, -self.limit[j], self.limit[j])
-            out.append(inner[j] - d)
-        return out
+            self.d_hat[j] = clamp(d, -self.limit[j], self.limit[j])
+        return self.d_hat
 
     def sent(self, applied) -> None:
         """Remember what was applied this cycle (the delayed input of later cycles)."""
@@ -112,6 +107,7 @@ class WithDisturbanceObserver(Controller):
 
     def __init__(self, context, **values):
         self.models = context.require_models(self.name)
+        self._taking_over: list[float] | None = None
         own = {p.name for p in DOB_PARAMS}
         self.inner = self.inner_class(context, **{k: v for k, v in values.items() if k not in own})
         super().__init__(context, **values)
@@ -133,16 +129,25 @@ class WithDisturbanceObserver(Controller):
     def reset(self, state: JointState, last_output) -> None:
         self.k.reset(state.angles, last_output)
         self._remember(state.angles, last_output)
-        # bumpless: the inner controller takes over the output plus the correction in force
-        self.inner.reset(state, [u + d for u, d in zip(last_output, self.k.d_hat)])
+        self._taking_over = list(last_output)
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
         ctx = self.context
-        u = self.k.correct(state.angles, self.inner.step(state, reference))
+        d_hat = self.k.estimate(state.angles)
+        if self._taking_over is not None:
+            # bumpless: the inner controller takes over the output plus the correction it now meets
+            self.inner.reset(state, [u + d for u, d in zip(self._taking_over, d_hat)])
+            self._taking_over = None
+        u = [v - d for v, d in zip(self.inner.step(state, reference), d_hat)]
         out = [clamp(v, lo, hi) for v, lo, hi in zip(u, ctx.u_min, ctx.u_max)]
         self.k.sent(out)
         self._remember(state.angles, out)
         return out
+
+    def applied(self, output) -> None:
+        self.k.sent(output)
+        self._last_output = list(output)
+        self.inner.applied([u + d for u, d in zip(output, self.k.d_hat)])
 
     def _remember(self, angles, output) -> None:
         self._last_angles, self._last_output = list(angles), list(output)

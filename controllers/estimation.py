@@ -106,6 +106,16 @@ class DelayedStateEstimator:
         self.dx = self._phi @ self.dx + self._gamma @ (u - delayed)
         self._k += 1
 
+    def replace_last(self, u: Sequence[float]) -> None:
+        """The outputs of the last :meth:`advance` were not applied, ``u`` was (a shadow run):
+        put u in their place. The observer's update used older outputs only, so just the
+        buffer and the Smith term, which is linear in the newest output, change."""
+        u = np.asarray(u, dtype=float)
+        size = len(self._buf)
+        last = (self._k - 1) % size
+        self.dx += self._gamma @ (u - self._buf[last])
+        self._buf[last] = u
+
     @classmethod
     def from_params(cls, models, dt: float, values) -> "DelayedStateEstimator":
         return cls(models, dt, values["est_noise"], values["est_drift"])

@@ -8,8 +8,8 @@ J th'' + D th' + K (th - th_0) + Fc sgn th' - tau_bias = kt V_MV) must stay with
 ``limits.authority_fraction`` of the range (below 1 leaves a margin to feedback). A refusal carries the numbers:
 needed and available volts, head-chamber pressure and speed, where and when.
 
-The command layer does not check set-point steps (zero-duration moves): a step asks the
-controller for its saturation, and its end point is checked against the joint limits only.
+A step (a zero-duration move, a step sequence, a PRBS level) is checked at its levels: the
+rig must be able to hold each one; how fast it gets there is the controller's saturation.
 """
 from __future__ import annotations
 
@@ -46,13 +46,13 @@ class Shortfall:
 
 
 class Infeasible(ValueError):
-    def __init__(self, shortfalls: list[Shortfall], shortest_s: float | None, top_speeds: dict[str, float]):
+    def __init__(self, shortfalls: list[Shortfall], shortest_s: float | None, top_speeds: dict[str, float],
+                 remedy: str = "no duration makes it feasible (the end points themselves are out of reach)"):
         self.shortfalls, self.shortest_s, self.top_speeds = shortfalls, shortest_s, top_speeds
         text = "; ".join(s.describe() for s in shortfalls)
         speeds = ", ".join(f"{name} {math.degrees(v):.1f} deg/s" for name, v in top_speeds.items())
-        hint = (f"; the shortest feasible duration is {shortest_s:.1f} s" if shortest_s is not None
-                else "; no duration makes it feasible (the end points themselves are out of reach)")
-        super().__init__(f"beyond the rig's authority: {text} (top speeds at the neutral angle: {speeds}){hint}")
+        hint = f"the shortest feasible duration is {shortest_s:.1f} s" if shortest_s is not None else remedy
+        super().__init__(f"beyond the rig's authority: {text} (top speeds at the neutral angle: {speeds}); {hint}")
 
 
 @dataclass(frozen=True)
@@ -95,13 +95,18 @@ class Authority:
         """Speed at full positive V_MV at each joint's neutral angle [rad/s] (rig-facts §1)."""
         return {n: m.top_speed(m.neutral, hi) for n, m, hi in zip(self.names, self.models, self.u_max) if m is not None}
 
-    def check(self, make: Callable[[float], Trajectory], duration: float, longest_s: float = 3600.0) -> Trajectory:
+    def check(self, make: Callable[[float], Trajectory], duration: float, longest_s: float = 3600.0,
+              fixed: str | None = None) -> Trajectory:
         """The reference ``make(duration)`` if feasible; else Infeasible with the shortest
-        duration (to 0.1 s) that would be, found by bisection (speeds scale as 1/T)."""
+        duration (to 0.1 s) that would be, found by bisection (speeds scale as 1/T). A
+        reference whose demands do not fall with its duration (steps, excitation signals)
+        passes ``fixed``: the remedy the refusal suggests instead."""
         trajectory = make(duration)
         shortfalls = self.shortfalls(trajectory)
         if not shortfalls:
             return trajectory
+        if fixed is not None:
+            raise Infeasible(shortfalls, None, self.top_speeds(), fixed)
         shortest = None
         if not self.shortfalls(make(longest_s)):
             lo, hi = duration, longest_s

@@ -11,6 +11,8 @@ BUILTIN = {
     "smc": "controllers.smc:SMC",
     "sac": "controllers.sac:SAC",
     "smc_dob": "controllers.smc:SMCWithDOB",
+    "lti": "controllers.lti:LTI",
+    "lti_dob": "controllers.lti:LTIWithDOB",
     "pid": "controllers.pid:PID",
     "hold": "controllers.hold:Hold",
 }
@@ -32,6 +34,7 @@ def load(name: str) -> type[Controller]:
     return load_class(name, available(), Controller, "controller")
 
 
-def build(name: str, context: ControllerContext, params: dict | None = None) -> Controller:
+def build(name: str, context: ControllerContext, params: dict | None = None,
+          options: dict | None = None) -> Controller:
     """Construct and validate a controller off the loop; raises LookupError or ParamError."""
-    return load(name)(context, **(params or {}))
+    return load(name)(context, options=options, **(params or {}))

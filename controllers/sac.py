@@ -108,8 +108,18 @@ class SAC(Controller):
             self._first = None
         self._offset *= k["decay"]
         u = [clamp(float(a), lo, hi) for a, lo, hi in zip(v + self._offset, ctx.u_min, ctx.u_max)]
-        ua = np.asarray(u)
-        self._u_mean = k["aw"] * self._u_mean + (1 - k["aw"]) * ua
-        self._xf = k["af"] * self._xf + (1 - k["af"]) * k["kf"] * (ua - self._u_mean)
+        self._pfc_before = (self._u_mean, self._xf)
+        self._feed_pfc(u)
         k["estimator"].advance(u)
         return u
+
+    def _feed_pfc(self, u) -> None:
+        """The PFC's time update with this cycle's output, washed out (see the module doc)."""
+        k, ua = self.k, np.asarray(u, dtype=float)
+        self._u_mean = k["aw"] * self._u_mean + (1 - k["aw"]) * ua
+        self._xf = k["af"] * self._xf + (1 - k["af"]) * k["kf"] * (ua - self._u_mean)
+
+    def applied(self, output) -> None:
+        self._u_mean, self._xf = self._pfc_before
+        self._feed_pfc(output)
+        self.k["estimator"].replace_last(output)

@@ -139,6 +139,9 @@ class SMC(Controller):
         self.k.estimator.advance(out)
         return out
 
+    def applied(self, output) -> None:
+        self.k.estimator.replace_last(output)
+
 
 def _integral_for(target: float, d: _Design, j: int, rest: float) -> float:
     """The z that makes the reaching part -k sigma/(|sigma|+eta) - lambda sigma/SB equal

@@ -1,4 +1,5 @@
-"""Joint references the loop follows: set-point moves and the reference paths of rig-facts §1.
+"""Joint references the loop follows: set-point moves, the reference paths of rig-facts §1,
+waypoint paths (joint or Cartesian) and step sequences.
 
 Time scaling is the cubic polynomial of [2-15..2-28] with zero velocity at both ends:
 ``s(tau) = 3 tau^2 - 2 tau^3``, ``tau = t / T``. Cartesian paths are mapped to joint angles by the
@@ -105,11 +106,16 @@ class CartesianPath(Trajectory):
         return q, [(d * vx - b * vy) / det, (-c * vx + a * vy) / det]
 
 
+def line(lengths, elbow, n_joints, duration, start_mm, end_mm, name="line"):
+    """A straight tip path from start_mm to end_mm [mm] with cubic time scaling."""
+    (x0, y0), (x1, y1) = [(a * 1e-3, b * 1e-3) for a, b in (start_mm, end_mm)]
+    return CartesianPath(name, lambda s: (x0 + (x1 - x0) * s, y0 + (y1 - y0) * s),
+                         lambda s: (x1 - x0, y1 - y0), duration, lengths, elbow, n_joints)
+
+
 def translation(lengths, elbow, n_joints, duration=15.0, start_mm=(70.0, 135.0), end_mm=(-20.0, 135.0)):
     """rig-facts §1 translation mode: (70, 135) -> (-20, 135) mm in 15 s."""
-    (x0, y0), (x1, y1) = [(a * 1e-3, b * 1e-3) for a, b in (start_mm, end_mm)]
-    return CartesianPath("translation", lambda s: (x0 + (x1 - x0) * s, y0 + (y1 - y0) * s),
-                         lambda s: (x1 - x0, y1 - y0), duration, lengths, elbow, n_joints)
+    return line(lengths, elbow, n_joints, duration, start_mm, end_mm, "translation")
 
 
 def circle(lengths, elbow, n_joints, duration=20.0, centre_mm=(50.0, 138.0), radius_mm=35.0):
@@ -134,6 +140,35 @@ class Chain(Trajectory):
                 return part.sample(t)
             t -= part.duration
         return self.parts[-1].sample(t)
+
+
+def joint_waypoints(points: Sequence[Sequence[float]], durations: Sequence[float]) -> "Chain":
+    """Through joint-space points [rad], segment i (to point i + 1) taking durations[i] [s]
+    with cubic time scaling: at rest at every point."""
+    return Chain([JointMove(a, b, d) for a, b, d in zip(points, points[1:], durations)])
+
+
+def cartesian_waypoints(lengths, elbow, n_joints, points_mm: Sequence[Sequence[float]],
+                        durations: Sequence[float]) -> "Chain":
+    """Straight tip lines through points [mm], each with its duration [s] and cubic time scaling."""
+    return Chain([line(lengths, elbow, n_joints, d, a, b, f"segment {i + 1}")
+                  for i, (a, b, d) in enumerate(zip(points_mm, points_mm[1:], durations))])
+
+
+class Steps(Trajectory):
+    """A step sequence: jump to levels[i] [rad] and hold it for holds[i] [s], one after another."""
+
+    def __init__(self, levels: Sequence[Sequence[float]], holds: Sequence[float]):
+        self.levels = [list(q) for q in levels]
+        self.ends = [sum(holds[:i + 1]) for i in range(len(holds))]
+        self.duration = self.ends[-1]
+        self._zeros = [0.0] * len(self.levels[0])
+
+    def sample(self, t: float) -> Sample:
+        for level, end in zip(self.levels, self.ends):
+            if t < end:
+                return level, self._zeros, self._zeros
+        return self.levels[-1], self._zeros, self._zeros
 
 
 def check_within_limits(trajectory: Trajectory, limits: Sequence[tuple[float, float]], names: Sequence[str],

@@ -11,6 +11,7 @@ instead of hanging. ``keep_lease()`` renews the lease from a background thread.
 """
 from __future__ import annotations
 
+import csv
 import itertools
 import threading
 import time
@@ -18,6 +19,7 @@ import time
 import msgpack
 import zmq
 
+from controllers import lti_design
 from daemon import protocol
 from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -135,8 +137,45 @@ class Client:
     def controller(self):
         return self.call("controller.get")
 
-    def switch_controller(self, name: str, params: dict | None = None):
-        return self.call("controller.switch", {"name": name, "params": params or {}})
+    def waypoints(self, angles_deg=None, xy_mm=None, durations_s=(), approach_s: float | None = None):
+        """A path through joint (``angles_deg``) or tip (``xy_mm``) waypoints; see read_waypoints."""
+        args = {"durations_s": list(durations_s)}
+        if angles_deg is not None:
+            args["angles_deg"] = [list(p) for p in angles_deg]
+        if xy_mm is not None:
+            args["xy_mm"] = [list(p) for p in xy_mm]
+        if approach_s is not None:
+            args["approach_s"] = approach_s
+        return self.call("waypoints", args)
+
+    def steps(self, angles_deg, hold_s):
+        """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds."""
+        return self.call("steps", {"angles_deg": [list(p) for p in angles_deg], "hold_s": list(hold_s)})
+
+    def excite(self, signal: str, joint: str, amplitude_deg: float, **settings):
+        """An identification signal (chirp: f0_hz, f1_hz, duration_s; prbs: order, bit_s, periods)."""
+        return self.call("excite", {"signal": signal, "joint": joint, "amplitude_deg": amplitude_deg, **settings})
+
+    @staticmethod
+    def _candidate(name: str, params: dict | None, design: str | None) -> dict:
+        args = {"name": name, "params": params or {}}
+        if design is not None:
+            args["options"] = {"design": lti_design.read_file(design)}
+        return args
+
+    def switch_controller(self, name: str, params: dict | None = None, design: str | None = None):
+        """Switch controllers (bumpless); ``design`` is an LTI design file (.toml or .npz)."""
+        return self.call("controller.switch", self._candidate(name, params, design))
+
+    def shadow(self, name: str, params: dict | None = None, design: str | None = None):
+        """Run a candidate controller beside the active one, published but not applied."""
+        return self.call("controller.shadow", self._candidate(name, params, design))
+
+    def commit(self):
+        return self.call("controller.commit")
+
+    def discard(self):
+        return self.call("controller.discard")
 
     def set_params(self, **params):
         return self.call("controller.set", {"params": params})
@@ -174,6 +213,27 @@ class Client:
     # -- telemetry ------------------------------------------------------------------------
     def subscribe(self, topics=(b"state", b"stats", b"event")) -> "Subscription":
         return Subscription(self.context, self.endpoints["telemetry"], topics)
+
+
+def read_waypoints(path) -> dict:
+    """A waypoint CSV file as ``waypoints()`` arguments. The header names the columns:
+    ``duration_s`` (time from the previous point; ignored on the first row), then either
+    ``x_mm,y_mm`` (Cartesian) or one ``<joint>_deg`` column per joint, in the rig's order."""
+    with open(path, newline="") as f:
+        rows = [r for r in csv.reader(line for line in f if line.strip() and not line.startswith("#"))]
+    if len(rows) < 3 or rows[0][0].strip() != "duration_s":
+        raise ValueError(f"{path}: expected a header starting with duration_s and at least two points")
+    columns = [c.strip() for c in rows[0][1:]]
+    try:
+        values = [[float(v) for v in r] for r in rows[1:]]
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    points, durations = [v[1:] for v in values], [v[0] for v in values[1:]]
+    if columns == ["x_mm", "y_mm"]:
+        return {"xy_mm": points, "durations_s": durations}
+    if columns and all(c.endswith("_deg") for c in columns):
+        return {"angles_deg": points, "durations_s": durations}
+    raise ValueError(f"{path}: columns after duration_s must be x_mm,y_mm or <joint>_deg, got {','.join(columns)}")
 
 
 class Subscription:

@@ -8,7 +8,7 @@ import sys
 import time
 
 from daemon import recording
-from daemon.client import Client, RemoteError
+from daemon.client import Client, RemoteError, read_waypoints
 from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
@@ -84,9 +84,26 @@ def parser() -> argparse.ArgumentParser:
     pa.add_argument("name", choices=["translation", "circle"])
     pa.add_argument("--duration", type=float, default=None)
     pa.add_argument("--approach", type=float, default=None)
-    c = sub.add_parser("controller", help="list, get, switch, set")
-    c.add_argument("action", choices=["list", "get", "switch", "set"])
-    c.add_argument("args", nargs="*", help="switch: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
+    wp = sub.add_parser("waypoints", help="run a path through waypoints from a CSV file")
+    wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
+    wp.add_argument("--approach", type=float, default=None)
+    st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint angles [deg]")
+    st.add_argument("levels", nargs="+")
+    st.add_argument("--hold", default="5", help="hold time per level [s], one value or one per level (comma list)")
+    ex = sub.add_parser("excite", help="identification signal on one joint: chirp or prbs")
+    ex.add_argument("signal", choices=["chirp", "prbs"])
+    ex.add_argument("joint")
+    ex.add_argument("--amplitude", type=float, default=1.0, help="[deg] (default 1)")
+    ex.add_argument("--f0", type=float, default=0.1, help="chirp start frequency [Hz] (default 0.1)")
+    ex.add_argument("--f1", type=float, default=1.0, help="chirp end frequency [Hz] (default 1)")
+    ex.add_argument("--duration", type=float, default=60.0, help="chirp duration [s] (default 60)")
+    ex.add_argument("--order", type=int, default=8, help="PRBS register length (default 8: 255 bits)")
+    ex.add_argument("--bit", type=float, default=0.2, help="PRBS bit time [s] (default 0.2)")
+    ex.add_argument("--periods", type=int, default=1, help="PRBS repetitions (default 1)")
+    c = sub.add_parser("controller", help="list, get, switch, set, shadow, commit, discard")
+    c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
+    c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
+    c.add_argument("--design", default=None, help="LTI design file (.toml or .npz) for lti and lti_dob")
     r = sub.add_parser("record", help="record telemetry to a self-describing file")
     r.add_argument("file")
     r.add_argument("--seconds", type=float, default=10.0)
@@ -146,15 +163,33 @@ def run(client: Client, args):
         return with_lease(client, lambda: client.set(duration_s=args.duration, **kw))
     if w == "path":
         return with_lease(client, lambda: client.path(args.name, args.duration, args.approach))
+    if w == "waypoints":
+        try:
+            spec = read_waypoints(args.file)
+        except (OSError, ValueError) as exc:
+            raise SystemExit(str(exc)) from None
+        return with_lease(client, lambda: client.waypoints(**spec, approach_s=args.approach))
+    if w == "steps":
+        levels = [[float(v) for v in level.split(",")] for level in args.levels]
+        holds = [float(v) for v in args.hold.split(",")]
+        holds = holds * len(levels) if len(holds) == 1 else holds
+        return with_lease(client, lambda: client.steps(levels, holds))
+    if w == "excite":
+        settings = ({"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration} if args.signal == "chirp"
+                    else {"order": args.order, "bit_s": args.bit, "periods": args.periods})
+        return with_lease(client, lambda: client.excite(args.signal, args.joint, args.amplitude, **settings))
     if w == "controller":
         if args.action == "list":
             return client.controllers()
         if args.action == "get":
             return client.controller()
-        if args.action == "switch":
+        if args.action in ("commit", "discard"):
+            return with_lease(client, getattr(client, args.action))
+        if args.action in ("switch", "shadow"):
             if not args.args:
-                raise SystemExit("controller switch NAME [KEY=VALUE ...]")
-            return with_lease(client, lambda: client.switch_controller(args.args[0], key_values(args.args[1:])))
+                raise SystemExit(f"controller {args.action} NAME [KEY=VALUE ...] [--design FILE]")
+            act = client.switch_controller if args.action == "switch" else client.shadow
+            return with_lease(client, lambda: act(args.args[0], key_values(args.args[1:]), args.design))
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "record":
         record(client, args.file, args.seconds)

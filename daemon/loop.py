@@ -17,6 +17,7 @@ from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
 from daemon.safety import State, Supervisor
+from daemon.shadow import ShadowRun
 from daemon.stats import LoopStats
 from hal.actuation import BiasedHeadActuation
 from hal.errors import CommandError, TransportError
@@ -35,6 +36,7 @@ class ControlLoop:
         self.context = ControllerContext.for_rig(self.rig, self.actuation, period)
         self.supervisor = Supervisor(self.rig, period)
         self.controller: Controller = registry.build(controller, self.context)
+        self.shadow: ShadowRun | None = None
         self.telemetry = telemetry
         self.server = server
         self.stats = LoopStats()
@@ -167,14 +169,20 @@ class ControlLoop:
     def _control(self, now: float) -> None:
         ref = self.trajectory.sample(now - self.trajectory_t0)
         self.reference = ref
+        state, reference = JointState(now, self.angles, self.velocities), Reference(*ref)
         try:
-            u = self.controller.step(JointState(now, self.angles, self.velocities), Reference(*ref))
+            u = self.controller.step(state, reference)
             if len(u) != self.n or not all(math.isfinite(v) for v in u):
                 raise ValueError(f"returned {u!r}: expected {self.n} finite values")
         except Exception as exc:  # a plugin's failure must never take the loop down
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return
         self.u = list(u)  # the loop's own copy: a plugin may reuse its buffer
+        if self.shadow is not None:
+            try:
+                self.shadow.step(state, reference, self.u)
+            except Exception as exc:  # the candidate's failure ends its run, nothing more
+                self.end_shadow("failed", f"{type(exc).__name__}: {exc}")
 
     def replace_failed_controller(self, cause: str) -> None:
         """Trip to the safe state and put the hold controller in the failed one's place."""
@@ -224,7 +232,10 @@ class ControlLoop:
     def enable(self) -> None:
         self.supervisor.enable()
         self.u = [0.0] * self.n
-        self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        state = JointState(self.clock.now(), self.angles, self.velocities)
+        self.controller.reset(state, self.u)
+        if self.shadow is not None:
+            self.shadow.controller.reset(state, self.u)
         self.hold_position()
 
     def disable(self) -> None:
@@ -240,12 +251,36 @@ class ControlLoop:
         faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)
         self.supervisor.reset(faults)
 
-    def switch_controller(self, new: Controller) -> None:
+    def switch_controller(self, new: Controller, cause: str = "switch") -> None:
         """Swap in a controller built and validated beforehand; bumpless via reset()."""
         new.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
         old = self.controller.name
         self.controller = new
-        self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": "switch"})
+        self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": cause})
+
+    def start_shadow(self, candidate: Controller) -> None:
+        """Run ``candidate`` beside the active controller from the next cycle (replacing any
+        shadow run already going); it starts from the present state and output."""
+        if self.shadow is not None:
+            self.end_shadow("replaced", f"by {candidate.name}")
+        candidate.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        self.shadow = ShadowRun(candidate, self.n)
+        self.supervisor.events.append({"kind": "shadow", "action": "start", "controller": candidate.name})
+
+    def end_shadow(self, action: str, cause: str = "") -> dict:
+        """Stop the shadow run; its summary (also published as an event)."""
+        summary = self.shadow.summary()
+        self.shadow = None
+        self.supervisor.events.append({"kind": "shadow", "action": action, "cause": cause, **summary})
+        return summary
+
+    def commit_shadow(self) -> dict:
+        """Make the shadow candidate the active controller at this cycle boundary, bumplessly
+        (it is reset from the measured state and the output in force, as any switch)."""
+        candidate = self.shadow.controller
+        summary = self.end_shadow("commit")
+        self.switch_controller(candidate, "shadow commit")
+        return summary
 
     @property
     def state(self) -> State:

@@ -20,6 +20,7 @@ NO_LEASE = "no_lease"  # the command moves the arm and the caller does not hold 
 LEASE_HELD = "lease_held"  # another client holds the lease
 BAD_STATE = "bad_state"  # not allowed in the daemon's present state
 REFUSED = "refused"  # valid, but unsafe or infeasible on this rig
+BUSY = "busy"  # a controller is being prepared off the loop; ask again when its reply is in
 INTERNAL = "internal"  # a bug: reported, never fatal
 
 

@@ -13,6 +13,7 @@ import zmq
 
 from daemon import protocol
 from daemon.commands import Commands
+from daemon.preparation import Deferred
 
 DEFAULT_COMMAND = "tcp://127.0.0.1:5560"
 DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
@@ -35,6 +36,7 @@ class ZmqServer:
         self.endpoints = {name: sock.getsockopt_string(zmq.LAST_ENDPOINT)
                           for name, sock in (("command", self.cmd), ("control", self.ctl), ("telemetry", self.pub))}
         self.commands: Commands | None = None
+        self._waiting: list[tuple[zmq.Socket, list, object, Deferred]] = []  # replies owed once work is done
         self.reply_failures = 0
         self.published = 0
 
@@ -62,8 +64,17 @@ class ZmqServer:
     def poll(self, loop) -> None:
         """Once a cycle, at its end: the lease clock, then the control socket, then a few commands."""
         self.commands.tick()
+        if self._waiting:
+            self._complete()
         self._serve(self.ctl, True, MAX_CONTROL_PER_CYCLE)
         self._serve(self.cmd, False, self.max_per_cycle)
+
+    def _complete(self) -> None:
+        """Reply to deferred commands whose work is done (applying it at this boundary)."""
+        for item in [w for w in self._waiting if w[3].future.done()]:
+            self._waiting.remove(item)
+            sock, envelope, request_id, deferred = item
+            self._send(sock, envelope, self.commands.complete(request_id, deferred))
 
     def _serve(self, sock: zmq.Socket, control: bool, limit: int) -> None:
         for _ in range(limit):
@@ -75,11 +86,19 @@ class ZmqServer:
             except zmq.Again:
                 return
             reply = self.commands.handle_payload(frames[-1], control)
-            try:
-                sock.send_multipart([*frames[:-1], reply], zmq.NOBLOCK)
-            except zmq.ZMQError:
-                self.reply_failures += 1  # the peer is gone or not reading: its loss, not the loop's
+            if isinstance(reply, tuple):
+                self._waiting.append((sock, frames[:-1], *reply))
+            else:
+                self._send(sock, frames[:-1], reply)
+
+    def _send(self, sock: zmq.Socket, envelope: list, reply: bytes) -> None:
+        try:
+            sock.send_multipart([*envelope, reply], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            self.reply_failures += 1  # the peer is gone or not reading: its loss, not the loop's
 
     def close(self) -> None:
+        if self.commands is not None:
+            self.commands.preparer.close()
         for sock in (self.cmd, self.ctl, self.pub):
             sock.close(linger=0)

@@ -1,6 +1,7 @@
 """Telemetry: what the loop publishes, as msgpack on ZeroMQ PUB topics.
 
 - ``state``: every cycle, batched (``batch`` cycles a message), columns named with units;
+  ``shadow_u_volts`` is what a shadow-run candidate would have commanded (None without one);
 - ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns);
 - ``event``: state changes, trips, controller switches, at once.
 Every message carries a per-topic ``seq`` so a subscriber can count what it missed. Sending
@@ -12,7 +13,7 @@ from __future__ import annotations
 import msgpack
 
 STATE_FIELDS = ("cycle", "t", "angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts",
-                "p_head_pa", "p_rod_pa", "out_volts", "force_n", "mode")
+                "p_head_pa", "p_rod_pa", "out_volts", "force_n", "mode", "shadow_u_volts")
 
 
 class Telemetry:
@@ -29,7 +30,8 @@ class Telemetry:
         snap = loop.snapshot
         self._rows.append((loop.cycle, snap.t if snap is not None else loop.clock.now(), tuple(loop.angles),
                            tuple(loop.velocities), loop.reference[0], loop.u, loop.p_head, loop.p_rod,
-                           loop.io.last_volts, loop.force, loop.supervisor.state.value))
+                           loop.io.last_volts, loop.force, loop.supervisor.state.value,
+                           loop.shadow.u if loop.shadow is not None else None))
         if len(self._rows) >= self.batch:
             self.flush()
 

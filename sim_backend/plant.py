@@ -10,8 +10,15 @@ import math
 from hal import kinematics
 from hal.config import RigConfig
 from hal.errors import ConfigError
+from hal.identified import (
+    IDENTIFIED,
+    K_EP,
+    P_OFFSET,
+    P_SET_MAX,
+    P_SET_MIN,
+    SUPPLY_HEADROOM,
+)
 from sim_backend.joint_model import JointModel
-from hal.identified import IDENTIFIED, K_EP, P_OFFSET, P_SET_MAX, P_SET_MIN, SUPPLY_HEADROOM
 from sim_backend.options import SimJointOptions, SimOptions
 
 

@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 
 from bench import scenarios as S
-from controllers import registry
+from controllers import lti_design, registry
 from controllers.base import ControllerContext, ParamError
+from controllers.estimation import DelayedStateEstimator
 from controllers.smc import sliding_hyperplane, sliding_poles
 from controllers.trajectory import JointMove
+from tests.test_lti import PI_FILE
 
 DOB_AND_FRIENDS = ["smc", "smc_dob"]
 
@@ -51,15 +53,16 @@ def test_the_observer_rejects_a_step_torque_faster_than_smc_alone():
 
 
 @pytest.mark.parametrize("old,new", [("pid", "smc"), ("smc", "smc_dob"), ("smc_dob", "sac"), ("sac", "pid"),
-                                     ("smc", "hold")])
+                                     ("smc", "hold"), ("smc_dob", "lti"), ("lti", "lti_dob"), ("lti_dob", "pid")])
 def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new):
-    loop = S.make_loop(old)
+    loop = S.make_loop("hold")
+    loop.switch_controller(registry.build(old, loop.context, options=_options(old)))
     path = S.make_path(loop, "translation", 15.0)
     S.approach(loop, path.sample(0.0)[0])
     loop.set_trajectory(path, "path")
     loop.run(5000)  # halfway along, moving
     before, cycle = list(loop.u), loop.cycle
-    loop.switch_controller(registry.build(new, loop.context))
+    loop.switch_controller(registry.build(new, loop.context, options=_options(new)))
     loop.run(1)
     span = [hi - lo for lo, hi in zip(loop.context.u_min, loop.context.u_max)]
     assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(loop.u, before, span)), (before, loop.u)
@@ -68,6 +71,26 @@ def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new)
     assert loop.state.value == "enabled" and loop.controller.name == new
     if new != "hold":  # tracking continues
         assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
+
+
+def _options(name: str) -> dict | None:
+    return {"design": lti_design.read_file(PI_FILE)} if name.startswith("lti") else None
+
+
+def test_an_estimator_told_the_applied_output_matches_one_that_was_sent_it():
+    """Shadow runs: replacing the last output is the same as having advanced with it."""
+    models = S.make_loop("pid").context.models
+    told, sent = (DelayedStateEstimator(models, 0.001, [1e-2] * 2, [0.5] * 2) for _ in range(2))
+    for est in (told, sent):
+        est.reset([0.1, -1.7], [0.5, -0.5])
+    rng = np.random.default_rng(1)
+    for k in range(300):
+        angles = [0.1 + 0.01 * math.sin(k / 50), -1.7 + 0.01 * math.cos(k / 40)]
+        applied, own = rng.uniform(-3, 3, 2), rng.uniform(-3, 3, 2)
+        np.testing.assert_allclose(told.estimate(angles), sent.estimate(angles), atol=1e-12)
+        told.advance(own)
+        told.replace_last(applied)
+        sent.advance(applied)
 
 
 def test_a_live_gain_change_acts_next_cycle_and_a_bad_one_changes_nothing():

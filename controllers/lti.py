@@ -1,0 +1,100 @@
+"""Discrete LTI state-space controller from a design file (rig-facts §1 "mu-synthesis"), and
+the same with the disturbance observer.
+
+Per joint, at the loop period (see :mod:`controllers.lti_design` for the file and c2d):
+
+    e = r - th [rad],   u = gain (C x + D e),   x <- A x + B e,   u = V_MV [V].
+
+All joints run as one block-diagonal system, so a cycle is two small matrix products.
+``gain`` scales the design's output (the K_tune of rig-facts' robust view) and can change
+live. Bumpless transfer: on its first cycle the controller puts its state where the output
+equals the one in force and, as far as the design allows, at rest for the present error
+(least squares on [(I - A) x = B e, C x = u/gain - D e], the output rows weighted heavily).
+Anti-windup: while a joint's output is clamped, its part of the state is held
+(conditional integration), the one rule that fits any design.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import block_diag
+
+from controllers import lti_design
+from controllers.base import Controller, JointState, OptionSpec, ParamSpec, Reference
+from controllers.dob import DOB_PARAMS, WithDisturbanceObserver
+
+OUTPUT_WEIGHT = 1e3  # of the output-matching rows in the bumpless least-squares fit
+
+
+class LTI(Controller):
+    """Discrete LTI state-space controller per joint, loaded from matrices (e.g. a mu-synthesis design)."""
+
+    name = "lti"
+    options = (OptionSpec("design", "the design as a map {joints: {name: {A, B, C, D, dt, input, method}}}; "
+                                    "pneumactl reads it from a .toml or .npz file (see docs/controllers.md)",
+                          required=True),)
+    params = (ParamSpec("gain", "-", 0.0, 10.0, (1.0, 1.0), "scale on the design's output"),)
+
+    def check_options(self, options):
+        return lti_design.parse(options["design"], self.context.joint_names, self.context.dt)
+
+    def derive(self, values):
+        designs = self.chosen
+        rows, start = [], 0
+        for d in designs:
+            rows.append(np.arange(start, start + d.order))
+            start += d.order
+        return {
+            "a": block_diag(*(d.a for d in designs)),
+            "b": block_diag(*(d.b for d in designs)),
+            "c": block_diag(*(d.c for d in designs)),
+            "d": np.array([d.d for d in designs]),
+            "gain": np.array(values["gain"]),
+            "rows": rows,
+        }
+
+    def __init__(self, context, **values):
+        super().__init__(context, **values)
+        self._x = np.zeros(self.k["a"].shape[0])
+        self._taking_over: list[float] | None = None
+
+    def reset(self, state: JointState, last_output) -> None:
+        self._taking_over = [float(u) for u in last_output]
+
+    def step(self, state: JointState, reference: Reference) -> list[float]:
+        k, ctx = self.k, self.context
+        e = np.subtract(reference.angles, state.angles)
+        if self._taking_over is not None:
+            self._x = self._state_for(e, self._taking_over)
+            self._taking_over = None
+        v = k["gain"] * (k["c"] @ self._x + k["d"] * e)
+        u = np.clip(v, ctx.u_min, ctx.u_max)
+        x = k["a"] @ self._x + k["b"] @ e
+        if (u != v).any():  # hold the state of each clamped joint
+            for j in np.flatnonzero(u != v):
+                x[k["rows"][j]] = self._x[k["rows"][j]]
+        self._x = x
+        return u.tolist()
+
+    def _state_for(self, e: np.ndarray, output: list[float]) -> np.ndarray:
+        """The state that gives ``output`` now, at rest for the error e if the design allows."""
+        k = self.k
+        x = np.zeros(k["a"].shape[0])
+        for j, rows in enumerate(k["rows"]):
+            if not len(rows) or k["gain"][j] == 0.0:
+                continue
+            a = k["a"][np.ix_(rows, rows)]
+            b = k["b"][rows, j]
+            c = k["c"][j, rows]
+            lhs = np.vstack([np.eye(len(rows)) - a, OUTPUT_WEIGHT * c[None, :]])
+            rhs = np.append(b * e[j], OUTPUT_WEIGHT * (output[j] / k["gain"][j] - k["d"][j] * e[j]))
+            x[rows] = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        return x
+
+
+class LTIWithDOB(WithDisturbanceObserver):
+    """The LTI design with the disturbance observer subtracting the estimated input disturbance."""
+
+    name = "lti_dob"
+    inner_class = LTI
+    params = LTI.params + DOB_PARAMS
+    options = LTI.options

@@ -1,0 +1,145 @@
+"""Hot swap through the command protocol: controllers are built off the loop and swapped in
+at a cycle boundary, a candidate can run in shadow and be committed, and a failing
+candidate only ends its own run. The real loop on a virtual clock, real ZeroMQ sockets."""
+import math
+
+import msgpack
+import pytest
+
+from controllers import lti_design
+from daemon import protocol as P
+from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+from tests.test_lti import PI_FILE
+
+
+@pytest.fixture
+def moving():
+    """Enabled, the lease held, halfway along the translation path under PID."""
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    ok(loop, sock, "path", {"name": "translation", "duration_s": 15.0, "approach_s": 6.0}, lease=lease)
+    run_seconds(loop, 12.0)
+    yield loop, captured, sock, lease
+    srv.close()
+
+
+def assert_bumpless(loop, captured, cycle):
+    """The swap a reply reports at ``cycle`` took effect at that cycle's end, so the state row
+    of cycle + 1 holds the new controller's first output: within 1 % of the command range of
+    the last output of the old one."""
+    loop.run(20)  # flush the telemetry batch
+    u = {c: row for m in captured.of("state") for c, row in zip(m["cycle"], m["u_volts"])}
+    span = [hi - lo for lo, hi in zip(loop.context.u_min, loop.context.u_max)]
+    before, after = u[cycle], u[cycle + 1]
+    assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(after, before, span)), (before, after)
+
+
+def test_a_switch_is_built_off_the_loop_and_replied_once_it_is_in_force(moving):
+    loop, captured, sock, lease = moving
+    sent_at = loop.cycle
+    result = ok(loop, sock, "controller.switch", {"name": "smc"}, lease)
+    assert result["active"] == "smc" and loop.controller.name == "smc"
+    assert result["cycle"] > sent_at  # the loop kept cycling while the worker built it
+    assert loop.stats.overruns_total == 0
+    switch = [e for e in captured.of("event") if e.get("kind") == "controller"]
+    assert switch[-1]["to"] == "smc" and switch[-1]["cause"] == "switch"
+
+
+def test_a_second_build_while_one_is_prepared_is_refused_as_busy(moving):
+    loop, _, sock, lease = moving
+    sock.send(P.encode_request(1, "controller.switch", {"name": "smc"}, lease))
+    sock.send(P.encode_request(2, "controller.switch", {"name": "sac"}, lease))
+    replies = {}
+    for _ in range(20000):
+        loop.run(1)
+        while sock.poll(0):
+            reply = msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+            replies[reply["id"]] = reply
+        if len(replies) == 2:
+            break
+        sock.poll(0.1)
+    assert replies[1]["ok"] and replies[1]["result"]["active"] == "smc"
+    assert replies[2]["error"]["code"] == P.BUSY
+    assert loop.controller.name == "smc" and loop.state.value == "enabled"
+
+
+def test_a_controller_that_cannot_be_built_is_refused_and_the_active_one_stays(moving):
+    loop, _, sock, lease = moving
+    for args, code, text in (({"name": "nope"}, P.BAD_ARGS, "nope"),
+                             ({"name": "smc", "params": {"eps": -1}}, P.BAD_ARGS, "eps"),
+                             ({"name": "lti"}, P.BAD_ARGS, "option 'design' is required"),
+                             ({"name": "lti", "options": {"design": {"joints": {}}}}, P.BAD_ARGS, "no controller for"),
+                             ({"name": "smc", "params": []}, P.BAD_ARGS, "must be maps")):
+        reply = call(loop, sock, "controller.switch", args, lease)
+        assert reply["error"]["code"] == code and text in reply["error"]["message"], reply
+    assert loop.controller.name == "pid" and loop.state.value == "enabled"
+
+
+def test_an_lti_design_sent_over_the_wire_takes_over_bumplessly(moving):
+    loop, captured, sock, lease = moving
+    design = lti_design.read_file(PI_FILE)
+    result = ok(loop, sock, "controller.switch", {"name": "lti_dob", "options": {"design": design}}, lease)
+    assert loop.controller.name == "lti_dob"
+    assert_bumpless(loop, captured, result["cycle"])
+    run_seconds(loop, 3.0)
+    assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
+
+
+def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(moving):
+    loop, captured, sock, lease = moving
+    assert ok(loop, sock, "controller.shadow", {"name": "smc_dob"}, lease)["shadow"] == "smc_dob"
+    run_seconds(loop, 2.0)
+    rows = [(u, s) for m in captured.of("state") for u, s in zip(m["u_volts"], m["shadow_u_volts"])
+            if s is not None]
+    assert len(rows) > 1500 and loop.controller.name == "pid"
+    status = ok(loop, sock, "status")
+    assert status["shadow"]["controller"] == "smc_dob" and status["shadow"]["cycles"] >= len(rows)
+    for j in range(loop.n):  # the run's comparison is that of the published outputs
+        diffs = [abs(sh[j] - u[j]) for u, sh in rows]
+        assert status["shadow"]["max_diff_volts"][j] >= max(diffs) - 1e-12
+        rms = math.sqrt(sum(d * d for d in diffs) / len(diffs))
+        assert status["shadow"]["rms_diff_volts"][j] == pytest.approx(rms, rel=0.1)
+    committed = ok(loop, sock, "controller.commit", {}, lease)
+    assert committed["active"] == "smc_dob" and committed["cycles"] >= len(rows)
+    assert_bumpless(loop, captured, committed["cycle"])
+    run_seconds(loop, 3.0)
+    cycles = [c for m in captured.of("state") for c in m["cycle"]]
+    assert cycles == list(range(cycles[0], cycles[0] + len(cycles)))  # no cycle missed across it all
+    assert loop.stats.overruns_total == 0
+    assert loop.state.value == "enabled" and loop.controller.name == "smc_dob" and loop.shadow is None
+    assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
+    kinds = [(e["kind"], e.get("action")) for e in captured.of("event")]
+    assert ("shadow", "start") in kinds and ("shadow", "commit") in kinds
+
+
+def test_a_failing_shadow_ends_its_own_run_and_nothing_else(moving):
+    loop, captured, sock, lease = moving
+    ok(loop, sock, "controller.shadow", {"name": "tests.plugins:Raising"}, lease)
+    run_seconds(loop, 0.1)
+    assert loop.shadow is None and loop.controller.name == "pid" and loop.state.value == "enabled"
+    failed = [e for e in captured.of("event") if e.get("kind") == "shadow" and e.get("action") == "failed"]
+    assert failed and "controller bug" in failed[0]["cause"]
+    assert call(loop, sock, "controller.commit", {}, lease)["error"]["code"] == P.BAD_STATE
+
+
+def test_a_discarded_shadow_run_reports_its_comparison_and_changes_nothing(moving):
+    loop, _, sock, lease = moving
+    ok(loop, sock, "controller.shadow", {"name": "pid", "params": {"Kp": [60.0, 60.0]}}, lease)
+    run_seconds(loop, 1.0)
+    summary = ok(loop, sock, "controller.discard", {}, lease)
+    assert summary["controller"] == "pid" and summary["cycles"] >= 990
+    assert max(summary["max_diff_volts"]) > 0.0  # other gains, other outputs
+    assert loop.shadow is None and loop.controller.get_params()["Kp"] != [60.0, 60.0]
+
+
+def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):
+    loop, _, sock, lease = moving
+    ok(loop, sock, "controller.switch", {"name": "smc"}, lease)
+    result = ok(loop, sock, "controller.set", {"params": {"eps": [2.0, 1.0]}}, lease)
+    assert result["params"]["eps"] == [2.0, 1.0] and loop.controller.get_params()["eps"] == [2.0, 1.0]
+    before = loop.controller.get_params()
+    reply = call(loop, sock, "controller.set", {"params": {"eps": [2.0, 500.0]}}, lease)
+    assert reply["error"]["code"] == P.BAD_ARGS and "eps[middle] = 500.0" in reply["error"]["message"]
+    assert loop.controller.get_params() == before

@@ -1,0 +1,181 @@
+"""More references: waypoint paths (joint and Cartesian), step sequences, and the chirp and
+PRBS identification signals, as trajectories and through the command protocol."""
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import chirp, max_len_seq
+
+from controllers import signals, trajectory
+from daemon import protocol as P
+from daemon.client import read_waypoints
+from hal import config, kinematics
+from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+
+
+@pytest.fixture
+def armed():
+    """Enabled at rest with the lease held."""
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    run_seconds(loop, 2.0)
+    yield loop, captured, sock, lease
+    srv.close()
+
+
+def test_the_log_chirp_has_scipys_phase_and_its_own_rates():
+    sig = signals.LogChirp([0.3, -1.7], 0, 0.02, 0.1, 1.0, 20.0)
+    t = np.linspace(0.0, 19.9, 400)
+    expected = 0.02 * chirp(t, 0.1, 20.0, 1.0, method="logarithmic", phi=-90)
+    np.testing.assert_allclose([sig.sample(x)[0][0] - 0.3 for x in t], expected, atol=1e-9)
+    h = 1e-5
+    for x in (0.5, 7.3, 19.0):
+        r0, r1 = sig.offset(x - h), sig.offset(x + h)
+        assert sig.offset(x)[1] == pytest.approx((r1[0] - r0[0]) / (2 * h), rel=1e-5)
+        assert sig.offset(x)[2] == pytest.approx((r1[1] - r0[1]) / (2 * h), rel=1e-4)
+    assert sig.sample(5.0)[0][1] == -1.7 and sig.sample(25.0)[0] == [0.3, -1.7]
+
+
+def test_the_prbs_is_the_maximum_length_sequence_held_bit_by_bit():
+    sig = signals.PRBS([0.0, 0.0], 1, 0.01, 5, 0.1, periods=2)
+    bits = max_len_seq(5)[0]
+    assert sig.duration == pytest.approx(31 * 0.1 * 2)
+    seen = [sig.sample(0.05 + 0.1 * i)[0][1] for i in range(62)]
+    assert seen == [0.01 if b else -0.01 for b in bits] * 2
+    assert sum(seen) == pytest.approx(0.02)  # one more +1 than -1 per period: nearly zero mean
+
+
+def test_joint_waypoints_pass_each_point_at_rest_at_its_time():
+    points = [[0.0, -1.7], [0.2, -1.6], [0.1, -1.75]]
+    path = trajectory.joint_waypoints(points, [2.0, 3.0])
+    assert path.duration == 5.0
+    for t, p in ((0.0, points[0]), (2.0, points[1]), (5.0, points[2])):
+        q, w, _ = path.sample(t)
+        assert q == pytest.approx(p) and w == pytest.approx([0.0, 0.0], abs=1e-12)
+
+
+def test_cartesian_waypoints_run_straight_lines_between_the_points():
+    lengths = (0.1, 0.1)
+    pts = [(70.0, 135.0), (20.0, 150.0), (-20.0, 135.0)]
+    path = trajectory.cartesian_waypoints(lengths, 1, 2, pts, [4.0, 6.0])
+    for t, (a, b), frac in ((2.0, (pts[0], pts[1]), 0.5), (7.0, (pts[1], pts[2]), 0.5), (4.0, (pts[0], pts[1]), 1.0)):
+        x, y = kinematics.forward(path.sample(t)[0][:2], lengths)
+        assert (x * 1e3, y * 1e3) == pytest.approx((a[0] + frac * (b[0] - a[0]), a[1] + frac * (b[1] - a[1])), abs=1e-6)
+
+
+def test_a_waypoint_file_reads_as_joint_or_cartesian(tmp_path):
+    joint = tmp_path / "joint.csv"
+    joint.write_text("# a joint path\nduration_s,bottom_deg,middle_deg\n0,10,-100\n4,20,-95\n\n3,15,-100\n")
+    assert read_waypoints(joint) == {"angles_deg": [[10, -100], [20, -95], [15, -100]], "durations_s": [4, 3]}
+    cart = tmp_path / "tip.csv"
+    cart.write_text("duration_s,x_mm,y_mm\n0,70,135\n5,20,150\n")
+    assert read_waypoints(cart) == {"xy_mm": [[70, 135], [20, 150]], "durations_s": [5]}
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,a,b\n0,1,2\n1,2,3\n")
+    with pytest.raises(ValueError, match="header starting with duration_s"):
+        read_waypoints(bad)
+
+
+def test_a_joint_waypoint_path_is_followed_to_its_last_point(armed):
+    loop, captured, sock, lease = armed
+    here = [math.degrees(q) for q in loop.reference[0]]
+    points = [here, [here[0] + 5, here[1] + 2], [here[0] - 3, here[1]]]
+    result = ok(loop, sock, "waypoints", {"angles_deg": points, "durations_s": [10.0, 10.0], "approach_s": 0.5},
+                lease)
+    assert result["points"] == 3 and result["duration_s"] == 20.0
+    run_seconds(loop, 10.5)
+    assert [math.degrees(q) for q in loop.reference[0]] == pytest.approx(points[1], abs=1e-6)
+    run_seconds(loop, 20.0)
+    assert [math.degrees(q) for q in loop.angles] == pytest.approx(points[2], abs=0.5)
+    assert loop.state.value == "enabled"
+
+
+def test_a_waypoint_path_too_fast_for_the_rig_is_refused_with_the_duration_that_would_do(armed):
+    loop, _, sock, lease = armed
+    args = {"xy_mm": [[70, 135], [20, 150], [-20, 135]], "durations_s": [1.0, 1.0], "approach_s": 20.0}
+    reply = call(loop, sock, "waypoints", args, lease)
+    assert reply["error"]["code"] == P.REFUSED
+    shortest = float(reply["error"]["message"].rsplit("shortest feasible duration is ", 1)[1].split(" s")[0])
+    assert shortest > 2.0
+    ok(loop, sock, "waypoints", {**args, "durations_s": [shortest / 2, shortest / 2]}, lease)
+
+
+@pytest.mark.parametrize("args, text", [
+    ({"angles_deg": [[0, -100]], "durations_s": []}, "2 to 1000 points"),
+    ({"angles_deg": [[0, -100], [1, -100]], "durations_s": [1, 2]}, "one fewer than points"),
+    ({"angles_deg": [[0, -100], [1, "x"]], "durations_s": [1]}, "angles_deg[1]"),
+    ({"xy_mm": [[0, 0], [500, 0]], "durations_s": [5]}, "out of reach"),
+    ({"angles_deg": [[0, -100], [170, -100]], "durations_s": [5]}, "outside its limits"),
+    ({"angles_deg": [[0, -100], [1, -100]], "xy_mm": [[0, 1]], "durations_s": [1]}, "exactly one of"),
+])
+def test_bad_waypoints_get_a_clear_error(armed, args, text):
+    loop, _, sock, lease = armed
+    reply = call(loop, sock, "waypoints", args, lease)
+    assert not reply["ok"] and text in reply["error"]["message"], reply
+
+
+def test_a_step_sequence_holds_each_level_for_its_time(armed):
+    loop, captured, sock, lease = armed
+    here = [math.degrees(q) for q in loop.reference[0]]
+    levels = [[here[0] + 3, here[1]], [here[0] - 2, here[1] + 1]]
+    ok(loop, sock, "steps", {"angles_deg": levels, "hold_s": [8.0, 8.0]}, lease)
+    run_seconds(loop, 7.9)
+    assert [math.degrees(q) for q in loop.angles][0] == pytest.approx(levels[0][0], abs=0.3)
+    run_seconds(loop, 8.0)
+    assert [math.degrees(q) for q in loop.reference[0]] == pytest.approx(levels[1])
+
+
+def test_a_level_the_rig_cannot_hold_is_refused_for_steps_and_set_alike():
+    """On a rig whose middle joint may reach -10 deg, the spring there needs about +8 V of
+    V_MV where +6 V exists: a step to it is refused, whatever the controller could do."""
+    text = config.load().source.replace("max_angle_deg = -40.0", "max_angle_deg = 0.0")
+    loop, _, srv = make_loop(text, server=True)
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire")["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    here = [math.degrees(q) for q in loop.reference[0]]
+    reply = call(loop, sock, "steps", {"angles_deg": [[here[0], -60.0], [here[0], -10.0]], "hold_s": [5.0, 5.0]}, lease)
+    assert reply["error"]["code"] == P.REFUSED and "joint middle" in reply["error"]["message"]
+    assert "a level is beyond what the rig can hold there" in reply["error"]["message"]
+    reply = call(loop, sock, "set", {"angles_deg": [here[0], -10.0]}, lease)
+    assert reply["error"]["code"] == P.REFUSED and "the rig cannot hold that angle" in reply["error"]["message"]
+    ok(loop, sock, "set", {"angles_deg": [here[0], -60.0]}, lease)  # one it can hold is taken
+    srv.close()
+
+
+def test_a_chirp_on_one_joint_moves_that_joint_and_holds_the_other(armed):
+    loop, captured, sock, lease = armed
+    start_cycle = loop.cycle
+    here = list(loop.reference[0])
+    ok(loop, sock, "excite", {"signal": "chirp", "joint": "bottom", "amplitude_deg": 1.0, "f0_hz": 0.1,
+                              "f1_hz": 0.5, "duration_s": 20.0}, lease)
+    run_seconds(loop, 20.0)
+    rows = [(q, r) for m in captured.of("state") for c, q, r in zip(m["cycle"], m["angle_rad"], m["setpoint_rad"])
+            if c > start_cycle]
+    bottom = [math.degrees(q[0] - here[0]) for q, _ in rows]
+    assert max(bottom) > 0.7 and min(bottom) < -0.7  # the loop follows the slow part of the sweep
+    assert max(abs(math.degrees(r[1] - here[1])) for _, r in rows) == 0.0
+    assert max(abs(math.degrees(q[1] - here[1])) for q, _ in rows) < 0.3
+    assert loop.state.value == "enabled"
+
+
+def test_a_prbs_starts_and_a_chirp_beyond_the_rig_is_refused_with_the_remedy(armed):
+    loop, _, sock, lease = armed
+    result = ok(loop, sock, "excite", {"signal": "prbs", "joint": "middle", "amplitude_deg": 0.5, "order": 6,
+                                       "bit_s": 0.5}, lease)
+    assert result["duration_s"] == pytest.approx(63 * 0.5)
+    reply = call(loop, sock, "excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 5.0, "f0_hz": 0.1,
+                                        "f1_hz": 2.0, "duration_s": 30.0}, lease)
+    assert reply["error"]["code"] == P.REFUSED
+    assert "joint middle" in reply["error"]["message"] and "lower the amplitude or the top frequency" in \
+        reply["error"]["message"]
+    for args, text in (({"signal": "sine", "joint": "bottom", "amplitude_deg": 1.0}, "chirp or prbs"),
+                       ({"signal": "prbs", "joint": "elbow", "amplitude_deg": 1.0}, "'joint' must be one of"),
+                       ({"signal": "prbs", "joint": "bottom", "amplitude_deg": 1.0, "order": 7.5}, "whole number"),
+                       ({"signal": "chirp", "joint": "bottom", "amplitude_deg": 1.0, "f0_hz": 1.0, "f1_hz": 0.5},
+                        "must be above"),
+                       ({"signal": "prbs", "joint": "bottom", "amplitude_deg": 1.0, "f0_hz": 1.0}, "unknown argument")):
+        reply = call(loop, sock, "excite", args, lease)
+        assert reply["error"]["code"] == P.BAD_ARGS and text in reply["error"]["message"], reply
