@@ -4,8 +4,12 @@ from __future__ import annotations
 import os
 import platform
 import shlex
+import subprocess
 import sys
+import tempfile
 import time
+
+import zmq
 
 
 def header(title: str) -> None:
@@ -34,3 +38,20 @@ def per_call_us(fn, repeat: int, rounds: int = 5) -> float:
             fn()
         best = min(best, (time.perf_counter() - t0) / repeat)
     return best * 1e6
+
+
+def spawn_daemon(*options: str) -> tuple[subprocess.Popen, dict[str, str]]:
+    """A real ``pneumad run`` on private ipc endpoints (the simulated rig), and the endpoints."""
+    tmp = tempfile.mkdtemp(prefix="pneumad-bench-")
+    eps = {k: f"ipc://{tmp}/{k}" for k in ("command", "control", "telemetry")}
+    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--log-level", "WARNING", *options,
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    return daemon, eps
+
+
+def stats_subscriber(eps: dict[str, str]) -> zmq.Socket:
+    """A SUB socket on the daemon's ``stats`` topic."""
+    sock = zmq.Context.instance().socket(zmq.SUB)
+    sock.setsockopt(zmq.SUBSCRIBE, b"stats")
+    sock.connect(eps["telemetry"])
+    return sock

@@ -1,6 +1,7 @@
 """The controller comparison of docs/controllers.md, on the simulated rig through the real loop
 (virtual clock): every built-in feedback controller on both reference paths, a step per joint
-and a step disturbance torque per joint.
+and a step disturbance torque per joint. The LTI controllers run the shipped example design,
+controllers/designs/pi_thesis.toml (the thesis's PI as matrices).
 
     python -m bench.compare_controllers > docs/controllers-table.md
 """
@@ -9,22 +10,30 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import sys
+from pathlib import Path
 
 from bench import scenarios as S
+from controllers import lti_design
 
-CONTROLLERS = ["pid", "smc", "smc_dob", "sac"]
+CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 STEPS_DEG = (10.0, 5.0)  # bottom, middle
+LTI_DESIGN = Path(__file__).resolve().parent.parent / "controllers" / "designs" / "pi_thesis.toml"
 
 
 def evaluate(name: str) -> dict:
-    loop = S.make_loop(name)
+    options = {"design": lti_design.read_file(LTI_DESIGN)} if name.startswith("lti") else None
+
+    def fresh():
+        return S.make_loop(name, options=options)
+
+    loop = fresh()
     circle_s = S.shortest_feasible(loop, "circle")
     out = {"name": name, "circle_s": circle_s}
     out["translation"] = S.run_path(loop, S.make_path(loop, "translation", 15.0))
-    out["circle"] = S.run_path(S.make_loop(name), S.make_path(loop, "circle", circle_s))
-    out["steps"] = [S.step_response(S.make_loop(name), j, STEPS_DEG[j], 20.0) for j in range(2)]
+    out["circle"] = S.run_path(fresh(), S.make_path(loop, "circle", circle_s))
+    out["steps"] = [S.step_response(fresh(), j, STEPS_DEG[j], 20.0) for j in range(2)]
     torques = [m.kt * 1.0 for m in loop.context.models]
-    out["rejection"] = [S.disturbance_rejection(S.make_loop(name), j, torques[j], 20.0) for j in range(2)]
+    out["rejection"] = [S.disturbance_rejection(fresh(), j, torques[j], 20.0) for j in range(2)]
     out["torques"] = torques
     return out
 

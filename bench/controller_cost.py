@@ -2,7 +2,7 @@
 
     python -m bench.controller_cost
 
-Each controller is stepped on a recorded-looking state (the rig at rest with a moving
+The LTI controllers run the shipped example design (the thesis's PI as matrices). Each controller is stepped on a recorded-looking state (the rig at rest with a moving
 reference) for many cycles; the figures are p50 / p99 / max of one step, in microseconds.
 """
 from __future__ import annotations
@@ -11,15 +11,17 @@ import math
 import sys
 import time
 
+from bench.compare_controllers import LTI_DESIGN
 from bench.scenarios import make_loop
-from controllers import registry
+from controllers import lti_design, registry
 from controllers.base import JointState, Reference
 
 CYCLES = 20000
 
 
 def measure(name: str, context, angles) -> list[float]:
-    controller = registry.build(name, context)
+    options = {"design": lti_design.read_file(LTI_DESIGN)} if name.startswith("lti") else None
+    controller = registry.build(name, context, options=options)
     zeros = [0.0] * context.n
     controller.reset(JointState(0.0, angles, zeros), zeros)
     samples = []
@@ -39,7 +41,7 @@ def main() -> int:
     loop = make_loop("pid")
     print("Produced by: python -m bench.controller_cost")
     print(f"{'controller':10s} {'p50 us':>8s} {'p99 us':>8s} {'max us':>8s}")
-    for name in ("hold", "pid", "smc", "smc_dob", "sac"):
+    for name in ("hold", "pid", "smc", "smc_dob", "sac", "lti", "lti_dob"):
         p50, p99, worst = measure(name, loop.context, list(loop.angles))
         print(f"{name:10s} {p50:8.1f} {p99:8.1f} {worst:8.1f}")
     return 0

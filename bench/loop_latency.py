@@ -14,9 +14,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import subprocess
-import sys
-import tempfile
 import threading
 import time
 
@@ -24,7 +21,7 @@ import msgpack
 import zmq
 
 from bench import cyclictest
-from bench.common import header, percentiles
+from bench.common import header, percentiles, spawn_daemon, stats_subscriber
 from daemon.client import Client
 
 
@@ -35,18 +32,12 @@ def main() -> None:
     ap.add_argument("--priority", type=int, default=80)
     args = ap.parse_args()
     header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled")
-    tmp = tempfile.mkdtemp(prefix="pneumad-bench-")
-    eps = {k: f"ipc://{tmp}/{k}" for k in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--rt-priority", str(args.priority),
-                               "--stats-period", str(args.seconds), "--log-level", "WARNING",
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    daemon, eps = spawn_daemon("--rt-priority", str(args.priority), "--stats-period", str(args.seconds))
     ctx = zmq.Context.instance()
     try:
         client = Client(**eps, timeout=5.0)
         client.ping()
-        stats_sub = ctx.socket(zmq.SUB)
-        stats_sub.setsockopt(zmq.SUBSCRIBE, b"stats")
-        stats_sub.connect(eps["telemetry"])
+        stats_sub = stats_subscriber(eps)
         stop = threading.Event()
         healthy = [Reader(ctx, eps["telemetry"], stop, keep=(i == 0)) for i in range(max(args.subscribers - 1, 0))]
         stalled = ctx.socket(zmq.SUB)

@@ -22,7 +22,8 @@ SETTLE_S = 5.0  # hold at the path's start before it runs [s]
 TAIL_S = 2.0  # measured after the path ends [s]
 
 
-def make_loop(controller: str, params: dict | None = None, rig: str = "sim", replace: dict | None = None) -> ControlLoop:
+def make_loop(controller: str, params: dict | None = None, rig: str = "sim", replace: dict | None = None,
+              options: dict | None = None) -> ControlLoop:
     """An enabled loop on the built-in simulated rig with the named controller active."""
     text = config.load(rig).source
     for old, new in (replace or {}).items():
@@ -33,7 +34,7 @@ def make_loop(controller: str, params: dict | None = None, rig: str = "sim", rep
     transport.open()
     loop = ControlLoop(RigIO(cfg, transport), clock, 0.001, controller="hold")
     loop.start()
-    loop.switch_controller(registry.build(controller, loop.context, params))
+    loop.switch_controller(registry.build(controller, loop.context, params, options))
     loop.enable()
     return loop
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.linalg import block_diag, expm, solve_discrete_are
+from scipy.linalg import expm, solve_discrete_are
 
 from controllers.base import ParamSpec
 from controllers.nominal import NominalJoint
@@ -35,86 +35,93 @@ def zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
 
 
 class DelayedStateEstimator:
-    """Predicted states [th, th', th''] per joint, from measured angles and the outputs sent."""
+    """Predicted states [th, th', th''] per joint, from measured angles and the outputs sent.
+
+    The design (ZOH, steady-state Kalman gain) uses numpy and scipy once; the per-cycle
+    updates are plain float arithmetic per joint, which at these sizes (three states) costs a
+    fraction of numpy's per-call overhead."""
 
     def __init__(self, models: Sequence[NominalJoint], dt: float, angle_noise_rad: Sequence[float],
                  disturbance_rate_v_s: Sequence[float]):
         """``angle_noise_rad`` and ``disturbance_rate_v_s`` per joint set the Kalman weights:
         the larger their ratio, the slower and quieter the estimate."""
-        n = len(models)
-        self.n = n
-        phis, gammas, augmented, aug_in, gains = [], [], [], [], []
+        self.n = len(models)
         self.models = models
-        self.delay = np.array([m.delay_steps(dt) for m in models])
-        self.u_off = np.array([m.input_offset for m in models])
+        self.delay = [m.delay_steps(dt) for m in models]
+        self.u_off = [m.input_offset for m in models]
+        self._phi, self._gamma, self._gain = [], [], []
         for m, noise, drift in zip(models, angle_noise_rad, disturbance_rate_v_s):
             a, b = m.state_space()
             phi, gamma = zoh(a, b, dt)
-            phis.append(phi)
-            gammas.append(gamma)
             f = np.block([[phi, gamma], [np.zeros((1, 3)), np.ones((1, 1))]])
             c = np.array([[1.0, 0.0, 0.0, 0.0]])
             q = np.diag([0.0, 0.0, 0.0, (drift * dt) ** 2])
             p = solve_discrete_are(f.T, c.T, q, np.array([[noise ** 2]]))
-            gains.append(p @ c.T / (c @ p @ c.T + noise ** 2))
-            augmented.append(f)
-            aug_in.append(np.vstack([gamma, [[0.0]]]))
-        self._f = block_diag(*augmented)
-        self._g = block_diag(*aug_in)
-        self._m = block_diag(*gains)
-        self._phi = block_diag(*phis)
-        self._gamma = block_diag(*gammas)
-        self._theta_rows = np.arange(n) * 4
-        self._state_rows = (np.arange(n)[:, None] * 4 + np.arange(3)).ravel()
-        self._cols = np.arange(n)
-        self._buf = np.zeros((int(self.delay.max()) + 1, n))
+            self._phi.append(tuple(tuple(float(v) for v in row) for row in phi))
+            self._gamma.append(tuple(float(v) for v in gamma.ravel()))
+            self._gain.append(tuple(float(v) for v in (p @ c.T / (c @ p @ c.T + noise ** 2)).ravel()))
+        self._buf = [[0.0] * (d + 1) for d in self.delay]  # outputs sent, a ring per joint
         self._k = 0
-        self.x = np.zeros(4 * n)  # [th, th', th'', d] per joint, of the delayed plant
-        self.dx = np.zeros(3 * n)  # Smith prediction
+        self.x = [[0.0] * 4 for _ in range(self.n)]  # [th, th', th'', d] per joint, of the delayed plant
+        self.dx = [[0.0] * 3 for _ in range(self.n)]  # Smith prediction
 
     def reset(self, angles: Sequence[float], last_output: Sequence[float]) -> None:
         """At rest at the measured angles with the output in force for the last T_dly."""
-        u = np.asarray(last_output, dtype=float)
-        th = np.asarray(angles, dtype=float)
-        self.x[:] = 0.0
-        self.x[self._theta_rows] = th
-        self.x[self._theta_rows + 3] = [m.static_volts(q, 0.0, 0.0) - v for m, q, v in zip(self.models, th, u)]
-        self.dx[:] = 0.0
-        self._buf[:] = u
+        for j, (m, q, u) in enumerate(zip(self.models, angles, last_output)):
+            self.x[j] = [float(q), 0.0, 0.0, m.static_volts(q, 0.0, 0.0) - u]
+            self.dx[j] = [0.0, 0.0, 0.0]
+            self._buf[j] = [float(u)] * (self.delay[j] + 1)
         self._k = 0
 
-    def estimate(self, angles: Sequence[float]) -> np.ndarray:
-        """Correct with this cycle's angles; the predicted states, shape (n, 3)."""
-        measured = np.asarray(angles, dtype=float)
-        self.x += self._m @ (measured - self.x[self._theta_rows])
-        state = self.x[self._state_rows]
-        state[0::3] = measured  # the angle is measured: only the rates come from the observer
-        return (state + self.dx).reshape(self.n, 3)
-
-    @property
-    def disturbance(self) -> np.ndarray:
-        """Estimated constant input disturbance per joint [V] (friction, model error)."""
-        return self.x[self._theta_rows + 3]
+    def estimate(self, angles: Sequence[float]) -> list[list[float]]:
+        """Correct with this cycle's angles; the predicted [th, th', th''] per joint."""
+        out = []
+        for j in range(self.n):
+            x, dx, m = self.x[j], self.dx[j], self._gain[j]
+            q = angles[j]
+            innovation = q - x[0]
+            x[0] += m[0] * innovation
+            x[1] += m[1] * innovation
+            x[2] += m[2] * innovation
+            x[3] += m[3] * innovation
+            # the angle is measured: only the rates come from the observer
+            out.append([q + dx[0], x[1] + dx[1], x[2] + dx[2]])
+        return out
 
     def advance(self, u: Sequence[float]) -> None:
         """Time update with the outputs sent this cycle [V]."""
-        u = np.asarray(u, dtype=float)
-        size = len(self._buf)
-        self._buf[self._k % size] = u
-        delayed = self._buf[(self._k - self.delay) % size, self._cols]
-        self.x = self._f @ self.x + self._g @ (delayed + self.u_off)
-        self.dx = self._phi @ self.dx + self._gamma @ (u - delayed)
-        self._k += 1
+        k = self._k
+        for j in range(self.n):
+            buf = self._buf[j]
+            size = len(buf)
+            buf[k % size] = uj = float(u[j])
+            delayed = buf[(k - self.delay[j]) % size]
+            x, dx, p, g = self.x[j], self.dx[j], self._phi[j], self._gamma[j]
+            drive = delayed + self.u_off[j] + x[3]
+            x0, x1, x2 = x[0], x[1], x[2]
+            x[0] = p[0][0] * x0 + p[0][1] * x1 + p[0][2] * x2 + g[0] * drive
+            x[1] = p[1][0] * x0 + p[1][1] * x1 + p[1][2] * x2 + g[1] * drive
+            x[2] = p[2][0] * x0 + p[2][1] * x1 + p[2][2] * x2 + g[2] * drive
+            fresh = uj - delayed
+            d0, d1, d2 = dx
+            dx[0] = p[0][0] * d0 + p[0][1] * d1 + p[0][2] * d2 + g[0] * fresh
+            dx[1] = p[1][0] * d0 + p[1][1] * d1 + p[1][2] * d2 + g[1] * fresh
+            dx[2] = p[2][0] * d0 + p[2][1] * d1 + p[2][2] * d2 + g[2] * fresh
+        self._k = k + 1
 
     def replace_last(self, u: Sequence[float]) -> None:
         """The outputs of the last :meth:`advance` were not applied, ``u`` was (a shadow run):
         put u in their place. The observer's update used older outputs only, so just the
         buffer and the Smith term, which is linear in the newest output, change."""
-        u = np.asarray(u, dtype=float)
-        size = len(self._buf)
-        last = (self._k - 1) % size
-        self.dx += self._gamma @ (u - self._buf[last])
-        self._buf[last] = u
+        for j in range(self.n):
+            buf = self._buf[j]
+            last = (self._k - 1) % len(buf)
+            change = float(u[j]) - buf[last]
+            buf[last] += change
+            g, dx = self._gamma[j], self.dx[j]
+            dx[0] += g[0] * change
+            dx[1] += g[1] * change
+            dx[2] += g[2] * change
 
     @classmethod
     def from_params(cls, models, dt: float, values) -> "DelayedStateEstimator":

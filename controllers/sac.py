@@ -25,13 +25,29 @@ with time constant ``transfer_s``.
 from __future__ import annotations
 
 import math
-
-import numpy as np
+from dataclasses import dataclass
 
 from controllers.base import Controller, JointState, ParamSpec, Reference, clamp
 from controllers.estimation import ESTIMATOR_PARAMS, DelayedStateEstimator
 
 DEG = math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class _Constants:
+    """Per joint, at the loop period."""
+
+    am: tuple[float, ...]  # reference model pole, exp(-dt / tau_m)
+    af: tuple[float, ...]  # PFC pole
+    kf: tuple[float, ...]  # PFC gain [rad/V]
+    gp: tuple[float, ...]  # G_P on e_y [V/rad^2]
+    gi_e: tuple[float, ...]  # G_I dt on e_y
+    gi_x: tuple[float, ...]  # G_I dt on x_m, u_m, 1
+    s1: tuple[float, ...]
+    s2: tuple[float, ...]
+    decay: tuple[float, ...]  # of the transfer offset, per cycle
+    aw: tuple[float, ...]  # washout pole
+    estimator: DelayedStateEstimator
 
 
 class SAC(Controller):
@@ -54,72 +70,73 @@ class SAC(Controller):
     def __init__(self, context, **values):
         self.models = context.require_models("sac")
         n = context.n
-        self._xm = np.zeros((n, 3))  # reference model states [rad]
-        self._xf = np.zeros(n)  # PFC state [rad]
-        self._ki = np.zeros((n, 6))  # integral adaptive gains on [e_y, x_m1..3, u_m, 1]
-        self._offset = np.zeros(n)  # bumpless-transfer offset [V]
+        self._xm = [[0.0] * 3 for _ in range(n)]  # reference model states [rad]
+        self._xf = [0.0] * n  # PFC state [rad]
+        self._ki = [[0.0] * 6 for _ in range(n)]  # integral adaptive gains on [e_y, x_m1..3, u_m, 1]
+        self._offset = [0.0] * n  # bumpless-transfer offset [V]
+        self._u_mean = [0.0] * n  # the output's washout mean [V]
+        self._first: list[float] | None = None
         super().__init__(context, **values)
 
-    def derive(self, values):
+    def derive(self, values) -> _Constants:
         dt = self.context.dt
-        return {
-            "am": np.exp(-dt / np.array(values["tau_m"])),
-            "af": np.exp(-dt / np.array(values["pfc_tau"])),
-            "kf": np.array(values["pfc_gain"]) * DEG,
-            "gp": np.column_stack([values["gamma_pe"]] + [[0.0] * self.context.n] * 5),
-            "gi": np.column_stack([values["gamma_ie"]] + [values["gamma_ix"]] * 5) * dt,
-            "s1": np.array(values["sigma1"]), "s2": np.array(values["sigma2"]),
-            "decay": np.exp(-dt / np.array(values["transfer_s"])),
-            "aw": np.exp(-dt / np.array(values["washout_s"])),
-            "estimator": DelayedStateEstimator.from_params(self.models, dt, values),
-        }
+
+        def decay(key):
+            return tuple(math.exp(-dt / v) for v in values[key])
+
+        return _Constants(am=decay("tau_m"), af=decay("pfc_tau"), kf=tuple(v * DEG for v in values["pfc_gain"]),
+                          gp=values["gamma_pe"], gi_e=tuple(v * dt for v in values["gamma_ie"]),
+                          gi_x=tuple(v * dt for v in values["gamma_ix"]), s1=values["sigma1"], s2=values["sigma2"],
+                          decay=decay("transfer_s"), aw=decay("washout_s"),
+                          estimator=DelayedStateEstimator.from_params(self.models, dt, values))
 
     def reset(self, state: JointState, last_output) -> None:
-        k = self.k
-        k["estimator"].reset(state.angles, last_output)
-        q = np.asarray(state.angles, dtype=float)
-        self._xm = np.repeat(q[:, None], 3, axis=1)
-        self._xf = np.zeros(self.context.n)
-        self._u_mean = np.asarray(last_output, dtype=float)
-        self._ki = np.zeros((self.context.n, 6))
-        for j, m in enumerate(self.models):  # start from the nominal static inverse, V = K th / kt - u_off
-            self._ki[j, 4] = m.K / m.kt
-            self._ki[j, 5] = -m.input_offset
-        self._first = np.asarray(last_output, dtype=float)
+        self.k.estimator.reset(state.angles, last_output)
+        n = self.context.n
+        self._xm = [[float(q)] * 3 for q in state.angles]
+        self._xf = [0.0] * n
+        self._u_mean = [float(u) for u in last_output]
+        # gains adapt from zero, but the static ones start at the nominal inverse, V = K th / kt - u_off
+        self._ki = [[0.0, 0.0, 0.0, 0.0, m.K / m.kt, -m.input_offset] for m in self.models]
+        self._first = [float(u) for u in last_output]
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
-        k, ctx = self.k, self.context
-        x = k["estimator"].estimate(state.angles)
-        r = np.asarray(reference.angles, dtype=float)
-        am = k["am"][:, None]
-        # three first-order lags in series (exact ZOH of each stage)
-        xm = self._xm
-        xm[:, 0] = am[:, 0] * xm[:, 0] + (1 - am[:, 0]) * r
-        xm[:, 1] = am[:, 0] * xm[:, 1] + (1 - am[:, 0]) * xm[:, 0]
-        xm[:, 2] = am[:, 0] * xm[:, 2] + (1 - am[:, 0]) * xm[:, 1]
-        e = xm[:, 2] - (x[:, 0] + self._xf)
-        rv = np.column_stack([e, xm, r, np.ones_like(r)])
-        kp = e[:, None] * k["gp"] * rv
-        sigma = k["s1"] * e * e + k["s2"]
-        self._ki += e[:, None] * k["gi"] * rv - (sigma * ctx.dt)[:, None] * self._ki
-        v = ((kp + self._ki) * rv).sum(axis=1)
-        if self._first is not None:  # bumpless: the offset makes this first output the one in force
-            self._offset = self._first - v
-            self._first = None
-        self._offset *= k["decay"]
-        u = [clamp(float(a), lo, hi) for a, lo, hi in zip(v + self._offset, ctx.u_min, ctx.u_max)]
-        self._pfc_before = (self._u_mean, self._xf)
-        self._feed_pfc(u)
-        k["estimator"].advance(u)
-        return u
+        k, ctx, dt = self.k, self.context, self.context.dt
+        predicted = k.estimator.estimate(state.angles)
+        out = []
+        for j in range(ctx.n):
+            a, r = k.am[j], reference.angles[j]
+            xm = self._xm[j]  # three first-order lags in series (exact ZOH of each stage)
+            xm[0] = a * xm[0] + (1 - a) * r
+            xm[1] = a * xm[1] + (1 - a) * xm[0]
+            xm[2] = a * xm[2] + (1 - a) * xm[1]
+            e = xm[2] - (predicted[j][0] + self._xf[j])
+            rv = (e, xm[0], xm[1], xm[2], r, 1.0)
+            ki = self._ki[j]
+            leak = (k.s1[j] * e * e + k.s2[j]) * dt  # sigma-modification
+            gains = (k.gi_e[j],) + (k.gi_x[j],) * 5
+            v = k.gp[j] * e * e * e  # the proportional gain acts on e_y only: (e G_P e) e
+            for i in range(6):
+                ki[i] += e * gains[i] * rv[i] - leak * ki[i]
+                v += ki[i] * rv[i]
+            if self._first is not None:  # bumpless: the offset makes this first output the one in force
+                self._offset[j] = self._first[j] - v
+            self._offset[j] *= k.decay[j]
+            out.append(clamp(v + self._offset[j], ctx.u_min[j], ctx.u_max[j]))
+        self._first = None
+        self._pfc_before = (list(self._u_mean), list(self._xf))
+        self._feed_pfc(out)
+        k.estimator.advance(out)
+        return out
 
     def _feed_pfc(self, u) -> None:
         """The PFC's time update with this cycle's output, washed out (see the module doc)."""
-        k, ua = self.k, np.asarray(u, dtype=float)
-        self._u_mean = k["aw"] * self._u_mean + (1 - k["aw"]) * ua
-        self._xf = k["af"] * self._xf + (1 - k["af"]) * k["kf"] * (ua - self._u_mean)
+        k = self.k
+        for j, uj in enumerate(u):
+            self._u_mean[j] = k.aw[j] * self._u_mean[j] + (1 - k.aw[j]) * uj
+            self._xf[j] = k.af[j] * self._xf[j] + (1 - k.af[j]) * k.kf[j] * (uj - self._u_mean[j])
 
     def applied(self, output) -> None:
         self._u_mean, self._xf = self._pfc_before
         self._feed_pfc(output)
-        self.k["estimator"].replace_last(output)
+        self.k.estimator.replace_last(output)

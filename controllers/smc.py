@@ -18,7 +18,11 @@ The first term is the equivalent control, the second the switching part smoothed
 boundary layer eta; the third, a proportional reaching term (Gao & Hung's reaching law, our
 addition), brings sigma back even when a disturbance outgrows the switching amplitude, so
 the integral state can then remove the steady error. Here its amplitude k (S B_e)^-1 is the parameter ``switch_volts`` [V];
-stability needs it to exceed the input-equivalent disturbance bound, k > |S d_max| [3-94].
+stability needs it to exceed the input-equivalent disturbance bound, k > |S d_max| [3-94]:
+at least the breakaway friction in volts, Fs / kt, which is 0.31 V on the bottom joint and
+1.66 V on the middle one (defaults 1 V and 3 V). Below it the middle joint sticks, breaks
+away, and overshoots by degrees before sigma turns the output round (4.5 deg on the circle
+at 1 V). A faster integral (q_z) cures that too but makes the middle joint's step ring.
 
 Units: rad, rad/s, rad/s^2; sigma in rad/s^2 (S normalised so its th'' entry is 1); u = V_MV
 [V]. The state comes from :class:`controllers.estimation.DelayedStateEstimator`: the plant's
@@ -83,7 +87,8 @@ class SMC(Controller):
         ParamSpec("q_th", "1/s^4", 0.0, 1e12, (1.0e4, 1.0e2), "LQ weight on the angle"),
         ParamSpec("q_w", "1/s^2", 0.0, 1e9, (10.0, 10.0), "LQ weight on the velocity"),
         ParamSpec("eps", "1/s", 0.0, 100.0, (1.0, 0.5), "Riccati shift: every sliding pole left of -eps"),
-        ParamSpec("switch_volts", "V", 0.0, 10.0, (1.0, 1.0), "switching amplitude k (S B)^-1"),
+        ParamSpec("switch_volts", "V", 0.0, 10.0, (1.0, 3.0),
+                  "switching amplitude k (S B)^-1; above the breakaway friction Fs/kt (0.31 V bottom, 1.66 V middle)"),
         ParamSpec("boundary", "rad/s^2", 1e-6, 1e6, (2.0, 2.0), "boundary layer eta of sigma/(|sigma|+eta)"),
         ParamSpec("reach_rate", "1/s", 0.0, 1e4, (5.0, 5.0), "proportional reaching term: sigma' = -reach_rate sigma"),
     ) + ESTIMATOR_PARAMS
@@ -116,7 +121,7 @@ class SMC(Controller):
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
         d, ctx, dt = self.k, self.context, self.context.dt
-        x = self.k.estimator.estimate(state.angles).tolist()
+        x = self.k.estimator.estimate(state.angles)
         u_off = self.k.estimator.u_off
         out = []
         for j in range(ctx.n):

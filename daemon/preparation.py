@@ -3,9 +3,10 @@ a c2d) takes milliseconds, several cycles, so it runs in one worker thread and t
 swaps the result in at a cycle boundary.
 
 The worker is started when the daemon is built, before the real-time set-up, so it keeps the
-normal scheduling policy and the loop's SCHED_FIFO thread preempts it; the GIL it holds is
-handed back within the interpreter's switch interval, which the daemon shortens (see
-``pneumad --gil-switch-us`` and docs/benchmarks.md for what that costs the loop). One job at
+normal scheduling policy and the loop's SCHED_FIFO thread preempts it. The GIL it holds is
+mostly handed back within the interpreter's switch interval, which the daemon shortens
+(``pneumad --gil-switch-us``), but not always: docs/benchmarks.md measures about one overrun
+per build, which is why building belongs in a separate process (not done yet). One job at
 a time: a second request while one is prepared is refused, so a flood of expensive requests
 cannot queue up work.
 """

@@ -36,11 +36,12 @@ def test_translation_path_tracks_within_the_labs_targets(name):
     assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
 
 
-def test_circle_at_the_shortest_feasible_period_tracks_within_the_targets():
-    loop = S.make_loop("smc_dob")
+@pytest.mark.parametrize("name", DOB_AND_FRIENDS)
+def test_circle_at_the_shortest_feasible_period_tracks_within_the_targets(name):
+    loop = S.make_loop(name)
     period = S.shortest_feasible(loop, "circle")
     assert 20.0 < period < 600.0  # the thesis's 20 s is beyond the middle joint's authority
-    result = S.run_path(loop, S.make_path(loop, "circle", period))
+    result = S.run_path(S.make_loop(name), S.make_path(loop, "circle", period))
     assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
 
 
