@@ -10,18 +10,15 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import sys
-from pathlib import Path
 
 from bench import scenarios as S
-from controllers import lti_design
 
 CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 STEPS_DEG = (10.0, 5.0)  # bottom, middle
-LTI_DESIGN = Path(__file__).resolve().parent.parent / "controllers" / "designs" / "pi_thesis.toml"
 
 
 def evaluate(name: str) -> dict:
-    options = {"design": lti_design.read_file(LTI_DESIGN)} if name.startswith("lti") else None
+    options = S.example_options(name)
 
     def fresh():
         return S.make_loop(name, options=options)

@@ -11,17 +11,15 @@ import math
 import sys
 import time
 
-from bench.compare_controllers import LTI_DESIGN
-from bench.scenarios import make_loop
-from controllers import lti_design, registry
+from bench.scenarios import example_options, make_loop
+from controllers import registry
 from controllers.base import JointState, Reference
 
 CYCLES = 20000
 
 
 def measure(name: str, context, angles) -> list[float]:
-    options = {"design": lti_design.read_file(LTI_DESIGN)} if name.startswith("lti") else None
-    controller = registry.build(name, context, options=options)
+    controller = registry.build(name, context, options=example_options(name))
     zeros = [0.0] * context.n
     controller.reset(JointState(0.0, angles, zeros), zeros)
     samples = []

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from controllers import registry, trajectory
+from controllers import lti_design, registry, trajectory
 from controllers.feasibility import Authority, Infeasible
 from daemon.clock import VirtualClock
 from daemon.loop import ControlLoop
@@ -37,6 +37,12 @@ def make_loop(controller: str, params: dict | None = None, rig: str = "sim", rep
     loop.switch_controller(registry.build(controller, loop.context, params, options))
     loop.enable()
     return loop
+
+
+def example_options(controller: str) -> dict | None:
+    """Construction options the benches give a controller: the LTI ones run the shipped
+    example design (controllers/designs/pi_thesis.toml), the others need none."""
+    return {"design": lti_design.read_file(lti_design.EXAMPLE)} if controller.startswith("lti") else None
 
 
 def authority(loop: ControlLoop) -> Authority:

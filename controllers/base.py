@@ -209,5 +209,11 @@ def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:
     return tuple(default[min(i, len(default) - 1)] for i in range(n))
 
 
+def check_output(u: Sequence[float], n: int) -> None:
+    """ValueError unless ``u`` (what a controller's step returned) is n finite values."""
+    if len(u) != n or not all(math.isfinite(v) for v in u):
+        raise ValueError(f"returned {u!r}: expected {n} finite values")
+
+
 def clamp(value: float, low: float, high: float) -> float:
     return low if value < low else high if value > high else value

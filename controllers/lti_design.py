@@ -42,6 +42,7 @@ from scipy.signal import cont2discrete
 
 from controllers.base import ParamError
 
+EXAMPLE = Path(__file__).resolve().parent / "designs" / "pi_thesis.toml"  # the thesis's PI as matrices
 MAX_ORDER = 32  # states per joint: a model-reduced design is far smaller; bounds a hostile message
 INPUTS = {"error_rad": 1.0, "error_deg": 180.0 / math.pi}  # scale from rad to the design's input unit
 METHODS = ("zoh", "foh", "bilinear", "backward_diff", "euler")
@@ -173,11 +174,11 @@ def main(argv=None) -> int:
     names = tuple(raw.get("joints", {}))
     designs = parse(raw, names, args.dt)
     arrays = {}
+    np.set_printoptions(precision=6, suppress=False)
     for name, d in zip(names, designs):
         gain = d.static_gain()
         print(f"{name}: order {d.order}, poles |z| max {max(abs(d.poles()), default=0.0):.6f}, "
               f"static gain {'integrating' if math.isinf(gain) else f'{gain:.4g} V/rad'}")
-        np.set_printoptions(precision=6, suppress=False)
         print(f"  A =\n{d.a}\n  B =\n{d.b}\n  C =\n{d.c}\n  D = {d.d}")
         arrays.update({f"{name}.A": d.a, f"{name}.B": d.b, f"{name}.C": d.c, f"{name}.D": np.array([[d.d]]),
                        f"{name}.dt": np.array(args.dt), f"{name}.input": np.array("error_rad")})

@@ -124,19 +124,18 @@ class SAC(Controller):
             self._offset[j] *= k.decay[j]
             out.append(clamp(v + self._offset[j], ctx.u_min[j], ctx.u_max[j]))
         self._first = None
-        self._pfc_before = (list(self._u_mean), list(self._xf))
-        self._feed_pfc(out)
+        for j, uj in enumerate(out):  # the PFC's time update, fed the washed-out output
+            self._u_mean[j] = k.aw[j] * self._u_mean[j] + (1 - k.aw[j]) * uj
+            self._xf[j] = k.af[j] * self._xf[j] + (1 - k.af[j]) * k.kf[j] * (uj - self._u_mean[j])
+        self._sent = out
         k.estimator.advance(out)
         return out
 
-    def _feed_pfc(self, u) -> None:
-        """The PFC's time update with this cycle's output, washed out (see the module doc)."""
-        k = self.k
-        for j, uj in enumerate(u):
-            self._u_mean[j] = k.aw[j] * self._u_mean[j] + (1 - k.aw[j]) * uj
-            self._xf[j] = k.af[j] * self._xf[j] + (1 - k.af[j]) * k.kf[j] * (uj - self._u_mean[j])
-
     def applied(self, output) -> None:
-        self._u_mean, self._xf = self._pfc_before
-        self._feed_pfc(output)
-        self.k.estimator.replace_last(output)
+        """The PFC update is linear in the newest output: move it by what was applied instead."""
+        k = self.k
+        for j, (mine, real) in enumerate(zip(self._sent, output)):
+            change = real - mine
+            self._u_mean[j] += (1 - k.aw[j]) * change
+            self._xf[j] += (1 - k.af[j]) * k.kf[j] * k.aw[j] * change
+        k.estimator.replace_last(output)

@@ -9,6 +9,7 @@ acceleration from its central difference. Angles in rad, positions in m, time in
 """
 from __future__ import annotations
 
+import itertools
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -160,7 +161,7 @@ class Steps(Trajectory):
 
     def __init__(self, levels: Sequence[Sequence[float]], holds: Sequence[float]):
         self.levels = [list(q) for q in levels]
-        self.ends = [sum(holds[:i + 1]) for i in range(len(holds))]
+        self.ends = list(itertools.accumulate(holds))
         self.duration = self.ends[-1]
         self._zeros = [0.0] * len(self.levels[0])
 

@@ -38,7 +38,11 @@ def bad_args(message: str) -> CommandFailed:
 
 
 def number(args: dict, key: str, low: float, high: float, default: float | None = None) -> float:
-    value = args.get(key, default)
+    return checked_number(key, args.get(key, default), low, high)
+
+
+def checked_number(key: str, value, low: float, high: float) -> float:
+    """``value`` as a float in low..high, or a bad_args error naming ``key``."""
     if value is None:
         raise bad_args(f"'{key}' is required")
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -58,7 +62,11 @@ def integer(args: dict, key: str, low: int, high: int, default: int) -> int:
 
 
 def numbers(args: dict, key: str, n: int) -> list[float]:
-    value = args.get(key)
+    return checked_numbers(key, args.get(key), n)
+
+
+def checked_numbers(key: str, value, n: int) -> list[float]:
+    """``value`` as a list of n finite floats, or a bad_args error naming ``key``."""
     if not isinstance(value, list) or len(value) != n:
         raise bad_args(f"'{key}' must be a list of {n} numbers")
     for v in value:
@@ -117,9 +125,9 @@ class Commands:
         self.preparer = Preparer()
 
     # -- entry points -----------------------------------------------------------------------
-    def handle_payload(self, payload: bytes, control: bool = False) -> bytes | tuple[object, Deferred]:
+    def handle_payload(self, payload: bytes, control: bool = False) -> bytes | Deferred:
         """Decode, run and encode one request; every failure becomes an error reply. Work
-        done off the loop comes back as (request id, Deferred): see :meth:`complete`."""
+        done off the loop comes back as a Deferred: see :meth:`complete`."""
         self.requests += 1
         request_id = None
         try:
@@ -127,7 +135,8 @@ class Commands:
             request_id = request["id"]
             result = self.handle(request, control)
             if isinstance(result, Deferred):
-                return request_id, result
+                result.request_id = request_id
+                return result
             return P.encode_result(request_id, result)
         except P.ProtocolError as exc:
             self.errors += 1
@@ -139,9 +148,10 @@ class Commands:
             self.errors += 1
             return P.encode_error(request_id, P.INTERNAL, f"{type(exc).__name__}: {exc}")
 
-    def complete(self, request_id, deferred: Deferred) -> bytes:
+    def complete(self, deferred: Deferred) -> bytes:
         """The reply to a deferred command whose work is done: its result applied now, at
         this cycle boundary, or the error that stopped it."""
+        request_id = deferred.request_id
         try:
             return P.encode_result(request_id, deferred.finish(deferred.future.result()))
         except CommandFailed as exc:
@@ -307,13 +317,7 @@ class Commands:
         elif given[0] == "angles_rad":
             target = numbers(args, "angles_rad", loop.n)
         else:
-            x, y = numbers(args, "xy_mm", 2)
-            lengths = loop.rig.arm.link_lengths_m
-            try:
-                q = kinematics.inverse_2link(x * 1e-3, y * 1e-3, lengths[0], lengths[1], loop.rig.arm.elbow)
-            except ValueError as exc:
-                raise CommandFailed(P.REFUSED, str(exc)) from None
-            target = list(q) + list(loop.reference[0][2:])
+            target = self._tip_angles(numbers(args, "xy_mm", 2)) + list(loop.reference[0][2:])
         self._check_limits(target)
         move = self._feasible("the move", lambda d: trajectory.JointMove(loop.reference[0], target, d), duration,
                               fixed=None if duration else "the rig cannot hold that angle")
@@ -349,11 +353,11 @@ class Commands:
         if not isinstance(rows, list) or not 2 <= len(rows) <= 1000:
             raise bad_args(f"'{given[0]}' must be a list of 2 to 1000 points")
         width = loop.n if given[0] == "angles_deg" else 2
-        points = [numbers({f"{given[0]}[{i}]": row}, f"{given[0]}[{i}]", width) for i, row in enumerate(rows)]
+        points = [checked_numbers(f"{given[0]}[{i}]", row, width) for i, row in enumerate(rows)]
         durations = args.get("durations_s")
         if not isinstance(durations, list) or len(durations) != len(points) - 1:
             raise bad_args(f"'durations_s' must list {len(points) - 1} segment durations (one fewer than points)")
-        durations = [number({f"durations_s[{i}]": d}, f"durations_s[{i}]", 0.01, 3600.0) for i, d in enumerate(durations)]
+        durations = [checked_number(f"durations_s[{i}]", d, 0.01, 3600.0) for i, d in enumerate(durations)]
         approach = number(args, "approach_s", 0.0, 600.0, 3.0)
         total = sum(durations)
         if given[0] == "angles_deg":
@@ -366,10 +370,7 @@ class Commands:
         else:
             lengths, elbow = loop.rig.arm.link_lengths_m, loop.rig.arm.elbow
             for p in points:
-                try:
-                    kinematics.inverse_2link(p[0] * 1e-3, p[1] * 1e-3, lengths[0], lengths[1], elbow)
-                except ValueError as exc:
-                    raise CommandFailed(P.REFUSED, f"waypoint {p} mm: {exc}") from None
+                self._tip_angles(p, f"waypoint {p} mm: ")
 
             def make(d):
                 return trajectory.cartesian_waypoints(lengths, elbow, loop.n, points, [x * d / total for x in durations])
@@ -385,9 +386,9 @@ class Commands:
             raise bad_args("'angles_deg' must be a list of 1 to 1000 levels, one angle per joint each")
         if not isinstance(holds, list) or len(holds) != len(rows):
             raise bad_args("'hold_s' must give one hold time per level")
-        levels = [[math.radians(a) for a in numbers({f"angles_deg[{i}]": row}, f"angles_deg[{i}]", loop.n)]
+        levels = [[math.radians(a) for a in checked_numbers(f"angles_deg[{i}]", row, loop.n)]
                   for i, row in enumerate(rows)]
-        holds = [number({f"hold_s[{i}]": h}, f"hold_s[{i}]", 0.001, 3600.0) for i, h in enumerate(holds)]
+        holds = [checked_number(f"hold_s[{i}]", h, 0.001, 3600.0) for i, h in enumerate(holds)]
         for level in levels:
             self._check_limits(level)
         seq = self._feasible("the step sequence", lambda d: trajectory.Steps(levels, holds), sum(holds),
@@ -447,6 +448,15 @@ class Commands:
         self._require_enabled()
         loop.set_trajectory(chain, name)
         return {**reply, "approach_s": approach, "total_s": chain.duration}
+
+    def _tip_angles(self, xy_mm, what: str = "") -> list[float]:
+        """The planar joints' angles [rad] that put the tip at xy_mm, or a refusal (out of reach)."""
+        arm = self.loop.rig.arm
+        lengths = arm.link_lengths_m
+        try:
+            return list(kinematics.inverse_2link(xy_mm[0] * 1e-3, xy_mm[1] * 1e-3, lengths[0], lengths[1], arm.elbow))
+        except ValueError as exc:
+            raise CommandFailed(P.REFUSED, f"{what}{exc}") from None
 
     def _check_limits(self, angles) -> None:
         for j, q in zip(self.loop.rig.joints, angles):

@@ -12,7 +12,13 @@ from __future__ import annotations
 import math
 
 from controllers import registry
-from controllers.base import Controller, ControllerContext, JointState, Reference
+from controllers.base import (
+    Controller,
+    ControllerContext,
+    JointState,
+    Reference,
+    check_output,
+)
 from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
@@ -172,8 +178,7 @@ class ControlLoop:
         state, reference = JointState(now, self.angles, self.velocities), Reference(*ref)
         try:
             u = self.controller.step(state, reference)
-            if len(u) != self.n or not all(math.isfinite(v) for v in u):
-                raise ValueError(f"returned {u!r}: expected {self.n} finite values")
+            check_output(u, self.n)
         except Exception as exc:  # a plugin's failure must never take the loop down
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return

@@ -24,6 +24,7 @@ class Deferred:
 
     future: Future
     finish: Callable[[object], dict]
+    request_id: object = None  # of the request it answers, set by the command layer
 
 
 class Preparer:

@@ -36,7 +36,7 @@ class ZmqServer:
         self.endpoints = {name: sock.getsockopt_string(zmq.LAST_ENDPOINT)
                           for name, sock in (("command", self.cmd), ("control", self.ctl), ("telemetry", self.pub))}
         self.commands: Commands | None = None
-        self._waiting: list[tuple[zmq.Socket, list, object, Deferred]] = []  # replies owed once work is done
+        self._waiting: list[tuple[zmq.Socket, list, Deferred]] = []  # replies owed once work is done
         self.reply_failures = 0
         self.published = 0
 
@@ -71,10 +71,10 @@ class ZmqServer:
 
     def _complete(self) -> None:
         """Reply to deferred commands whose work is done (applying it at this boundary)."""
-        for item in [w for w in self._waiting if w[3].future.done()]:
+        for item in [w for w in self._waiting if w[2].future.done()]:
             self._waiting.remove(item)
-            sock, envelope, request_id, deferred = item
-            self._send(sock, envelope, self.commands.complete(request_id, deferred))
+            sock, envelope, deferred = item
+            self._send(sock, envelope, self.commands.complete(deferred))
 
     def _serve(self, sock: zmq.Socket, control: bool, limit: int) -> None:
         for _ in range(limit):
@@ -86,8 +86,8 @@ class ZmqServer:
             except zmq.Again:
                 return
             reply = self.commands.handle_payload(frames[-1], control)
-            if isinstance(reply, tuple):
-                self._waiting.append((sock, frames[:-1], *reply))
+            if isinstance(reply, Deferred):
+                self._waiting.append((sock, frames[:-1], reply))
             else:
                 self._send(sock, frames[:-1], reply)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from controllers.base import Controller, JointState, Reference
+from controllers.base import Controller, JointState, Reference, check_output
 
 
 class ShadowRun:
@@ -24,8 +24,7 @@ class ShadowRun:
         """One cycle beside the active controller; raises what the candidate raises, or
         ValueError for output that is not one finite value per joint."""
         u = self.controller.step(state, reference)
-        if len(u) != len(applied) or not all(math.isfinite(v) for v in u):
-            raise ValueError(f"returned {u!r}: expected {len(applied)} finite values")
+        check_output(u, len(applied))
         self.controller.applied(applied)
         self.u = list(u)
         self.cycles += 1

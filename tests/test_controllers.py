@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 
 from bench import scenarios as S
-from controllers import lti_design, registry
-from controllers.base import ControllerContext, ParamError
+from controllers import registry
+from controllers.base import ControllerContext, JointState, ParamError, Reference
 from controllers.estimation import DelayedStateEstimator
 from controllers.smc import sliding_hyperplane, sliding_poles
 from controllers.trajectory import JointMove
-from tests.test_lti import PI_FILE
 
 DOB_AND_FRIENDS = ["smc", "smc_dob"]
 
@@ -57,13 +56,13 @@ def test_the_observer_rejects_a_step_torque_faster_than_smc_alone():
                                      ("smc", "hold"), ("smc_dob", "lti"), ("lti", "lti_dob"), ("lti_dob", "pid")])
 def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new):
     loop = S.make_loop("hold")
-    loop.switch_controller(registry.build(old, loop.context, options=_options(old)))
+    loop.switch_controller(registry.build(old, loop.context, options=S.example_options(old)))
     path = S.make_path(loop, "translation", 15.0)
     S.approach(loop, path.sample(0.0)[0])
     loop.set_trajectory(path, "path")
     loop.run(5000)  # halfway along, moving
     before, cycle = list(loop.u), loop.cycle
-    loop.switch_controller(registry.build(new, loop.context, options=_options(new)))
+    loop.switch_controller(registry.build(new, loop.context, options=S.example_options(new)))
     loop.run(1)
     span = [hi - lo for lo, hi in zip(loop.context.u_min, loop.context.u_max)]
     assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(loop.u, before, span)), (before, loop.u)
@@ -72,10 +71,6 @@ def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new)
     assert loop.state.value == "enabled" and loop.controller.name == new
     if new != "hold":  # tracking continues
         assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
-
-
-def _options(name: str) -> dict | None:
-    return {"design": lti_design.read_file(PI_FILE)} if name.startswith("lti") else None
 
 
 def test_an_estimator_told_the_applied_output_matches_one_that_was_sent_it():
@@ -92,6 +87,29 @@ def test_an_estimator_told_the_applied_output_matches_one_that_was_sent_it():
         told.advance(own)
         told.replace_last(applied)
         sent.advance(applied)
+
+
+def test_sac_told_the_applied_output_feeds_its_pfc_with_it():
+    """Shadow runs: after applied(u) the PFC and washout states are those the module's
+    equations give for u, not for SAC's own output."""
+    ctx = S.make_loop("pid").context
+    sac = registry.build("sac", ctx)
+    angles = [2.2, -1.6]
+    sac.reset(JointState(0.0, angles, [0.0, 0.0]), [0.5, -0.5])
+    rng = np.random.default_rng(2)
+    for k in range(200):
+        mean, xf = list(sac._u_mean), list(sac._xf)
+        ref = Reference([a + 0.01 * math.sin(k / 30) for a in angles], [0.0, 0.0], [0.0, 0.0])
+        own = sac.step(JointState(k * ctx.dt, angles, [0.0, 0.0]), ref)
+        real = list(rng.uniform(-3, 3, 2))
+        sac.applied(real)
+        c = sac.k
+        for j in range(2):
+            m = c.aw[j] * mean[j] + (1 - c.aw[j]) * real[j]
+            assert sac._u_mean[j] == pytest.approx(m, rel=1e-12, abs=1e-12)
+            assert sac._xf[j] == pytest.approx(c.af[j] * xf[j] + (1 - c.af[j]) * c.kf[j] * (real[j] - m),
+                                               rel=1e-9, abs=1e-15)
+        assert own != real
 
 
 def test_a_live_gain_change_acts_next_cycle_and_a_bad_one_changes_nothing():

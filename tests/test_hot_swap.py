@@ -9,7 +9,6 @@ import pytest
 from controllers import lti_design
 from daemon import protocol as P
 from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
-from tests.test_lti import PI_FILE
 
 
 @pytest.fixture
@@ -80,7 +79,7 @@ def test_a_controller_that_cannot_be_built_is_refused_and_the_active_one_stays(m
 
 def test_an_lti_design_sent_over_the_wire_takes_over_bumplessly(moving):
     loop, captured, sock, lease = moving
-    design = lti_design.read_file(PI_FILE)
+    design = lti_design.read_file(lti_design.EXAMPLE)
     result = ok(loop, sock, "controller.switch", {"name": "lti_dob", "options": {"design": design}}, lease)
     assert loop.controller.name == "lti_dob"
     assert_bumpless(loop, captured, result["cycle"])

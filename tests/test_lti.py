@@ -2,7 +2,6 @@
 checks on a design, and the controller on the simulated rig through the real loop."""
 import copy
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +11,7 @@ from controllers import lti_design, registry
 from controllers.base import ParamError
 from controllers.trajectory import JointMove
 
-PI_FILE = Path(__file__).resolve().parent.parent / "controllers" / "designs" / "pi_thesis.toml"
+PI_FILE = lti_design.EXAMPLE
 PI = lti_design.read_file(PI_FILE)
 NAMES = ("bottom", "middle")
 
