@@ -3,10 +3,12 @@
     python -m bench.controller_cost
 
 The LTI controllers run the shipped example design (the thesis's PI as matrices). Each controller is stepped on a recorded-looking state (the rig at rest with a moving
-reference) for many cycles; the figures are p50 / p99 / max of one step, in microseconds.
+reference) for many cycles with the garbage collector off, as in the daemon; the figures are
+p50 / p99 / max of one step, in microseconds.
 """
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
@@ -37,6 +39,8 @@ def measure(name: str, context, angles) -> list[float]:
 
 def main() -> int:
     loop = make_loop("pid")
+    gc.collect()
+    gc.disable()  # as in the daemon, whose loop runs with the collector off
     print("Produced by: python -m bench.controller_cost")
     print(f"{'controller':10s} {'p50 us':>8s} {'p99 us':>8s} {'max us':>8s}")
     for name in ("hold", "pid", "smc", "smc_dob", "sac", "lti", "lti_dob"):

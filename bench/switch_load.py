@@ -1,11 +1,12 @@
-"""What building controllers beside the loop costs it: the GIL the preparation worker holds.
+"""What building controllers beside the loop costs it, now that the building is done in a
+separate worker process (daemon/preparation.py) and only its courier thread shares the GIL.
 
-Usage: python -m bench.switch_load [--seconds 20] [--every 0.1] [--priority 80]
+Usage: python -m bench.switch_load [--seconds 20] [--every 0.1] [--priority 80] [--cpus 1]
 
 Runs a real ``pneumad`` (simulated rig, enabled, PID holding) three times: without switches,
 then switching between smc and smc_dob every --every seconds (each build a Riccati solve, a
-Kalman design and a c2d in the worker thread) with the interpreter's default GIL switch
-interval (5 ms) and with the daemon's default (``--gil-switch-us 100``). Prints the loop's
+Kalman design and a c2d in the worker process) with the interpreter's default GIL switch
+interval (5 ms, the daemon's default) and with a short one (``--gil-switch-us 100``). Prints the loop's
 wake-up latency and compute time, overruns, and the switches done, per run.
 """
 from __future__ import annotations
@@ -19,9 +20,10 @@ from bench.common import header, percentiles, spawn_daemon, stats_subscriber
 from daemon.client import Client
 
 
-def run(seconds: float, every: float | None, gil_us: float, priority: int) -> tuple[dict | None, list[float]]:
+def run(seconds: float, every: float | None, gil_us: float, priority: int,
+        cpus: str | None) -> tuple[dict | None, list[float]]:
     daemon, eps = spawn_daemon("--rt-priority", str(priority), "--gil-switch-us", str(gil_us),
-                               "--stats-period", str(seconds))
+                               "--stats-period", str(seconds), *(["--cpus", cpus] if cpus else []))
     builds: list[float] = []
     try:
         client = Client(**eps, timeout=5.0)
@@ -56,13 +58,14 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--every", type=float, default=0.1)
     ap.add_argument("--priority", type=int, default=80)
+    ap.add_argument("--cpus", default=None, help="the loop's CPU affinity (pneumad --cpus)")
     args = ap.parse_args()
     header("loop figures while controllers are built beside it")
     print(f"{'run':38s} {'lat p50':>8s} {'p99':>7s} {'p99.9':>7s} {'max':>7s} {'comp p99':>9s} {'max':>7s} "
           f"{'overruns':>8s} {'switches':>8s} {'reply p50 ms':>12s}")
-    for label, every, gil in (("no switches", None, 100.0), ("switches, GIL interval 5000 us", args.every, 5000.0),
+    for label, every, gil in (("no switches", None, 5000.0), ("switches, GIL interval 5000 us", args.every, 5000.0),
                               ("switches, GIL interval 100 us", args.every, 100.0)):
-        stats, builds = run(args.seconds, every, gil, args.priority)
+        stats, builds = run(args.seconds, every, gil, args.priority, args.cpus)
         if stats is None:
             print(f"{label:38s} no stats message")
             continue

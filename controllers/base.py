@@ -110,7 +110,8 @@ class Controller(ABC):
     def __init__(self, context: ControllerContext, options: Mapping[str, object] | None = None,
                  **values: Sequence[float] | float):
         self.context = context
-        self.chosen = self.check_options(self._known_options(options or {}))
+        self.given_options = self._known_options(options or {})  # kept to build a twin elsewhere
+        self.chosen = self.check_options(self.given_options)
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
         self._values = defaults
         self.apply_params(self.prepare_params(values))

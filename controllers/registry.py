@@ -38,3 +38,10 @@ def build(name: str, context: ControllerContext, params: dict | None = None,
           options: dict | None = None) -> Controller:
     """Construct and validate a controller off the loop; raises LookupError or ParamError."""
     return load(name)(context, options=options, **(params or {}))
+
+
+def prepare_change(cls: type[Controller], context: ControllerContext, options: dict,
+                   values: dict, changes: dict) -> tuple[dict, object]:
+    """A parameter change for a running controller, prepared in another process: a twin built
+    from the same class, context, options and current values derives it (derive is pure)."""
+    return cls(context, options=options, **values).prepare_params(changes)

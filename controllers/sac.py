@@ -5,16 +5,30 @@ Per joint, in SI (rad, V, s):
 * reference model, third order with time constant tau_m = 0.02 s: y_m = x_m3,
   G_m(s) = 1 / (tau_m s + 1)^3, driven by u_m = r;
 * parallel feedforward compensator (PFC) H(s) = k_f / (tau_f s + 1) added to the plant's
-  output, so the augmented plant y_a = y + H u is almost strictly positive real; the thesis's
-  gain 2.5 is read in its working unit, deg/V, so k_f = 2.5 pi/180 rad/V; tau_f = 0.05 s
-  (bottom) / 0.08 s (middle). The PFC is fed u less its mean over ``washout_s`` (our
-  addition): fed the whole u, the augmented output settles k_f u away from the plant's, and
-  u holds several volts of spring and bias torque here, a steady error of degrees;
+  output, so the augmented plant y_a = y + H u is almost strictly positive real (ASPR);
+  tau_f = 0.05 s (bottom) / 0.08 s (middle) as in the thesis. The PFC is fed u less its mean
+  over ``washout_s`` (our addition): fed the whole u, the augmented output settles k_f u away
+  from the plant's, and u holds several volts of spring and bias torque here;
+* k_f defaults to 0.5 deg/V, a fifth of the thesis's 2.5 (read in its working unit, deg/V)
+  (our choice): SAC drives e_y, not the plant's error, so whatever the PFC adds while u swings
+  is tracking error, measured at 5 deg on the middle joint with 2.5. G + H is ASPR when
+  H^-1 = (tau_f s + 1)/k_f stabilises the nominal plant of [2-43]; Routh on
+  (J s^2 + D s + K)(T_ep s + 1) k_f + kt (tau_f s + 1) holds for every k_f > 0 on both joints
+  (the viscous term dominates: (J + D T_ep) tau_f > J T_ep), so the smaller gain keeps the
+  guarantee. docs/controllers.md has the sweep;
 * e_y = y_m - y_a;  r_v = [e_y, x_m1, x_m2, x_m3, u_m, 1];  u = (K_P + K_I) r_v with
   K_P = e_y r_v^T G_P  and  K_I' = e_y r_v^T G_I - sigma(t) K_I,  sigma(t) = s1 e_y^2 + s2
   (sigma-modification keeps the integral gains bounded) [3-44..3-56]. G_P, G_I diagonal: one
   rate for the e_y entry, one for the rest. The constant entry is our addition: it learns
-  the spring and bias offset, which the thesis's regressor leaves to the u_m gain.
+  the spring and bias offset, which the thesis's regressor leaves to the u_m gain;
+* u += k_s e_y / (|e_y| + delta), a smoothed switching term (our addition, as in SMC's
+  reaching law): with k_s above the breakaway friction Fs/kt (rig-facts §1 friction [2-45]:
+  0.31 V bottom, 1.66 V middle) a stuck joint breaks away on a small error instead of
+  waiting for the adaptive integral to grow;
+* no adaptation while |e_y| is within ``adapt_deadzone`` (the dead-zone modification of
+  robust adaptive control, our addition; 0.17 deg on the middle joint by default): holding
+  against a disturbance, the middle joint otherwise hunts in a +-0.6 deg stick-slip cycle,
+  its integral gains ramping while friction holds it and overshooting when it breaks away.
 
 The plant output y is the angle predicted T_dly ahead by :class:`DelayedStateEstimator`
 (the dead time would otherwise break the positive-realness SAC relies on). Gains adapt from
@@ -47,6 +61,9 @@ class _Constants:
     s2: tuple[float, ...]
     decay: tuple[float, ...]  # of the transfer offset, per cycle
     aw: tuple[float, ...]  # washout pole
+    switch: tuple[float, ...]  # [V]
+    deadzone: tuple[float, ...]  # [rad]
+    boundary: tuple[float, ...]  # [rad]
     estimator: DelayedStateEstimator
 
 
@@ -56,7 +73,7 @@ class SAC(Controller):
     name = "sac"
     params = (
         ParamSpec("tau_m", "s", 1e-3, 10.0, (0.02, 0.02), "reference model time constant (third order)"),
-        ParamSpec("pfc_gain", "deg/V", 0.0, 100.0, (2.5, 2.5), "PFC gain k_f"),
+        ParamSpec("pfc_gain", "deg/V", 1e-3, 100.0, (0.5, 0.5), "PFC gain k_f (the thesis: 2.5)"),
         ParamSpec("pfc_tau", "s", 1e-3, 10.0, (0.05, 0.08), "PFC time constant tau_f"),
         ParamSpec("gamma_pe", "V/rad^2", 0.0, 1e9, (1.0e4, 1.0e4), "proportional adaptation on e_y (G_P)"),
         ParamSpec("gamma_ie", "V/(rad^2 s)", 0.0, 1e9, (1.0e5, 1.0e5), "integral adaptation on e_y (G_I)"),
@@ -65,6 +82,12 @@ class SAC(Controller):
         ParamSpec("sigma2", "1/s", 0.0, 1e3, (1e-3, 1e-3), "sigma-modification s2"),
         ParamSpec("washout_s", "s", 1e-2, 1e4, (1.0, 1.0), "the PFC sees u less its mean over this time"),
         ParamSpec("transfer_s", "s", 1e-3, 100.0, (1.0, 1.0), "decay of the bumpless-transfer offset"),
+        ParamSpec("switch_volts", "V", 0.0, 10.0, (0.5, 2.0),
+                  "smoothed switching term k_s on e_y (our addition): above the breakaway friction Fs/kt "
+                  "(0.31 V bottom, 1.66 V middle)"),
+        ParamSpec("adapt_deadzone", "rad", 0.0, 0.1, (0.0, 0.003),
+                  "dead-zone modification: no adaptation while |e_y| is below this (our addition)"),
+        ParamSpec("switch_boundary", "rad", 1e-6, 1.0, (0.01, 0.01), "boundary layer delta of the switching term"),
     ) + ESTIMATOR_PARAMS
 
     def __init__(self, context, **values):
@@ -88,6 +111,8 @@ class SAC(Controller):
                           gp=values["gamma_pe"], gi_e=tuple(v * dt for v in values["gamma_ie"]),
                           gi_x=tuple(v * dt for v in values["gamma_ix"]), s1=values["sigma1"], s2=values["sigma2"],
                           decay=decay("transfer_s"), aw=decay("washout_s"),
+                          switch=values["switch_volts"], boundary=values["switch_boundary"],
+                          deadzone=values["adapt_deadzone"],
                           estimator=DelayedStateEstimator.from_params(self.models, dt, values))
 
     def reset(self, state: JointState, last_output) -> None:
@@ -116,8 +141,10 @@ class SAC(Controller):
             leak = (k.s1[j] * e * e + k.s2[j]) * dt  # sigma-modification
             gains = (k.gi_e[j],) + (k.gi_x[j],) * 5
             v = k.gp[j] * e * e * e  # the proportional gain acts on e_y only: (e G_P e) e
+            v += k.switch[j] * e / (abs(e) + k.boundary[j])  # breaks stiction
+            learn = e if abs(e) > k.deadzone[j] else 0.0  # dead-zone modification: no learning from noise and stiction
             for i in range(6):
-                ki[i] += e * gains[i] * rv[i] - leak * ki[i]
+                ki[i] += learn * gains[i] * rv[i] - leak * ki[i]
                 v += ki[i] * rv[i]
             if self._first is not None:  # bumpless: the offset makes this first output the one in force
                 self._offset[j] = self._first[j] - v

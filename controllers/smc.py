@@ -43,7 +43,6 @@ from controllers.base import (
     ParamError,
     ParamSpec,
     Reference,
-    clamp,
 )
 from controllers.dob import DOB_PARAMS, WithDisturbanceObserver
 from controllers.estimation import ESTIMATOR_PARAMS, DelayedStateEstimator
@@ -76,6 +75,12 @@ class _Design:
     eta: tuple[float, ...]  # [rad/s^2]
     reach: tuple[float, ...]  # [1/s]
     estimator: DelayedStateEstimator
+
+    def per_joint(self, u_min, u_max) -> tuple[tuple[float, ...], ...]:
+        """What step() reads per joint, as plain floats (numpy scalars cost several times more):
+        (S, SA, SB, k, eta, lambda, u_min, u_max)."""
+        return tuple((*map(float, s), *sa, sb, k, eta, reach, lo, hi) for s, sa, sb, k, eta, reach, lo, hi
+                     in zip(self.s, self.sa, self.sb, self.switch, self.eta, self.reach, u_min, u_max))
 
 
 class SMC(Controller):
@@ -119,29 +124,30 @@ class SMC(Controller):
         self._z = [0.0] * self.context.n
         self._taking_over = [float(u) for u in last_output]
 
+    def apply_params(self, prepared) -> None:
+        super().apply_params(prepared)
+        self._joints = self.k.per_joint(self.context.u_min, self.context.u_max)
+
     def step(self, state: JointState, reference: Reference) -> list[float]:
-        d, ctx, dt = self.k, self.context, self.context.dt
-        x = self.k.estimator.estimate(state.angles)
-        u_off = self.k.estimator.u_off
+        dt, z, estimator = self.context.dt, self._z, self.k.estimator
+        x = estimator.estimate(state.angles)
         out = []
-        for j in range(ctx.n):
+        for j, (s0, s1, s2, s3, sa0, sa1, sa2, sb, k, eta, reach, lo, hi) in enumerate(self._joints):
             th, w, acc = x[j]
             r = reference.angles[j]
-            s = d.s[j]
-            sa0, sa1, sa2 = d.sa[j]
-            u_eq = -(sa0 * th + sa1 * w + sa2 * acc + s[0] * r) / d.sb[j] - u_off[j]
-            rest = s[1] * th + s[2] * w + s[3] * acc
+            u_eq = -(sa0 * th + sa1 * w + sa2 * acc + s0 * r) / sb - estimator.u_off[j]
+            rest = s1 * th + s2 * w + s3 * acc
             if self._taking_over is not None:  # bumpless: choose z so that u equals the output in force
-                self._z[j] = _integral_for(self._taking_over[j] - u_eq, d, j, rest)
-            sigma = s[0] * self._z[j] + rest
-            v = u_eq - d.switch[j] * sigma / (abs(sigma) + d.eta[j]) - d.reach[j] * sigma / d.sb[j]
-            u = clamp(v, ctx.u_min[j], ctx.u_max[j])
+                z[j] = _integral_for(self._taking_over[j] - u_eq, self.k, j, rest)
+            sigma = s0 * z[j] + rest
+            v = u_eq - k * sigma / (abs(sigma) + eta) - reach * sigma / sb
+            u = lo if v < lo else hi if v > hi else v
             e = r - th
-            if u == v or (u > v) == (e * s[0] > 0):  # integrate unless it winds further into saturation
-                self._z[j] += e * dt
+            if u == v or (u > v) == (e * s0 > 0):  # integrate unless it winds further into saturation
+                z[j] += e * dt
             out.append(u)
         self._taking_over = None
-        self.k.estimator.advance(out)
+        estimator.advance(out)
         return out
 
     def applied(self, output) -> None:

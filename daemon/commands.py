@@ -163,11 +163,12 @@ class Commands:
         self.errors += 1
         return P.encode_error(request_id, code, message)
 
-    def _off_loop(self, work, finish) -> Deferred:
-        """Run ``work()`` in the worker; ``finish(result)`` applies it on the loop thread."""
+    def _off_loop(self, finish, function, *args) -> Deferred:
+        """Run ``function(*args)`` in the worker process; ``finish(result)`` applies it on
+        the loop thread."""
         if self.preparer.busy:
             raise CommandFailed(P.BUSY, "a controller is being prepared; send this again once its reply is in")
-        return self.preparer.submit(work, finish)
+        return self.preparer.submit(finish, function, *args)
 
     def handle(self, request: dict, control: bool = False):
         entry = self.TABLE.get(request["cmd"])
@@ -512,13 +513,12 @@ class Commands:
     def controller_switch(self, args):
         """Build a controller off the loop, then swap it in at a cycle boundary (bumpless)."""
         name, params, options = self._candidate_args(args)
-        context = self.loop.context
 
         def finish(new):
             self.loop.switch_controller(new)
             return {"active": new.name, "params": new.get_params(), "cycle": self.loop.cycle}
 
-        return self._off_loop(lambda: registry.build(name, context, params, options), finish)
+        return self._off_loop(finish, registry.build, name, self.loop.context, params, options)
 
     def controller_set(self, args):
         """Validate and derive a parameter change off the loop; apply it at a cycle boundary."""
@@ -535,18 +535,18 @@ class Commands:
             c.apply_params(prepared)
             return {"name": c.name, "params": c.get_params(), "cycle": self.loop.cycle}
 
-        return self._off_loop(lambda: c.prepare_params(params), finish)
+        return self._off_loop(finish, registry.prepare_change, type(c), c.context, c.given_options,
+                              c.get_params(), params)
 
     def controller_shadow(self, args):
         """Build a candidate off the loop and run it beside the active controller, unapplied."""
         name, params, options = self._candidate_args(args)
-        context = self.loop.context
 
         def finish(candidate):
             self.loop.start_shadow(candidate)
             return {"shadow": candidate.name, "active": self.loop.controller.name, "cycle": self.loop.cycle}
 
-        return self._off_loop(lambda: registry.build(name, context, params, options), finish)
+        return self._off_loop(finish, registry.build, name, self.loop.context, params, options)
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""

@@ -34,10 +34,11 @@ def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
 
 def cmd_run(args) -> int:
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
-    sys.setswitchinterval(args.gil_switch_us * 1e-6)  # the preparation worker yields the GIL this soon
+    sys.setswitchinterval(args.gil_switch_us * 1e-6)
     server = ZmqServer(args.command, args.control, args.telemetry)  # before RT set-up: its I/O threads stay normal
     loop = build_loop(args, clock, server.publish)
-    server.attach(loop)
+    server.attach(loop)  # its preparation courier too, before RT set-up
+    server.commands.preparer.warm()  # the controller-building worker starts now, not at the first switch
     notifier = Notifier()
     stop_reason = []
 
@@ -116,9 +117,10 @@ def parser() -> argparse.ArgumentParser:
         sp.add_argument("--no-rt", action="store_true", help="no SCHED_FIFO, no mlockall")
         sp.add_argument("--spin-us", type=float, default=200.0, help="spin this long before each deadline [us]")
         sp.add_argument("--controller", default="pid", help="controller active at start (default pid)")
-        sp.add_argument("--gil-switch-us", type=float, default=100.0,
-                        help="longest the worker that builds controllers may keep the GIL from the loop [us] "
-                             "(sys.setswitchinterval; Python's default is 5000)")
+        sp.add_argument("--gil-switch-us", type=float, default=5000.0,
+                        help="sys.setswitchinterval [us] (default 5000, Python's own): how soon another Python "
+                             "thread can take the GIL from the loop mid-cycle. Shorter measured worse "
+                             "(docs/benchmarks.md): the loop hands over the GIL and then waits to get it back")
 
     run = sub.add_parser("run", help="run the daemon (the default)")
     common(run)

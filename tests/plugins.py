@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import time
 
 from controllers.base import Controller
 from hal.schema import build
@@ -79,3 +81,40 @@ class Slow(Controller):
         if self.steps % 100 == 0:
             self.clock.t += 3.5 * self.context.dt
         return [0.0] * self.context.n
+
+
+class _BuildsBadly(Controller):
+    """Never reaches the loop: its build misbehaves in the worker process."""
+
+    def reset(self, state, last_output):
+        pass
+
+    def step(self, state, reference):
+        return [0.0] * self.context.n
+
+
+class DiesWhenBuilt(_BuildsBadly):
+    """Its build kills the process that builds it, as a crash in a native library would."""
+
+    name = "dies"
+
+    def derive(self, values):
+        os._exit(3)
+
+
+class HangsWhenBuilt(_BuildsBadly):
+    """Its build never finishes."""
+
+    name = "hangs"
+
+    def derive(self, values):
+        time.sleep(3600)
+
+
+class UnsendableWhenBuilt(_BuildsBadly):
+    """Its design holds something that cannot leave the process it was made in."""
+
+    name = "unsendable"
+
+    def derive(self, values):
+        return lambda: None

@@ -143,3 +143,30 @@ def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):
     reply = call(loop, sock, "controller.set", {"params": {"eps": [2.0, 500.0]}}, lease)
     assert reply["error"]["code"] == P.BAD_ARGS and "eps[middle] = 500.0" in reply["error"]["message"]
     assert loop.controller.get_params() == before
+
+
+@pytest.mark.parametrize("plugin, text", [("DiesWhenBuilt", "worker died (exit code 3)"),
+                                          ("HangsWhenBuilt", "took longer than 2 s"),
+                                          ("UnsendableWhenBuilt", "could not be sent back")])
+def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_works(moving, plugin, text):
+    """The build runs in a worker process: whatever it does there, the loop keeps its
+    controller and its period, the request gets a clear refusal and the next switch works."""
+    loop, _, sock, lease = moving
+    loop.server.commands.preparer.time_limit_s = 2.0
+    reply = call(loop, sock, "controller.switch", {"name": f"tests.plugins:{plugin}"}, lease)
+    assert reply["error"]["code"] == P.REFUSED and text in reply["error"]["message"], reply
+    assert loop.controller.name == "pid" and loop.state.value == "enabled"
+    assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"
+    assert loop.stats.overruns_total == 0
+
+
+def test_a_parameter_change_for_a_controller_built_from_options_is_derived_by_its_twin(moving):
+    """The worker rebuilds the running controller from its class, options and current values
+    and derives the change there; what comes back is applied to the running one."""
+    loop, _, sock, lease = moving
+    design = lti_design.read_file(lti_design.EXAMPLE)
+    ok(loop, sock, "controller.switch", {"name": "lti", "options": {"design": design}}, lease)
+    running = loop.controller
+    result = ok(loop, sock, "controller.set", {"params": {"gain": [0.5, 0.8]}}, lease)
+    assert loop.controller is running and result["params"]["gain"] == [0.5, 0.8]
+    assert list(running.k["gain"]) == [0.5, 0.8]  # the derived constants came back and are in use
