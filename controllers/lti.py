@@ -43,37 +43,36 @@ class LTI(Controller):
         for d in designs:
             rows.append(np.arange(start, start + d.order))
             start += d.order
-        return {
-            "a": block_diag(*(d.a for d in designs)),
-            "b": block_diag(*(d.b for d in designs)),
-            "c": block_diag(*(d.c for d in designs)),
-            "d": np.array([d.d for d in designs]),
-            "gain": np.array(values["gain"]),
-            "rows": rows,
-        }
+        a, b, c = (block_diag(*(getattr(d, m) for d in designs)) for m in "abc")
+        d, gain = np.array([d.d for d in designs]), np.array(values["gain"])
+        # [x(k+1); v(k)] = M [x(k); e(k)], one product per cycle (the cost goal)
+        m = np.block([[a, b], [gain[:, None] * c, np.diag(gain * d)]])
+        return {"a": a, "b": b, "c": c, "d": d, "gain": gain, "rows": rows, "m": m, "nx": start}
 
     def __init__(self, context, **values):
         super().__init__(context, **values)
-        self._x = np.zeros(self.k["a"].shape[0])
+        self._z = np.zeros(self.k["nx"] + context.n)  # [x; e]: the state, then this cycle's error
         self._taking_over: list[float] | None = None
 
     def reset(self, state: JointState, last_output) -> None:
         self._taking_over = [float(u) for u in last_output]
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
-        k, ctx = self.k, self.context
-        e = np.subtract(reference.angles, state.angles)
+        k, z, nx = self.k, self._z, self.k["nx"]
+        e = [r - q for r, q in zip(reference.angles, state.angles)]
         if self._taking_over is not None:
-            self._x = self._state_for(e, self._taking_over)
+            z[:nx] = self._state_for(np.array(e), self._taking_over)
             self._taking_over = None
-        v = k["gain"] * (k["c"] @ self._x + k["d"] * e)
-        u = np.clip(v, ctx.u_min, ctx.u_max)
-        x = k["a"] @ self._x + k["b"] @ e
-        if (u != v).any():  # hold the state of each clamped joint
-            for j in np.flatnonzero(u != v):
-                x[k["rows"][j]] = self._x[k["rows"][j]]
-        self._x = x
-        return u.tolist()
+        z[nx:] = e
+        after = k["m"] @ z
+        out = []
+        for j, (v, lo, hi) in enumerate(zip(after[nx:].tolist(), self.context.u_min, self.context.u_max)):
+            if v < lo or v > hi:  # anti-windup: a clamped joint's state is held
+                after[k["rows"][j]] = z[k["rows"][j]]
+                v = lo if v < lo else hi
+            out.append(v)
+        z[:nx] = after[:nx]
+        return out
 
     def _state_for(self, e: np.ndarray, output: list[float]) -> np.ndarray:
         """The state that gives ``output`` now, at rest for the error e if the design allows."""
