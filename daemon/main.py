@@ -23,8 +23,18 @@ from hal.transport import create_transport
 log = logging.getLogger("pneumad")
 
 
-def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
+def load_rig(args) -> config.RigConfig:
+    """The rig file, with its transport replaced if ``--transport`` says so."""
     rig = config.load(args.config)
+    if args.transport:
+        rig = config.with_transport(rig, args.transport, dict(map(config.parse_option, args.transport_option)))
+    elif args.transport_option:
+        raise ConfigError("--transport-option needs --transport")
+    return rig
+
+
+def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
+    rig = load_rig(args)
     transport = create_transport(rig, clock.now)
     transport.open()
     io = RigIO(rig, transport)
@@ -82,7 +92,7 @@ def cmd_run(args) -> int:
 
 def cmd_safe_state(args) -> int:
     """Write the configured safe state through the transport once, in a fresh process."""
-    rig = config.load(args.config)
+    rig = load_rig(args)
     transport = create_transport(rig, time.monotonic)
     transport.open()
     try:
@@ -108,6 +118,11 @@ def parser() -> argparse.ArgumentParser:
         sp.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
         sp.add_argument("--config", default=None,
                         help="rig file, or a built-in rig name (sim, sim-3joint); default: the simulated 2-joint rig")
+        sp.add_argument("--transport", default=None,
+                        help="reach the rig through this backend instead of its file's (sim, serial, modbus, can, "
+                             "or module:Class)")
+        sp.add_argument("--transport-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="an option of that backend, repeatable: e.g. port=/tmp/pneumad-bridge")
 
     def timing(sp):
         sp.add_argument("--period", type=float, default=0.001, help="loop period [s] (default 0.001)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -205,3 +205,26 @@ def load(path: str | Path | None = None) -> RigConfig:
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read rig file: {exc.strerror}") from None
     return parse(text, str(p))
+
+
+def with_transport(rig: RigConfig, backend: str, options: dict[str, Any]) -> RigConfig:
+    """The same rig (joints, channels, limits) reached through another transport: what
+    ``pneumad --transport`` does. The source text records the override, so the rig's hash
+    (which recordings carry) tells the two apart."""
+    changed = replace(rig, transport=TransportConfig(backend, dict(options)))
+    note = f"\n# overridden on the command line: [transport] backend = {backend!r}, options = {options!r}\n"
+    object.__setattr__(changed, "source", rig.source + note)
+    object.__setattr__(changed, "origin", rig.origin)
+    return changed
+
+
+def parse_option(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` with VALUE read as a TOML value (a number, true, a quoted string, an
+    array), or else as a plain string: ``port=/dev/ttyACM0``, ``baudrate=921600``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"transport option {text!r}: expected KEY=VALUE")
+    try:
+        return key.strip(), tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        return key.strip(), value

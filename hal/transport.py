@@ -124,8 +124,28 @@ class Transport(ABC):
         raise ConfigError(f"{self.backend}: no {kind} channel named {name!r} (it has: {names})")
 
 
+def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple[tuple[str, int], ...]]:
+    """The channels a rig file names, in the order every built-in transport carries them:
+    inputs are each joint's angle sensor, each distinct supply monitor, the force sensor;
+    outputs are head then rod per joint. Also what each input measures, as (what, joint)."""
+    inputs, sources = [], []
+    for i, j in enumerate(rig.joints):
+        inputs.append(Channel(j.sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
+        sources.append(("angle", i))
+    for supply in dict.fromkeys(j.sensor.supply_channel for j in rig.joints if j.sensor.supply_channel):
+        inputs.append(Channel(supply, ChannelKind.ANALOG_IN, 0.0, 10.0))
+        sources.append(("supply", 0))
+    if rig.force_sensor is not None:
+        inputs.append(Channel(rig.force_sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
+        sources.append(("force", 0))
+    outputs = tuple(Channel(getattr(j, side).channel, ChannelKind.ANALOG_OUT, 0.0, 10.0)
+                    for j in rig.joints for side in ("head", "rod"))
+    return tuple(inputs), outputs, tuple(sources)
+
+
 BACKENDS: dict[str, str] = {
     "sim": "sim_backend.transport:SimTransport",
+    "serial": "hal.serial_bridge:SerialBridgeTransport",
 }
 
 

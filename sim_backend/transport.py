@@ -20,7 +20,7 @@ from hal.errors import ConfigError, TransportTimeout
 from hal.force_sensor import ASFS
 from hal.potentiometer import RDC506
 from hal.schema import build
-from hal.transport import Channel, ChannelKind, InputSweep, Transport
+from hal.transport import InputSweep, Transport, rig_channels
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
 
@@ -45,20 +45,7 @@ class SimTransport(Transport):
         self.arm = SimArm(rig, options)
         self._rng = random.Random(options.seed)
         vsup = options.supply_volts
-        inputs: list[Channel] = []
-        self._sources: list[tuple[str, int]] = []  # what each input channel measures
-        for i, j in enumerate(rig.joints):
-            inputs.append(Channel(j.sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
-            self._sources.append(("angle", i))
-        for supply in dict.fromkeys(j.sensor.supply_channel for j in rig.joints if j.sensor.supply_channel):
-            inputs.append(Channel(supply, ChannelKind.ANALOG_IN, 0.0, 10.0))
-            self._sources.append(("supply", 0))
-        if rig.force_sensor is not None:
-            inputs.append(Channel(rig.force_sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
-            self._sources.append(("force", 0))
-        self.inputs = tuple(inputs)
-        self.outputs = tuple(Channel(getattr(j, side).channel, ChannelKind.ANALOG_OUT, 0.0, 10.0)
-                             for j in rig.joints for side in ("head", "rod"))
+        self.inputs, self.outputs, self._sources = rig_channels(rig)
         # The "true" sensors: the rig file's calibrations, read backwards.
         self._pots = [RDC506(j.sensor, *j.limits_rad) for j in rig.joints]
         self._force = ASFS(rig.force_sensor) if rig.force_sensor else None

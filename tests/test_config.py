@@ -90,3 +90,17 @@ def test_mapping_checked_against_the_transports_channels():
     other = parse_with('channel = "ai7"', 'channel = "ai5"')
     with pytest.raises(ConfigError, match="no input channel named 'ai5'"):
         RigIO(other, sim.transport)
+
+
+def test_a_command_line_transport_keeps_the_rig_and_changes_its_hash():
+    rig = config.load()
+    wired = config.with_transport(rig, "serial", dict(map(config.parse_option, ["port=/dev/ttyACM0", "baudrate=115200"])))
+    assert wired.transport.backend == "serial"
+    assert wired.transport.options == {"port": "/dev/ttyACM0", "baudrate": 115200}
+    assert wired.joints == rig.joints and wired.hash != rig.hash
+
+
+@pytest.mark.parametrize("text", ["port", "=x", ""])
+def test_a_transport_option_without_a_key_and_value_is_refused(text):
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        config.parse_option(text)
