@@ -109,7 +109,7 @@ class Commands:
         "lease.release": ("lease_release", True, False),
     }
 
-    def __init__(self, loop):
+    def __init__(self, loop, preparer: Preparer | None = None):
         self.loop = loop
         self.lease: str | None = None
         self.lease_expires = 0.0
@@ -122,7 +122,7 @@ class Commands:
         self._describe = self._build_describe()
         models_known = all(m is not None for m in loop.context.models)
         self._authority = Authority.of(loop.rig, loop.context, loop.rig.limits.authority_fraction) if models_known else None
-        self.preparer = Preparer()
+        self.preparer = preparer or Preparer()
 
     # -- entry points -----------------------------------------------------------------------
     def handle_payload(self, payload: bytes, control: bool = False) -> bytes | Deferred:

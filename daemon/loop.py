@@ -29,6 +29,7 @@ from hal.actuation import BiasedHeadActuation
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
+START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
 
 class ControlLoop:
     def __init__(self, io: RigIO, clock, period: float = 0.001, controller: str = "pid",
@@ -72,7 +73,7 @@ class ControlLoop:
         period from now, so call :meth:`run` straight after."""
         self._write_safe()
         try:
-            snap = self.io.read()
+            snap = self._first_reading()
             self.angles = [a if a == a else 0.0 for a in snap.angles]
             self.snapshot = snap
         except TransportError as exc:
@@ -83,6 +84,23 @@ class ControlLoop:
         self._stats_due = self._deadline + self.stats_period
         self._heartbeat_due = self._deadline
         self._drain_events()
+
+    def _first_reading(self) -> Snapshot:
+        """A sample no older than the stale limit. A transport across a wire answers the
+        safe outputs just written a moment later, and its last sample may date from when it
+        was opened, before the daemon's set-up: wait for a fresh one, a period at a time,
+        for at most START_WAIT_S (this is start-up, not a cycle)."""
+        limit, clock = self.rig.safety.stale_after_s, self.clock
+        give_up = clock.now() + START_WAIT_S
+        while True:
+            snap = self.io.read()
+            now = clock.now()
+            if now - snap.t <= limit:
+                return snap
+            if now >= give_up:
+                raise TransportError(f"no fresh sample within {START_WAIT_S:g} s of start "
+                                     f"(the last is {(now - snap.t) * 1e3:.0f} ms old)")
+            clock.sleep_until(now + self.period)
 
     def run(self, cycles: int | None = None) -> None:
         """Run until :meth:`stop` (or for ``cycles`` cycles); :meth:`shutdown` leaves the outputs safe."""

@@ -13,6 +13,7 @@ from daemon import realtime
 from daemon.clock import MonotonicClock
 from daemon.loop import ControlLoop
 from daemon.notify import Notifier
+from daemon.preparation import Preparer
 from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
 from daemon.telemetry import Telemetry
 from hal import config
@@ -46,9 +47,12 @@ def cmd_run(args) -> int:
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
     server = ZmqServer(args.command, args.control, args.telemetry)  # before RT set-up: its I/O threads stay normal
+    # The controller-building worker is spawned and has imported the controllers before the
+    # transport opens: a process starting up beside a running wire delayed its replies.
+    preparer = Preparer()
+    preparer.warm().result(timeout=120)
     loop = build_loop(args, clock, server.publish)
-    server.attach(loop)  # its preparation courier too, before RT set-up
-    server.commands.preparer.warm()  # the controller-building worker starts now, not at the first switch
+    server.attach(loop, preparer)
     notifier = Notifier()
     stop_reason = []
 

@@ -49,8 +49,8 @@ class ZmqServer:
         sock.bind(endpoint)
         return sock
 
-    def attach(self, loop) -> None:
-        self.commands = Commands(loop)
+    def attach(self, loop, preparer=None) -> None:
+        self.commands = Commands(loop, preparer)
         loop.server = self
 
     def publish(self, topic: bytes, payload: bytes) -> None:
