@@ -146,6 +146,7 @@ def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple[t
 BACKENDS: dict[str, str] = {
     "sim": "sim_backend.transport:SimTransport",
     "serial": "hal.serial_bridge:SerialBridgeTransport",
+    "modbus": "hal.modbus:ModbusTransport",
 }
 
 

@@ -1,0 +1,253 @@
+"""A transport whose exchange runs in its own process, so a slow round trip never stalls a
+cycle: the loop posts its outputs and takes the latest inputs and their age from shared
+memory, and never waits on the wire.
+
+The worker process repeats, at the loop's rate: take the newest outputs, do one exchange
+through its :class:`Link` (one Modbus read-write transaction, say), publish the inputs with
+the time they came back. Each side of the shared memory is a seqlock (a counter that is odd
+while a write is under way), so neither side ever blocks the other. A worker at normal
+priority is ordinary Python and holds no lock the loop needs; ``worker_priority`` puts it at
+SCHED_FIFO (below the loop) on a rig where the exchange must keep pace.
+
+What the loop sees:
+- a new sample: its values and its age, mapped onto the loop's clock;
+- no new sample: the previous one again with its old time, so a peer that stops answering
+  trips the supervisor on stale input;
+- a link that is down (the peer refused, reset or timed out): TransportError with the
+  worker's own words, so the trip says why. The worker keeps trying to reconnect every
+  ``reopen_every_s``; once samples flow again the supervisor waits for a reset.
+Malformed replies (exception responses, wrong lengths) are counted, never fatal.
+"""
+from __future__ import annotations
+
+import ctypes
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Sequence
+
+from hal.errors import TransportError, TransportTimeout
+from hal.transport import InputSweep, Transport
+
+COUNTERS = ("exchanges", "timeouts", "exception_replies", "bad_replies", "link_lost", "reconnects")
+_ERROR_BYTES = 240
+
+
+class LinkDown(Exception):
+    """The peer cannot be reached: reconnect before the next exchange."""
+
+
+class LinkTimeout(LinkDown):
+    """The peer did not answer in time."""
+
+
+class BadReply(Exception):
+    """The peer answered, wrongly (``counter`` says how); the link stays up."""
+
+    def __init__(self, message: str, counter: str = "bad_replies"):
+        super().__init__(message)
+        self.counter = counter
+
+
+class Link:
+    """The wire, as the worker process uses it: built there from picklable options."""
+
+    def connect(self) -> None:
+        """Raise LinkDown if the peer cannot be reached."""
+
+    def exchange(self, outputs: Sequence[int]) -> Sequence[int]:
+        """Send the output counts, return the input counts; LinkDown or BadReply."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class _Shared:
+    """The shared memory both processes map (created before the worker is spawned)."""
+
+    def __init__(self, n_in: int, n_out: int):
+        raw = multiprocessing.get_context("spawn")
+        self.in_seq = raw.RawValue(ctypes.c_uint64, 0)
+        self.in_t = raw.RawValue(ctypes.c_double, 0.0)  # time.monotonic() of the reply
+        self.inputs = raw.RawArray(ctypes.c_double, n_in)
+        self.out_seq = raw.RawValue(ctypes.c_uint64, 0)
+        self.outputs = raw.RawArray(ctypes.c_double, n_out)
+        self.link_up = raw.RawValue(ctypes.c_bool, False)
+        self.stop = raw.RawValue(ctypes.c_bool, False)
+        self.error = raw.RawArray(ctypes.c_char, _ERROR_BYTES)
+        self.counters = raw.RawArray(ctypes.c_uint64, len(COUNTERS))
+
+
+def _write_locked(seq, array, values) -> None:
+    seq.value += 1  # odd: a write is under way
+    array[:] = values
+    seq.value += 1
+
+
+def _read_locked(seq, array, extra=None):
+    """(sequence number, values, extra.value) read consistently, retrying across a write."""
+    while True:
+        before = seq.value
+        if before & 1:
+            continue
+        values = array[:]
+        more = extra.value if extra is not None else None
+        if seq.value == before:
+            return before, values, more
+
+
+class OffLoopTransport(Transport):
+    """Subclasses set ``backend`` and channels, and give :meth:`link_factory`."""
+
+    def __init__(self, clock: Callable[[], float], rate_hz: float, open_timeout_s: float,
+                 reopen_every_s: float, worker_priority: int):
+        super().__init__()
+        self.clock = clock
+        self.rate_hz = rate_hz
+        self.open_timeout_s = open_timeout_s
+        self.reopen_every_s = reopen_every_s
+        self.worker_priority = worker_priority
+        self._shared: _Shared | None = None
+        self._process = None
+        self._sweep = InputSweep(0, float("-inf"), (0.0,) * len(self.inputs))
+        self._last_seq = 0
+
+    def link_factory(self) -> tuple[Callable[..., Link], tuple]:
+        """A module-level callable and its picklable arguments that build the Link."""
+        raise NotImplementedError
+
+    def to_counts(self, values: Sequence[float]) -> list[float]:
+        """Output volts as the raw values the link sends (default: unchanged)."""
+        return list(values)
+
+    def to_volts(self, raw: Sequence[float]) -> tuple[float, ...]:
+        return tuple(raw)
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def open(self) -> None:
+        """Spawn the worker and wait for its first sample: a peer that is not there stops
+        the daemon at start with the worker's reason."""
+        self._shared = shared = _Shared(len(self.inputs), len(self.outputs))
+        factory, args = self.link_factory()
+        ctx = multiprocessing.get_context("spawn")
+        self._process = ctx.Process(target=_work, name=f"pneumad-{self.backend}", daemon=True,
+                                    args=(shared, factory, args, 1.0 / self.rate_hz, self.reopen_every_s,
+                                          self.worker_priority))
+        self._process.start()
+        deadline = time.monotonic() + self.open_timeout_s
+        while shared.in_seq.value == 0:
+            if not self._process.is_alive() or time.monotonic() > deadline:
+                reason = self._last_error() or "no answer"
+                self.close()
+                raise TransportTimeout(f"{self.backend}: no sample within {self.open_timeout_s:g} s of opening: {reason}")
+            time.sleep(0.01)
+        super().open()
+
+    def close(self) -> None:
+        if self._process is not None:
+            self._shared.stop.value = True
+            self._process.join(2.0)
+            if self._process.is_alive():
+                self._process.kill()
+                self._process.join(2.0)
+            self._process = None
+        super().close()
+
+    # -- the sweeps (loop side) -------------------------------------------------------------
+    def read(self) -> InputSweep:
+        shared = self._shared
+        if shared is None:
+            raise TransportError(f"{self.backend}: not open")
+        seq, raw, t_reply = _read_locked(shared.in_seq, shared.inputs, shared.in_t)
+        self._health.reads += 1
+        if seq != self._last_seq:
+            self._last_seq = seq
+            now = self.clock()
+            t = now - max(time.monotonic() - t_reply, 0.0)  # the reply's time on the loop's clock
+            self._sweep = InputSweep(self._sweep.seq + 1, t, self.to_volts(raw))
+            self._health.last_sample_t = t
+            return self._sweep
+        if not shared.link_up.value:
+            self._raise_link_down()
+        return self._sweep
+
+    def _write(self, values: Sequence[float]) -> None:
+        shared = self._shared
+        if shared is None:
+            raise TransportError(f"{self.backend}: not open")
+        if not shared.link_up.value:
+            self._raise_link_down()
+        _write_locked(shared.out_seq, shared.outputs, self.to_counts(values))
+
+    def _raise_link_down(self):
+        alive = self._process is not None and self._process.is_alive()
+        reason = self._last_error() or "the link is down"
+        if not alive:
+            reason = f"the {self.backend} worker process has stopped ({reason})"
+        raise TransportError(f"{self.backend}: {reason}")
+
+    def _last_error(self) -> str:
+        return self._shared.error.value.decode(errors="replace") if self._shared else ""
+
+    def health(self):
+        h = self._health
+        if self._shared is not None:
+            h.counters.update(zip(COUNTERS, self._shared.counters[:]))
+            h.errors = sum(h.counters[k] for k in COUNTERS if k not in ("exchanges", "reconnects"))
+            h.last_error = self._last_error()
+        return h
+
+
+# -- in the worker process --------------------------------------------------------------------
+def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, priority: int) -> None:
+    """The worker's main: exchange at the loop's rate until told to stop."""
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except OSError as exc:
+            _error(shared, f"worker_priority {priority} not applied: {exc}")
+    link = factory(*args)
+    counters = shared.counters
+    index = {name: i for i, name in enumerate(COUNTERS)}
+    next_try = 0.0
+    deadline = time.monotonic()
+    while not shared.stop.value:
+        if not shared.link_up.value:
+            if time.monotonic() < next_try:
+                time.sleep(0.005)
+                continue
+            try:
+                link.connect()
+                shared.link_up.value = True
+                counters[index["reconnects"]] += 1
+            except LinkDown as exc:
+                _error(shared, str(exc))
+                next_try = time.monotonic() + reopen_every_s
+                continue
+        _, outputs, _ = _read_locked(shared.out_seq, shared.outputs)
+        try:
+            inputs = link.exchange(outputs)
+        except LinkDown as exc:
+            counters[index["timeouts" if isinstance(exc, LinkTimeout) else "link_lost"]] += 1
+            _error(shared, str(exc))
+            shared.link_up.value = False
+            link.close()
+            next_try = time.monotonic() + reopen_every_s
+            continue
+        except BadReply as exc:
+            counters[index[exc.counter]] += 1
+            _error(shared, str(exc))
+        else:
+            shared.in_seq.value += 1
+            shared.inputs[:] = inputs
+            shared.in_t.value = time.monotonic()
+            shared.in_seq.value += 1
+            counters[index["exchanges"]] += 1
+        deadline = max(deadline + period, time.monotonic())  # never burst to catch up
+        time.sleep(max(deadline - time.monotonic(), 0.0))
+    link.close()
+
+
+def _error(shared: _Shared, message: str) -> None:
+    shared.error.value = message.encode()[:_ERROR_BYTES - 1]
