@@ -60,14 +60,19 @@ class Tracking:
     max_jump: list[float] = field(default_factory=list)  # largest output change in one cycle [V]
 
 
-def approach(loop: ControlLoop, target) -> None:
-    """Move to ``target`` in the shortest feasible time (at least 3 s), then settle there."""
+def approach_duration(loop: ControlLoop, target) -> float:
+    """The shortest feasible time (at least 3 s) to move from the present reference to
+    ``target`` [s]: planning, so it takes a while; a real-time loop must not wait on it."""
     start = list(loop.reference[0])
-    auth = authority(loop)
     try:
-        move = auth.check(lambda d: trajectory.JointMove(start, target, d), 3.0)
+        return authority(loop).check(lambda d: trajectory.JointMove(start, target, d), 3.0).duration
     except Infeasible as exc:  # infeasible at 3 s: take the shortest feasible duration
-        move = trajectory.JointMove(start, target, exc.shortest_s or 30.0)
+        return exc.shortest_s or 30.0
+
+
+def approach(loop: ControlLoop, target, duration: float | None = None) -> None:
+    """Move to ``target`` in ``duration`` (default: the shortest feasible), then settle there."""
+    move = trajectory.JointMove(list(loop.reference[0]), target, duration or approach_duration(loop, target))
     loop.set_trajectory(move, "approach")
     loop.run(int((move.duration + SETTLE_S) / loop.period))
 
@@ -75,6 +80,11 @@ def approach(loop: ControlLoop, target) -> None:
 def run_path(loop: ControlLoop, path: trajectory.Trajectory, on_cycle=None) -> Tracking:
     """Approach the path's start, run it, and measure the tracking while it runs."""
     approach(loop, path.sample(0.0)[0])
+    return measure_path(loop, path, on_cycle)
+
+
+def measure_path(loop: ControlLoop, path: trajectory.Trajectory, on_cycle=None) -> Tracking:
+    """Run the path from where the loop is and measure the tracking while it runs."""
     loop.set_trajectory(path, "path")
     lengths = loop.rig.arm.link_lengths_m
     n = loop.n

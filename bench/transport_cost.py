@@ -7,12 +7,14 @@ simulated rig: in process, or as a peer process behind the wire (SCHED_FIFO, 10 
 loop). Printed from the daemon's
 own ``stats`` telemetry (one window after start-up): wake-up latency, the read and write
 stages of a cycle (the transport's per-cycle cost), overruns. The floor is the raw loopback
-round trip of the same wire with nothing but an echo on the other end.
+round trip of the same kind of wire with nothing but an echo on the other end: a pty for the
+serial bridge, TCP for Modbus, UDP for CAN over udp_multicast.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import socket
 import subprocess
 import sys
 import tempfile
@@ -21,37 +23,36 @@ import tty
 
 import msgpack
 
+from bench import wires
 from bench.common import header, percentiles, spawn_daemon, stats_subscriber
-from daemon.client import Client
+from daemon.client import Client, RemoteError
 from hal import serial_frames as F
 
 
-def peers(tmp: str) -> dict[str, tuple[list[str] | None, list[str], str | None]]:
-    """name -> (peer command, pneumad options, a path that exists once the peer is up)."""
-    link = os.path.join(tmp, "bridge")
-    return {
-        "in-process sim": (None, [], None),
-        "serial (pty)": ([sys.executable, "-m", "sim_backend.serial_peer", "--link", link],
-                         ["--transport", "serial", "--transport-option", f"port={link}"], link),
-    }
+def transport_options(wire: wires.Wire, priority: int) -> list[str]:
+    options = dict(wire.options)
+    if wire.backend == "modbus":
+        options["worker_priority"] = priority  # the exchange worker, like the peer, answers on time
+    return ["--transport", wire.backend, *sum((["--transport-option", f"{k}={v}"] for k, v in options.items()), [])]
 
 
-def run(peer_cmd, options, ready_path, seconds: float, priority: int) -> dict | None:
+def run(wire: wires.Wire | None, seconds: float, priority: int) -> dict | str | None:
     """The daemon's second stats window; the peer runs at SCHED_FIFO just below the loop,
-    as a microcontroller would answer: on time, whatever else the PC does."""
-    peer = subprocess.Popen(peer_cmd, stdout=subprocess.DEVNULL, preexec_fn=lambda: _realtime(priority - 10)) \
-        if peer_cmd else None
+    as a microcontroller or an I/O module would answer: on time, whatever else the PC does."""
+    peer = wires.start_peer(wire.peer, wire.ready, priority=priority - 10) if wire else None
     try:
-        while ready_path and not os.path.exists(ready_path):
-            time.sleep(0.05)
-        daemon, eps = spawn_daemon("--rt-priority", str(priority), "--stats-period", str(seconds), *options)
+        daemon, eps = spawn_daemon("--rt-priority", str(priority), "--stats-period", str(seconds),
+                                   *(transport_options(wire, priority - 10) if wire else []))
         try:
-            client = Client(**eps, timeout=10.0)
+            client = Client(**eps, timeout=30.0)
             client.ping()
             stats = stats_subscriber(eps)
             client.acquire_lease()
             client.keep_lease()
-            client.enable()
+            try:
+                client.enable()
+            except RemoteError as exc:  # e.g. a wire too slow for the rig's stale limit
+                return exc.message
             windows = []
             while len(windows) < 2 and stats.poll(int((seconds + 10) * 1e3)):
                 windows.append(msgpack.unpackb(stats.recv_multipart()[1], raw=False))
@@ -62,41 +63,67 @@ def run(peer_cmd, options, ready_path, seconds: float, priority: int) -> dict | 
             daemon.wait(10)
     finally:
         if peer is not None:
-            peer.terminate()
-            peer.wait(10)
+            wires.stop_peer(peer)
 
 
-def _realtime(priority: int) -> None:
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError:
-        pass  # not permitted: the peer runs at normal priority, and the figures say less
+PTY_ECHO = "import os, sys\nfd = int(sys.argv[1])\nwhile True:\n    os.write(fd, os.read(fd, 4096))"
+TCP_ECHO = ("import socket, sys\ns = socket.create_server(('127.0.0.1', int(sys.argv[1])))\nwhile True:\n"
+            "    c, _ = s.accept()\n    c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)\n"
+            "    while (d := c.recv(4096)):\n        c.sendall(d)")
+UDP_ECHO = ("import socket, sys\ns = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)\n"
+            "s.bind(('127.0.0.1', int(sys.argv[1])))\nwhile True:\n    d, a = s.recvfrom(4096)\n    s.sendto(d, a)")
 
 
-ECHO = "import os, sys\nfd = int(sys.argv[1])\nwhile True:\n    os.write(fd, os.read(fd, 4096))"
+def round_trips(send, receive, size: int, n: int = 5000) -> dict[str, float]:
+    """Percentiles [us] of ``send`` then ``receive`` of ``size`` bytes, n times."""
+    samples = []
+    payload = bytes(range(size))
+    for _ in range(n):
+        t0 = time.perf_counter()
+        send(payload)
+        got = 0
+        while got < size:
+            got += len(receive())
+        samples.append((time.perf_counter() - t0) * 1e6)
+    return percentiles(samples)
 
 
-def pty_round_trip(n: int = 5000) -> dict[str, float]:
-    """A bridge-sized frame through a pty pair to an echo process and back [us]."""
+def floors() -> dict[str, dict[str, float]]:
+    """The raw loopback round trip of each wire, to an echo process, at the size of one exchange."""
+    out = {}
     master, slave = os.openpty()
     tty.setraw(slave)
-    echo = subprocess.Popen([sys.executable, "-c", ECHO, str(master)], pass_fds=(master,))
-    frame = F.encode(F.OUTPUTS, 1, [1000] * 4)
-    samples = []
+    echo = subprocess.Popen([sys.executable, "-c", PTY_ECHO, str(master)], pass_fds=(master,))
     try:
-        for _ in range(n):
-            t0 = time.perf_counter()
-            os.write(slave, frame)
-            got = b""
-            while len(got) < len(frame):
-                got += os.read(slave, 4096)
-            samples.append((time.perf_counter() - t0) * 1e6)
+        out["pty (serial)"] = round_trips(lambda b: os.write(slave, b), lambda: os.read(slave, 4096),
+                                          len(F.encode(F.OUTPUTS, 1, [0] * 4)))
     finally:
         echo.kill()
         echo.wait()
         os.close(slave)
         os.close(master)
-    return percentiles(samples)
+    port = wires.free_port()
+    echo = subprocess.Popen([sys.executable, "-c", TCP_ECHO, str(port)])
+    try:
+        while not wires.listening(port):
+            time.sleep(0.02)
+        with socket.create_connection(("127.0.0.1", port)) as sock:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            out["tcp (modbus)"] = round_trips(sock.sendall, lambda: sock.recv(4096), 25)  # a function-23 request
+    finally:
+        echo.kill()
+        echo.wait()
+    port = wires.free_port()
+    echo = subprocess.Popen([sys.executable, "-c", UDP_ECHO, str(port)])
+    try:
+        time.sleep(0.5)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.connect(("127.0.0.1", port))
+            out["udp (can)"] = round_trips(sock.send, lambda: sock.recv(4096), 16)  # one CAN frame's bytes
+    finally:
+        echo.kill()
+        echo.wait()
+    return out
 
 
 def main() -> None:
@@ -108,18 +135,18 @@ def main() -> None:
     print(f"{'transport':16s} {'lat p50':>8s} {'p99':>7s} {'p99.9':>7s} {'max':>8s}  {'read p50':>8s} {'p99':>7s}"
           f"  {'write p50':>9s} {'p99':>7s}  {'overruns':>8s}")
     with tempfile.TemporaryDirectory(prefix="pneumad-transport-") as tmp:
-        for name, (peer_cmd, options, ready) in peers(tmp).items():
-            s = run(peer_cmd, options, ready, args.seconds, args.priority)
-            if s is None:
-                print(f"{name:16s} no stats")
+        for name, wire in {"in-process sim": None, **wires.wires(tmp)}.items():
+            s = run(wire, args.seconds, args.priority)
+            if not isinstance(s, dict):
+                print(f"{name:16s} {s or 'no stats'}")
                 continue
             lat, rd, wr = s["latency_us"], s["compute_us"]["read"], s["compute_us"]["write"]
             print(f"{name:16s} {lat['p50']:8.1f} {lat['p99']:7.1f} {lat['p99.9']:7.1f} {lat['max']:8.1f}  "
                   f"{rd['p50']:8.1f} {rd['p99']:7.1f}  {wr['p50']:9.1f} {wr['p99']:7.1f}  {s['overruns']:8d}")
     print()
-    print("floor: raw loopback round trip of each wire, a bridge-sized frame, us")
-    rt = pty_round_trip()
-    print(f"{'pty':16s} p50 {rt['p50']:.1f}  p99 {rt['p99']:.1f}  p99.9 {rt['p99.9']:.1f}  max {rt['max']:.1f}")
+    print("floor: raw loopback round trip of each wire to an echo process, one exchange's bytes, us")
+    for name, rt in floors().items():
+        print(f"{name:16s} p50 {rt['p50']:7.1f}  p99 {rt['p99']:7.1f}  p99.9 {rt['p99.9']:7.1f}  max {rt['max']:8.1f}")
 
 
 if __name__ == "__main__":

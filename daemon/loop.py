@@ -146,7 +146,9 @@ class ControlLoop:
         t1 = clock.now()
         if snap is not None:
             self._update_measurement(snap)
-            sup.check(snap.angles, self.velocities, snap.faults, wake - snap.t)
+            # the sample's age at this cycle's deadline: how late the transport is, not the
+            # loop (its own lateness is the stall check's, and the wake-up latency figures')
+            sup.check(snap.angles, self.velocities, snap.faults, self._deadline - snap.t)
         if sup.enabled:
             self._control(wake)
         t2 = clock.now()

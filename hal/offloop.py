@@ -145,8 +145,15 @@ class OffLoopTransport(Transport):
         super().open()
 
     def close(self) -> None:
+        """Stop the worker once the outputs last posted are out (two more exchanges: the one
+        under way may have taken older outputs), so a final safe state is not lost."""
         if self._process is not None:
-            self._shared.stop.value = True
+            shared = self._shared
+            flushed = shared.in_seq.value + 4
+            deadline = time.monotonic() + 0.5
+            while shared.link_up.value and shared.in_seq.value < flushed and time.monotonic() < deadline:
+                time.sleep(0.001)
+            shared.stop.value = True
             self._process.join(2.0)
             if self._process.is_alive():
                 self._process.kill()

@@ -3,10 +3,12 @@
 One exchange per cycle, pipelined so the loop never waits on the wire: ``write`` sends the
 outputs frame (seq k) at the end of a cycle; the bridge answers with the inputs it sampled
 after applying them, and the next cycle's ``read`` takes whatever replies have arrived
-without blocking (about 1 ms later, the reply to k). A sample's time is when ``read`` first
-saw it, on the loop's clock. A cycle with no new reply returns the previous sample again
-(same seq, its old time), so a bridge that stops answering ages the data until the
-supervisor trips on stale input (``safety.stale_after_s``).
+without blocking (about 1 ms later, the reply to k). The seq says which request a reply
+answers: the sample is dated when that request went out (the bridge sampled after it, so the
+age is never understated), and a reply to no recent request of ours, or older than one
+already taken, is counted and dropped. A cycle with no new reply returns the previous
+sample again (same seq, its old time), so a bridge that stops answering ages the data until
+the supervisor trips on stale input (``safety.stale_after_s``).
 
 Only ``open`` blocks: it sends the first frame and waits for the bridge's answer, so a
 missing or silent bridge stops the daemon at start with a clear error. A port that vanishes
@@ -32,6 +34,7 @@ from hal.schema import build, require
 from hal.transport import Channel, InputSweep, Transport, rig_channels
 
 FULL_SCALE = 0xFFFF
+SEQ_WINDOW = 64  # replies to the last this many requests are accepted
 
 
 @dataclass(frozen=True)
@@ -70,12 +73,13 @@ class SerialBridgeTransport(Transport):
         self._port: serial.Serial | None = None
         self._reader = F.FrameReader()
         self._tx_seq = 0
+        self._sent_at = [(-1, 0.0)] * SEQ_WINDOW  # (seq, when its request went out) of recent requests
         self._sweep = InputSweep(0, float("-inf"), (0.0,) * len(self.inputs))
         self._next_reopen = 0.0
         self._lost = ""
         counters = self._health.counters
-        for key in ("crc_errors", "bad_headers", "discarded_bytes", "wrong_replies", "tx_dropped", "port_lost",
-                    "reopened"):
+        for key in ("crc_errors", "bad_headers", "discarded_bytes", "wrong_replies", "unexpected_seq", "tx_dropped",
+                    "port_lost", "reopened"):
             counters[key] = 0
 
     @classmethod
@@ -131,6 +135,7 @@ class SerialBridgeTransport(Transport):
 
     def _send(self, counts) -> None:
         self._tx_seq = (self._tx_seq + 1) & 0xFFFF
+        self._sent_at[self._tx_seq % SEQ_WINDOW] = (self._tx_seq, self.clock())
         frame = F.encode(F.OUTPUTS, self._tx_seq, counts)
         try:
             if os.write(self._port.fileno(), frame) < len(frame):
@@ -154,18 +159,20 @@ class SerialBridgeTransport(Transport):
                 self._lose(EOFError("the device reports data but returns none (disconnected?)"))
         frames = self._reader.feed(data) if data else ()
         self._count_reader()
-        fresh = None
+        fresh, sent = None, None
         for frame in frames:
+            seq, t = self._sent_at[frame.seq % SEQ_WINDOW]
             if frame.kind != F.INPUTS or len(frame.counts) != len(self.inputs):
                 self._health.counters["wrong_replies"] += 1
+            elif seq != frame.seq or (sent is not None and t < sent):
+                self._health.counters["unexpected_seq"] += 1  # no request of ours, or older than one taken
             else:
-                fresh = frame
+                fresh, sent = frame, t
         if fresh is None:
             return False
-        now = self.clock()
         values = tuple(to_volts(c, ch) for c, ch in zip(fresh.counts, self.inputs))
-        self._sweep = InputSweep(self._sweep.seq + 1, now, values)
-        self._health.last_sample_t = now
+        self._sweep = InputSweep(self._sweep.seq + 1, sent, values)
+        self._health.last_sample_t = sent
         return True
 
     def _count_reader(self) -> None:

@@ -147,6 +147,7 @@ BACKENDS: dict[str, str] = {
     "sim": "sim_backend.transport:SimTransport",
     "serial": "hal.serial_bridge:SerialBridgeTransport",
     "modbus": "hal.modbus:ModbusTransport",
+    "can": "hal.can_bus:CanTransport",
 }
 
 

@@ -2,23 +2,22 @@
 process (python -m sim_backend.modbus_peer): tracking as in-process, a peer killed mid-move
 tripping the loop with the reason, recovery after it returns and a reset, exception replies
 counted, no server at start refused clearly."""
-import socket
+import subprocess
+import sys
 
 import pytest
+from pymodbus.client import ModbusTcpClient
 
+from bench.wires import free_port, listening
 from hal.errors import TransportError
-from tests.wirehelpers import move_and_track, start_peer, stop_peer, wire_loop
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def listening(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
+from tests.wirehelpers import (
+    move_and_track,
+    start_peer,
+    stop_peer,
+    tracks_like_in_process,
+    trip_and_recover,
+    wire_loop,
+)
 
 
 def peer(port, *args):
@@ -34,49 +33,25 @@ def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exch
     proc = peer(port, "--framer", "socket" if framing == "tcp" else "rtu")
     options = {"port": port} if framing == "tcp" else {"mode": "rtu", "device": f"socket://127.0.0.1:{port}"}
     try:
-        loop, _ = wire_loop("modbus", options)
-        over_wire = move_and_track(loop)
-        assert loop.state.value == "enabled", loop.supervisor.cause
-        health = loop.io.transport.health()
-        loop.shutdown()
+        health = tracks_like_in_process(wire_loop("modbus", options)[0])
     finally:
         stop_peer(proc)
-    in_process = move_and_track(wire_loop(None, virtual=True)[0])
-    assert all(abs(w - p) < 0.5 for w, p in zip(over_wire, in_process)), (over_wire, in_process)
     assert health.counters["exchanges"] > least_exchanges and health.errors == 0, health
 
 
 def test_a_killed_server_trips_the_loop_with_the_reason_and_a_new_one_recovers_after_reset():
     port = free_port()
-    proc = peer(port)
+    peers = [peer(port)]
     loop, _ = wire_loop("modbus", {"port": port, "reopen_every_s": 0.1})
     try:
-        loop.run(200)
-        loop.enable()
-        loop.run(200)
-        stop_peer(proc, hard=True)
-        for cycles in range(1, 1000):
-            loop.run(1)
-            if loop.state.value == "fault":
-                break
-        assert loop.state.value == "fault" and "connection to 127.0.0.1" in loop.supervisor.cause, loop.supervisor.cause
+        cycles, cause = trip_and_recover(loop, lambda: stop_peer(peers[-1], hard=True),
+                                         lambda: peers.append(peer(port)),
+                                         lambda: loop.io.transport.health().counters["reconnects"] >= 2)
+        assert "connection to 127.0.0.1" in cause and "lost" in cause, cause
         assert cycles < 100  # the connection reset is seen on the worker's next exchange
-        loop.run(300)
-        assert loop.state.value == "fault"
-        proc = peer(port)
-        for _ in range(5000):  # the worker reconnects by itself
-            loop.run(1)
-            if loop.io.transport.health().counters["reconnects"] >= 2:
-                break
-        loop.run(100)
-        assert tuple(loop.io.last_volts) == tuple(loop.io.safe_volts)
-        loop.reset()
-        loop.enable()
-        loop.run(300)
-        assert loop.state.value == "enabled", loop.supervisor.cause
     finally:
         loop.shutdown()
-        stop_peer(proc)
+        stop_peer(peers[-1])
 
 
 def test_exception_replies_are_counted_and_the_loop_carries_on():
@@ -96,3 +71,21 @@ def test_exception_replies_are_counted_and_the_loop_carries_on():
 def test_no_server_at_start_is_a_clear_error():
     with pytest.raises(TransportError, match="cannot connect to 127.0.0.1"):
         wire_loop("modbus", {"port": free_port(), "open_timeout_s": 1.0})
+
+
+def test_the_dead_man_command_writes_the_safe_state_through_modbus():
+    """``pneumad safe-state`` (systemd's stop hook) over Modbus: a fresh process, its own
+    exchange worker, and the safe outputs in the module's registers when it exits."""
+    port = free_port()
+    proc = peer(port)
+    try:
+        client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)
+        client.connect()
+        client.write_registers(100, [30000] * 4, device_id=1)  # outputs driven somewhere
+        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",
+                              "--transport-option", f"port={port}"], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0 and "safe state written" in out.stdout, out.stderr
+        assert client.read_holding_registers(100, count=4, device_id=1).registers == [0, 0, 0, 0]
+        client.close()
+    finally:
+        stop_peer(proc)

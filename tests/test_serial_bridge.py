@@ -11,8 +11,16 @@ import pytest
 from hal import config
 from hal import serial_frames as F
 from hal.errors import TransportError
+from hal.serial_bridge import SerialBridgeOptions, SerialBridgeTransport
 from sim_backend.serial_peer import BridgePeer
-from tests.wirehelpers import move_and_track, start_peer, stop_peer, wire_loop
+from tests.wirehelpers import (
+    move_and_track,
+    start_peer,
+    stop_peer,
+    tracks_like_in_process,
+    trip_and_recover,
+    wire_loop,
+)
 
 
 def peer(link, *args):
@@ -27,47 +35,23 @@ def link(tmp_path):
 def test_pid_tracks_a_move_over_the_serial_bridge_as_it_does_in_process(link):
     proc = peer(link)
     try:
-        loop, _ = wire_loop("serial", {"port": str(link)})
-        over_wire = move_and_track(loop)
-        assert loop.state.value == "enabled", loop.supervisor.cause
-        health = loop.io.transport.health()
-        loop.shutdown()
+        health = tracks_like_in_process(wire_loop("serial", {"port": str(link)})[0])
     finally:
         stop_peer(proc)
-    in_process = move_and_track(wire_loop(None, virtual=True)[0])
-    assert all(abs(w - p) < 0.5 for w, p in zip(over_wire, in_process)), (over_wire, in_process)
     assert health.counters["crc_errors"] == 0 and health.reads > 2500
 
 
 def test_a_killed_peer_trips_to_the_safe_state_and_a_new_one_recovers_after_reset(link):
-    proc = peer(link)
-    loop, captured = wire_loop("serial", {"port": str(link), "reopen_every_s": 0.1})
+    peers = [peer(link)]
+    loop, _ = wire_loop("serial", {"port": str(link), "reopen_every_s": 0.1})
     try:
-        loop.run(200)
-        loop.enable()
-        loop.run(200)
-        stop_peer(proc, hard=True)  # SIGKILL: the pty's other end vanishes
-        for cycles in range(1, 1000):
-            loop.run(1)
-            if loop.state.value == "fault":
-                break
-        assert loop.state.value == "fault" and "lost" in loop.supervisor.cause, loop.supervisor.cause
-        assert cycles <= 2  # the next read sees the hang-up
-        trips = [e for e in captured.of("event") if e.get("kind") == "state" and e.get("to") == "fault"]
-        cycle = loop.cycle
-        loop.run(300)  # the loop keeps its period with the wire gone (the bridge's dead-man holds the rig)
-        assert loop.cycle == cycle + 300 and loop.state.value == "fault"
-        proc = peer(link)
-        loop.run(300)  # the transport reopens the port by itself, and the safe state goes out first
-        assert tuple(loop.io.last_volts) == tuple(loop.io.safe_volts) and loop.state.value == "fault"
-        loop.reset()
-        loop.enable()
-        loop.run(300)
-        assert loop.state.value == "enabled", loop.supervisor.cause
-        assert loop.io.transport.health().counters["reopened"] >= 1 and trips
+        cycles, cause = trip_and_recover(loop, lambda: stop_peer(peers[-1], hard=True),  # SIGKILL: the pty's end vanishes
+                                         lambda: peers.append(peer(link)),
+                                         lambda: loop.io.transport.health().counters["reopened"] >= 1)
+        assert "serial port" in cause and "lost" in cause and cycles <= 2  # the next read sees the hang-up
     finally:
         loop.shutdown()
-        stop_peer(proc)
+        stop_peer(peers[-1])
 
 
 def test_corrupted_replies_are_counted_and_the_loop_carries_on(link):
@@ -115,5 +99,33 @@ def test_the_simulated_bridge_writes_the_safe_state_when_the_host_goes_quiet():
         assert bridge.replies == 1 and all(abs(v - 40000 * 10 / 65535) < 1e-3 for v in driven)
         assert all(abs(q - s) < 1e-3 for q, s in zip(quiet, bridge.safe_volts))
     finally:
+        os.close(slave)
+        os.close(master)
+
+
+def test_a_reply_to_no_request_of_ours_is_counted_and_not_taken():
+    """The seq ties a reply to its request: a stray inputs frame (an old reply, another
+    host's) must not pass for a fresh sample."""
+    master, slave = os.openpty()
+    rig = config.load()
+    bridge = BridgePeer(rig, master)
+    done = threading.Event()
+    server = threading.Thread(target=bridge.serve, args=(done.is_set,))
+    server.start()
+    transport = SerialBridgeTransport(config.with_transport(rig, "serial", {"port": os.ttyname(slave)}),
+                                      SerialBridgeOptions(port=os.ttyname(slave)), time.monotonic)
+    try:
+        transport.open()
+        taken = transport.read()
+        os.write(master, F.encode(F.INPUTS, 0xBEEF, [0] * len(transport.inputs)))
+        deadline = time.monotonic() + 2.0
+        while transport.health().counters["unexpected_seq"] == 0 and time.monotonic() < deadline:
+            time.sleep(0.001)
+            assert transport.read().seq == taken.seq  # nothing was asked for: nothing is new
+        assert transport.health().counters["unexpected_seq"] == 1
+    finally:
+        transport.close()
+        done.set()
+        server.join()
         os.close(slave)
         os.close(master)

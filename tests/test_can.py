@@ -1,0 +1,93 @@
+"""CAN against the simulated rig as a CAN node: on python-can's virtual bus in this process,
+and on its UDP-multicast bus with the node in its own process (python -m
+sim_backend.can_peer): tracking as in-process, a node killed mid-move tripping the loop on
+stale input, recovery after it returns and a reset, stray frames counted."""
+import random
+import threading
+
+import can
+import pytest
+
+from hal import config
+from hal.errors import TransportError
+from sim_backend.can_peer import CanPeer
+from tests.wirehelpers import (
+    move_and_track,
+    start_peer,
+    stop_peer,
+    tracks_like_in_process,
+    trip_and_recover,
+    wire_loop,
+)
+
+
+def group() -> str:
+    """A multicast group of its own, so nothing else on the machine joins the test's bus."""
+    return f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+
+
+def node(channel, *args):
+    # ready when the host's open() gets its answer: open_timeout_s covers the node's start-up
+    return start_peer("sim_backend.can_peer", "--interface", "udp_multicast", "--channel", channel, *args,
+                      ready=lambda: True)
+
+
+def multicast(channel, **more):
+    return {"interface": "udp_multicast", "channel": channel, "open_timeout_s": 20.0, **more}
+
+
+def test_pid_tracks_a_move_over_the_virtual_bus_in_process():
+    channel = f"pneumad-{random.random()}"
+    bus = can.Bus(interface="virtual", channel=channel)
+    peer = CanPeer(config.load(), bus)
+    done = threading.Event()
+    server = threading.Thread(target=peer.serve, args=(done.is_set,))
+    server.start()
+    try:
+        tracks_like_in_process(wire_loop("can", {"interface": "virtual", "channel": channel})[0])
+    finally:
+        done.set()
+        server.join()
+        bus.shutdown()
+
+
+def test_pid_tracks_a_move_over_udp_multicast_with_the_node_in_its_own_process():
+    channel = group()
+    proc = node(channel)
+    try:
+        health = tracks_like_in_process(wire_loop("can", multicast(channel))[0])
+    finally:
+        stop_peer(proc)
+    assert health.counters["wrong_ids"] == 0 and health.counters["bad_lengths"] == 0
+
+
+def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_after_reset():
+    channel = group()
+    nodes = [node(channel)]
+    loop, _ = wire_loop("can", multicast(channel))
+    try:
+        cycles, cause = trip_and_recover(loop, lambda: stop_peer(nodes[-1], hard=True),
+                                         lambda: nodes.append(node(channel)),
+                                         lambda: loop.clock.now() - loop.snapshot.t < 0.005)
+        assert "stale" in cause and cycles <= 170, (cycles, cause)  # the stale limit (150 ms here) and a few cycles
+    finally:
+        loop.shutdown()
+        stop_peer(nodes[-1])
+
+
+def test_frames_with_ids_nobody_uses_are_counted_and_the_loop_carries_on():
+    channel = group()
+    proc = node(channel, "--wrong-id-every", "10")
+    try:
+        loop, _ = wire_loop("can", multicast(channel))
+        move_and_track(loop, duration_s=1.0, tail_s=0.5)
+        assert loop.state.value == "enabled", loop.supervisor.cause
+        assert loop.io.transport.health().counters["wrong_ids"] >= 100
+        loop.shutdown()
+    finally:
+        stop_peer(proc)
+
+
+def test_no_node_at_start_is_a_clear_error():
+    with pytest.raises(TransportError, match="no answer on udp_multicast"):
+        wire_loop("can", multicast(group(), open_timeout_s=0.5))
