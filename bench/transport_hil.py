@@ -1,7 +1,7 @@
 """PID along a reference path over each real wire, beside the in-process simulator: the
 acceptance figures of the transports issue (same error figures within a small margin).
 
-    chrt -f 80 python -m bench.transport_hil [--path circle|translation]
+    chrt -f 80 python -m bench.transport_hil [--path circle|translation] [--stale-ms MS] [--only serial,...]
 
 The loop runs in this process on the real-time clock (run it under chrt for SCHED_FIFO), the
 simulated rig in its peer process behind the wire at SCHED_FIFO 70 (the Modbus exchange
@@ -13,6 +13,7 @@ pymodbus client takes about 16 ms an exchange, always gets at least 50 ms. Rows 
 from __future__ import annotations
 
 import argparse
+import gc
 import tempfile
 
 from bench import scenarios as S
@@ -30,6 +31,9 @@ def track(name: str, wire: wires.Wire | None, path, approach_s: float, stale_s: 
             options["worker_priority"] = 70
         stale = max(stale_s or 0.0, RTU_STALE_S if name == "modbus-rtu" else 0.0)
         safety = {"stale_after_s": stale} if stale else None
+        gc.collect()
+        gc.freeze()
+        gc.disable()  # as the daemon runs its loop: no collector pauses
         loop = wires.wire_loop(wire.backend if wire else None, options, virtual=wire is None, safety=safety)
         loop.enable()  # and run straight away: a real-time loop left waiting trips as stalled
         S.approach(loop, path.sample(0.0)[0], approach_s)
@@ -38,6 +42,7 @@ def track(name: str, wire: wires.Wire | None, path, approach_s: float, stale_s: 
         overruns = loop.stats.overruns_total
         loop.shutdown()
     finally:
+        gc.enable()
         if peer is not None:
             wires.stop_peer(peer)
     label = name + (f" (stale limit {stale * 1e3:.0f} ms)" if stale else "")
@@ -49,6 +54,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--path", choices=("circle", "translation"), default="circle")
     ap.add_argument("--stale-ms", type=float, default=None, help="raise the rig's stale-data limit to this")
+    ap.add_argument("--only", default=None, help="comma-separated rows to run, e.g. serial,can-udp")
     args = ap.parse_args()
     header(f"PID on the {args.path} over each wire")
     print("| wire | path duration | joint max (deg) bottom / middle | joint RMS (deg) | tip max (mm) | tip RMS (mm) "
@@ -59,7 +65,10 @@ def main() -> None:
     path = S.make_path(plan, args.path, period)
     approach_s = S.approach_duration(plan, path.sample(0.0)[0]) * 1.2  # the arm may have sagged at start
     with tempfile.TemporaryDirectory(prefix="pneumad-hil-") as tmp:
-        for name, wire in {"in-process (virtual clock)": None, **wires.wires(tmp)}.items():
+        rows = {"in-process (virtual clock)": None, **wires.wires(tmp)}
+        for name, wire in rows.items():
+            if args.only and name not in args.only.split(","):
+                continue
             print(track(name, wire, path, approach_s, args.stale_ms and args.stale_ms * 1e-3), flush=True)
 
 
