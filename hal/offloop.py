@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Callable, Sequence
 
@@ -31,6 +32,7 @@ from hal.transport import InputSweep, Transport
 
 COUNTERS = ("exchanges", "timeouts", "exception_replies", "bad_replies", "link_lost", "reconnects")
 _ERROR_BYTES = 240
+_READ_TRIES = 100_000  # a write takes about a microsecond; this is tens of milliseconds
 
 
 class LinkDown(Exception):
@@ -86,8 +88,9 @@ def _write_locked(seq, array, values) -> None:
 
 
 def _read_locked(seq, array, extra=None):
-    """(sequence number, values, extra.value) read consistently, retrying across a write."""
-    while True:
+    """(sequence number, values, extra.value) read consistently, retrying across a write;
+    TransportError if no consistent read comes (a writer that died halfway through)."""
+    for _ in range(_READ_TRIES):
         before = seq.value
         if before & 1:
             continue
@@ -95,6 +98,7 @@ def _read_locked(seq, array, extra=None):
         more = extra.value if extra is not None else None
         if seq.value == before:
             return before, values, more
+    raise TransportError("shared sample stays half-written: its writer stopped in the middle")
 
 
 class OffLoopTransport(Transport):
@@ -208,7 +212,11 @@ class OffLoopTransport(Transport):
 
 # -- in the worker process --------------------------------------------------------------------
 def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, priority: int) -> None:
-    """The worker's main: exchange at the loop's rate until told to stop."""
+    """The worker's main: exchange at the loop's rate until told to stop, or until the daemon
+    is gone. An orphan must not go on writing the last outputs it was given: it would fight
+    the dead-man command that writes the safe state after a crash (systemd's stop hook)."""
+    parent = os.getppid()
+    _die_with_parent()
     if priority > 0:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -219,7 +227,7 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
     index = {name: i for i, name in enumerate(COUNTERS)}
     next_try = 0.0
     deadline = time.monotonic()
-    while not shared.stop.value:
+    while not shared.stop.value and os.getppid() == parent:
         if not shared.link_up.value:
             if time.monotonic() < next_try:
                 time.sleep(0.005)
@@ -254,6 +262,16 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
         deadline = max(deadline + period, time.monotonic())  # never burst to catch up
         time.sleep(max(deadline - time.monotonic(), 0.0))
     link.close()
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to kill this process when its parent dies (prctl PR_SET_PDEATHSIG); the
+    loop's parent check covers other systems, one exchange later."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def _error(shared: _Shared, message: str) -> None:

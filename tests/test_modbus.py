@@ -2,8 +2,10 @@
 process (python -m sim_backend.modbus_peer): tracking as in-process, a peer killed mid-move
 tripping the loop with the reason, recovery after it returns and a reset, exception replies
 counted, no server at start refused clearly."""
+import os
 import subprocess
 import sys
+import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -87,5 +89,42 @@ def test_the_dead_man_command_writes_the_safe_state_through_modbus():
         assert out.returncode == 0 and "safe state written" in out.stdout, out.stderr
         assert client.read_holding_registers(100, count=4, device_id=1).registers == [0, 0, 0, 0]
         client.close()
+    finally:
+        stop_peer(proc)
+
+
+HOLDER = """
+import sys, time
+from hal import config
+from hal.transport import create_transport
+rig = config.with_transport(config.load(), "modbus", {"port": int(sys.argv[1])})
+transport = create_transport(rig, time.monotonic)
+transport.open()
+transport.write([6.0] * len(transport.outputs))
+print(transport._process.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_daemon_killed_hard_leaves_no_worker_writing_over_the_dead_man():
+    """SIGKILL the process that owns a Modbus transport: its exchange worker goes with it,
+    so the safe state the dead-man command writes afterwards stays written."""
+    port = free_port()
+    proc = peer(port)
+    try:
+        holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(port)], stdout=subprocess.PIPE, text=True)
+        worker = int(holder.stdout.readline())
+        holder.kill()
+        holder.wait(10)
+        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",
+                              "--transport-option", f"port={port}"], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        time.sleep(0.3)  # an orphaned worker would have written its outputs again by now
+        client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)
+        client.connect()
+        assert client.read_holding_registers(100, count=4, device_id=1).registers == [0, 0, 0, 0]
+        client.close()
+        with pytest.raises(ProcessLookupError):
+            os.kill(worker, 0)
     finally:
         stop_peer(proc)
