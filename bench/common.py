@@ -8,8 +8,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 
 import zmq
+
+from daemon.client import Client
 
 
 def header(title: str) -> None:
@@ -47,6 +50,26 @@ def spawn_daemon(*options: str) -> tuple[subprocess.Popen, dict[str, str]]:
     daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--log-level", "WARNING", *options,
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])])
     return daemon, eps
+
+
+@contextmanager
+def leased_daemon(*options: str, timeout: float = 10.0):
+    """A real ``pneumad`` (see :func:`spawn_daemon`), a client holding its lease (kept alive)
+    and a subscriber to its ``stats``; the daemon is stopped on the way out."""
+    daemon, eps = spawn_daemon(*options)
+    try:
+        client = Client(**eps, timeout=timeout)
+        client.ping()
+        stats = stats_subscriber(eps)
+        client.acquire_lease()
+        client.keep_lease()
+        try:
+            yield client, stats
+        finally:
+            client.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
 
 
 def stats_subscriber(eps: dict[str, str]) -> zmq.Socket:

@@ -16,21 +16,14 @@ import time
 
 import msgpack
 
-from bench.common import header, percentiles, spawn_daemon, stats_subscriber
-from daemon.client import Client
+from bench.common import header, leased_daemon, percentiles
 
 
 def run(seconds: float, every: float | None, gil_us: float, priority: int,
         cpus: str | None) -> tuple[dict | None, list[float]]:
-    daemon, eps = spawn_daemon("--rt-priority", str(priority), "--gil-switch-us", str(gil_us),
-                               "--stats-period", str(seconds), *(["--cpus", cpus] if cpus else []))
     builds: list[float] = []
-    try:
-        client = Client(**eps, timeout=5.0)
-        client.ping()
-        stats_sub = stats_subscriber(eps)
-        client.acquire_lease()
-        client.keep_lease()
+    with leased_daemon("--rt-priority", str(priority), "--gil-switch-us", str(gil_us), "--stats-period",
+                       str(seconds), *(["--cpus", cpus] if cpus else []), timeout=5.0) as (client, stats_sub):
         client.enable()
         if stats_sub.poll(int((seconds + 5) * 1e3)):  # the first window holds the start-up: let it pass
             stats_sub.recv_multipart()
@@ -46,10 +39,6 @@ def run(seconds: float, every: float | None, gil_us: float, priority: int,
             time.sleep(every)
         stats = msgpack.unpackb(stats_sub.recv_multipart()[1], raw=False) if stats_sub.poll(
             int((seconds + 5) * 1e3)) else None
-        client.close()
-    finally:
-        daemon.terminate()
-        daemon.wait(10)
     return stats, builds
 
 

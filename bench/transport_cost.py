@@ -24,8 +24,8 @@ import tty
 import msgpack
 
 from bench import wires
-from bench.common import header, percentiles, spawn_daemon, stats_subscriber
-from daemon.client import Client, RemoteError
+from bench.common import header, leased_daemon, percentiles
+from daemon.client import RemoteError
 from hal import serial_frames as F
 
 
@@ -41,14 +41,8 @@ def run(wire: wires.Wire | None, seconds: float, priority: int) -> dict | str | 
     as a microcontroller or an I/O module would answer: on time, whatever else the PC does."""
     peer = wires.start_peer(wire.peer, wire.ready, priority=priority - 10) if wire else None
     try:
-        daemon, eps = spawn_daemon("--rt-priority", str(priority), "--stats-period", str(seconds),
-                                   *(transport_options(wire, priority - 10) if wire else []))
-        try:
-            client = Client(**eps, timeout=30.0)
-            client.ping()
-            stats = stats_subscriber(eps)
-            client.acquire_lease()
-            client.keep_lease()
+        with leased_daemon("--rt-priority", str(priority), "--stats-period", str(seconds),
+                           *(transport_options(wire, priority - 10) if wire else []), timeout=30.0) as (client, stats):
             try:
                 client.enable()
             except RemoteError as exc:  # e.g. a wire too slow for the rig's stale limit
@@ -56,11 +50,7 @@ def run(wire: wires.Wire | None, seconds: float, priority: int) -> dict | str | 
             windows = []
             while len(windows) < 2 and stats.poll(int((seconds + 10) * 1e3)):
                 windows.append(msgpack.unpackb(stats.recv_multipart()[1], raw=False))
-            client.close()
             return windows[-1] if len(windows) == 2 else None
-        finally:
-            daemon.terminate()
-            daemon.wait(10)
     finally:
         if peer is not None:
             wires.stop_peer(peer)
