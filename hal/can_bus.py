@@ -25,10 +25,15 @@ import can
 
 from hal.errors import TransportError, TransportTimeout
 from hal.schema import build, require
-from hal.transport import Channel, InputSweep, Transport, rig_channels
+from hal.transport import (
+    InputSweep,
+    Transport,
+    counts_to_volts,
+    rig_channels,
+    volts_to_counts,
+)
 
 PER_FRAME = 4
-FULL_SCALE = 0xFFFF
 MAX_DRAIN = 64  # frames taken per read: a flood cannot hold the loop
 
 
@@ -57,15 +62,6 @@ def pack(counts: Sequence[int]) -> list[bytes]:
     """Counts into frame payloads, four per frame."""
     return [struct.pack(f"<{len(part)}H", *part) for part in
             (counts[i:i + PER_FRAME] for i in range(0, len(counts), PER_FRAME))]
-
-
-def to_counts(values: Sequence[float], channels: Sequence[Channel]) -> list[int]:
-    return [min(max(round((v - ch.low) / (ch.high - ch.low) * FULL_SCALE), 0), FULL_SCALE)
-            for v, ch in zip(values, channels)]
-
-
-def to_volts(counts: Sequence[int], channels: Sequence[Channel]) -> tuple[float, ...]:
-    return tuple(ch.low + c * (ch.high - ch.low) / FULL_SCALE for c, ch in zip(counts, channels))
 
 
 class CanTransport(Transport):
@@ -126,7 +122,7 @@ class CanTransport(Transport):
     def _write(self, values: Sequence[float]) -> None:
         if self._bus is None:
             raise TransportError("can: not open")
-        self._send(pack(to_counts(values, self.outputs)))
+        self._send(pack(volts_to_counts(values, self.outputs)))
 
     def _send(self, payloads: list[bytes]) -> None:
         try:
@@ -162,7 +158,7 @@ class CanTransport(Transport):
             if index == len(self._in_ids) - 1 and all(p is not None for p in self._parts):
                 now = self.clock()
                 counts = [c for part in self._parts for c in part]
-                self._sweep = InputSweep(self._sweep.seq + 1, now, to_volts(counts, self.inputs))
+                self._sweep = InputSweep(self._sweep.seq + 1, now, counts_to_volts(counts, self.inputs))
                 self._health.last_sample_t = now
                 fresh = True
         counters["flooded"] += 1

@@ -124,6 +124,7 @@ class ModbusTransport(OffLoopTransport):
     def __init__(self, rig, options: ModbusOptions, clock):
         self.options = options
         self.inputs, self.outputs, _ = rig_channels(rig)
+        self.full_scale = options.full_scale_counts
         super().__init__(clock, options.rate_hz, options.open_timeout_s, options.reopen_every_s,
                          options.worker_priority)
 
@@ -133,11 +134,3 @@ class ModbusTransport(OffLoopTransport):
 
     def link_factory(self):
         return make_link, (self.options, len(self.inputs))
-
-    def to_counts(self, values):
-        fs = self.options.full_scale_counts
-        return [round((v - ch.low) / (ch.high - ch.low) * fs) for v, ch in zip(values, self.outputs)]
-
-    def to_volts(self, raw):
-        fs = self.options.full_scale_counts
-        return tuple(ch.low + c * (ch.high - ch.low) / fs for c, ch in zip(raw, self.inputs))

@@ -28,7 +28,13 @@ import time
 from collections.abc import Callable, Sequence
 
 from hal.errors import TransportError, TransportTimeout
-from hal.transport import InputSweep, Transport
+from hal.transport import (
+    FULL_SCALE_COUNTS,
+    InputSweep,
+    Transport,
+    counts_to_volts,
+    volts_to_counts,
+)
 
 COUNTERS = ("exchanges", "timeouts", "exception_replies", "bad_replies", "link_lost", "reconnects")
 _ERROR_BYTES = 240
@@ -102,7 +108,10 @@ def _read_locked(seq, array, extra=None):
 
 
 class OffLoopTransport(Transport):
-    """Subclasses set ``backend`` and channels, and give :meth:`link_factory`."""
+    """Subclasses set ``backend`` and channels, and give :meth:`link_factory`. The link
+    moves raw counts (``full_scale`` at a channel's high end)."""
+
+    full_scale: int = FULL_SCALE_COUNTS
 
     def __init__(self, clock: Callable[[], float], rate_hz: float, open_timeout_s: float,
                  reopen_every_s: float, worker_priority: int):
@@ -120,13 +129,6 @@ class OffLoopTransport(Transport):
     def link_factory(self) -> tuple[Callable[..., Link], tuple]:
         """A module-level callable and its picklable arguments that build the Link."""
         raise NotImplementedError
-
-    def to_counts(self, values: Sequence[float]) -> list[float]:
-        """Output volts as the raw values the link sends (default: unchanged)."""
-        return list(values)
-
-    def to_volts(self, raw: Sequence[float]) -> tuple[float, ...]:
-        return tuple(raw)
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> None:
@@ -176,7 +178,7 @@ class OffLoopTransport(Transport):
             self._last_seq = seq
             now = self.clock()
             t = now - max(time.monotonic() - t_reply, 0.0)  # the reply's time on the loop's clock
-            self._sweep = InputSweep(self._sweep.seq + 1, t, self.to_volts(raw))
+            self._sweep = InputSweep(self._sweep.seq + 1, t, counts_to_volts(raw, self.inputs, self.full_scale))
             self._health.last_sample_t = t
             return self._sweep
         if not shared.link_up.value:
@@ -189,7 +191,7 @@ class OffLoopTransport(Transport):
             raise TransportError(f"{self.backend}: not open")
         if not shared.link_up.value:
             self._raise_link_down()
-        _write_locked(shared.out_seq, shared.outputs, self.to_counts(values))
+        _write_locked(shared.out_seq, shared.outputs, volts_to_counts(values, self.outputs, self.full_scale))
 
     def _raise_link_down(self):
         alive = self._process is not None and self._process.is_alive()

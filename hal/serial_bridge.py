@@ -31,9 +31,14 @@ import serial
 from hal import serial_frames as F
 from hal.errors import TransportError, TransportTimeout
 from hal.schema import build, require
-from hal.transport import Channel, InputSweep, Transport, rig_channels
+from hal.transport import (
+    InputSweep,
+    Transport,
+    counts_to_volts,
+    rig_channels,
+    volts_to_counts,
+)
 
-FULL_SCALE = 0xFFFF
 SEQ_WINDOW = 64  # replies to the last this many requests are accepted
 
 
@@ -51,14 +56,6 @@ class SerialBridgeOptions:
         require(self.baudrate > 0, "baudrate", "must be > 0")
         require(0 < self.open_timeout_s <= 30, "open_timeout_s", "must be within (0, 30] s")
         require(0 < self.reopen_every_s <= 60, "reopen_every_s", "must be within (0, 60] s")
-
-
-def to_counts(volts: float, ch: Channel) -> int:
-    return round((volts - ch.low) / (ch.high - ch.low) * FULL_SCALE)
-
-
-def to_volts(counts: int, ch: Channel) -> float:
-    return ch.low + counts * (ch.high - ch.low) / FULL_SCALE
 
 
 class SerialBridgeTransport(Transport):
@@ -131,7 +128,7 @@ class SerialBridgeTransport(Transport):
 
     def _write(self, values: Sequence[float]) -> None:
         self._ensure_port()
-        self._send([to_counts(v, ch) for v, ch in zip(values, self.outputs)])
+        self._send(volts_to_counts(values, self.outputs))
 
     def _send(self, counts) -> None:
         self._tx_seq = (self._tx_seq + 1) & 0xFFFF
@@ -170,8 +167,7 @@ class SerialBridgeTransport(Transport):
                 fresh, sent = frame, t
         if fresh is None:
             return False
-        values = tuple(to_volts(c, ch) for c, ch in zip(fresh.counts, self.inputs))
-        self._sweep = InputSweep(self._sweep.seq + 1, sent, values)
+        self._sweep = InputSweep(self._sweep.seq + 1, sent, counts_to_volts(fresh.counts, self.inputs))
         self._health.last_sample_t = sent
         return True
 

@@ -124,6 +124,23 @@ class Transport(ABC):
         raise ConfigError(f"{self.backend}: no {kind} channel named {name!r} (it has: {names})")
 
 
+FULL_SCALE_COUNTS = 0xFFFF  # the top count of a 16-bit converter
+
+
+def volts_to_counts(values: Sequence[float], channels: Sequence[Channel],
+                    full_scale: int = FULL_SCALE_COUNTS) -> list[int]:
+    """Raw counts for a wire, linear over each channel's span: 0 at its low end, ``full_scale``
+    at its high end (clipped to that range)."""
+    return [min(max(round((v - ch.low) / (ch.high - ch.low) * full_scale), 0), full_scale)
+            for v, ch in zip(values, channels)]
+
+
+def counts_to_volts(counts: Sequence[int], channels: Sequence[Channel],
+                    full_scale: int = FULL_SCALE_COUNTS) -> tuple[float, ...]:
+    """Volts from a wire's raw counts: the inverse of :func:`volts_to_counts`."""
+    return tuple(ch.low + c * (ch.high - ch.low) / full_scale for c, ch in zip(counts, channels))
+
+
 def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple[tuple[str, int], ...]]:
     """The channels a rig file names, in the order every built-in transport carries them:
     inputs are each joint's angle sensor, each distinct supply monitor, the force sensor;

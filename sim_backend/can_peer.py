@@ -16,14 +16,12 @@ import argparse
 import signal
 import struct
 import sys
-import time
 
 import can
 
 from hal import config
-from hal.can_bus import FULL_SCALE, PER_FRAME, frame_ids, pack, to_counts
-from hal.rig import RigIO
-from sim_backend.transport import SimTransport
+from hal.can_bus import PER_FRAME, frame_ids, pack
+from sim_backend.wired import WiredRig
 
 DEFAULT_GROUP = "239.74.163.2"  # python-can's IPv4 default group for udp_multicast
 
@@ -32,25 +30,19 @@ class CanPeer:
     def __init__(self, rig, bus: can.BusABC, output_id: int = 0x200, input_id: int = 0x180,
                  safe_after_s: float = 0.02, wrong_id_every: int = 0):
         self.bus = bus
-        self.sim = SimTransport.from_config(rig, time.monotonic)
-        self.sim.open()
-        self.safe_volts = RigIO(rig, self.sim).safe_volts
-        self.out_ids = frame_ids(output_id, len(self.sim.outputs))
-        self.in_ids = frame_ids(input_id, len(self.sim.inputs))
-        self.safe_after_s, self.wrong_id_every = safe_after_s, wrong_id_every
-        self._counts = [0] * len(self.sim.outputs)
+        self.rig = WiredRig(rig, safe_after_s)
+        self.out_ids = frame_ids(output_id, self.rig.n_out)
+        self.in_ids = frame_ids(input_id, self.rig.n_in)
+        self.wrong_id_every = wrong_id_every
+        self._counts = [0] * self.rig.n_out
         self.answers = 0
-        self._last = time.monotonic()
-        self._safe = True
 
     def serve(self, stop=lambda: False) -> None:
         while not stop():
             msg = self.bus.recv(timeout=0.005)
             if msg is not None and msg.arbitration_id in self.out_ids and not msg.is_extended_id:
                 self._take(msg)
-            if not self._safe and time.monotonic() - self._last > self.safe_after_s:
-                self.sim.write(self.safe_volts)
-                self._safe = True
+            self.rig.watchdog()
 
     def _take(self, msg: can.Message) -> None:
         index = msg.arbitration_id - self.out_ids.start
@@ -63,15 +55,11 @@ class CanPeer:
             return
         self._counts[PER_FRAME * index:PER_FRAME * index + n] = struct.unpack(f"<{n}H", bytes(msg.data))
         if last:
-            self.sim.write([ch.low + c * (ch.high - ch.low) / FULL_SCALE
-                            for c, ch in zip(self._counts, self.sim.outputs)])
-            self._safe = False
-            self._last = time.monotonic()
+            self.rig.apply(self._counts)
             self._answer()
 
     def _answer(self) -> None:
-        sweep = self.sim.read()
-        for arbitration_id, data in zip(self.in_ids, pack(to_counts(sweep.values, self.sim.inputs))):
+        for arbitration_id, data in zip(self.in_ids, pack(self.rig.sample())):
             self.bus.send(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
         self.answers += 1
         if self.wrong_id_every and self.answers % self.wrong_id_every == 0:

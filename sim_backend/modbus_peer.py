@@ -18,7 +18,6 @@ import argparse
 import asyncio
 import signal
 import sys
-import time
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
@@ -26,19 +25,16 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from hal import config
-from sim_backend.transport import SimTransport
-
-FULL_SCALE = 65535
+from sim_backend.wired import WiredRig
 
 
 class PlantRegisters:
     """The register action: the plant behind the registers."""
 
     def __init__(self, rig, input_address: int, output_address: int, exception_every: int = 0):
-        self.sim = SimTransport.from_config(rig, time.monotonic)
-        self.sim.open()
+        self.rig = WiredRig(rig)
         self.input_address, self.output_address = input_address, output_address
-        self.n_in, self.n_out = len(self.sim.inputs), len(self.sim.outputs)
+        self.n_in, self.n_out = self.rig.n_in, self.rig.n_out
         self.exception_every = exception_every
         self.reads = 0
 
@@ -51,15 +47,13 @@ class PlantRegisters:
         """Called by the server for every access: a write of the outputs drives the DACs,
         a read of the inputs samples the rig into the registers first."""
         if set_values is not None and address == self.output_address:
-            self.sim.write([self.sim.outputs[i].low + c * (self.sim.outputs[i].high - self.sim.outputs[i].low)
-                            / FULL_SCALE for i, c in enumerate(set_values[:self.n_out])])
+            self.rig.apply(set_values[:self.n_out])
         elif set_values is None and address == self.input_address:
             self.reads += 1
             if self.exception_every and self.reads % self.exception_every == 0:
                 return ExcCodes.DEVICE_BUSY
             offset = self.input_address - start_address
-            for i, (v, ch) in enumerate(zip(self.sim.read().values, self.sim.inputs)):
-                registers[offset + i] = round((v - ch.low) / (ch.high - ch.low) * FULL_SCALE)
+            registers[offset:offset + self.n_in] = self.rig.sample()
         return None
 
 

@@ -23,9 +23,7 @@ import tty
 
 from hal import config
 from hal import serial_frames as F
-from hal.rig import RigIO
-from hal.serial_bridge import to_counts, to_volts
-from sim_backend.transport import SimTransport
+from sim_backend.wired import WiredRig
 
 DEFAULT_LINK = "/tmp/pneumad-bridge"
 
@@ -35,25 +33,18 @@ class BridgePeer:
 
     def __init__(self, rig, fd: int, safe_after_s: float = 0.02, corrupt_every: int = 0):
         self.fd = fd
-        self.sim = SimTransport.from_config(rig, time.monotonic)
-        self.sim.open()
-        self.safe_volts = RigIO(rig, self.sim).safe_volts
-        self.safe_after_s = safe_after_s
+        self.rig = WiredRig(rig, safe_after_s)
         self.corrupt_every = corrupt_every
         self.reader = F.FrameReader()
         self.replies = 0
         self.refused = 0  # frames of the wrong kind or channel count
-        self._last_valid = time.monotonic()
-        self._safe = True
 
     def serve(self, stop=lambda: False) -> None:
         while not stop():
             readable, _, _ = select.select([self.fd], [], [], 0.005)
             if readable:
                 self._take(self._read())
-            if not self._safe and time.monotonic() - self._last_valid > self.safe_after_s:
-                self.sim.write(self.safe_volts)  # the host went quiet: the bridge's own dead-man
-                self._safe = True
+            self.rig.watchdog()  # the host went quiet: the bridge's own dead-man
 
     def _read(self) -> bytes:
         try:
@@ -66,16 +57,12 @@ class BridgePeer:
 
     def _take(self, data: bytes) -> None:
         for frame in self.reader.feed(data):
-            if frame.kind != F.OUTPUTS or len(frame.counts) not in (0, len(self.sim.outputs)):
+            if frame.kind != F.OUTPUTS or len(frame.counts) not in (0, self.rig.n_out):
                 self.refused += 1
                 continue
-            if frame.counts:
-                self.sim.write([to_volts(c, ch) for c, ch in zip(frame.counts, self.sim.outputs)])
-                self._safe = False
-            self._last_valid = time.monotonic()
-            sweep = self.sim.read()
-            reply = bytearray(F.encode(F.INPUTS, frame.seq, [to_counts(v, ch) for v, ch in
-                                                             zip(sweep.values, self.sim.inputs)]))
+            if frame.counts:  # no counts: a query, which changes no output
+                self.rig.apply(frame.counts)
+            reply = bytearray(F.encode(F.INPUTS, frame.seq, self.rig.sample()))
             self.replies += 1
             if self.corrupt_every and self.replies % self.corrupt_every == 0:
                 reply[-3] ^= 0x10  # a flipped bit in the payload: the host must drop it on its CRC

@@ -87,17 +87,17 @@ def test_the_simulated_bridge_writes_the_safe_state_when_the_host_goes_quiet():
         done = threading.Event()
         server = threading.Thread(target=bridge.serve, args=(done.is_set,))
         server.start()
-        os.write(slave, F.encode(F.OUTPUTS, 1, [40000] * len(bridge.sim.outputs)))
+        os.write(slave, F.encode(F.OUTPUTS, 1, [40000] * bridge.rig.n_out))
         deadline = time.monotonic() + 2.0
         while bridge.replies == 0 and time.monotonic() < deadline:
             time.sleep(0.0005)
-        driven = bridge.sim.output_volts
+        driven = bridge.rig.sim.output_volts
         time.sleep(0.1)
-        quiet = bridge.sim.output_volts
+        quiet = bridge.rig.sim.output_volts
         done.set()
         server.join()
         assert bridge.replies == 1 and all(abs(v - 40000 * 10 / 65535) < 1e-3 for v in driven)
-        assert all(abs(q - s) < 1e-3 for q, s in zip(quiet, bridge.safe_volts))
+        assert all(abs(q - s) < 1e-3 for q, s in zip(quiet, bridge.rig.safe_volts))
     finally:
         os.close(slave)
         os.close(master)
