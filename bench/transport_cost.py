@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 import tty
+from contextlib import contextmanager
 
 import msgpack
 
@@ -78,41 +79,41 @@ def round_trips(send, receive, size: int, n: int = 5000) -> dict[str, float]:
     return percentiles(samples)
 
 
+@contextmanager
+def echo(script: str, *args: str, pass_fds: tuple[int, ...] = ()):
+    """An echo process for the duration of the block."""
+    proc = subprocess.Popen([sys.executable, "-c", script, *args], pass_fds=pass_fds)
+    try:
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
+
+
 def floors() -> dict[str, dict[str, float]]:
     """The raw loopback round trip of each wire, to an echo process, at the size of one exchange."""
     out = {}
     master, slave = os.openpty()
     tty.setraw(slave)
-    echo = subprocess.Popen([sys.executable, "-c", PTY_ECHO, str(master)], pass_fds=(master,))
     try:
-        out["pty (serial)"] = round_trips(lambda b: os.write(slave, b), lambda: os.read(slave, 4096),
-                                          len(F.encode(F.OUTPUTS, 1, [0] * 4)))
+        with echo(PTY_ECHO, str(master), pass_fds=(master,)):
+            out["pty (serial)"] = round_trips(lambda b: os.write(slave, b), lambda: os.read(slave, 4096),
+                                              len(F.encode(F.OUTPUTS, 1, [0] * 4)))
     finally:
-        echo.kill()
-        echo.wait()
         os.close(slave)
         os.close(master)
     port = wires.free_port()
-    echo = subprocess.Popen([sys.executable, "-c", TCP_ECHO, str(port)])
-    try:
+    with echo(TCP_ECHO, str(port)):
         while not wires.listening(port):
             time.sleep(0.02)
         with socket.create_connection(("127.0.0.1", port)) as sock:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             out["tcp (modbus)"] = round_trips(sock.sendall, lambda: sock.recv(4096), 25)  # a function-23 request
-    finally:
-        echo.kill()
-        echo.wait()
     port = wires.free_port()
-    echo = subprocess.Popen([sys.executable, "-c", UDP_ECHO, str(port)])
-    try:
+    with echo(UDP_ECHO, str(port)), socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         time.sleep(0.5)
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            sock.connect(("127.0.0.1", port))
-            out["udp (can)"] = round_trips(sock.send, lambda: sock.recv(4096), 16)  # one CAN frame's bytes
-    finally:
-        echo.kill()
-        echo.wait()
+        sock.connect(("127.0.0.1", port))
+        out["udp (can)"] = round_trips(sock.send, lambda: sock.recv(4096), 16)  # one CAN frame's bytes
     return out
 
 
