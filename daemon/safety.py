@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from enum import Enum
 
+from hal.bounds import clip
 from hal.config import RigConfig
 
 
@@ -130,8 +131,4 @@ class Supervisor:
     def clamp(self, pressures: list[float], previous: list[float]) -> list[float]:
         """Limit each chamber command [Pa] to the rig's maximum and its slew rate."""
         p_max, dp = self._p_max, self._dp
-        out = []
-        for p, last in zip(pressures, previous):
-            p = min(p, p_max)
-            out.append(min(max(p, last - dp), last + dp))
-        return out
+        return [clip(p if p < p_max else p_max, last - dp, last + dp) for p, last in zip(pressures, previous)]

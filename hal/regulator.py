@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hal.bounds import clip
 from hal.errors import CommandError
 from hal.schema import require
 
@@ -57,11 +58,9 @@ class ITV0051:
         """Command volts for a chamber pressure [Pa], clamped to the set range and 0-10 V."""
         if not math.isfinite(pressure_pa):
             raise CommandError(f"regulator {self.config.channel}: non-finite pressure command {pressure_pa!r}")
-        p = min(max(pressure_pa, self._p_min), self._p_max)
-        v = (p - self._offset) / self._slope
-        return min(max(v, V_MIN), V_MAX)
+        p = clip(pressure_pa, self._p_min, self._p_max)
+        return clip((p - self._offset) / self._slope, V_MIN, V_MAX)
 
     def pressure(self, volts: float) -> float:
         """Set pressure [Pa] that a command of ``volts`` asks for (the inverse of :meth:`volts`)."""
-        v = min(max(volts, V_MIN), V_MAX)
-        return min(max(self._slope * v + self._offset, self._p_min), self._p_max)
+        return clip(self._slope * clip(volts, V_MIN, V_MAX) + self._offset, self._p_min, self._p_max)

@@ -86,9 +86,9 @@ class RigIO:
         out = [0.0] * len(self.transport.outputs)
         p_max = self._p_max
         for reg, ih, p in zip(self.head, self._head_idx, p_head):
-            out[ih] = reg.volts(min(p, p_max) if p == p else p)
+            out[ih] = reg.volts(p_max if p > p_max else p)  # NaN goes on, to be refused
         for reg, ir, p in zip(self.rod, self._rod_idx, p_rod):
-            out[ir] = reg.volts(min(p, p_max) if p == p else p)
+            out[ir] = reg.volts(p_max if p > p_max else p)
         return out
 
     def write_pressures(self, p_head: Sequence[float], p_rod: Sequence[float]) -> list[float]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 from hal import kinematics
+from hal.bounds import clip
 from hal.config import RigConfig
 from hal.errors import ConfigError
 from hal.identified import (
@@ -25,9 +26,9 @@ from sim_backend.options import SimJointOptions, SimOptions
 def regulator_output(volts: float, supply_pa: float) -> float:
     """The pressure [Pa] an ITV0051 regulates to for a command [V], [2-29], limited by its
     supply (the set pressure needs supply + 0.1 MPa; with no supply the chamber exhausts)."""
-    v = min(max(volts, 0.0), 10.0)
-    p = min(max(K_EP * v + P_OFFSET, P_SET_MIN), P_SET_MAX)
-    return min(p, max(supply_pa - SUPPLY_HEADROOM, 0.0))
+    p = clip(K_EP * clip(volts, 0.0, 10.0) + P_OFFSET, P_SET_MIN, P_SET_MAX)
+    ceiling = clip(supply_pa - SUPPLY_HEADROOM, 0.0, P_SET_MAX)
+    return p if p < ceiling else ceiling
 
 
 class SimArm:

@@ -15,6 +15,7 @@ import math
 import random
 from collections.abc import Callable, Sequence
 
+from hal.bounds import clip
 from hal.config import RigConfig
 from hal.errors import ConfigError, TransportTimeout
 from hal.force_sensor import ASFS
@@ -30,8 +31,7 @@ FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
 def quantise(value: float, low: float, high: float, bits: int) -> float:
     """The value a converter with ``bits`` over ``low..high`` [V] represents (clipped)."""
     lsb = (high - low) / ((1 << bits) - 1)
-    v = min(max(value, low), high)
-    return low + round((v - low) / lsb) * lsb
+    return low + round((clip(value, low, high) - low) / lsb) * lsb
 
 
 class SimTransport(Transport):
