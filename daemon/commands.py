@@ -242,6 +242,7 @@ class Commands:
             "trips": loop.supervisor.trips,
             "overruns_total": loop.stats.overruns_total,
             "transport": vars(loop.io.transport.health()),
+            "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
         }
 
     def describe(self, args):

@@ -12,6 +12,7 @@ import time
 from daemon import realtime
 from daemon.clock import MonotonicClock
 from daemon.loop import ControlLoop
+from daemon.messenger import MessengerError
 from daemon.notify import Notifier
 from daemon.preparation import Preparer
 from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
@@ -46,7 +47,15 @@ def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
 def cmd_run(args) -> int:
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
-    server = ZmqServer(args.command, args.control, args.telemetry)  # before RT set-up: its I/O threads stay normal
+    # Before the real-time set-up: the messenger process keeps normal priority and every CPU.
+    server = ZmqServer(args.command, args.control, args.telemetry)
+    try:
+        return _serve(args, clock, server)
+    finally:
+        server.close()
+
+
+def _serve(args, clock, server: ZmqServer) -> int:
     # The controller-building worker is spawned and has imported the controllers before the
     # transport opens: a process starting up beside a running wire delayed its replies.
     preparer = Preparer()
@@ -88,7 +97,6 @@ def cmd_run(args) -> int:
     finally:
         notifier.stopping()
         loop.shutdown(stop_reason[0] if stop_reason else "exit")
-        server.close()
         gc.enable()
         log.info("stopped (%s): safe state written", stop_reason[0] if stop_reason else "exit")
     return 0
@@ -172,6 +180,9 @@ def main(argv=None) -> int:
     except TransportError as exc:
         log.error("transport: %s", exc)
         return 3
+    except MessengerError as exc:
+        log.error("endpoints: %s", exc)
+        return 4
 
 
 if __name__ == "__main__":

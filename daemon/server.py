@@ -1,104 +1,131 @@
-"""ZeroMQ endpoints: the command socket, the control socket and the telemetry publisher.
+"""The loop's side of the daemon's ZeroMQ endpoints (command, control, telemetry).
 
-All socket work the loop does is non-blocking and bounded: each cycle it serves every
-pending message on the control socket (e-stop, abort, disable, status, ping; at most
-``MAX_CONTROL_PER_CYCLE``), then at most ``max_per_cycle`` requests on the command socket.
-The control socket is separate so an e-stop never queues behind other requests. ZeroMQ's
-own I/O threads (C, outside the GIL) do the network work. Frames over
-``protocol.MAX_MESSAGE_BYTES`` are refused by ZeroMQ itself (the peer is disconnected).
+The sockets themselves live in the messenger process (:mod:`daemon.messenger`); the loop
+reaches them through shared-memory rings, so all it does per message is a memory copy.
+Each cycle, at its end, it serves every pending control-socket request (e-stop, abort,
+disable, status, ping; at most ``MAX_CONTROL_PER_CYCLE``), then at most ``max_per_cycle``
+command-socket requests, and queues each reply; telemetry is queued the same way. A ring
+that is full refuses: the message is dropped and counted (``telemetry_dropped``,
+``reply_failures``), never waited for. Frames over ``protocol.MAX_MESSAGE_BYTES`` are refused
+by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
 """
 from __future__ import annotations
 
-import zmq
+import os
+import shutil
+import tempfile
 
-from daemon import protocol
 from daemon.commands import Commands
+from daemon.messenger import END, TOPICS, Messenger, create_rings
 from daemon.preparation import Deferred
+from daemon.ring import Ring
 
 DEFAULT_COMMAND = "tcp://127.0.0.1:5560"
 DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
 DEFAULT_TELEMETRY = "tcp://127.0.0.1:5562"
 MAX_CONTROL_PER_CYCLE = 8
-TELEMETRY_HWM = 1000  # messages queued per subscriber before ZeroMQ drops (100 ms of state batches)
+MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
+_TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 
 
 class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
-                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, context: zmq.Context | None = None):
-        self.context = context or zmq.Context.instance()
+                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2):
         self.max_per_cycle = max_per_cycle
-        self.cmd = self._router(command)
-        self.ctl = self._router(control)
-        self.pub = self.context.socket(zmq.PUB)
-        self.pub.setsockopt(zmq.SNDHWM, TELEMETRY_HWM)
-        self.pub.setsockopt(zmq.LINGER, 0)
-        self.pub.bind(telemetry)
-        self.endpoints = {name: sock.getsockopt_string(zmq.LAST_ENDPOINT)
-                          for name, sock in (("command", self.cmd), ("control", self.ctl), ("telemetry", self.pub))}
+        self._rings_dir = tempfile.mkdtemp(prefix="pneumad-rings-", dir=_shm_dir())
+        self.rings = create_rings(self._rings_dir)
+        self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
+        os.set_blocking(self._doorbell, False)
+        self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry)
+        try:
+            self.endpoints = self.messenger.start()
+        except Exception:
+            self._release_rings()
+            raise
         self.commands: Commands | None = None
-        self._waiting: list[tuple[zmq.Socket, list, Deferred]] = []  # replies owed once work is done
+        self._waiting: list[tuple[int, Deferred]] = []  # (token, work) whose replies are owed
         self.reply_failures = 0
-        self.published = 0
-
-    def _router(self, endpoint: str) -> zmq.Socket:
-        sock = self.context.socket(zmq.ROUTER)
-        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_MESSAGE_BYTES)
-        sock.setsockopt(zmq.RCVHWM, 1000)
-        sock.setsockopt(zmq.SNDHWM, 1000)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.bind(endpoint)
-        return sock
+        self.telemetry_dropped = 0
+        self._until_check = MESSENGER_CHECK_CYCLES
+        self._replied = False
 
     def attach(self, loop, preparer=None) -> None:
         self.commands = Commands(loop, preparer)
         loop.server = self
 
-    def publish(self, topic: bytes, payload: bytes) -> None:
-        """Send without blocking; a PUB socket drops for subscribers at their high-water mark."""
-        try:
-            self.pub.send_multipart((topic, payload), zmq.NOBLOCK)
-            self.published += 1
-        except zmq.ZMQError:
-            pass
+    def publish(self, topic: bytes, body: bytes) -> None:
+        """Queue a telemetry message for the messenger (dropped and counted if the ring is full)."""
+        if not self.rings["telemetry"].put(_TOPIC_TAG[topic], body):
+            self.telemetry_dropped += 1
+
+    def telemetry_health(self) -> dict:
+        return {"messenger_running": self.messenger.alive, "messenger_restarts": self.messenger.restarts,
+                "dropped": self.telemetry_dropped}
 
     def poll(self, loop) -> None:
-        """Once a cycle, at its end: the lease clock, then the control socket, then a few commands."""
+        """Once a cycle, at its end: the lease clock, then the control requests, then a few
+        commands; once a second, the messenger process."""
         self.commands.tick()
         if self._waiting:
             self._complete()
-        self._serve(self.ctl, True, MAX_CONTROL_PER_CYCLE)
-        self._serve(self.cmd, False, self.max_per_cycle)
+        self._serve(self.rings["control"], True, MAX_CONTROL_PER_CYCLE)
+        self._serve(self.rings["command"], False, self.max_per_cycle)
+        if self._replied:
+            self._replied = False
+            self._ring_doorbell()
+        self._until_check -= 1
+        if self._until_check <= 0:
+            self._until_check = MESSENGER_CHECK_CYCLES
+            notice = self.messenger.check()
+            if notice is not None:
+                loop.supervisor.events.append({"kind": "messenger", "cause": notice})
 
     def _complete(self) -> None:
         """Reply to deferred commands whose work is done (applying it at this boundary)."""
-        for item in [w for w in self._waiting if w[2].future.done()]:
+        for item in [w for w in self._waiting if w[1].future.done()]:
             self._waiting.remove(item)
-            sock, envelope, deferred = item
-            self._send(sock, envelope, self.commands.complete(deferred))
+            self._reply(item[0], self.commands.complete(item[1]))
 
-    def _serve(self, sock: zmq.Socket, control: bool, limit: int) -> None:
+    def _serve(self, ring: Ring, control: bool, limit: int) -> None:
         for _ in range(limit):
-            # asking for EVENTS costs a third of a failed non-blocking receive (no exception)
-            if not sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            entry = ring.get()
+            if entry is None:
                 return
-            try:
-                frames = sock.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            reply = self.commands.handle_payload(frames[-1], control)
+            token, payload = entry
+            reply = self.commands.handle_payload(payload, control)
             if isinstance(reply, Deferred):
-                self._waiting.append((sock, frames[:-1], reply))
+                self._waiting.append((token, reply))
             else:
-                self._send(sock, frames[:-1], reply)
+                self._reply(token, reply)
 
-    def _send(self, sock: zmq.Socket, envelope: list, reply: bytes) -> None:
+    def _reply(self, token: int, reply: bytes) -> None:
+        if self.rings["replies"].put(token, reply):
+            self._replied = True
+        else:
+            self.reply_failures += 1  # the messenger is not taking replies: the client's time-out tells it
+
+    def _ring_doorbell(self) -> None:
         try:
-            sock.send_multipart([*envelope, reply], zmq.NOBLOCK)
-        except zmq.ZMQError:
-            self.reply_failures += 1  # the peer is gone or not reading: its loss, not the loop's
+            os.write(self._doorbell, b"\0")
+        except BlockingIOError:
+            pass  # the pipe is full of rings already: the messenger has plenty to wake it
 
     def close(self) -> None:
+        """Stop the preparer, then the messenger once it has passed on what the loop sent."""
         if self.commands is not None:
             self.commands.preparer.close()
-        for sock in (self.cmd, self.ctl, self.pub):
-            sock.close(linger=0)
+        self.rings["telemetry"].put(END, b"")
+        self.messenger.join()
+        self._release_rings()
+
+    def _release_rings(self) -> None:
+        for ring in self.rings.values():
+            ring.close()
+        os.close(self._doorbell)
+        os.close(self._doorbell_read)
+        shutil.rmtree(self._rings_dir, ignore_errors=True)
+
+
+def _shm_dir() -> str | None:
+    """RAM-backed /dev/shm where there is one (the rings never touch a disk), else the default."""
+    return "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None

@@ -218,7 +218,7 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
     is gone. An orphan must not go on writing the last outputs it was given: it would fight
     the dead-man command that writes the safe state after a crash (systemd's stop hook)."""
     parent = os.getppid()
-    _die_with_parent()
+    die_with_parent()
     if priority > 0:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -266,7 +266,7 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
     link.close()
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Ask Linux to kill this process when its parent dies (prctl PR_SET_PDEATHSIG); the
     loop's parent check covers other systems, one exchange later."""
     try:

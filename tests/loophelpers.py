@@ -10,20 +10,20 @@ from daemon import protocol
 from daemon.clock import VirtualClock
 from daemon.loop import ControlLoop
 from daemon.server import ZmqServer
-from daemon.telemetry import Telemetry
+from daemon.telemetry import Telemetry, to_payload
 from hal import config
 from hal.rig import RigIO
 from hal.transport import create_transport
 
 
 class Captured:
-    """A telemetry sink that keeps every message, decoded."""
+    """A telemetry sink that keeps every message as subscribers would see it, decoded."""
 
     def __init__(self):
         self.messages: list[tuple[str, dict]] = []
 
-    def __call__(self, topic: bytes, payload: bytes) -> None:
-        self.messages.append((topic.decode(), msgpack.unpackb(payload, raw=False)))
+    def __call__(self, topic: bytes, body: bytes) -> None:
+        self.messages.append((topic.decode(), msgpack.unpackb(to_payload(topic, body), raw=False)))
 
     def of(self, topic: str) -> list[dict]:
         return [m for t, m in self.messages if t == topic]

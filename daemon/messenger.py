@@ -1,0 +1,259 @@
+"""The messenger: the daemon's ZeroMQ sockets, in a process of their own beside the loop.
+
+It owns the command and control ROUTER sockets and the telemetry PUB socket. Requests go to
+the loop, and replies and telemetry come back, through shared-memory rings
+(:mod:`daemon.ring`), so the loop passes a message with a memory copy: no system call, no
+ZeroMQ call, no serialisation of the state stream (this process turns the loop's binary
+rows into msgpack, :func:`daemon.telemetry.to_payload`), and no Python thread beside the
+loop taking the GIL.
+
+Control-socket requests have a ring of their own, which the loop drains first, so an
+e-stop never waits behind a flood of commands. The messenger sleeps in one poll on its
+sockets and a *doorbell* pipe the loop writes a byte to in a cycle that queued replies (one
+cheap system call, only then); telemetry waits at most ``IDLE_POLL_MS`` in its ring.
+
+It runs at normal priority on the CPUs the daemon had before its real-time set-up, ends
+when the loop's telemetry ring says so or its parent is gone, and the daemon starts another
+if it dies (:meth:`Messenger.check`): clients reconnect by themselves and requests in flight
+are lost (a client's time-out says so); subscribers see the loss in ``seq``.
+
+    python -m daemon.messenger --rings DIR --doorbell FD --command EP --control EP --telemetry EP [--cpus 0,1]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import select
+import struct
+import subprocess
+import sys
+import time
+
+import zmq
+
+from daemon import protocol
+from daemon.ring import Ring
+from daemon.telemetry import to_payload
+from hal.offloop import die_with_parent
+
+TOPICS = (b"", b"state", b"stats", b"event")  # telemetry ring tags; 0 ends the stream
+END = 0
+RING_BYTES = {"telemetry": 1 << 20, "control": 1 << 20, "command": 1 << 20, "replies": 1 << 20}
+TELEMETRY_HWM = 1000  # messages queued per subscriber before ZeroMQ drops (100 ms of state batches)
+ROUTER_HWM = 1000
+IDLE_POLL_MS = 2  # telemetry waits at most this long in the ring [ms]
+OWED_LIMIT_S = 60.0  # a reply owed this long is forgotten (the loop always answers sooner)
+CLOSE_LINGER_MS = 500  # how long the last messages may take to leave at exit
+START_TIMEOUT_S = 30.0
+
+
+class MessengerError(RuntimeError):
+    """The messenger could not start (its own words: e.g. an endpoint is in use)."""
+
+
+def create_rings(directory: str) -> dict[str, Ring]:
+    return {name: Ring(os.path.join(directory, name), size) for name, size in RING_BYTES.items()}
+
+
+class Messenger:
+    """The daemon's handle on the messenger process."""
+
+    def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str):
+        self.rings_dir = rings_dir
+        self.doorbell = doorbell  # the read end of the loop's doorbell pipe, handed on to the process
+        self.asked = {"command": command, "control": control, "telemetry": telemetry}
+        self.endpoints: dict[str, str] = {}  # as bound (wildcard ports resolved)
+        self.restarts = 0
+        self._cpus = ",".join(map(str, sorted(os.sched_getaffinity(0))))
+        self._proc: subprocess.Popen | None = None
+        self._restart = ""  # a restart under way: "starting", then "ready"
+
+    def start(self) -> dict[str, str]:
+        """Start the process and wait until it has bound its sockets; the endpoints."""
+        self._spawn(self.asked)
+        line = self._line(START_TIMEOUT_S)
+        if not line.startswith("ready "):
+            self._proc.kill()
+            self._proc.wait()
+            raise MessengerError(line or "the messenger process did not start")
+        self.endpoints = dict(zip(("command", "control", "telemetry"), line.split()[1:]))
+        return self.endpoints
+
+    def _spawn(self, endpoints: dict[str, str]) -> None:
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "daemon.messenger", "--rings", self.rings_dir, "--doorbell", str(self.doorbell),
+             "--cpus", self._cpus, *sum(([f"--{k}", v] for k, v in endpoints.items()), [])],
+            stdout=subprocess.PIPE, text=True, pass_fds=(self.doorbell,))
+
+    def _line(self, timeout: float) -> str:
+        """The process's next line on stdout within ``timeout`` [s] ('' if none)."""
+        if select.select([self._proc.stdout], [], [], timeout)[0]:
+            return self._proc.stdout.readline().strip()
+        return ""
+
+    def check(self) -> str | None:
+        """Called once a second from the loop, never blocking: if the process has died, start
+        another on the same endpoints without waiting for it. One check after that one is
+        ready (time for subscribers to reconnect), say what happened: an ``event``'s cause."""
+        code = self._proc.poll()
+        if code is not None:
+            self.restarts += 1
+            self._proc.stdout.close()
+            self._spawn(self.endpoints)
+            self._restart = "starting"
+        elif self._restart == "ready":
+            self._restart = ""
+            return f"the messenger process stopped and was restarted (restart {self.restarts})"
+        elif self._restart == "starting" and self._line(0.0).startswith("ready "):
+            self._restart = "ready"
+        return None
+
+    @property
+    def alive(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    def join(self, timeout: float = 2.0) -> None:
+        """Wait for the process to end once the telemetry ring's END is queued; kill it if not."""
+        if self._proc is None:
+            return
+        try:
+            self._proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+        self._proc.stdout.close()
+        self._proc = None
+
+
+# -- in the messenger process ---------------------------------------------------------------
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="pneumad-messenger", description=__doc__)
+    ap.add_argument("--rings", required=True)
+    ap.add_argument("--doorbell", type=int, required=True)
+    for name in ("command", "control", "telemetry"):
+        ap.add_argument(f"--{name}", required=True)
+    ap.add_argument("--cpus", default="")
+    args = ap.parse_args(argv)
+    parent = os.getppid()
+    die_with_parent()
+    _normal_scheduling(args.cpus)
+    ctx = zmq.Context()
+    sockets = {}
+    for name, kind in (("command", zmq.ROUTER), ("control", zmq.ROUTER), ("telemetry", zmq.PUB)):
+        sock = sockets[name] = ctx.socket(kind)
+        sock.setsockopt(zmq.LINGER, 0)
+        if kind == zmq.ROUTER:
+            sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_MESSAGE_BYTES)
+            sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
+            sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
+        else:
+            sock.setsockopt(zmq.SNDHWM, TELEMETRY_HWM)
+        endpoint = getattr(args, name)
+        try:
+            sock.bind(endpoint)
+        except zmq.ZMQError as exc:
+            print(f"cannot bind the {name} endpoint {endpoint}: {exc}", flush=True)
+            return 1
+    rings = {name: Ring(os.path.join(args.rings, name)) for name in RING_BYTES}
+    print("ready", *(sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")),
+          flush=True)
+    Relay(sockets, rings, args.doorbell).run(lambda: os.getppid() == parent)
+    sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)
+    for sock in sockets.values():
+        sock.close()
+    ctx.term()
+    return 0
+
+
+class Relay:
+    """Moves requests from the ROUTER sockets into the loop's rings, and replies and
+    telemetry from the loop's rings onto the sockets."""
+
+    def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int):
+        self.sockets, self.rings, self.doorbell = sockets, rings, doorbell
+        self.owed: dict[int, tuple[zmq.Socket, list, float]] = {}  # token -> (socket, envelope, when)
+        self._tokens = iter(range(1, 1 << 62))
+        self.poller = zmq.Poller()
+        for name in ("control", "command"):
+            self.poller.register(sockets[name], zmq.POLLIN)
+        self.poller.register(doorbell, zmq.POLLIN)
+
+    def run(self, parent_alive) -> None:
+        """Until the telemetry ring's END, or until the parent is gone."""
+        last_check = time.monotonic()
+        while True:
+            ready = dict(self.poller.poll(IDLE_POLL_MS))
+            for name in ("control", "command"):  # control first: an e-stop overtakes a flood
+                if self.sockets[name] in ready:
+                    self._take_requests(name)
+            if self.doorbell in ready:
+                os.read(self.doorbell, 4096)  # the rings say what there is; the bytes only woke us
+            self._send_replies()
+            if not self._publish():
+                self._send_replies()  # the loop's last answers, then stop
+                return
+            now = time.monotonic()
+            if now - last_check > 0.5:
+                last_check = now
+                if not parent_alive():
+                    return
+                self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
+
+    def _take_requests(self, name: str) -> None:
+        """Every waiting request that fits in the loop's ring; the rest stay queued in ZeroMQ."""
+        sock, ring = self.sockets[name], self.rings[name]
+        while ring.free() >= protocol.MAX_MESSAGE_BYTES + 64:
+            try:
+                frames = sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            token = next(self._tokens)
+            ring.put(token, frames[-1])
+            self.owed[token] = (sock, frames[:-1], time.monotonic())
+
+    def _send_replies(self) -> None:
+        ring = self.rings["replies"]
+        while (entry := ring.get()) is not None:
+            token, reply = entry
+            owed = self.owed.pop(token, None)
+            if owed is not None:
+                try:
+                    owed[0].send_multipart([*owed[1], reply], zmq.NOBLOCK)
+                except zmq.ZMQError:
+                    pass  # the peer is gone or not reading: its loss
+
+    def _publish(self) -> bool:
+        """Pass the telemetry on; False at the END of the stream."""
+        ring, pub = self.rings["telemetry"], self.sockets["telemetry"]
+        while (entry := ring.get()) is not None:
+            tag, body = entry
+            if tag == END:
+                return False
+            if tag >= len(TOPICS):
+                self._bad(tag, "unknown topic")
+                continue
+            topic = TOPICS[tag]
+            try:
+                pub.send_multipart((topic, to_payload(topic, body)))  # PUB drops at a subscriber's high-water mark
+            except (struct.error, IndexError) as exc:
+                self._bad(tag, str(exc))
+        return True
+
+    @staticmethod
+    def _bad(tag: int, why: str) -> None:
+        """Only the loop writes the telemetry ring: a bad entry is a bug, said loudly, and skipped."""
+        print(f"pneumad messenger: dropped a telemetry entry (tag {tag}): {why}", file=sys.stderr, flush=True)
+
+
+def _normal_scheduling(cpus: str) -> None:
+    """Leave the real-time class and the loop's CPU, if a restart inherited them from the loop."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        if cpus:
+            os.sched_setaffinity(0, [int(c) for c in cpus.split(",")])
+    except OSError:
+        pass  # already as asked, or not permitted to change: it only relays
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,143 @@
+"""Telemetry and requests through the messenger process: what subscribers see is what the loop
+had, and a messenger that dies is replaced while the loop goes on."""
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import msgpack
+import pytest
+import zmq
+
+from daemon.messenger import MessengerError
+from daemon.server import ZmqServer
+from tests.loophelpers import dealer, make_loop, ok
+
+
+@pytest.fixture
+def served():
+    loop, captured, srv = make_loop(server=True)
+    yield loop, captured, srv
+    srv.close()
+
+
+def subscriber(srv, topics=(b"",)) -> zmq.Socket:
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    for topic in topics:
+        sub.setsockopt(zmq.SUBSCRIBE, topic)
+    sub.connect(srv.endpoints["telemetry"])
+    return sub
+
+
+def received(sub, loop, wanted, limit_s: float = 20.0):
+    """Run the loop (a few cycles at a time, in real time enough for the messenger) until
+    ``wanted(topic, message)`` is true of a message the subscriber got; that message."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        loop.run(10)
+        while sub.poll(1):
+            topic, payload = sub.recv_multipart()
+            message = msgpack.unpackb(payload, raw=False)
+            if wanted(topic.decode(), message):
+                return message
+    raise AssertionError("the subscriber did not get the message in time")
+
+
+def test_a_state_row_holds_the_loops_own_values(served):
+    loop, captured, _ = served
+    loop.enable()
+    loop.run(1000)  # the last cycle completes a batch of 10
+    last = captured.of("state")[-1]
+    assert last["cycle"][-1] == loop.cycle
+    assert last["angle_rad"][-1] == list(loop.angles)
+    assert last["velocity_rad_s"][-1] == list(loop.velocities)
+    assert last["setpoint_rad"][-1] == list(loop.reference[0])
+    assert last["error_rad"][-1] == [r - q for r, q in zip(loop.reference[0], loop.angles)]
+    assert last["u_volts"][-1] == loop.u
+    assert last["p_head_pa"][-1] == list(loop.p_head) and last["p_rod_pa"][-1] == list(loop.p_rod)
+    assert last["out_volts"][-1] == list(loop.io.last_volts)
+    assert math.isnan(last["force_n"][-1]) == math.isnan(loop.force)
+    assert last["mode"][-1] == "enabled" and last["shadow_u_volts"][-1] is None
+
+
+def test_subscribers_get_the_same_messages_as_the_loop_sent(served):
+    loop, captured, srv = served
+    sub = subscriber(srv, (b"state",))
+    first = received(sub, loop, lambda topic, m: True)
+    sent = next(m for m in captured.of("state") if m["seq"] == first["seq"])
+    assert first.keys() == sent.keys()
+    assert first["cycle"] == sent["cycle"] and first["angle_rad"] == sent["angle_rad"]
+    assert first["mode"] == sent["mode"] == ["idle"] * 10
+
+
+def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served):
+    loop, captured, srv = served
+    sub = subscriber(srv)
+    before = received(sub, loop, lambda topic, m: topic == "state")["seq"]
+    srv.messenger._proc.kill()
+    cycles = loop.cycle
+    event = received(sub, loop, lambda topic, m: topic == "event" and m["kind"] == "messenger")
+    assert "restarted" in event["cause"]
+    after = received(sub, loop, lambda topic, m: topic == "state")["seq"]
+    assert after > before + 1  # the messages sent while no messenger was there are missed, and seen to be
+    assert loop.cycle > cycles and loop.state.value == "idle"  # the loop ran on, untouched
+    status = ok(loop, dealer(srv), "status")["telemetry"]  # the command sockets are back too
+    assert status["messenger_running"] and status["messenger_restarts"] == 1
+
+
+def test_a_telemetry_endpoint_in_use_is_a_clear_error():
+    ctx = zmq.Context.instance()
+    squatter = ctx.socket(zmq.PUB)
+    port = squatter.bind_to_random_port("tcp://127.0.0.1")
+    try:
+        with pytest.raises(MessengerError, match=f"cannot bind the telemetry endpoint tcp://127.0.0.1:{port}"):
+            ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", f"tcp://127.0.0.1:{port}")
+    finally:
+        squatter.close(linger=0)
+
+
+def test_the_messenger_dies_with_the_daemon(tmp_path):
+    """SIGKILL to the daemon (no chance to stop its children): the messenger goes too."""
+    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
+    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "WARNING",
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    try:
+        messenger = _wait_for_child(daemon.pid, "daemon.messenger")
+        daemon.send_signal(signal.SIGKILL)
+        daemon.wait(10)
+        end = time.monotonic() + 5.0
+        while _alive(messenger) and time.monotonic() < end:
+            time.sleep(0.05)
+        assert not _alive(messenger)
+    finally:
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait()
+
+
+def _wait_for_child(parent: int, marker: str, limit_s: float = 60.0) -> int:
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        for pid in map(int, filter(str.isdigit, os.listdir("/proc"))):
+            try:
+                with open(f"/proc/{pid}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+                with open(f"/proc/{pid}/cmdline", "rb") as f:
+                    cmdline = f.read()
+            except (OSError, ValueError, IndexError):
+                continue
+            if ppid == parent and marker.encode() in cmdline:
+                return pid
+        time.sleep(0.1)
+    raise AssertionError(f"no child process of {parent} running {marker}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
