@@ -1,6 +1,6 @@
 """The daemon's loop under its full workload, against cyclictest run at the same time.
 
-Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80]
+Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80] [--loop-cpu N]
 
 Starts a real ``pneumad`` (simulated rig, PID enabled, SCHED_FIFO at --priority where
 permitted) and cyclictest at the same priority, then loads the daemon from this process:
@@ -8,6 +8,10 @@ permitted) and cyclictest at the same priority, then loads the daemon from this 
 200 Hz (command round trip), reading status at 50 Hz and moving the set-point at 5 Hz
 (set-point-to-effect, in cycles, from the telemetry). Prints the daemon's wake-up latency
 and compute time over the whole run (one stats window), cyclictest's, and their ratios.
+
+--loop-cpu N sets the machine up as a lab would (isolcpus): the loop alone on CPU N, and
+everything else (the daemon's helper processes, this load generator, cyclictest) on the
+other CPUs, so cyclictest then measures the CPUs that carry the load.
 """
 from __future__ import annotations
 
@@ -30,9 +34,17 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--subscribers", type=int, default=10)
     ap.add_argument("--priority", type=int, default=80)
+    ap.add_argument("--loop-cpu", type=int, default=None, help="the loop alone on this CPU, the rest elsewhere")
     args = ap.parse_args()
-    header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled")
-    daemon, eps = spawn_daemon("--rt-priority", str(args.priority), "--stats-period", str(args.seconds))
+    placement = ""
+    daemon_options = ["--rt-priority", str(args.priority), "--stats-period", str(args.seconds)]
+    if args.loop_cpu is not None:
+        others = sorted(os.sched_getaffinity(0) - {args.loop_cpu})
+        os.sched_setaffinity(0, others)  # inherited by the daemon's helpers and cyclictest
+        daemon_options += ["--cpus", str(args.loop_cpu)]
+        placement = f"; loop alone on CPU {args.loop_cpu}, the rest on {others}"
+    header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled{placement}")
+    daemon, eps = spawn_daemon(*daemon_options)
     ctx = zmq.Context.instance()
     try:
         client = Client(**eps, timeout=5.0)
@@ -134,7 +146,7 @@ def report(args, stats, ct, rtt, effects, healthy) -> None:
         print(f"cyclictest latency us     : {fmt(ct)}   ({ct['samples']} samples)")
         print("ratio loop / cyclictest   : " + "  ".join(
             f"{k} {lat[k] / ct[k]:7.2f}" for k in ("p50", "p99", "p99.9", "max")))
-    for stage in ("total", "read", "control", "write", "publish"):
+    for stage in ("compute", "read", "control", "write", "telemetry", "commands", "total"):
         print(f"compute {stage:8s} us       : {fmt(comp[stage])}")
     r = percentiles([x * 1e6 for x in rtt])
     print(f"command round trip us     : {fmt(r)}   ({len(rtt)} pings over ipc)")

@@ -136,7 +136,7 @@ class ControlLoop:
 
     # -- one cycle ------------------------------------------------------------------------
     def _cycle(self, wake: float) -> None:
-        clock, sup, st = self.clock, self.supervisor, self.stats.stages
+        clock, sup = self.clock, self.supervisor
         t0 = clock.now()
         try:
             snap = self.io.read()
@@ -168,17 +168,13 @@ class ControlLoop:
             if self.telemetry is not None:
                 self.telemetry.stats(self.stats.summary(self.period))
             self.stats.reset()
+        t4 = clock.now()
+        if self.server is not None:
+            self.server.poll(self)
         if self.heartbeat is not None and wake >= self._heartbeat_due:
             self._heartbeat_due += self.heartbeat_interval
             self.heartbeat(self)
-        if self.server is not None:
-            self.server.poll(self)
-        t4 = clock.now()
-        st["read"].add(t1 - t0)
-        st["control"].add(t2 - t1)
-        st["write"].add(t3 - t2)
-        st["publish"].add(t4 - t3)
-        st["total"].add(t4 - t0)
+        self.stats.record_cycle(t0, t1, t2, t3, t4, clock.now())
 
     def _update_measurement(self, snap: Snapshot) -> None:
         """Keep the last valid angle per joint (one bad sample is not yet a fault) and a

@@ -118,8 +118,10 @@ class Supervisor:
                 self.trip(f"joint {joint.name} at {math.degrees(q):.1f} deg is outside its limits "
                           f"{joint.min_angle_deg:.1f}..{joint.max_angle_deg:.1f} deg")
                 return
-        fast = next((i for i, (w, m) in enumerate(zip(velocities, self._max_speed)) if abs(w) > m), None)
-        if fast is None:
+        for fast, (w, limit) in enumerate(zip(velocities, self._max_speed)):
+            if abs(w) > limit:
+                break
+        else:
             self._bad_speed = 0
             return
         self._bad_speed += 1

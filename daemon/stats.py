@@ -9,22 +9,24 @@ import math
 
 BIN_US = 1.0  # histogram resolution [us]
 BINS = 20000  # up to 20 ms; later samples land in the last bin (and in max)
-STAGES = ("read", "control", "write", "publish", "total")
+# The parts of a cycle, then 'compute' (read + control + write + telemetry: the cycle's own
+# work) and 'total' (compute + commands: how long the loop is busy each period).
+STAGES = ("read", "control", "write", "telemetry", "commands", "compute", "total")
+_BINS_PER_S = 1e6 / BIN_US
 
 
 class Histogram:
     def __init__(self):
         self.counts = [0] * BINS
         self.n = 0
-        self.max = 0.0
+        self.max_s = 0.0  # the longest sample [s]
 
     def add(self, seconds: float) -> None:
-        us = seconds * 1e6
-        i = int(us / BIN_US)
+        i = int(seconds * _BINS_PER_S)
         self.counts[i if 0 <= i < BINS else (BINS - 1 if i >= BINS else 0)] += 1
         self.n += 1
-        if us > self.max:
-            self.max = us
+        if seconds > self.max_s:
+            self.max_s = seconds
 
     def percentiles(self, points=(50.0, 99.0, 99.9)) -> dict[str, float]:
         """Upper bin edges [us] at the given percentiles, and the maximum."""
@@ -40,7 +42,7 @@ class Histogram:
                 break
         for p, _ in targets[k:]:
             out[f"p{p:g}"] = math.nan
-        out["max"] = self.max
+        out["max"] = self.max_s * 1e6
         return out
 
 
@@ -55,8 +57,21 @@ class LoopStats:
     def reset(self) -> None:
         self.latency = Histogram()
         self.stages = {name: Histogram() for name in STAGES}
+        self._in_order = tuple(self.stages.values())
         self.overruns = 0
         self.cycles = 0
+
+    def record_cycle(self, t0: float, t1: float, t2: float, t3: float, t4: float, t5: float) -> None:
+        """One cycle's stage boundaries [s]: read t0-t1, control t1-t2, write t2-t3,
+        telemetry t3-t4, commands t4-t5."""
+        read, control, write, telemetry, commands, compute, total = self._in_order
+        read.add(t1 - t0)
+        control.add(t2 - t1)
+        write.add(t3 - t2)
+        telemetry.add(t4 - t3)
+        commands.add(t5 - t4)
+        compute.add(t4 - t0)
+        total.add(t5 - t0)
 
     def summary(self, period: float) -> dict:
         return {

@@ -12,8 +12,9 @@ rail), a stuck sensor, a noise burst, a transport timeout, and loss of supply pr
 from __future__ import annotations
 
 import math
-import random
 from collections.abc import Callable, Sequence
+
+import numpy as np
 
 from hal.bounds import clip
 from hal.config import RigConfig
@@ -26,6 +27,7 @@ from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
 
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
+NOISE_BLOCK = 256  # normal draws made at a time (a numpy call per draw costs more than a sample)
 
 
 def quantise(value: float, low: float, high: float, bits: int) -> float:
@@ -43,7 +45,8 @@ class SimTransport(Transport):
         self.options = options
         self.clock = clock
         self.arm = SimArm(rig, options)
-        self._rng = random.Random(options.seed)
+        self._rng = np.random.default_rng(options.seed)
+        self._normals: list[float] = []
         vsup = options.supply_volts
         self.inputs, self.outputs, self._sources = rig_channels(rig)
         # The "true" sensors: the rig file's calibrations, read backwards.
@@ -102,7 +105,7 @@ class SimTransport(Transport):
         self._steps += max(due, 0)
 
     def _sample(self) -> tuple[float, ...]:
-        arm, rng, sigma, bits = self.arm, self._rng, self.options.adc_noise_volts, self.options.adc_bits
+        arm, sigma, bits = self.arm, self.options.adc_noise_volts, self.options.adc_bits
         out = []
         for idx, ((what, i), ch) in enumerate(zip(self._sources, self.inputs)):
             if what == "angle":
@@ -118,10 +121,16 @@ class SimTransport(Transport):
                     out.append(fault_v)
                     continue
             if s > 0.0:
-                v += rng.gauss(0.0, s)
+                v += s * self._standard_normal()
             out.append(quantise(v, ch.low, ch.high, bits))
         self._last = out
         return tuple(out)
+
+    def _standard_normal(self) -> float:
+        """The next seeded N(0, 1) draw."""
+        if not self._normals:
+            self._normals = self._rng.standard_normal(NOISE_BLOCK).tolist()
+        return self._normals.pop()
 
     def _apply_faults(self, channel: str, idx: int, v: float, sigma: float) -> tuple[float | None, float]:
         if ("disconnect", channel) in self._faults:

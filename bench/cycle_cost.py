@@ -1,0 +1,72 @@
+"""One loop cycle measured hot: the code's own cost, without the machine's noise.
+
+Usage: python -m bench.cycle_cost [--cycles 20000]
+
+Runs the daemon's loop (built-in simulated rig, PID enabled, telemetry rows recorded, the
+server's per-cycle poll with no requests) back to back on a virtual clock, so caches stay
+warm and nothing else runs between cycles; then times the parts of a cycle the same way.
+Against the loop's compute figures in real time (bench.loop_latency, ``pneumad latency``)
+this separates what the code costs from what a busy machine adds to it.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import time
+
+from bench.common import header
+from controllers.base import JointState, Reference
+from daemon.clock import VirtualClock
+from daemon.main import build_loop, parser
+from daemon.server import ZmqServer
+
+
+def per_call_us(fn, n: int) -> float:
+    t0 = time.perf_counter()
+    for _ in range(n):
+        fn()
+    return (time.perf_counter() - t0) / n * 1e6
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--cycles", type=int, default=20000)
+    n = ap.parse_args().cycles
+    header("one loop cycle, hot, on a virtual clock (simulated rig, PID, telemetry, command poll)")
+    clock = VirtualClock()
+    server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
+    try:
+        loop = build_loop(parser().parse_args(["run"]), clock, server.publish)
+        server.attach(loop)
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        loop.start()
+        loop.enable()
+
+        def cycle():
+            loop.run(1)
+
+        parts = {
+            "whole cycle (loop.run(1))": cycle,
+            "  read: sim plant step + sensors + drivers": lambda: (clock.sleep_until(clock.t + 0.001), loop.io.read()),
+            "  check: measurement filter + supervisor": lambda: (
+                loop._update_measurement(loop.snapshot),
+                loop.supervisor.check(loop.snapshot.angles, loop.velocities, (), 0.0)),
+            "  control: reference + PID": lambda: loop._control(clock.t),
+            "  write: pressures, clamps, drivers, DAC": loop._write_command,
+            "  telemetry row": lambda: loop.telemetry.record(loop),
+            "  command poll (nothing pending)": lambda: server.poll(loop),
+        }
+        cycle_state = JointState(0.0, loop.angles, loop.velocities), Reference(*loop.reference)
+        parts["    of which PID step"] = lambda: loop.controller.step(*cycle_state)
+        for name, fn in parts.items():
+            per_call_us(fn, n // 10)  # warm
+            print(f"{name:45s} {per_call_us(fn, n):6.2f} us")
+        gc.enable()
+    finally:
+        server.close()
+
+
+if __name__ == "__main__":
+    main()
