@@ -10,8 +10,8 @@ thread only puts a job on a queue and later reads a finished future.
 
 The courier is created with the daemon, before the real-time set-up, so it and every worker
 it spawns keep the normal scheduling policy; the worker also drops any real-time policy it
-might have inherited and runs at nice 19. The worker is spawned (not forked: the loop's process holds ZeroMQ
-threads and locked memory) on the first job or by :meth:`Preparer.warm`, and spawned again
+might have inherited and runs at nice 19. The worker is spawned (not forked: the loop's process holds threads
+and locked memory) on the first job or by :meth:`Preparer.warm`, and spawned again
 if it dies or overruns its time limit, which fails only the job it was doing. One job at a
 time: a second request while one is prepared is refused, so a flood of expensive requests
 cannot queue up work.

@@ -12,9 +12,8 @@ rail), a stuck sensor, a noise burst, a transport timeout, and loss of supply pr
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable, Sequence
-
-import numpy as np
 
 from hal.bounds import clip
 from hal.config import RigConfig
@@ -27,7 +26,6 @@ from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
 
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
-NOISE_BLOCK = 256  # normal draws made at a time (a numpy call per draw costs more than a sample)
 
 
 def quantise(value: float, low: float, high: float, bits: int) -> float:
@@ -45,8 +43,7 @@ class SimTransport(Transport):
         self.options = options
         self.clock = clock
         self.arm = SimArm(rig, options)
-        self._rng = np.random.default_rng(options.seed)
-        self._normals: list[float] = []
+        self._rng = random.Random(options.seed)
         vsup = options.supply_volts
         self.inputs, self.outputs, self._sources = rig_channels(rig)
         # The "true" sensors: the rig file's calibrations, read backwards.
@@ -105,7 +102,7 @@ class SimTransport(Transport):
         self._steps += max(due, 0)
 
     def _sample(self) -> tuple[float, ...]:
-        arm, sigma, bits = self.arm, self.options.adc_noise_volts, self.options.adc_bits
+        arm, rng, sigma, bits = self.arm, self._rng, self.options.adc_noise_volts, self.options.adc_bits
         out = []
         for idx, ((what, i), ch) in enumerate(zip(self._sources, self.inputs)):
             if what == "angle":
@@ -121,16 +118,10 @@ class SimTransport(Transport):
                     out.append(fault_v)
                     continue
             if s > 0.0:
-                v += s * self._standard_normal()
+                v += rng.gauss(0.0, s)
             out.append(quantise(v, ch.low, ch.high, bits))
         self._last = out
         return tuple(out)
-
-    def _standard_normal(self) -> float:
-        """The next seeded N(0, 1) draw."""
-        if not self._normals:
-            self._normals = self._rng.standard_normal(NOISE_BLOCK).tolist()
-        return self._normals.pop()
 
     def _apply_faults(self, channel: str, idx: int, v: float, sigma: float) -> tuple[float | None, float]:
         if ("disconnect", channel) in self._faults:

@@ -5,6 +5,7 @@ import pytest
 
 from controllers import registry, trajectory
 from daemon.safety import State
+from daemon.stats import LoopStats
 from tests.loophelpers import make_loop, run_seconds, tracking
 from tests.plugins import Slow
 
@@ -155,6 +156,7 @@ def test_stats_are_published_every_second():
     stats = captured.of("stats")
     assert len(stats) >= 3
     assert {"latency_us", "compute_us", "overruns"} <= set(stats[-1])
+    assert set(stats[-1]["compute_us"]) == {"read", "control", "write", "telemetry", "commands", "compute", "total"}
     assert stats[-1]["cycles"] == 1000
 
 
@@ -187,3 +189,12 @@ def test_a_joint_moving_too_fast_trips_after_consecutive_samples():
     assert loop.state is State.ENABLED
     sup.check(loop.angles, fast, (), 0.0)
     assert loop.state is State.FAULT and "joint bottom moving at 80.0 deg/s" in sup.cause
+
+
+def test_a_cycles_stage_times_add_up_to_compute_and_total():
+    stats = LoopStats()
+    stats.record_cycle(0.0, 10.3e-6, 30.6e-6, 40.9e-6, 51.2e-6, 91.5e-6)
+    p50 = {name: h.percentiles()["p50"] for name, h in stats.stages.items()}
+    # upper edges of 1 us bins: read 10.3, control 20.3, write 10.3, telemetry 10.3, commands 40.3 us
+    assert p50 == {"read": 11.0, "control": 21.0, "write": 11.0, "telemetry": 11.0, "commands": 41.0,
+                   "compute": 52.0, "total": 92.0}
