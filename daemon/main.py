@@ -82,7 +82,8 @@ def _serve(args, clock, server: ZmqServer) -> int:
     loop.stats_period = args.stats_period
     if notifier.watchdog_interval:
         loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
-    for warning in realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt):
+    for warning in realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt,
+                                  idle_latency(args)):
         log.warning(warning)
     gc.collect()
     gc.freeze()  # start-up objects never scanned again
@@ -100,6 +101,11 @@ def _serve(args, clock, server: ZmqServer) -> int:
         gc.enable()
         log.info("stopped (%s): safe state written", stop_reason[0] if stop_reason else "exit")
     return 0
+
+
+def idle_latency(args) -> int | None:
+    """The PM QoS idle latency to hold [us], or None to leave the system's."""
+    return None if args.no_rt or args.cpu_dma_latency_us < 0 else args.cpu_dma_latency_us
 
 
 def cmd_safe_state(args) -> int:
@@ -141,7 +147,10 @@ def parser() -> argparse.ArgumentParser:
         sp.add_argument("--rt-priority", type=int, default=80, help="SCHED_FIFO priority (default 80)")
         sp.add_argument("--cpus", type=lambda s: [int(c) for c in s.split(",")], default=None,
                         help="CPU affinity, e.g. 1 or 2,3")
-        sp.add_argument("--no-rt", action="store_true", help="no SCHED_FIFO, no mlockall")
+        sp.add_argument("--no-rt", action="store_true", help="no SCHED_FIFO, no mlockall, no cpu_dma_latency")
+        sp.add_argument("--cpu-dma-latency-us", type=int, default=0,
+                        help="hold /dev/cpu_dma_latency at this [us] while running, keeping idle CPUs out of "
+                             "deep sleep (default 0: poll, as cyclictest does; -1 leaves the system's setting)")
         sp.add_argument("--spin-us", type=float, default=200.0, help="spin this long before each deadline [us]")
         sp.add_argument("--controller", default="pid", help="controller active at start (default pid)")
         sp.add_argument("--gil-switch-us", type=float, default=5000.0,

@@ -1,6 +1,8 @@
 """Real-time set-up where the system allows it, with a clear warning where it does not.
 
-SCHED_FIFO at a priority, mlockall, CPU affinity. None of these is required to run: a
+SCHED_FIFO at a priority, mlockall, CPU affinity, and a PM QoS request that keeps the CPUs
+out of deep idle states (/dev/cpu_dma_latency, as cyclictest holds it for its run: a CPU
+that halts between cycles wakes late and with cold caches). None of these is required to run: a
 daemon started without the privilege (not root, no LimitRTPRIO, or a kernel with RT group
 scheduling under systemd, where sched_setscheduler fails with EPERM) falls back loudly to
 normal scheduling rather than refusing to start.
@@ -11,13 +13,21 @@ import ctypes
 import ctypes.util
 import errno
 import os
+import struct
 
 MCL_CURRENT, MCL_FUTURE = 1, 2
+CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
+_held = []  # PM QoS requests last while their file is open: for the life of the process
 
 
-def setup(priority: int | None, cpus: list[int] | None, lock_memory: bool) -> list[str]:
+def setup(priority: int | None, cpus: list[int] | None, lock_memory: bool,
+          idle_latency_us: int | None = None) -> list[str]:
     """Apply what is asked; return one warning per thing the system refused."""
     warnings = []
+    if idle_latency_us is not None:
+        warning = hold_idle_latency(idle_latency_us)
+        if warning:
+            warnings.append(warning)
     if cpus:
         try:
             os.sched_setaffinity(0, cpus)
@@ -39,6 +49,23 @@ def setup(priority: int | None, cpus: list[int] | None, lock_memory: bool) -> li
         except OSError as exc:
             warnings.append(f"SCHED_FIFO priority {priority} not applied: {exc.strerror}")
     return warnings
+
+
+def hold_idle_latency(us: int, path: str = CPU_DMA_LATENCY) -> str | None:
+    """Ask the kernel to keep every CPU out of idle states slower than ``us`` to leave (0:
+    poll rather than halt) for the life of the process; a warning if it cannot."""
+    try:
+        request = open(path, "wb", buffering=0)
+    except OSError as exc:
+        return (f"cpu_dma_latency {us} us not applied ({exc.strerror}): idle CPUs may sleep deeply and "
+                f"wake the loop late; give the daemon write access to {path} (systemd/README.md)")
+    try:
+        request.write(struct.pack("i", us))
+    except OSError as exc:
+        request.close()
+        return f"cpu_dma_latency {us} us not applied ({exc.strerror})"
+    _held.append(request)
+    return None
 
 
 def describe() -> dict:
