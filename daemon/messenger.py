@@ -13,7 +13,8 @@ sockets and a *doorbell* pipe the loop writes a byte to in a cycle that queued r
 cheap system call, only then); telemetry waits at most ``IDLE_POLL_MS`` in its ring.
 
 It runs at normal priority on the CPUs the daemon had before its real-time set-up, ends
-when the loop's telemetry ring says so or its parent is gone, and the daemon starts another
+when the loop's telemetry ring says so or its parent is gone (SIGINT and SIGTERM, which
+reach the whole process group, are the daemon's to act on), and the daemon starts another
 if it dies (:meth:`Messenger.check`): clients reconnect by themselves and requests in flight
 are lost (a client's time-out says so); subscribers see the loss in ``seq``.
 
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import select
+import signal
 import struct
 import subprocess
 import sys
@@ -136,6 +138,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     parent = os.getppid()
     die_with_parent()
+    # Ctrl-C and systemctl stop reach the whole process group; the daemon decides when this
+    # ends (END, after its last events), or its death does.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _normal_scheduling(args.cpus)
     ctx = zmq.Context()
     sockets = {}

@@ -141,3 +141,32 @@ def _alive(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path):
+    """systemctl stop and Ctrl-C signal every process of the daemon: the messenger waits for
+    the daemon's last events instead of dying first."""
+    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
+    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "WARNING",
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], start_new_session=True)
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(eps["telemetry"])
+    try:
+        assert sub.poll(60_000), "no telemetry from the daemon"
+        os.killpg(daemon.pid, signal.SIGTERM)
+        kinds = []
+        end = time.monotonic() + 10.0
+        while "shutdown" not in kinds and time.monotonic() < end:
+            if sub.poll(100):
+                topic, payload = sub.recv_multipart()
+                if topic == b"event":
+                    kinds.append(msgpack.unpackb(payload, raw=False)["kind"])
+        assert "shutdown" in kinds
+        assert daemon.wait(10) == 0
+    finally:
+        sub.close()
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait()
