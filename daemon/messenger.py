@@ -23,6 +23,7 @@ are lost (a client's time-out says so); subscribers see the loss in ``seq``.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import select
 import signal
@@ -47,6 +48,7 @@ IDLE_POLL_MS = 2  # telemetry waits at most this long in the ring [ms]
 OWED_LIMIT_S = 60.0  # a reply owed this long is forgotten (the loop always answers sooner)
 CLOSE_LINGER_MS = 500  # how long the last messages may take to leave at exit
 START_TIMEOUT_S = 30.0
+log = logging.getLogger("pneumad")
 
 
 class MessengerError(RuntimeError):
@@ -95,11 +97,14 @@ class Messenger:
 
     def check(self) -> str | None:
         """Called once a second from the loop, never blocking: if the process has died, start
-        another on the same endpoints without waiting for it. One check after that one is
-        ready (time for subscribers to reconnect), say what happened: an ``event``'s cause."""
+        another on the same endpoints without waiting for it, and log it (the 1st, 2nd, 4th ...
+        restart). One check after the new one is ready (time for subscribers to reconnect),
+        say what happened: an ``event``'s cause."""
         code = self._proc.poll()
         if code is not None:
             self.restarts += 1
+            if self.restarts & (self.restarts - 1) == 0:  # the 1st, 2nd, 4th, 8th ...: a stuck one does not flood the log
+                log.error("the messenger process exited (code %s); starting another (restart %d)", code, self.restarts)
             self._proc.stdout.close()
             self._spawn(self.endpoints)
             self._restart = "starting"

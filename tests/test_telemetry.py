@@ -73,7 +73,7 @@ def test_subscribers_get_the_same_messages_as_the_loop_sent(served):
     assert first["mode"] == sent["mode"] == ["idle"] * 10
 
 
-def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served):
+def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served, caplog):
     loop, captured, srv = served
     sub = subscriber(srv)
     before = received(sub, loop, lambda topic, m: topic == "state")["seq"]
@@ -86,6 +86,7 @@ def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served):
     assert loop.cycle > cycles and loop.state.value == "idle"  # the loop ran on, untouched
     status = ok(loop, dealer(srv), "status")["telemetry"]  # the command sockets are back too
     assert status["messenger_running"] and status["messenger_restarts"] == 1
+    assert "the messenger process exited (code -9); starting another (restart 1)" in caplog.text
 
 
 def test_a_telemetry_endpoint_in_use_is_a_clear_error():
