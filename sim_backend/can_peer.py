@@ -1,12 +1,13 @@
 """The simulated rig as a CAN I/O node (python-can), the frames of :mod:`hal.can_bus`.
 
     python -m sim_backend.can_peer [--config RIG] [--interface udp_multicast] [--channel 239.74.163.2]
-                                   [--wrong-id-every N]
+                                   [--wrong-id-every N] [--short-frame-every N]
 
 Output frames drive the simulated rig's DACs (real time); each complete set is answered
 with the input frames. After ``safe_after_s`` without output frames it writes the rig's
 safe outputs, as a real node's watchdog would. ``--wrong-id-every N`` also sends a frame
-with an id nobody uses every N answers, to exercise the host's counting. On one machine,
+with an id nobody uses every N answers, ``--short-frame-every N`` an input frame one byte
+short, to exercise the host's counting. On one machine,
 ``udp_multicast`` joins the daemon across processes; ``virtual`` works inside one process
 (see :class:`CanPeer`, which the tests run in a thread).
 """
@@ -28,12 +29,13 @@ DEFAULT_GROUP = "239.74.163.2"  # python-can's IPv4 default group for udp_multic
 
 class CanPeer:
     def __init__(self, rig, bus: can.BusABC, output_id: int = 0x200, input_id: int = 0x180,
-                 safe_after_s: float = 0.02, wrong_id_every: int = 0):
+                 safe_after_s: float = 0.02, wrong_id_every: int = 0, short_frame_every: int = 0):
         self.bus = bus
         self.rig = WiredRig(rig, safe_after_s)
         self.out_ids = frame_ids(output_id, self.rig.n_out)
         self.in_ids = frame_ids(input_id, self.rig.n_in)
         self.wrong_id_every = wrong_id_every
+        self.short_frame_every = short_frame_every
         self._counts = [0] * self.rig.n_out
         self.answers = 0
 
@@ -64,6 +66,8 @@ class CanPeer:
         self.answers += 1
         if self.wrong_id_every and self.answers % self.wrong_id_every == 0:
             self.bus.send(can.Message(arbitration_id=0x7E5, data=b"\x00" * 8, is_extended_id=False))
+        if self.short_frame_every and self.answers % self.short_frame_every == 0:
+            self.bus.send(can.Message(arbitration_id=self.in_ids.start, data=b"\x00" * 7, is_extended_id=False))
 
 
 def main(argv=None) -> int:
@@ -74,10 +78,12 @@ def main(argv=None) -> int:
     ap.add_argument("--output-id", type=lambda s: int(s, 0), default=0x200)
     ap.add_argument("--input-id", type=lambda s: int(s, 0), default=0x180)
     ap.add_argument("--wrong-id-every", type=int, default=0)
+    ap.add_argument("--short-frame-every", type=int, default=0)
     args = ap.parse_args(argv)
     rig = config.load(args.config)
     bus = can.Bus(interface=args.interface, channel=args.channel)
-    peer = CanPeer(rig, bus, args.output_id, args.input_id, wrong_id_every=args.wrong_id_every)
+    peer = CanPeer(rig, bus, args.output_id, args.input_id, wrong_id_every=args.wrong_id_every,
+                   short_frame_every=args.short_frame_every)
     stopping = []
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(1))
     signal.signal(signal.SIGINT, lambda *_: stopping.append(1))

@@ -1,7 +1,7 @@
 """CAN against the simulated rig as a CAN node: on python-can's virtual bus in this process,
 and on its UDP-multicast bus with the node in its own process (python -m
 sim_backend.can_peer): tracking as in-process, a node killed mid-move tripping the loop on
-stale input, recovery after it returns and a reset, stray frames counted."""
+stale input, recovery after it returns and a reset, stray and short frames counted."""
 import random
 import threading
 
@@ -75,14 +75,15 @@ def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_afte
         stop_peer(nodes[-1])
 
 
-def test_frames_with_ids_nobody_uses_are_counted_and_the_loop_carries_on():
+def test_stray_ids_and_short_frames_are_counted_and_the_loop_carries_on():
     channel = group()
-    proc = node(channel, "--wrong-id-every", "10")
+    proc = node(channel, "--wrong-id-every", "10", "--short-frame-every", "7")
     try:
         loop, _ = wire_loop("can", multicast(channel))
         move_and_track(loop, duration_s=1.0, tail_s=0.5)
         assert loop.state.value == "enabled", loop.supervisor.cause
-        assert loop.io.transport.health().counters["wrong_ids"] >= 100
+        counters = loop.io.transport.health().counters
+        assert counters["wrong_ids"] >= 100 and counters["bad_lengths"] >= 140, counters
         loop.shutdown()
     finally:
         stop_peer(proc)
