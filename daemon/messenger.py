@@ -35,7 +35,7 @@ import time
 import zmq
 
 from daemon import protocol
-from daemon.ring import Ring
+from daemon.ring import Ring, RingError
 from daemon.telemetry import to_payload
 from hal.offloop import die_with_parent
 
@@ -224,7 +224,7 @@ class Relay:
 
     def _send_replies(self) -> None:
         ring = self.rings["replies"]
-        while (entry := ring.get()) is not None:
+        while (entry := self._get(ring)) is not None:
             token, reply = entry
             owed = self.owed.pop(token, None)
             if owed is not None:
@@ -236,7 +236,7 @@ class Relay:
     def _publish(self) -> bool:
         """Pass the telemetry on; False at the END of the stream."""
         ring, pub = self.rings["telemetry"], self.sockets["telemetry"]
-        while (entry := ring.get()) is not None:
+        while (entry := self._get(ring)) is not None:
             tag, body = entry
             if tag == END:
                 return False
@@ -249,6 +249,17 @@ class Relay:
             except (struct.error, IndexError) as exc:
                 self._bad(tag, str(exc))
         return True
+
+    @staticmethod
+    def _get(ring: Ring) -> tuple[int, bytes] | None:
+        """The next entry; a ring that cannot be read is emptied (said loudly), not a crash
+        that the next messenger would repeat."""
+        try:
+            return ring.get()
+        except RingError as exc:
+            ring.discard()
+            print(f"pneumad messenger: {exc}; emptied it", file=sys.stderr, flush=True)
+            return None
 
     @staticmethod
     def _bad(tag: int, why: str) -> None:

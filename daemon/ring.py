@@ -71,6 +71,10 @@ class Ring:
         self._read.value = read + _ENTRY.size + length
         return tag, payload
 
+    def discard(self) -> None:
+        """Drop whatever is queued: the consumer's way back to a known state after a RingError."""
+        self._read.value = self._written.value
+
     def _copy_in(self, at: int, data: bytes) -> None:
         first = min(len(data), self.capacity - at)
         self._data[at:at + first] = data[:first]

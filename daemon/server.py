@@ -18,7 +18,7 @@ import tempfile
 from daemon.commands import Commands
 from daemon.messenger import END, TOPICS, Messenger, create_rings
 from daemon.preparation import Deferred
-from daemon.ring import Ring
+from daemon.ring import Ring, RingError
 
 DEFAULT_COMMAND = "tcp://127.0.0.1:5560"
 DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
@@ -88,7 +88,12 @@ class ZmqServer:
 
     def _serve(self, ring: Ring, control: bool, limit: int) -> None:
         for _ in range(limit):
-            entry = ring.get()
+            try:
+                entry = ring.get()
+            except RingError as exc:  # only a bug or a stranger in the daemon's memory: stop the arm
+                ring.discard()
+                self.commands.loop.supervisor.trip(f"{exc}; the requests queued in it were dropped")
+                return
             if entry is None:
                 return
             token, payload = entry

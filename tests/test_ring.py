@@ -68,3 +68,12 @@ def test_two_processes_pass_every_message_intact(tmp_path):
         expected += 1
     producer.join(10)
     assert producer.exitcode == 0
+
+
+def test_discard_empties_the_ring_and_it_works_on(tmp_path):
+    ring = Ring(str(tmp_path / "r"), 100)
+    ring.put(1, b"a" * 30)
+    ring.put(2, b"b" * 30)
+    ring.discard()
+    assert ring.get() is None and ring.free() == ring.capacity
+    assert ring.put(3, b"c") and ring.get() == (3, b"c")

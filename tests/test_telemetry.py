@@ -171,3 +171,18 @@ def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path)
         if daemon.poll() is None:
             daemon.kill()
             daemon.wait()
+
+
+def test_a_corrupt_request_ring_stops_the_arm_and_the_loop_serves_on(served):
+    loop, _, srv = served
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire")["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    ring = srv.rings["command"]
+    ring.put(1, b"x")  # an entry whose length field is then made impossible
+    with open(ring.path, "r+b") as f:
+        f.seek(64 + ring._read.value % ring.capacity)
+        f.write((ring.capacity * 2).to_bytes(4, "little"))
+    loop.run(1)
+    assert loop.state.value == "fault" and "claims" in loop.supervisor.cause
+    assert ok(loop, sock, "ping")["pong"]  # the ring was emptied and serves again
