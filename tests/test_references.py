@@ -85,7 +85,8 @@ def test_a_joint_waypoint_path_is_followed_to_its_last_point(armed):
     result = ok(loop, sock, "waypoints", {"angles_deg": points, "durations_s": [10.0, 10.0], "approach_s": 0.5},
                 lease)
     assert result["points"] == 3 and result["duration_s"] == 20.0
-    run_seconds(loop, 10.5)
+    # to the first waypoint on the path's own clock: the loop runs on while the reply comes back
+    run_seconds(loop, 10.5 - (loop.clock.now() - loop.trajectory_t0))
     assert [math.degrees(q) for q in loop.reference[0]] == pytest.approx(points[1], abs=1e-6)
     run_seconds(loop, 20.0)
     assert [math.degrees(q) for q in loop.angles] == pytest.approx(points[2], abs=0.5)
