@@ -213,10 +213,12 @@ def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:
 
 def check_output(u: Sequence[float], n: int) -> None:
     """ValueError unless ``u`` (what a controller's step returned) is n finite values."""
-    if len(u) != n:
-        raise ValueError(f"returned {u!r}: expected {n} finite values")
-    for v in u:
-        if not math.isfinite(v):
-            raise ValueError(f"returned {u!r}: expected {n} finite values")
+    if len(u) == n:
+        for v in u:  # a loop, not all(...) over a generator: this runs every cycle
+            if not math.isfinite(v):
+                break
+        else:
+            return
+    raise ValueError(f"returned {u!r}: expected {n} finite values")
 
 

@@ -43,12 +43,11 @@ def histogram_lines(counts: list[int], width: int = 40) -> list[str]:
 
 
 def qualify(args) -> int:
-    from daemon.main import build_loop, idle_latency
+    from daemon.main import build_loop, realtime_setup
 
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     loop = build_loop(args, clock)
-    warnings = realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt, idle_latency(args))
-    for w in warnings:
+    for w in realtime_setup(args):
         print(f"warning: {w}")
     gc.collect()
     gc.freeze()

@@ -82,8 +82,7 @@ def _serve(args, clock, server: ZmqServer) -> int:
     loop.stats_period = args.stats_period
     if notifier.watchdog_interval:
         loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
-    for warning in realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt,
-                                  idle_latency(args)):
+    for warning in realtime_setup(args):
         log.warning(warning)
     gc.collect()
     gc.freeze()  # start-up objects never scanned again
@@ -103,9 +102,10 @@ def _serve(args, clock, server: ZmqServer) -> int:
     return 0
 
 
-def idle_latency(args) -> int | None:
-    """The PM QoS idle latency to hold [us], or None to leave the system's."""
-    return None if args.no_rt or args.cpu_dma_latency_us < 0 else args.cpu_dma_latency_us
+def realtime_setup(args) -> list[str]:
+    """The real-time set-up the timing options ask for (none of it with --no-rt); its warnings."""
+    idle_latency = None if args.no_rt or args.cpu_dma_latency_us < 0 else args.cpu_dma_latency_us
+    return realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt, idle_latency)
 
 
 def cmd_safe_state(args) -> int:

@@ -34,7 +34,7 @@ import time
 
 import zmq
 
-from daemon import protocol
+from daemon import protocol, realtime
 from daemon.ring import Ring, RingError
 from daemon.telemetry import to_payload
 from hal.offloop import die_with_parent
@@ -147,7 +147,7 @@ def main(argv=None) -> int:
     # ends (END, after its last events), or its death does.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _normal_scheduling(args.cpus)
+    realtime.leave_real_time([int(c) for c in args.cpus.split(",") if c])
     ctx = zmq.Context()
     sockets = {}
     for name, kind in (("command", zmq.ROUTER), ("control", zmq.ROUTER), ("telemetry", zmq.PUB)):
@@ -265,16 +265,6 @@ class Relay:
     def _bad(tag: int, why: str) -> None:
         """Only the loop writes the telemetry ring: a bad entry is a bug, said loudly, and skipped."""
         print(f"pneumad messenger: dropped a telemetry entry (tag {tag}): {why}", file=sys.stderr, flush=True)
-
-
-def _normal_scheduling(cpus: str) -> None:
-    """Leave the real-time class and the loop's CPU, if a restart inherited them from the loop."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        if cpus:
-            os.sched_setaffinity(0, [int(c) for c in cpus.split(",")])
-    except OSError:
-        pass  # already as asked, or not permitted to change: it only relays
 
 
 if __name__ == "__main__":

@@ -27,6 +27,8 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
 
+from daemon import realtime
+
 DEFAULT_TIME_LIMIT_S = 30.0  # a build slower than this is taken as hung and its worker stopped
 
 
@@ -152,13 +154,7 @@ def _serve(conn, cpus) -> None:
     """The worker's main: the lowest normal priority, then answer jobs until the pipe closes.
     Niced so the courier, which holds the GIL while it unpickles, is never waiting for a CPU
     behind the worker (the loop would wait for the courier)."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        os.setpriority(os.PRIO_PROCESS, 0, 19)
-        if cpus:
-            os.sched_setaffinity(0, cpus)
-    except (AttributeError, OSError):
-        pass
+    realtime.leave_real_time(cpus, nice=19)
     while True:
         try:
             function, args = conn.recv()

@@ -100,11 +100,17 @@ def test_a_telemetry_endpoint_in_use_is_a_clear_error():
         squatter.close(linger=0)
 
 
-def test_the_messenger_dies_with_the_daemon(tmp_path):
-    """SIGKILL to the daemon (no chance to stop its children): the messenger goes too."""
+def real_daemon(tmp_path, **popen) -> tuple[subprocess.Popen, dict[str, str]]:
+    """A real ``pneumad run`` (simulated rig, no real-time set-up) on private ipc endpoints."""
     eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
     daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "WARNING",
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
+    return daemon, eps
+
+
+def test_the_messenger_dies_with_the_daemon(tmp_path):
+    """SIGKILL to the daemon (no chance to stop its children): the messenger goes too."""
+    daemon, _ = real_daemon(tmp_path)
     try:
         messenger = _wait_for_child(daemon.pid, "daemon.messenger")
         daemon.send_signal(signal.SIGKILL)
@@ -147,9 +153,7 @@ def _alive(pid: int) -> bool:
 def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path):
     """systemctl stop and Ctrl-C signal every process of the daemon: the messenger waits for
     the daemon's last events instead of dying first."""
-    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "WARNING",
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], start_new_session=True)
+    daemon, eps = real_daemon(tmp_path, start_new_session=True)
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.LINGER, 0)
     sub.setsockopt(zmq.SUBSCRIBE, b"")
