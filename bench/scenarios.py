@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 
 from controllers import lti_design, registry, trajectory
-from controllers.feasibility import Authority, Infeasible
+from controllers.feasibility import Authority
 from daemon.clock import VirtualClock
 from daemon.loop import ControlLoop
 from hal import config, kinematics
@@ -63,11 +63,8 @@ class Tracking:
 def approach_duration(loop: ControlLoop, target) -> float:
     """The shortest feasible time (at least 3 s) to move from the present reference to
     ``target`` [s]: planning, so it takes a while; a real-time loop must not wait on it."""
-    start = list(loop.reference[0])
-    try:
-        return authority(loop).check(lambda d: trajectory.JointMove(start, target, d), 3.0).duration
-    except Infeasible as exc:  # infeasible at 3 s: take the shortest feasible duration
-        return exc.shortest_s or 30.0
+    shortest = authority(loop).shortest(trajectory.JointMove(list(loop.reference[0]), target, 3.0))
+    return 30.0 if shortest is None else max(3.0, math.ceil(shortest * 10.0) / 10.0)
 
 
 def approach(loop: ControlLoop, target, duration: float | None = None) -> None:
@@ -118,12 +115,7 @@ def make_path(loop: ControlLoop, name: str, duration: float) -> trajectory.Traje
 
 def shortest_feasible(loop: ControlLoop, name: str) -> float:
     """The shortest duration of a reference path the rig's authority allows [s]."""
-    auth = authority(loop)
-    try:
-        auth.check(lambda d: make_path(loop, name, d), 1.0)
-        return 1.0
-    except Infeasible as exc:
-        return exc.shortest_s
+    return math.ceil(authority(loop).shortest(make_path(loop, name, 1.0)) * 10.0) / 10.0
 
 
 @dataclass

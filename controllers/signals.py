@@ -10,6 +10,10 @@ Log chirp from f0 to f1 [Hz] over T [s], k = f1 / f0 (frequency f(t) = f0 k^(t/T
 the same phase as scipy.signal.chirp(method="logarithmic"). PRBS: scipy.signal.max_len_seq
 of the given order, each bit held ``bit_s`` [s], r = +-A, repeated ``periods`` times; its
 spectrum is flat up to about 1 / (2 bit_s) [Hz]. Angles in rad, time in s.
+
+Neither signal's demands fall with its duration, so they are not time-scaled shapes: the
+planner checks them where they are hardest (:meth:`Excitation.profile`), the chirp over a grid
+of its frequencies and phases, the PRBS at its two levels, never by walking an hour of signal.
 """
 from __future__ import annotations
 
@@ -17,13 +21,19 @@ import math
 from abc import abstractmethod
 from collections.abc import Sequence
 
+import numpy as np
 from scipy.signal import max_len_seq
 
-from controllers.trajectory import Sample, Trajectory
+from controllers.trajectory import Profile, Sample, Trajectory
+
+CHIRP_FREQUENCIES = 256  # profile grid of a chirp: log-spaced frequencies ...
+CHIRP_PHASES = 32  # ... times phases over one period
 
 
 class Excitation(Trajectory):
     """Base angles [rad] held, one joint's reference offset by a signal."""
+
+    scalable = False
 
     def __init__(self, base: Sequence[float], joint: int, duration: float):
         self.base, self.joint, self.duration = list(base), joint, duration
@@ -39,6 +49,14 @@ class Excitation(Trajectory):
         q[self.joint] += r
         v[self.joint], acc[self.joint] = w, a
         return q, v, acc
+
+    def _profile(self, t, r, w, a) -> Profile:
+        """The profile of offsets r, w, a (arrays) at times t on the signal's joint."""
+        q = np.tile(np.asarray(self.base, dtype=float), (len(t), 1))
+        rates, accels = np.zeros_like(q), np.zeros_like(q)
+        q[:, self.joint] += r
+        rates[:, self.joint], accels[:, self.joint] = w, a
+        return Profile(np.asarray(t, dtype=float), q, rates, accels)
 
 
 class LogChirp(Excitation):
@@ -59,15 +77,31 @@ class LogChirp(Excitation):
         s, c = math.sin(phase), math.cos(phase)
         return A * s, A * c * omega, -A * s * omega * omega + A * c * omega * ln_k / T
 
+    def profile(self, points: int = 0) -> Profile:
+        """Every phase at each of a grid of the sweep's frequencies: the chirp passes through
+        all of them near that frequency, so its worst demand is on this grid."""
+        T, ln_k, A = self.duration, self._ln_k, self.amplitude
+        f = np.geomspace(self.f0, self.f1, CHIRP_FREQUENCIES)[:, None]
+        phase = np.linspace(0.0, 2 * np.pi, CHIRP_PHASES, endpoint=False)[None, :]
+        omega, s, c = 2 * np.pi * f, np.sin(phase), np.cos(phase)
+        shape = (CHIRP_FREQUENCIES, CHIRP_PHASES)
+        t = np.broadcast_to(T * np.log(f / self.f0) / ln_k, shape)
+        return self._profile(t.ravel(), np.broadcast_to(A * s, shape).ravel(), (A * c * omega).ravel(),
+                             (-A * s * omega ** 2 + A * c * omega * ln_k / T).ravel())
+
 
 class PRBS(Excitation):
     def __init__(self, base, joint: int, amplitude: float, order: int, bit_s: float, periods: int = 1):
-        bits = max_len_seq(order)[0]
-        super().__init__(base, joint, len(bits) * bit_s * periods)
-        self.levels = [amplitude if b else -amplitude for b in bits]
-        self.bit_s = bit_s
+        self.bits = max_len_seq(order)[0].astype(np.uint8).tobytes()  # compact: one byte a bit
+        super().__init__(base, joint, len(self.bits) * bit_s * periods)
+        self.amplitude, self.bit_s = amplitude, bit_s
 
     def offset(self, t: float) -> tuple[float, float, float]:
         if t >= self.duration:
             return 0.0, 0.0, 0.0
-        return self.levels[int(t / self.bit_s) % len(self.levels)], 0.0, 0.0
+        return (self.amplitude if self.bits[int(t / self.bit_s) % len(self.bits)] else -self.amplitude), 0.0, 0.0
+
+    def profile(self, points: int = 0) -> Profile:
+        """Its two levels (it steps between them: the rig must hold each)."""
+        zeros = np.zeros(2)
+        return self._profile(zeros, np.array([self.amplitude, -self.amplitude]), zeros, zeros)

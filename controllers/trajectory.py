@@ -6,17 +6,55 @@ Time scaling is the cubic polynomial of [2-15..2-28] with zero velocity at both 
 2-link inverse kinematics [2-9..2-14]; joint velocity comes from the inverse Jacobian and
 acceleration from its central difference. Angles in rad, positions in m, time in s, with
 ``t`` measured from the trajectory's start.
+
+Two sides, one object. The loop calls :meth:`Trajectory.sample` once a cycle: plain floats,
+bounded work whatever the reference's size (a long waypoint path or step sequence finds its
+segment by bisection). The planner, beside the loop, calls :meth:`Trajectory.profile`: the
+demands (angle, rate, acceleration per joint) sampled along the whole reference as numpy
+arrays, for the limit and authority checks. A trajectory is built in the planner process
+and sent to the loop whole, so it pickles small: long data are ``array('d')``, never lists
+of lists or one object per segment.
 """
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from array import array
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
 
 from hal import kinematics
 
 Sample = tuple[list[float], list[float], list[float]]  # angles, velocities, accelerations
+
+PATH_POINTS = 401  # profile samples along one Cartesian path
+MOVE_POINTS = 65  # ... along one cubic joint move
+PROFILE_BUDGET = 40000  # profile samples along a whole chain of segments (the points per segment shrink)
+
+
+class Profile(NamedTuple):
+    """A reference's demands sampled along it at its own duration: times (N,) [s] and
+    angles, rates, accelerations (N, joints) [rad, rad/s, rad/s^2]; NaN angles where a tip
+    path leaves the arm's reach."""
+
+    t: np.ndarray
+    q: np.ndarray
+    w: np.ndarray
+    a: np.ndarray
+
+    @classmethod
+    def concatenate(cls, parts: Sequence["Profile"], offsets: Sequence[float]) -> "Profile":
+        return cls(np.concatenate([p.t + o for p, o in zip(parts, offsets)]), *(
+            np.concatenate([getattr(p, k) for p in parts]) for k in ("q", "w", "a")))
+
+    @classmethod
+    def at_rest(cls, t: np.ndarray, q: np.ndarray) -> "Profile":
+        zeros = np.zeros_like(q)
+        return cls(t, q, zeros, zeros)
 
 
 def cubic(tau: float) -> tuple[float, float, float]:
@@ -28,12 +66,23 @@ def cubic(tau: float) -> tuple[float, float, float]:
     return 3 * tau * tau - 2 * tau ** 3, 6 * tau - 6 * tau * tau, 6 - 12 * tau
 
 
+def cubic_array(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`cubic` over an array of tau in [0, 1]."""
+    return 3 * tau ** 2 - 2 * tau ** 3, 6 * tau - 6 * tau ** 2, 6 - 12 * tau
+
+
 class Trajectory(ABC):
     duration: float  # [s]; after it, the trajectory holds its last sample
+    scalable = True  # its demands scale as 1/T (rates) and 1/T^2 (accelerations) with its duration T
 
     @abstractmethod
     def sample(self, t: float) -> Sample:
         """Reference angles [rad], velocities [rad/s], accelerations [rad/s^2] at time t [s]."""
+
+    @abstractmethod
+    def profile(self, points: int = 0) -> Profile:
+        """The demands along the whole reference (``points`` per segment where that applies; 0:
+        the trajectory's own default)."""
 
     @property
     def end(self) -> list[float]:
@@ -51,13 +100,17 @@ class Hold(Trajectory):
     def sample(self, t: float) -> Sample:
         return self.angles, self._zeros, self._zeros
 
+    def profile(self, points: int = 0) -> Profile:
+        return Profile.at_rest(np.zeros(1), np.array([self.angles], dtype=float))
+
 
 class JointMove(Trajectory):
     """From q0 to q1 [rad] over ``duration`` with cubic scaling (a step when duration is 0)."""
 
     def __init__(self, q0: Sequence[float], q1: Sequence[float], duration: float):
-        self.q0, self.dq = list(q0), [b - a for a, b in zip(q0, q1)]
-        self.duration = max(duration, 0.0)
+        self.q0, self.dq = [float(a) for a in q0], [float(b) - float(a) for a, b in zip(q0, q1)]
+        self.duration = max(float(duration), 0.0)
+        self.scalable = self.duration > 0.0  # a step is checked at its level
 
     def sample(self, t: float) -> Sample:
         if self.duration == 0.0:
@@ -69,23 +122,80 @@ class JointMove(Trajectory):
         return ([a + d * s for a, d in zip(self.q0, self.dq)], [d * ds * scale for d in self.dq],
                 [d * dds * scale * scale for d in self.dq])
 
+    def profile(self, points: int = 0) -> Profile:
+        q0, dq = np.array(self.q0), np.array(self.dq)
+        if self.duration == 0.0:
+            return Profile.at_rest(np.zeros(1), (q0 + dq)[None, :])
+        tau = np.linspace(0.0, 1.0, points or MOVE_POINTS)
+        s, ds, dds = cubic_array(tau)
+        T = self.duration
+        return Profile(tau * T, q0 + np.outer(s, dq), np.outer(ds / T, dq), np.outer(dds / T ** 2, dq))
+
+
+class TipShape(ABC):
+    """A planar tip path p(sigma) [m], sigma in [0, 1], and its tangent dp/dsigma [m]."""
+
+    @abstractmethod
+    def point(self, s: float) -> tuple[float, float]: ...
+
+    @abstractmethod
+    def tangent(self, s: float) -> tuple[float, float]: ...
+
+    @abstractmethod
+    def points(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """x, y, dx/ds, dy/ds over an array of sigma."""
+
+
+class Line(TipShape):
+    def __init__(self, start: tuple[float, float], end: tuple[float, float]):
+        self.x0, self.y0 = start
+        self.dx, self.dy = end[0] - start[0], end[1] - start[1]
+
+    def point(self, s):
+        return self.x0 + self.dx * s, self.y0 + self.dy * s
+
+    def tangent(self, s):
+        return self.dx, self.dy
+
+    def points(self, s):
+        return self.x0 + self.dx * s, self.y0 + self.dy * s, np.full_like(s, self.dx), np.full_like(s, self.dy)
+
+
+class Circle(TipShape):
+    """One revolution anticlockwise from the point at angle 0."""
+
+    def __init__(self, centre: tuple[float, float], radius: float):
+        (self.cx, self.cy), self.r = centre, radius
+
+    def point(self, s):
+        a = 2 * math.pi * s
+        return self.cx + self.r * math.cos(a), self.cy + self.r * math.sin(a)
+
+    def tangent(self, s):
+        a, k = 2 * math.pi * s, 2 * math.pi * self.r
+        return -k * math.sin(a), k * math.cos(a)
+
+    def points(self, s):
+        a, k = 2 * math.pi * s, 2 * math.pi * self.r
+        return self.cx + self.r * np.cos(a), self.cy + self.r * np.sin(a), -k * np.sin(a), k * np.cos(a)
+
 
 class CartesianPath(Trajectory):
-    """A planar tip path p(sigma), sigma in [0, 1] run with cubic scaling over ``duration``."""
+    """A planar tip path run with cubic scaling over ``duration``; joints beyond the planar
+    two are held at 0 rad."""
 
-    def __init__(self, name: str, point: Callable[[float], tuple[float, float]],
-                 tangent: Callable[[float], tuple[float, float]], duration: float,
-                 lengths: Sequence[float], elbow: int, n_joints: int):
+    def __init__(self, name: str, shape: TipShape, duration: float, lengths: Sequence[float], elbow: int,
+                 n_joints: int):
         if duration <= 0:
             raise ValueError(f"{name}: duration must be > 0 s, got {duration}")
         if len(lengths) < 2:
             raise ValueError(f"{name}: a planar path needs a 2-link arm")
-        self.name, self.point, self.tangent, self.duration = name, point, tangent, duration
+        self.name, self.shape, self.duration = name, shape, float(duration)
         self.l1, self.l2, self.elbow = lengths[0], lengths[1], elbow
-        self._rest = [0.0] * (n_joints - 2)  # joints beyond the planar two are held at 0 rad
+        self._rest = [0.0] * (n_joints - 2)
 
     def tip(self, t: float) -> tuple[float, float]:
-        return self.point(cubic(t / self.duration)[0])
+        return self.shape.point(cubic(t / self.duration)[0])
 
     def sample(self, t: float) -> Sample:
         q, qd = self._angles_and_rates(t)
@@ -97,21 +207,50 @@ class CartesianPath(Trajectory):
 
     def _angles_and_rates(self, t: float) -> tuple[list[float], list[float]]:
         s, ds, _ = cubic(t / self.duration)
-        x, y = self.point(s)
+        x, y = self.shape.point(s)
         q = list(kinematics.inverse_2link(x, y, self.l1, self.l2, self.elbow))
-        tx, ty = self.tangent(s)
+        tx, ty = self.shape.tangent(s)
         rate = ds / self.duration
         vx, vy = tx * rate, ty * rate
         (a, c), (b, d) = kinematics.jacobian(q, (self.l1, self.l2))  # columns: (dx, dy) per joint
         det = a * d - b * c
         return q, [(d * vx - b * vy) / det, (-c * vx + a * vy) / det]
 
+    def profile(self, points: int = 0) -> Profile:
+        return _tip_profile([self.shape], [self.duration], points or PATH_POINTS, self.l1, self.l2, self.elbow,
+                            len(self._rest))
+
+
+def _tip_profile(shapes: Sequence[TipShape], durations: Sequence[float], points: int, l1: float, l2: float,
+                 elbow: int, rest: int) -> Profile:
+    """The joint demands of tip shapes run one after another, each with cubic scaling over its
+    duration: inverse kinematics [2-9..2-14], rates by the inverse Jacobian, accelerations by
+    differences along each segment. NaN where a point is out of reach (or at a singularity)."""
+    tau = np.linspace(0.0, 1.0, points)
+    s, ds, _ = cubic_array(tau)
+    T = np.asarray(durations, dtype=float)[:, None]  # (segments, 1)
+    xs, ys, txs, tys = (np.stack(c) for c in zip(*(shape.points(s) for shape in shapes)))
+    t = tau[None, :] * T
+    vx, vy = txs * ds / T, tys * ds / T
+    q1, q2 = kinematics.inverse_2link_array(xs, ys, l1, l2, elbow)
+    # Jacobian columns [2-7]: d(x, y)/d(q1) and d(x, y)/d(q2)
+    s1, c1, s12, c12 = np.sin(q1), np.cos(q1), np.sin(q1 + q2), np.cos(q1 + q2)
+    a, c = -l1 * s1 - l2 * s12, l1 * c1 + l2 * c12
+    b, d = -l2 * s12, l2 * c12
+    det = a * d - b * c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w1, w2 = (d * vx - b * vy) / det, (-c * vx + a * vy) / det
+        a1, a2 = (np.gradient(w, axis=1) / np.gradient(t, axis=1) for w in (w1, w2))
+    offsets = np.concatenate([[0.0], np.cumsum(durations)[:-1]])[:, None]
+    flat = [np.stack([x1.ravel(), x2.ravel(), *([np.zeros(x1.size)] * rest)], axis=1)
+            for x1, x2 in ((q1, q2), (w1, w2), (a1, a2))]
+    return Profile((t + offsets).ravel(), *flat)
+
 
 def line(lengths, elbow, n_joints, duration, start_mm, end_mm, name="line"):
     """A straight tip path from start_mm to end_mm [mm] with cubic time scaling."""
     (x0, y0), (x1, y1) = [(a * 1e-3, b * 1e-3) for a, b in (start_mm, end_mm)]
-    return CartesianPath(name, lambda s: (x0 + (x1 - x0) * s, y0 + (y1 - y0) * s),
-                         lambda s: (x1 - x0, y1 - y0), duration, lengths, elbow, n_joints)
+    return CartesianPath(name, Line((x0, y0), (x1, y1)), duration, lengths, elbow, n_joints)
 
 
 def translation(lengths, elbow, n_joints, duration=15.0, start_mm=(70.0, 135.0), end_mm=(-20.0, 135.0)):
@@ -121,64 +260,153 @@ def translation(lengths, elbow, n_joints, duration=15.0, start_mm=(70.0, 135.0),
 
 def circle(lengths, elbow, n_joints, duration=20.0, centre_mm=(50.0, 138.0), radius_mm=35.0):
     """rig-facts §1 circular mode: centre (50, 138) mm, radius 35 mm, one revolution."""
-    cx, cy, r = centre_mm[0] * 1e-3, centre_mm[1] * 1e-3, radius_mm * 1e-3
-    two_pi = 2 * math.pi
-    return CartesianPath("circle", lambda s: (cx + r * math.cos(two_pi * s), cy + r * math.sin(two_pi * s)),
-                         lambda s: (-r * two_pi * math.sin(two_pi * s), r * two_pi * math.cos(two_pi * s)),
+    return CartesianPath("circle", Circle((centre_mm[0] * 1e-3, centre_mm[1] * 1e-3), radius_mm * 1e-3),
                          duration, lengths, elbow, n_joints)
 
 
-class Chain(Trajectory):
+class Segmented(Trajectory):
+    """Segments one after another, segment k running from ``ends[k - 1]`` to ``ends[k]`` [s];
+    the loop finds its segment by bisection, so a sample costs the same for 2 segments or 1000."""
+
+    def __init__(self, durations: Sequence[float]):
+        self.ends = array("d", itertools.accumulate(float(d) for d in durations))
+        self.duration = self.ends[-1]
+
+    def segment(self, t: float) -> tuple[int, float]:
+        """The segment at t and the time into it (the last segment from its end on)."""
+        k = min(bisect.bisect_right(self.ends, t), len(self.ends) - 1)
+        return k, t - (self.ends[k - 1] if k else 0.0)
+
+
+class Chain(Segmented):
     """Trajectories one after another (e.g. an approach move, then a path)."""
 
     def __init__(self, parts: Sequence[Trajectory]):
         self.parts = list(parts)
-        self.duration = sum(p.duration for p in self.parts)
+        super().__init__([p.duration for p in self.parts])
 
     def sample(self, t: float) -> Sample:
-        for part in self.parts[:-1]:
-            if t < part.duration:
-                return part.sample(t)
-            t -= part.duration
-        return self.parts[-1].sample(t)
+        k, t = self.segment(t)
+        return self.parts[k].sample(t)
+
+    def profile(self, points: int = 0) -> Profile:
+        return Profile.concatenate([p.profile(points) for p in self.parts], [0.0, *self.ends[:-1]])
 
 
-def joint_waypoints(points: Sequence[Sequence[float]], durations: Sequence[float]) -> "Chain":
+def _points_per_segment(segments: int, default: int) -> int:
+    return max(9, min(default, PROFILE_BUDGET // segments))
+
+
+class JointWaypoints(Segmented):
     """Through joint-space points [rad], segment i (to point i + 1) taking durations[i] [s]
     with cubic time scaling: at rest at every point."""
-    return Chain([JointMove(a, b, d) for a, b, d in zip(points, points[1:], durations)])
+
+    def __init__(self, points: Sequence[Sequence[float]], durations: Sequence[float]):
+        super().__init__(durations)
+        self.n = len(points[0])
+        self.points = array("d", itertools.chain.from_iterable(points))
+        self._k = -1
+        self._move: JointMove | None = None
+
+    def _point(self, i: int) -> list[float]:
+        return list(self.points[i * self.n:(i + 1) * self.n])
+
+    def sample(self, t: float) -> Sample:
+        k, t = self.segment(t)
+        if k != self._k:
+            self._k, self._move = k, JointMove(self._point(k), self._point(k + 1), self.ends[k] - (self.ends[k - 1] if k else 0.0))
+        return self._move.sample(t)
+
+    def profile(self, points: int = 0) -> Profile:
+        p = np.frombuffer(self.points, dtype=float).reshape(-1, self.n)
+        T = np.diff(np.concatenate([[0.0], np.frombuffer(self.ends, dtype=float)]))[:, None, None]
+        tau = np.linspace(0.0, 1.0, points or _points_per_segment(len(self.ends), MOVE_POINTS))
+        s, ds, dds = (x[None, :, None] for x in cubic_array(tau))
+        dq = (p[1:] - p[:-1])[:, None, :]
+        starts = np.concatenate([[0.0], np.frombuffer(self.ends, dtype=float)[:-1]])[:, None]
+        flat = [x.reshape(-1, self.n) for x in (p[:-1, None, :] + dq * s, dq * ds / T, dq * dds / T ** 2)]
+        return Profile((starts + tau[None, :] * T[:, :, 0]).ravel(), *flat)
+
+
+class CartesianWaypoints(Segmented):
+    """Straight tip lines through points [m], each with its duration [s] and cubic time
+    scaling: at rest at every point."""
+
+    def __init__(self, lengths, elbow: int, n_joints: int, points: Sequence[Sequence[float]],
+                 durations: Sequence[float]):
+        super().__init__(durations)
+        self.lengths, self.elbow, self.n_joints = tuple(lengths[:2]), elbow, n_joints
+        self.points = array("d", itertools.chain.from_iterable(points))
+        self._k = -1
+        self._path: CartesianPath | None = None
+
+    def _line(self, k: int) -> Line:
+        p = self.points
+        return Line((p[2 * k], p[2 * k + 1]), (p[2 * k + 2], p[2 * k + 3]))
+
+    def sample(self, t: float) -> Sample:
+        k, t = self.segment(t)
+        if k != self._k:
+            duration = self.ends[k] - (self.ends[k - 1] if k else 0.0)
+            self._k = k
+            self._path = CartesianPath(f"segment {k + 1}", self._line(k), duration, self.lengths, self.elbow,
+                                       self.n_joints)
+        return self._path.sample(t)
+
+    def profile(self, points: int = 0) -> Profile:
+        durations = np.diff(np.concatenate([[0.0], np.frombuffer(self.ends, dtype=float)]))
+        shapes = [self._line(k) for k in range(len(self.ends))]
+        return _tip_profile(shapes, durations, points or _points_per_segment(len(shapes), PATH_POINTS),
+                            *self.lengths, self.elbow, self.n_joints - 2)
+
+
+def joint_waypoints(points: Sequence[Sequence[float]], durations: Sequence[float]) -> JointWaypoints:
+    """Through joint-space points [rad], segment i (to point i + 1) taking durations[i] [s]."""
+    return JointWaypoints(points, durations)
 
 
 def cartesian_waypoints(lengths, elbow, n_joints, points_mm: Sequence[Sequence[float]],
-                        durations: Sequence[float]) -> "Chain":
+                        durations: Sequence[float]) -> CartesianWaypoints:
     """Straight tip lines through points [mm], each with its duration [s] and cubic time scaling."""
-    return Chain([line(lengths, elbow, n_joints, d, a, b, f"segment {i + 1}")
-                  for i, (a, b, d) in enumerate(zip(points_mm, points_mm[1:], durations))])
+    return CartesianWaypoints(lengths, elbow, n_joints, [(x * 1e-3, y * 1e-3) for x, y in points_mm], durations)
 
 
-class Steps(Trajectory):
+class Steps(Segmented):
     """A step sequence: jump to levels[i] [rad] and hold it for holds[i] [s], one after another."""
 
+    scalable = False
+
     def __init__(self, levels: Sequence[Sequence[float]], holds: Sequence[float]):
-        self.levels = [list(q) for q in levels]
-        self.ends = list(itertools.accumulate(holds))
-        self.duration = self.ends[-1]
-        self._zeros = [0.0] * len(self.levels[0])
+        super().__init__(holds)
+        self.n = len(levels[0])
+        self.levels = array("d", itertools.chain.from_iterable(levels))
+        self._zeros = [0.0] * self.n
+        self._k = -1
+        self._level: list[float] = []
 
     def sample(self, t: float) -> Sample:
-        for level, end in zip(self.levels, self.ends):
-            if t < end:
-                return level, self._zeros, self._zeros
-        return self.levels[-1], self._zeros, self._zeros
+        k = min(bisect.bisect_right(self.ends, t), len(self.ends) - 1)
+        if k != self._k:
+            self._k, self._level = k, list(self.levels[k * self.n:(k + 1) * self.n])
+        return self._level, self._zeros, self._zeros
+
+    def profile(self, points: int = 0) -> Profile:
+        starts = np.concatenate([[0.0], np.frombuffer(self.ends, dtype=float)[:-1]])
+        return Profile.at_rest(starts, np.frombuffer(self.levels, dtype=float).reshape(-1, self.n).copy())
 
 
-def check_within_limits(trajectory: Trajectory, limits: Sequence[tuple[float, float]], names: Sequence[str],
-                        samples: int = 400) -> None:
-    """Raise ValueError naming the joint, time and angle if the trajectory leaves the limits."""
-    for i in range(samples + 1):
-        t = trajectory.duration * i / samples
-        q = trajectory.sample(t)[0]
-        for name, angle, (lo, hi) in zip(names, q, limits):
-            if not lo <= angle <= hi:
-                raise ValueError(f"joint {name} would reach {math.degrees(angle):.1f} deg at t = {t:.2f} s, "
-                                 f"outside its limits {math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg")
+def first_outside_limits(profile: Profile, limits: Sequence[tuple[float, float]], names: Sequence[str]) -> str | None:
+    """Where the reference leaves the joint limits or the arm's reach, in words; None if nowhere."""
+    q = profile.q
+    lo, hi = np.array([lim[0] for lim in limits]), np.array([lim[1] for lim in limits])
+    unreachable = np.isnan(q).any(axis=1)
+    outside = unreachable | ((q < lo) | (q > hi)).any(axis=1)
+    if not outside.any():
+        return None
+    i = int(np.argmax(outside))
+    t = profile.t[i]
+    if unreachable[i]:
+        return f"the tip would leave the arm's reach at t = {t:.2f} s"
+    j = int(np.argmax((q[i] < lo) | (q[i] > hi)))
+    return (f"joint {names[j]} would reach {math.degrees(q[i, j]):.1f} deg at t = {t:.2f} s, outside its limits "
+            f"{math.degrees(lo[j]):.1f}..{math.degrees(hi[j]):.1f} deg")

@@ -52,6 +52,7 @@ class ControlLoop:
         self.trajectory: Trajectory = HoldPosition([0.0] * self.n)
         self.trajectory_name = "hold"
         self.trajectory_t0 = 0.0
+        self.trajectory_generation = 0  # counts every change of reference: a plan made before one is stale
         self.u = [0.0] * self.n  # last V_MV [V]
         self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
         self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
@@ -106,18 +107,24 @@ class ControlLoop:
         """Run until :meth:`stop` (or for ``cycles`` cycles); :meth:`shutdown` leaves the outputs safe."""
         done = 0
         clock, period, stats = self.clock, self.period, self.stats
+        stall_limit = self.rig.safety.stall_after_s
         while not self.stop_requested and (cycles is None or done < cycles):
             clock.sleep_until(self._deadline)
             wake = clock.now()
             lateness = wake - self._deadline
             stats.latency.add(lateness)
-            if lateness > self.rig.safety.stall_after_s:
+            if lateness > stall_limit:
                 self.supervisor.trip(f"loop stalled: woke {lateness * 1e3:.1f} ms late "
-                                     f"(limit {self.rig.safety.stall_after_s * 1e3:.1f} ms)")
+                                     f"(limit {stall_limit * 1e3:.1f} ms)")
             self._cycle(wake)
             done += 1
             self._deadline += period
             end = clock.now()
+            if end - wake > stall_limit:  # a cycle that ran this long held the outputs: trip and write safe now
+                self.supervisor.trip(f"loop stalled: a cycle ran {(end - wake) * 1e3:.1f} ms "
+                                     f"(limit {stall_limit * 1e3:.1f} ms)")
+                self._write_safe()
+                self._drain_events()
             if end > self._deadline:  # overrun: skip the deadlines already missed, hold the output
                 missed = int((end - self._deadline) / period) + 1
                 self._deadline += missed * period
@@ -247,6 +254,7 @@ class ControlLoop:
 
     def set_trajectory(self, trajectory: Trajectory, name: str) -> None:
         self.trajectory, self.trajectory_name = trajectory, name
+        self.trajectory_generation += 1
         self.trajectory_t0 = self.clock.now() + self.period  # sampled from the next cycle on
         self.reference = trajectory.sample(0.0)
 

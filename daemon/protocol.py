@@ -1,7 +1,7 @@
 """The wire protocol (docs/protocol.md): msgpack maps over ZeroMQ, versioned.
 
 Request ``{v, id, cmd, args?, lease?}``; reply ``{v, id, ok: true, result}`` or
-``{v, id, ok: false, error: {code, message}}``. Decoding is bounded (sizes, lengths, no
+``{v, id, ok: false, error: {code, message, data?}}``. Decoding is bounded (sizes, lengths, no
 extension types), so a hostile frame costs little and gets a clear error.
 """
 from __future__ import annotations
@@ -20,7 +20,8 @@ NO_LEASE = "no_lease"  # the command moves the arm and the caller does not hold 
 LEASE_HELD = "lease_held"  # another client holds the lease
 BAD_STATE = "bad_state"  # not allowed in the daemon's present state
 REFUSED = "refused"  # valid, but unsafe or infeasible on this rig
-BUSY = "busy"  # a controller is being prepared off the loop; ask again when its reply is in
+BUSY = "busy"  # work is being prepared beside the loop (a plan, a controller); ask again when its reply is in
+LOOP_STALLED = "loop_stalled"  # from the messenger: the loop has stopped cycling
 INTERNAL = "internal"  # a bug: reported, never fatal
 
 
@@ -29,45 +30,88 @@ class ProtocolError(Exception):
         super().__init__(message)
         self.code, self.message, self.request_id = code, message, request_id
 
+    def __reduce__(self):  # raised in the planner process too
+        return type(self), (self.code, self.message, self.request_id)
+
+
+_LIMITS = dict(max_str_len=MAX_MESSAGE_BYTES, max_bin_len=MAX_MESSAGE_BYTES, max_array_len=4096, max_map_len=256,
+               max_ext_len=0)
+_MAP_MARKERS = frozenset(range(0x80, 0x90)) | {0xDE, 0xDF}  # fixmap, map 16, map 32
+
 
 def decode_request(payload: bytes) -> dict:
-    """A validated request envelope, or :class:`ProtocolError`."""
+    """A validated request envelope, or :class:`ProtocolError`. ``args`` is not decoded here
+    but located (``args_span``, byte offsets in ``payload``): the loop decodes only the small
+    arguments of its own commands (:func:`decode_args`), and a planned command's arguments,
+    up to a 64 KiB list of waypoints, are decoded by the planner beside the loop."""
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, max_buffer_size=MAX_MESSAGE_BYTES, **_LIMITS)
+    msg, span = {}, None
+    unpacker.feed(payload)
     try:
-        msg = msgpack.unpackb(payload, raw=False, strict_map_key=True, max_str_len=MAX_MESSAGE_BYTES,
-                              max_bin_len=MAX_MESSAGE_BYTES, max_array_len=4096, max_map_len=256,
-                              max_ext_len=0)
+        entries = unpacker.read_map_header()
+    except msgpack.OutOfData:
+        raise ProtocolError(BAD_MESSAGE, "not a msgpack message: empty or cut short") from None
+    except Exception as exc:
+        raise ProtocolError(BAD_MESSAGE, f"the message must be a msgpack map ({exc})") from None
+    try:
+        for _ in range(entries):
+            key = unpacker.unpack()
+            if key == "args":
+                start = unpacker.tell()
+                unpacker.skip()
+                span = (start, unpacker.tell())
+            else:
+                msg[key] = unpacker.unpack()
+        if unpacker.tell() != len(payload):
+            raise ValueError("extra data after the message")
     except Exception as exc:  # msgpack raises several types for malformed input
         raise ProtocolError(BAD_MESSAGE, f"not a msgpack message: {type(exc).__name__}: {exc}") from None
-    if not isinstance(msg, dict):
-        raise ProtocolError(BAD_MESSAGE, f"the message must be a map, got {type(msg).__name__}")
     request_id = msg.get("id")
     if not (isinstance(request_id, int) and not isinstance(request_id, bool)
             or isinstance(request_id, str) and len(request_id) <= 128):
         raise ProtocolError(BAD_MESSAGE, "'id' must be an integer or a string of at most 128 characters")
-    if msg.get("v") != VERSION:
-        raise ProtocolError(BAD_VERSION, f"protocol version {msg.get('v')!r} is not supported (this daemon speaks "
+    version = msg.get("v")
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ProtocolError(BAD_MESSAGE, f"'v' must be the protocol version, an integer (this daemon speaks "
+                                         f"{VERSION})", request_id)
+    if version != VERSION:
+        raise ProtocolError(BAD_VERSION, f"protocol version {version} is not supported (this daemon speaks "
                                          f"{VERSION})", request_id)
     cmd = msg.get("cmd")
     if not isinstance(cmd, str):
         raise ProtocolError(BAD_MESSAGE, "'cmd' must be a string", request_id)
-    args = msg.get("args", {})
-    if not isinstance(args, dict):
+    if span is not None and payload[span[0]] not in _MAP_MARKERS:
         raise ProtocolError(BAD_MESSAGE, "'args' must be a map", request_id)
     lease = msg.get("lease")
     if lease is not None and not isinstance(lease, str):
         raise ProtocolError(BAD_MESSAGE, "'lease' must be a string", request_id)
-    unknown = set(msg) - {"v", "id", "cmd", "args", "lease"}
+    unknown = set(msg) - {"v", "id", "cmd", "lease"}
     if unknown:
-        raise ProtocolError(BAD_MESSAGE, f"unknown envelope field {sorted(map(str, unknown))[0]!r}", request_id)
-    return {"id": request_id, "cmd": cmd, "args": args, "lease": lease}
+        raise ProtocolError(BAD_MESSAGE, f"unknown envelope field {sorted(map(str, unknown))[0][:80]!r}", request_id)
+    return {"id": request_id, "cmd": cmd, "lease": lease, "payload": payload, "args_span": span}
+
+
+def decode_args(request: dict) -> dict:
+    """The request's ``args`` map (empty when it has none)."""
+    span = request["args_span"]
+    if span is None:
+        return {}
+    try:
+        return msgpack.unpackb(request["payload"][span[0]:span[1]], raw=False, strict_map_key=True, **_LIMITS)
+    except Exception as exc:  # too long, too deep, a non-string key ...
+        raise ProtocolError(BAD_MESSAGE, f"'args' cannot be read: {type(exc).__name__}: {exc}",
+                            request["id"]) from None
 
 
 def encode_result(request_id, result) -> bytes:
     return msgpack.packb({"v": VERSION, "id": request_id, "ok": True, "result": result})
 
 
-def encode_error(request_id, code: str, message: str) -> bytes:
-    return msgpack.packb({"v": VERSION, "id": request_id, "ok": False, "error": {"code": code, "message": message}})
+def encode_error(request_id, code: str, message: str, data: dict | None = None) -> bytes:
+    error = {"code": code, "message": message}
+    if data is not None:
+        error["data"] = data
+    return msgpack.packb({"v": VERSION, "id": request_id, "ok": False, "error": error})
 
 
 def encode_request(request_id, cmd: str, args: dict | None = None, lease: str | None = None) -> bytes:

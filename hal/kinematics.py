@@ -8,6 +8,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 
 def forward(angles: Sequence[float], lengths: Sequence[float]) -> tuple[float, float]:
     """Tip position (x, y) [m] for joint angles [rad] and link lengths [m], [2-7]."""
@@ -49,4 +51,14 @@ def inverse_2link(x: float, y: float, l1: float, l2: float, elbow: int = -1) -> 
                          f"({reach * 1e3:.1f} mm from the base; reach {abs(l1 - l2) * 1e3:.1f}..{(l1 + l2) * 1e3:.1f} mm)")
     t2 = elbow * math.acos(c2)
     t1 = math.atan2(y, x) - math.atan2(l2 * math.sin(t2), l1 + l2 * math.cos(t2))
+    return t1, t2
+
+
+def inverse_2link_array(x, y, l1: float, l2: float, elbow: int = -1):
+    """:func:`inverse_2link` over numpy arrays of points [m]: (t1, t2) [rad], NaN where a
+    point is out of reach (for the planner, which reports where)."""
+    c2 = (x * x + y * y - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+    c2 = np.where((c2 >= -1.0) & (c2 <= 1.0), c2, np.nan)
+    t2 = elbow * np.arccos(c2)
+    t1 = np.arctan2(y, x) - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))
     return t1, t2

@@ -167,12 +167,17 @@ def test_a_prbs_starts_and_a_chirp_beyond_the_rig_is_refused_with_the_remedy(arm
     result = ok(loop, sock, "excite", {"signal": "prbs", "joint": "middle", "amplitude_deg": 0.5, "order": 6,
                                        "bit_s": 0.5}, lease)
     assert result["duration_s"] == pytest.approx(63 * 0.5)
+    busy = call(loop, sock, "set", {"angles_deg": [130.0, -75.0]}, lease)  # nothing preempts a running reference
+    assert busy["error"]["code"] == P.BAD_STATE and busy["error"]["data"]["reason"] == "reference_running"
+    assert busy["error"]["data"]["remaining_s"] > 30.0 and loop.trajectory_name == "prbs"
+    ok(loop, sock, "abort")
     reply = call(loop, sock, "excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 5.0, "f0_hz": 0.1,
                                         "f1_hz": 2.0, "duration_s": 30.0}, lease)
     assert reply["error"]["code"] == P.REFUSED
     assert "joint middle" in reply["error"]["message"] and "lower the amplitude or the top frequency" in \
         reply["error"]["message"]
-    for args, text in (({"signal": "sine", "joint": "bottom", "amplitude_deg": 1.0}, "chirp or prbs"),
+    assert reply["error"]["data"]["shortfalls"][0]["joint"] == "middle" and reply["error"]["data"]["shortest_s"] is None
+    for args, text in (({"signal": "sine", "joint": "bottom", "amplitude_deg": 1.0}, "one of chirp, prbs"),
                        ({"signal": "prbs", "joint": "elbow", "amplitude_deg": 1.0}, "'joint' must be one of"),
                        ({"signal": "prbs", "joint": "bottom", "amplitude_deg": 1.0, "order": 7.5}, "whole number"),
                        ({"signal": "chirp", "joint": "bottom", "amplitude_deg": 1.0, "f0_hz": 1.0, "f1_hz": 0.5},

@@ -1,0 +1,254 @@
+"""Motion planning, beside the loop: the planner's side of the motion commands.
+
+Runs in the preparation worker process (:mod:`daemon.preparation`), never in the loop's: it
+decodes a motion request's arguments (up to a 64 KiB list of waypoints), checks them, builds
+the reference (inverse kinematics over a path, waypoint and step tables), checks it against
+the joint limits, the arm's reach and the rig's authority (:mod:`controllers.feasibility`),
+chooses the approach move's duration when the request does not, and hands back a finished
+:class:`Plan`. The loop only installs it at a cycle boundary (:mod:`daemon.commands`).
+
+Each planner takes the request's arguments and the set-point in force when the request was
+taken [rad], and raises :class:`~daemon.arguments.CommandFailed` with the numbers when it
+refuses. Angles in rad inside, deg at the protocol; durations in s.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from controllers import signals, trajectory
+from controllers.feasibility import Authority, Infeasible
+from daemon import protocol as P
+from daemon.arguments import (
+    CommandFailed,
+    bad_args,
+    checked_number,
+    checked_numbers,
+    choice,
+    integer,
+    number,
+    numbers,
+    only,
+)
+from hal import kinematics
+
+APPROACH_MARGIN = 1.25  # an approach with no approach_s takes this times its shortest feasible duration
+APPROACH_MIN_S = 0.5  # ... and at least this long [s]
+PATHS = {"translation": (trajectory.translation, 15.0), "circle": (trajectory.circle, 20.0)}
+MAX_DURATION_S = 3600.0
+
+
+@dataclass(frozen=True)
+class PlanContext:
+    """What the planner knows of the rig: built once in the daemon, sent with each job (small)."""
+
+    joint_names: tuple[str, ...]
+    limits: tuple[tuple[float, float], ...]  # [rad]
+    link_lengths_m: tuple[float, ...]
+    elbow: int
+    authority: Authority | None  # None when a joint has no identified model: no authority check
+
+    @classmethod
+    def of(cls, rig, context) -> "PlanContext":
+        models_known = all(m is not None for m in context.models)
+        return cls(tuple(context.joint_names), tuple(j.limits_rad for j in rig.joints), tuple(rig.arm.link_lengths_m),
+                   rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None)
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+
+@dataclass
+class Plan:
+    """A checked reference, ready for the loop to install, and what the reply will say."""
+
+    trajectory: trajectory.Trajectory
+    name: str  # what status.reference shows while it runs
+    reply: dict
+    start: tuple[float, ...]  # the set-point it was planned from [rad]
+
+
+def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:
+    """The worker's entry point: decode and plan one motion request."""
+    args = P.decode_args(request)
+    return PLANNERS[request["cmd"]](ctx, args, list(setpoint))
+
+
+def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """Move to joint angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
+    ``duration_s`` with cubic time scaling (0: a step)."""
+    only(args, "angles_deg", "angles_rad", "xy_mm", "duration_s")
+    given = [k for k in ("angles_deg", "angles_rad", "xy_mm") if k in args]
+    if len(given) != 1:
+        raise bad_args("give exactly one of angles_deg, angles_rad, xy_mm", "angles_deg")
+    duration = number(args, "duration_s", 0.0, MAX_DURATION_S, 0.0)
+    if given[0] == "angles_deg":
+        target = [math.radians(a) for a in numbers(args, "angles_deg", ctx.n)]
+    elif given[0] == "angles_rad":
+        target = numbers(args, "angles_rad", ctx.n)
+    else:
+        target = tip_angles(ctx, numbers(args, "xy_mm", 2)) + setpoint[2:]
+    check_limits(ctx, target)
+    move = trajectory.JointMove(setpoint, target, duration)
+    check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that angle")
+    return Plan(move, "set", {"target_deg": [math.degrees(q) for q in target], "duration_s": duration},
+                tuple(setpoint))
+
+
+def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """A reference path of rig-facts §1, after an approach move to its start."""
+    only(args, "name", "duration_s", "approach_s")
+    name = choice(args, "name", PATHS)
+    make, default_duration = PATHS[name]
+    duration = number(args, "duration_s", 0.5, MAX_DURATION_S, default_duration)
+    path = make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration)
+    check_authority(ctx, f"the {name} path", path)
+    return after_approach(ctx, args, setpoint, path, name, {"path": name, "duration_s": duration})
+
+
+def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """A path through waypoints, joint (``angles_deg``: one row per point) or Cartesian
+    (``xy_mm``), after an approach to the first; ``durations_s[i]`` is the time from point
+    i to point i + 1, with cubic time scaling on each segment."""
+    only(args, "angles_deg", "xy_mm", "durations_s", "approach_s")
+    given = [k for k in ("angles_deg", "xy_mm") if k in args]
+    if len(given) != 1:
+        raise bad_args("give exactly one of angles_deg (joint waypoints) or xy_mm (Cartesian waypoints)", "angles_deg")
+    key = given[0]
+    rows = args[key]
+    if not isinstance(rows, list) or not 2 <= len(rows) <= 1000:
+        raise bad_args(f"'{key}' must be a list of 2 to 1000 points", key)
+    points = [checked_numbers(f"{key}[{i}]", row, ctx.n if key == "angles_deg" else 2) for i, row in enumerate(rows)]
+    durations = args.get("durations_s")
+    if not isinstance(durations, list) or len(durations) != len(points) - 1:
+        raise bad_args(f"'durations_s' must list {len(points) - 1} segment durations (one fewer than points)",
+                       "durations_s")
+    durations = [checked_number(f"durations_s[{i}]", d, 0.01, MAX_DURATION_S) for i, d in enumerate(durations)]
+    if key == "angles_deg":
+        points = [[math.radians(a) for a in p] for p in points]
+        for p in points:
+            check_limits(ctx, p)
+        path = trajectory.joint_waypoints(points, durations)
+    else:
+        for i, p in enumerate(points):
+            tip_angles(ctx, p, f"waypoint {i} at {p} mm: ")
+        path = trajectory.cartesian_waypoints(ctx.link_lengths_m, ctx.elbow, ctx.n, points, durations)
+    check_authority(ctx, "the waypoint path", path)
+    return after_approach(ctx, args, setpoint, path, "waypoints", {"points": len(points), "duration_s": path.duration})
+
+
+def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """A step sequence: jump to ``angles_deg[i]`` and hold it ``hold_s[i]`` seconds."""
+    only(args, "angles_deg", "hold_s")
+    rows, holds = args.get("angles_deg"), args.get("hold_s")
+    if not isinstance(rows, list) or not 1 <= len(rows) <= 1000:
+        raise bad_args("'angles_deg' must be a list of 1 to 1000 levels, one angle per joint each", "angles_deg")
+    if not isinstance(holds, list) or len(holds) != len(rows):
+        raise bad_args("'hold_s' must give one hold time per level", "hold_s")
+    levels = [[math.radians(a) for a in checked_numbers(f"angles_deg[{i}]", row, ctx.n)] for i, row in enumerate(rows)]
+    holds = [checked_number(f"hold_s[{i}]", h, 0.001, MAX_DURATION_S) for i, h in enumerate(holds)]
+    for level in levels:
+        check_limits(ctx, level)
+    seq = trajectory.Steps(levels, holds)
+    check_authority(ctx, "the step sequence", seq, "a level is beyond what the rig can hold there")
+    return Plan(seq, "steps", {"levels": len(levels), "duration_s": seq.duration}, tuple(setpoint))
+
+
+def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """An identification signal on one joint's reference about its present set-point:
+    ``signal`` chirp (``f0_hz``, ``f1_hz``, ``duration_s``) or prbs (``order``, ``bit_s``,
+    ``periods``), of ``amplitude_deg``; the other joints hold."""
+    signal = choice(args, "signal", ("chirp", "prbs"))
+    if signal == "chirp":
+        only(args, "signal", "joint", "amplitude_deg", "f0_hz", "f1_hz", "duration_s")
+    else:
+        only(args, "signal", "joint", "amplitude_deg", "order", "bit_s", "periods")
+    joint = choice(args, "joint", ctx.joint_names)
+    j = ctx.joint_names.index(joint)
+    amplitude = math.radians(number(args, "amplitude_deg", 0.01, 45.0))
+    if signal == "chirp":
+        f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
+        f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
+        if f1 <= f0:
+            raise bad_args(f"'f1_hz' ({f1}) must be above 'f0_hz' ({f0})", "f1_hz")
+        excitation = signals.LogChirp(setpoint, j, amplitude, f0, f1, number(args, "duration_s", 1.0, MAX_DURATION_S,
+                                                                            60.0))
+    else:
+        excitation = signals.PRBS(setpoint, j, amplitude, integer(args, "order", 2, 16, 8),
+                                  number(args, "bit_s", 0.001, 60.0, 0.2), integer(args, "periods", 1, 100, 1))
+    lo, hi = ctx.limits[j]
+    if not (lo <= setpoint[j] - amplitude and setpoint[j] + amplitude <= hi):
+        raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(setpoint[j]):.1f} deg +- "
+                                       f"{math.degrees(amplitude):.1f} deg leaves its limits "
+                                       f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
+                            {"reason": "limits", "argument": "amplitude_deg", "joint": joint,
+                             "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+    check_authority(ctx, f"the {signal}", excitation,
+                    "lower the amplitude" + (" or the top frequency" if signal == "chirp" else ""))
+    return Plan(excitation, signal, {"signal": signal, "joint": joint, "duration_s": excitation.duration},
+                tuple(setpoint))
+
+
+PLANNERS = {"set": plan_set, "path": plan_path, "waypoints": plan_waypoints, "steps": plan_steps,
+            "excite": plan_excite}
+
+
+def after_approach(ctx: PlanContext, args: dict, setpoint: list[float], path: trajectory.Trajectory, name: str,
+                   reply: dict) -> Plan:
+    """``path`` after a joint move from the set-point to its start: in ``approach_s`` if the
+    request gives it, else in the shortest feasible duration with a margin (APPROACH_MARGIN)."""
+    start = path.sample(0.0)[0]
+    if "approach_s" in args:
+        approach = number(args, "approach_s", 0.0, 600.0)
+        chosen = False
+    else:
+        approach, chosen = shortest_approach(ctx, setpoint, start), True
+    move = trajectory.JointMove(setpoint, start, approach)
+    check_authority(ctx, "the approach to its start", move, None if approach else "the rig cannot hold the start")
+    chain = trajectory.Chain([move, path])
+    where = trajectory.first_outside_limits(chain.profile(), ctx.limits, ctx.joint_names)
+    if where is not None:
+        raise CommandFailed(P.REFUSED, where, {"reason": "limits"})
+    return Plan(chain, name, {**reply, "approach_s": approach, "approach_chosen": chosen, "total_s": chain.duration},
+                tuple(setpoint))
+
+
+def shortest_approach(ctx: PlanContext, setpoint: list[float], start: list[float]) -> float:
+    """The approach duration used when none is asked for [s], to 0.1 s (rounded up)."""
+    if ctx.authority is None:
+        return 3.0
+    shortest = ctx.authority.shortest(trajectory.JointMove(setpoint, start, 1.0))
+    if shortest is None:  # the start cannot be held: the check that follows says so
+        return APPROACH_MIN_S
+    return max(math.ceil(shortest * APPROACH_MARGIN * 10.0) / 10.0, APPROACH_MIN_S)
+
+
+def tip_angles(ctx: PlanContext, xy_mm, what: str = "") -> list[float]:
+    """The planar joints' angles [rad] that put the tip at xy_mm, or a refusal (out of reach)."""
+    lengths = ctx.link_lengths_m
+    try:
+        return list(kinematics.inverse_2link(xy_mm[0] * 1e-3, xy_mm[1] * 1e-3, lengths[0], lengths[1], ctx.elbow))
+    except ValueError as exc:
+        raise CommandFailed(P.REFUSED, f"{what}{exc}", {"reason": "reach", "xy_mm": list(xy_mm)}) from None
+
+
+def check_limits(ctx: PlanContext, angles: Sequence[float]) -> None:
+    for name, (lo, hi), q in zip(ctx.joint_names, ctx.limits, angles):
+        if not lo <= q <= hi:
+            raise CommandFailed(P.REFUSED, f"joint {name} set-point {math.degrees(q):.2f} deg is outside its limits "
+                                           f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
+                                {"reason": "limits", "joint": name, "angle_deg": math.degrees(q),
+                                 "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+
+
+def check_authority(ctx: PlanContext, what: str, reference: trajectory.Trajectory, fixed: str | None = None) -> None:
+    """A refusal with the numbers and the shortest duration that would do (rig-facts §1
+    "Authority") unless the rig can deliver ``reference``; see :meth:`Authority.check`."""
+    if ctx.authority is None:
+        return
+    try:
+        ctx.authority.check(reference, fixed)
+    except Infeasible as exc:
+        raise CommandFailed(P.REFUSED, f"{what} in {reference.duration:g} s is {exc}", exc.data()) from None
