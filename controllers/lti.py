@@ -9,7 +9,9 @@ All joints run as one block-diagonal system, so a cycle is two small matrix prod
 ``gain`` scales the design's output (the K_tune of rig-facts' robust view) and can change
 live. Bumpless transfer: on its first cycle the controller puts its state where the output
 equals the one in force and, as far as the design allows, at rest for the present error
-(least squares on [(I - A) x = B e, C x = u/gain - D e], the output rows weighted heavily).
+(least squares on [(I - A) x = B e, C x = u/gain - D e], the output rows weighted heavily;
+its pseudo-inverse is derived with the controller, beside the loop, so the take-over cycle is
+two small vector sums).
 Anti-windup: while a joint's output is clamped, its part of the state is held
 (conditional integration), the one rule that fits any design.
 """
@@ -47,7 +49,8 @@ class LTI(Controller):
         d, gain = np.array([d.d for d in designs]), np.array(values["gain"])
         # [x(k+1); v(k)] = M [x(k); e(k)], one product per cycle (the cost goal)
         m = np.block([[a, b], [gain[:, None] * c, np.diag(gain * d)]])
-        return {"a": a, "b": b, "c": c, "d": d, "gain": gain, "rows": rows, "m": m, "nx": start}
+        return {"a": a, "b": b, "c": c, "d": d, "gain": gain, "rows": rows, "m": m, "nx": start,
+                "takeover": [_takeover(a, b, c, j, r) for j, r in enumerate(rows)]}
 
     def __init__(self, context, **values):
         super().__init__(context, **values)
@@ -78,16 +81,19 @@ class LTI(Controller):
         """The state that gives ``output`` now, at rest for the error e if the design allows."""
         k = self.k
         x = np.zeros(k["a"].shape[0])
-        for j, rows in enumerate(k["rows"]):
-            if not len(rows) or k["gain"][j] == 0.0:
-                continue
-            a = k["a"][np.ix_(rows, rows)]
-            b = k["b"][rows, j]
-            c = k["c"][j, rows]
-            lhs = np.vstack([np.eye(len(rows)) - a, OUTPUT_WEIGHT * c[None, :]])
-            rhs = np.append(b * e[j], OUTPUT_WEIGHT * (output[j] / k["gain"][j] - k["d"][j] * e[j]))
-            x[rows] = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        for j, (rows, (per_error, per_output)) in enumerate(zip(k["rows"], k["takeover"])):
+            if len(rows) and k["gain"][j] != 0.0:
+                x[rows] = per_error * e[j] + per_output * (output[j] / k["gain"][j] - k["d"][j] * e[j])
         return x
+
+
+def _takeover(a: np.ndarray, b: np.ndarray, c: np.ndarray, j: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Joint j's bumpless state as x = per_error e + per_output (u/gain - D e): the columns of
+    the pseudo-inverse of [[I - A], [w C]] that multiply the right-hand side [B e; w (u/gain - D e)]."""
+    n = len(rows)
+    lhs = np.vstack([np.eye(n) - a[np.ix_(rows, rows)], OUTPUT_WEIGHT * c[j, rows][None, :]])
+    inverse = np.linalg.pinv(lhs)
+    return inverse[:, :n] @ b[rows, j], inverse[:, n] * OUTPUT_WEIGHT
 
 
 class LTIWithDOB(WithDisturbanceObserver):

@@ -7,7 +7,9 @@
         c.path("circle", duration_s=40)
 
 Replies are matched to requests by id; a reply that never comes raises TimeoutError
-instead of hanging. ``keep_lease()`` renews the lease from a background thread.
+instead of hanging. A command whose reply is deferred (planned or built beside the loop:
+``protocol.DEFERRED_COMMANDS``) is waited for as long as the daemon's ``describe`` says such
+work may take. ``keep_lease()`` renews the lease from a background thread.
 """
 from __future__ import annotations
 
@@ -27,9 +29,9 @@ from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 class RemoteError(RuntimeError):
     """The daemon answered with an error."""
 
-    def __init__(self, code: str, message: str):
+    def __init__(self, code: str, message: str, data: dict | None = None):
         super().__init__(f"{code}: {message}")
-        self.code, self.message = code, message
+        self.code, self.message, self.data = code, message, data
 
 
 class Client:
@@ -44,6 +46,7 @@ class Client:
         self.lease: str | None = None
         self._keeper: threading.Thread | None = None
         self._keeping = threading.Event()
+        self._deferred_timeout: float | None = None  # from describe, on the first deferred command
 
     def _dealer(self, endpoint: str) -> zmq.Socket:
         sock = self.context.socket(zmq.DEALER)
@@ -72,6 +75,8 @@ class Client:
     # -- requests -------------------------------------------------------------------------
     def call(self, cmd: str, args: dict | None = None, control: bool = False, timeout: float | None = None):
         """Send one request and wait for its reply; raise RemoteError or TimeoutError."""
+        if timeout is None and cmd in protocol.DEFERRED_COMMANDS:
+            timeout = max(self.timeout, self.deferred_timeout())
         with self._lock:
             sock = self._sockets["control" if control else "command"]
             request_id = next(self._ids)
@@ -87,8 +92,14 @@ class Client:
                     break  # earlier replies that arrived after their timeout are dropped
         if not reply.get("ok"):
             error = reply.get("error", {})
-            raise RemoteError(error.get("code", "?"), error.get("message", ""))
+            raise RemoteError(error.get("code", "?"), error.get("message", ""), error.get("data"))
         return reply.get("result")
+
+    def deferred_timeout(self) -> float:
+        """How long a deferred reply may take [s]: the daemon's own limit, and a margin."""
+        if self._deferred_timeout is None:
+            self._deferred_timeout = float(self.describe()["deferred_timeout_s"]) + 2.0
+        return self._deferred_timeout
 
     def ping(self):
         return self.call("ping")

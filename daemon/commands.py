@@ -205,6 +205,7 @@ class Commands:
             "controller": loop.controller.name,
             "shadow": loop.shadow.summary() if loop.shadow is not None else None,
             "reference": loop.trajectory_name if loop.supervisor.enabled else None,
+            "reference_remaining_s": loop.reference_remaining() if loop.supervisor.enabled else 0.0,
             "joints": {name: {"angle_deg": math.degrees(q), "setpoint_deg": math.degrees(r),
                               "velocity_deg_s": math.degrees(w), "u_volts": u}
                        for name, q, r, w, u in zip(loop.io.joint_names, loop.angles, loop.reference[0],
@@ -246,7 +247,7 @@ class Commands:
             "states": [s.value for s in State],
             "commands": sorted(self.TABLE),
             "control_commands": sorted(k for k, v in self.TABLE.items() if v[2]),
-            "deferred_commands": sorted([*PLANNED, "controller.switch", "controller.shadow", "controller.set"]),
+            "deferred_commands": sorted(P.DEFERRED_COMMANDS),
             "deferred_timeout_s": self.preparer.time_limit_s,
         }
 
@@ -294,8 +295,8 @@ class Commands:
         reference or the state changed meanwhile."""
         loop = self.loop
         self._require_enabled()
-        remaining = loop.trajectory.duration - (loop.clock.now() - loop.trajectory_t0)
-        if loop.trajectory.duration > 0 and remaining > 0:
+        remaining = loop.reference_remaining()
+        if remaining > 0:
             raise CommandFailed(P.BAD_STATE, f"a reference ({loop.trajectory_name}) is running for {remaining:.1f} s "
                                              f"more: abort it first, or send this once it ends",
                                 {"reason": "reference_running", "remaining_s": remaining})

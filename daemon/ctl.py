@@ -134,15 +134,31 @@ def main(argv=None) -> int:
         result = run(client, args)
     except RemoteError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        if exc.data:
+            print(json.dumps(exc.data, indent=2), file=sys.stderr)
         return 1
     except TimeoutError as exc:
-        print(f"error: {exc} (is pneumad running?)", file=sys.stderr)
+        print(f"error: {exc}{timeout_hint(client)}", file=sys.stderr)
         return 2
     finally:
         client.close()
+    if isinstance(result, dict) and result.get("approach_chosen"):
+        print(f"approach: {result['approach_s']:g} s to the start (the shortest feasible, with a margin; "
+              f"--approach S to choose)", file=sys.stderr)
     if result is not None:
         print(json.dumps(result, indent=2))
     return 0
+
+
+def timeout_hint(client: Client) -> str:
+    """Whether the daemon is there at all: a quick ping on the control socket."""
+    try:
+        client.call("ping", control=True, timeout=0.5)
+    except RemoteError:
+        return " (pneumad answers, but not this request: see `pneumactl status`)"
+    except TimeoutError:
+        return " (is pneumad running?)"
+    return " (pneumad is running: the request may still be in progress, see `pneumactl status`)"
 
 
 def run(client: Client, args):

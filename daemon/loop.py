@@ -252,6 +252,12 @@ class ControlLoop:
     def hold_position(self) -> None:
         self.set_trajectory(HoldPosition(self.angles), "hold")
 
+    def reference_remaining(self) -> float:
+        """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""
+        if self.trajectory.duration <= 0.0:
+            return 0.0
+        return max(self.trajectory.duration - (self.clock.now() - self.trajectory_t0), 0.0)
+
     def set_trajectory(self, trajectory: Trajectory, name: str) -> None:
         self.trajectory, self.trajectory_name = trajectory, name
         self.trajectory_generation += 1

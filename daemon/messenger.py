@@ -12,6 +12,13 @@ e-stop never waits behind a flood of commands. The messenger sleeps in one poll 
 sockets and a *doorbell* pipe the loop writes a byte to in a cycle that queued replies (one
 cheap system call, only then); telemetry waits at most ``IDLE_POLL_MS`` in its ring.
 
+It also watches the loop: the loop counts its cycles into a shared *heartbeat*; when the
+count stops for ``STALL_S`` the messenger answers for it instead of leaving clients in
+silence (``loop_stalled``: command-socket requests are refused and never reach the loop;
+control-socket requests, e-stop first, are still queued for the moment it resumes and said to
+be so), and publishes a ``loop_stalled`` event, then ``loop_resumed``. Its events share the
+``event`` topic's ``seq`` with the loop's (later loop events are renumbered after them).
+
 It runs at normal priority on the CPUs the daemon had before its real-time set-up, ends
 when the loop's telemetry ring says so or its parent is gone (SIGINT and SIGTERM, which
 reach the whole process group, are the daemon's to act on), and the daemon starts another
@@ -24,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import mmap
 import os
 import select
 import signal
@@ -32,6 +40,7 @@ import subprocess
 import sys
 import time
 
+import msgpack
 import zmq
 
 from daemon import protocol, realtime
@@ -47,6 +56,8 @@ ROUTER_HWM = 1000
 IDLE_POLL_MS = 2  # telemetry waits at most this long in the ring [ms]
 OWED_LIMIT_S = 60.0  # a reply owed this long is forgotten (the loop always answers sooner)
 CLOSE_LINGER_MS = 500  # how long the last messages may take to leave at exit
+STALL_S = 0.5  # a loop whose cycle count has not moved for this long is answered for [s]
+_BEAT = struct.Struct("<Q")
 START_TIMEOUT_S = 30.0
 log = logging.getLogger("pneumad")
 
@@ -57,6 +68,31 @@ class MessengerError(RuntimeError):
 
 def create_rings(directory: str) -> dict[str, Ring]:
     return {name: Ring(os.path.join(directory, name), size) for name, size in RING_BYTES.items()}
+
+
+class Heartbeat:
+    """The loop's cycle count in shared memory: the loop writes it every cycle (one store),
+    the messenger reads it to tell a running loop from a stalled one."""
+
+    def __init__(self, directory: str, create: bool = False):
+        path = os.path.join(directory, "heartbeat")
+        if create:
+            with open(path, "wb") as f:
+                f.truncate(_BEAT.size)
+        fd = os.open(path, os.O_RDWR)
+        try:
+            self._map = mmap.mmap(fd, _BEAT.size)
+        finally:
+            os.close(fd)
+
+    def beat(self, cycle: int) -> None:
+        _BEAT.pack_into(self._map, 0, cycle)
+
+    def read(self) -> int:
+        return _BEAT.unpack_from(self._map, 0)[0]
+
+    def close(self) -> None:
+        self._map.close()
 
 
 class Messenger:
@@ -168,7 +204,7 @@ def main(argv=None) -> int:
     rings = {name: Ring(os.path.join(args.rings, name)) for name in RING_BYTES}
     print("ready", *(sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")),
           flush=True)
-    Relay(sockets, rings, args.doorbell).run(lambda: os.getppid() == parent)
+    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings)).run(lambda: os.getppid() == parent)
     sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)
     for sock in sockets.values():
         sock.close()
@@ -180,9 +216,13 @@ class Relay:
     """Moves requests from the ROUTER sockets into the loop's rings, and replies and
     telemetry from the loop's rings onto the sockets."""
 
-    def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int):
-        self.sockets, self.rings, self.doorbell = sockets, rings, doorbell
-        self.owed: dict[int, tuple[zmq.Socket, list, float]] = {}  # token -> (socket, envelope, when)
+    def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat):
+        self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
+        self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
+        self._cycle, self._cycle_seen = heartbeat.read(), time.monotonic()  # the loop's count and when it moved
+        self.stalled_since: float | None = None
+        self._event_seq = 0  # the last event seq sent
+        self._injected = 0  # events of this process's own so far: loop events are renumbered after them
         self._tokens = iter(range(1, 1 << 62))
         self.poller = zmq.Poller()
         for name in ("control", "command"):
@@ -204,6 +244,7 @@ class Relay:
                 self._send_replies()  # the loop's last answers, then stop
                 return
             now = time.monotonic()
+            self._watch_loop(now)
             if now - last_check > 0.5:
                 last_check = now
                 if not parent_alive():
@@ -211,16 +252,60 @@ class Relay:
                 self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
 
     def _take_requests(self, name: str) -> None:
-        """Every waiting request that fits in the loop's ring; the rest stay queued in ZeroMQ."""
+        """Every waiting request that fits in the loop's ring; the rest stay queued in ZeroMQ.
+        While the loop is stalled, command-socket requests are refused here instead."""
         sock, ring = self.sockets[name], self.rings[name]
         while ring.free() >= protocol.MAX_MESSAGE_BYTES + 64:
             try:
                 frames = sock.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
                 return
+            if self.stalled_since is not None and name == "command":
+                self._answer_stalled(sock, frames[:-1], _request_id(frames[-1]),
+                                     "refused without reaching the loop: nothing was done")
+                continue
             token = next(self._tokens)
             ring.put(token, frames[-1])
-            self.owed[token] = (sock, frames[:-1], time.monotonic())
+            if self.stalled_since is not None:  # a control request: kept for the loop, answered now
+                self._answer_stalled(sock, frames[:-1], _request_id(frames[-1]),
+                                     "queued: it takes effect if the loop resumes")
+            else:
+                self.owed[token] = (sock, frames[:-1], time.monotonic(), _request_id(frames[-1]))
+
+    # -- the loop's heartbeat --------------------------------------------------------------
+    def _watch_loop(self, now: float) -> None:
+        cycle = self.heartbeat.read()
+        if cycle != self._cycle:
+            self._cycle, self._cycle_seen = cycle, now
+            if self.stalled_since is not None:
+                self._event({"kind": "loop_resumed", "cycle": cycle, "stalled_s": now - self.stalled_since})
+                self.stalled_since = None
+        elif cycle and self.stalled_since is None and now - self._cycle_seen > STALL_S:
+            self.stalled_since = self._cycle_seen
+            self._event({"kind": "loop_stalled", "cycle": cycle,
+                         "cause": f"the loop has not cycled for {(now - self._cycle_seen) * 1e3:.0f} ms"})
+            for token, (sock, envelope, _, request_id) in list(self.owed.items()):  # taken before the stall
+                del self.owed[token]
+                self._answer_stalled(sock, envelope, request_id, "taken before the stall: it runs if the loop resumes, "
+                                                           "and its own reply is lost")
+
+    def _answer_stalled(self, sock: zmq.Socket, envelope: list, request_id, what: str) -> None:
+        since = time.monotonic() - self._cycle_seen
+        reply = protocol.encode_error(request_id, protocol.LOOP_STALLED,
+                                      f"the control loop has not cycled for {since:.1f} s (last cycle {self._cycle}); "
+                                      f"this request was {what}",
+                                      {"reason": "loop_stalled", "stalled_s": since, "cycle": self._cycle})
+        try:
+            sock.send_multipart([*envelope, reply], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass
+
+    def _event(self, event: dict) -> None:
+        """Publish an event of the messenger's own, numbered in the loop's event sequence."""
+        self._injected += 1
+        self._event_seq += 1
+        body = msgpack.packb({"t": time.monotonic(), **event, "seq": self._event_seq, "source": "messenger"})
+        self.sockets["telemetry"].send_multipart((b"event", body))
 
     def _send_replies(self) -> None:
         ring = self.rings["replies"]
@@ -244,11 +329,23 @@ class Relay:
                 self._bad(tag, "unknown topic")
                 continue
             topic = TOPICS[tag]
+            if topic == b"event":
+                body = self._renumber(body)
             try:
                 pub.send_multipart((topic, to_payload(topic, body)))  # PUB drops at a subscriber's high-water mark
             except (struct.error, IndexError) as exc:
                 self._bad(tag, str(exc))
         return True
+
+    def _renumber(self, body: bytes) -> bytes:
+        """A loop event, its seq moved past the messenger's own events (events are rare)."""
+        try:
+            event = msgpack.unpackb(body, raw=False)
+        except Exception:
+            return body
+        event["seq"] += self._injected
+        self._event_seq = event["seq"]
+        return msgpack.packb(event) if self._injected else body
 
     @staticmethod
     def _get(ring: Ring) -> tuple[int, bytes] | None:
@@ -265,6 +362,15 @@ class Relay:
     def _bad(tag: int, why: str) -> None:
         """Only the loop writes the telemetry ring: a bad entry is a bug, said loudly, and skipped."""
         print(f"pneumad messenger: dropped a telemetry entry (tag {tag}): {why}", file=sys.stderr, flush=True)
+
+
+def _request_id(request: bytes):
+    """A request's id as the loop would echo it (None if it cannot be read), for a reply the
+    messenger gives itself."""
+    try:
+        return protocol.decode_request(request)["id"]
+    except protocol.ProtocolError as exc:
+        return exc.request_id
 
 
 if __name__ == "__main__":

@@ -11,6 +11,11 @@ import msgpack
 VERSION = 1
 MAX_MESSAGE_BYTES = 64 * 1024  # larger frames are dropped by ZeroMQ before they are read
 
+# Commands whose reply waits for work beside the loop (a plan, a controller build): a client
+# waits for them up to describe's ``deferred_timeout_s``.
+DEFERRED_COMMANDS = ("set", "path", "waypoints", "steps", "excite", "controller.switch", "controller.shadow",
+                     "controller.set")
+
 # Error codes a client can branch on.
 BAD_MESSAGE = "bad_message"  # not msgpack, not a map, or a field of the wrong type
 BAD_VERSION = "bad_version"

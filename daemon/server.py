@@ -16,7 +16,7 @@ import shutil
 import tempfile
 
 from daemon.commands import Commands
-from daemon.messenger import END, TOPICS, Messenger, create_rings
+from daemon.messenger import END, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.preparation import Deferred
 from daemon.ring import Ring, RingError
 
@@ -34,6 +34,7 @@ class ZmqServer:
         self.max_per_cycle = max_per_cycle
         self._rings_dir = tempfile.mkdtemp(prefix="pneumad-rings-", dir=_shm_dir())
         self.rings = create_rings(self._rings_dir)
+        self.heartbeat = Heartbeat(self._rings_dir, create=True)
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry)
@@ -64,7 +65,9 @@ class ZmqServer:
 
     def poll(self, loop) -> None:
         """Once a cycle, at its end: the lease clock, then the control requests, then a few
-        commands; once a second, the messenger process."""
+        commands; once a second, the messenger process. The heartbeat tells the messenger the
+        loop is cycling."""
+        self.heartbeat.beat(loop.cycle)
         self.commands.tick()
         if self._waiting:
             self._complete()
@@ -126,6 +129,7 @@ class ZmqServer:
     def _release_rings(self) -> None:
         for ring in self.rings.values():
             ring.close()
+        self.heartbeat.close()
         os.close(self._doorbell)
         os.close(self._doorbell_read)
         shutil.rmtree(self._rings_dir, ignore_errors=True)

@@ -47,7 +47,7 @@ class SimOptions:
     adc_bits: int = 16
     dac_bits: int = 16
     adc_noise_volts: float = 0.0  # standard deviation of seeded Gaussian noise on every input [V]
-    max_catch_up_s: float = 0.1  # real-time mode: a longer stall pauses the plant instead
+    max_catch_up_s: float = 30.0  # real-time mode: the plant catches up a stall this long; a longer one pauses it
     joints: dict[str, SimJointOptions] = field(default_factory=dict)
     wall: WallOptions = WallOptions()
 

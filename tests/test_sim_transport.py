@@ -142,12 +142,15 @@ def test_real_time_mode_follows_the_wall_clock():
     assert transport.arm.joints[0]._k >= 15  # at least most of 20 ms, however loaded the machine
 
 
-def test_a_long_stall_pauses_the_plant_instead_of_blocking():
+def test_the_plant_runs_on_through_a_stall_and_pauses_only_beyond_max_catch_up():
     sim = make_rig()
-    sim.clock.sleep_until(5.0)
+    sim.clock.sleep_until(5.0)  # a 5 s stall: the plant moves on under the held outputs, as a real arm
     sim.io.read()
-    assert sim.arm.joints[0]._k == 100  # max_catch_up_s = 0.1 s of steps
-    assert sim.transport.health().counters["plant_steps_skipped"] == 4900
+    assert sim.arm.joints[0]._k == 5000 and "plant_steps_skipped" not in sim.transport.health().counters
+    sim.clock.sleep_until(5.0 + 40.0)  # beyond max_catch_up_s = 30 s: the rest is skipped and counted
+    sim.io.read()
+    assert sim.arm.joints[0]._k == 5000 + 30000
+    assert sim.transport.health().counters["plant_steps_skipped"] == 10000
 
 
 def test_wall_contact_reads_on_the_force_sensor():

@@ -1,0 +1,77 @@
+"""README.md's tour, read from README.md and run line by line against a real daemon, as a
+user would type it: so the README cannot drift from what the daemon does.
+
+Each ``pneumactl`` line runs through bash as written (``.venv/bin/`` is this interpreter's
+bin directory), in the repository, and must exit 0. Before a motion line the test waits for
+the reference in force to end, as a user would (a motion command while another runs is
+refused by design); ``watch`` is left with Ctrl-C after a moment.
+"""
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon.client import Client
+from tests.processes import spawn_daemon
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = str(Path(sys.executable).parent) + "/"
+MOTION = ("set", "path", "waypoints", "steps", "excite")
+
+pytestmark = pytest.mark.slow
+
+
+def tour_lines() -> list[str]:
+    """The ``pneumactl`` lines of the README's tour, comments stripped, continuations joined."""
+    text = (ROOT / "README.md").read_text()
+    section = text.split("## A short tour", 1)[1].split("\n## ", 1)[0]
+    lines = [re.sub(r"\s+#.*$", "", line.strip()) for line in section.splitlines()]
+    return [line for line in lines if line.startswith(".venv/bin/pneumactl ")]
+
+
+def wait_for_reference_end(client: Client, limit_s: float = 60.0) -> None:
+    deadline = time.monotonic() + limit_s
+    while (remaining := client.status()["reference_remaining_s"]) > 0:
+        assert time.monotonic() + remaining < deadline, f"the reference runs {remaining:.1f} s more"
+        time.sleep(min(remaining, 1.0) + 0.05)
+
+
+def test_the_readme_tour_runs_as_written(tmp_path):
+    lines = tour_lines()
+    assert len(lines) >= 15 and any(" watch" in line for line in lines)
+    daemon = spawn_daemon([BIN + "pneumad", "--no-rt"], cwd=ROOT)  # the tour's own daemon line
+    try:
+        with Client(timeout=5.0) as client:
+            client.ping()
+            for line in lines:
+                command = line.replace(".venv/bin/", BIN, 1)
+                words = line.split()
+                if words[1] in MOTION:
+                    wait_for_reference_end(client)
+                if words[1] == "watch":
+                    proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=tmp_path if False else ROOT,
+                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                    time.sleep(2.0)
+                    proc.send_signal(signal.SIGINT)
+                    out, err = proc.communicate(timeout=10)
+                    assert proc.returncode == 0 and "cycle" in out, (line, out, err)
+                    continue
+                done = subprocess.run(["bash", "-c", command], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}"
+                state = client.status()["state"]
+                expected = {"enable": "enabled", "estop": "estop", "reset": "idle", "disable": "idle"}.get(words[1])
+                assert expected in (None, state), (line, state)
+                assert state != "fault", (line, client.status()["cause"])
+            status = client.status()
+            assert status["overruns_total"] == 0 or status["trips"] == 0
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        daemon.wait(timeout=10)
+        for name in ("run.pnrec", "run.csv"):
+            (ROOT / name).unlink(missing_ok=True)
