@@ -67,6 +67,8 @@ class Commands:
         "lease.release": ("lease_release", True, False),
     }
 
+    BESIDE = frozenset({"motion", "controller_switch", "controller_set", "controller_shadow"})
+
     def __init__(self, loop, preparer: Preparer | None = None):
         self.loop = loop
         self.lease: str | None = None
@@ -143,8 +145,8 @@ class Commands:
                                                    f"(it serves {served}; send it on the command socket)")
         if needs_lease:
             self._check_lease(request["lease"])
-        if method == "motion":
-            return self.motion(request)
+        if method in self.BESIDE:  # its arguments are decoded beside the loop, with its work
+            return getattr(self, method)(request)
         return getattr(self, method)(P.decode_args(request))
 
     def tick(self) -> None:
@@ -336,53 +338,38 @@ class Commands:
         c = self.loop.controller
         return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
 
-    def _candidate_args(self, args) -> tuple[str, dict, dict]:
-        only(args, "name", "params", "options")
-        name = args.get("name")
-        if not isinstance(name, str):
-            raise bad_args("'name' must be a controller name")
-        params, options = args.get("params", {}), args.get("options", {})
-        if not isinstance(params, dict) or not isinstance(options, dict):
-            raise bad_args("'params' and 'options' must be maps")
-        return name, params, options
-
-    def controller_switch(self, args):
-        """Build a controller off the loop, then swap it in at a cycle boundary (bumpless)."""
-        name, params, options = self._candidate_args(args)
+    def controller_switch(self, request):
+        """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless)."""
 
         def finish(new):
             self.loop.switch_controller(new)
             return {"active": new.name, "params": new.get_params(), "cycle": self.loop.cycle}
 
-        return self._off_loop(finish, registry.build, name, self.loop.context, params, options)
+        return self._off_loop(finish, planner.build_controller, self.loop.context, request)
 
-    def controller_set(self, args):
-        """Validate and derive a parameter change off the loop; apply it at a cycle boundary."""
-        only(args, "params")
-        params = args.get("params")
-        if not isinstance(params, dict) or not params:
-            raise bad_args("'params' must be a non-empty map")
+    def controller_set(self, request):
+        """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
         c = self.loop.controller
 
         def finish(prepared):
             if self.loop.controller is not c:
                 raise CommandFailed(P.REFUSED, f"the controller changed to {self.loop.controller.name} while the "
-                                               f"change for {c.name} was prepared; nothing was applied")
+                                               f"change for {c.name} was prepared; nothing was applied",
+                                    {"reason": "overtaken"})
             c.apply_params(prepared)
             return {"name": c.name, "params": c.get_params(), "cycle": self.loop.cycle}
 
-        return self._off_loop(finish, registry.prepare_change, type(c), c.context, c.given_options,
-                              c.get_params(), params)
+        return self._off_loop(finish, planner.prepare_change, type(c), c.context, c.given_options, c.get_params(),
+                              request)
 
-    def controller_shadow(self, args):
-        """Build a candidate off the loop and run it beside the active controller, unapplied."""
-        name, params, options = self._candidate_args(args)
+    def controller_shadow(self, request):
+        """Build a candidate beside the loop and run it beside the active controller, unapplied."""
 
         def finish(candidate):
             self.loop.start_shadow(candidate)
             return {"shadow": candidate.name, "active": self.loop.controller.name, "cycle": self.loop.cycle}
 
-        return self._off_loop(finish, registry.build, name, self.loop.context, params, options)
+        return self._off_loop(finish, planner.build_controller, self.loop.context, request)
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""

@@ -173,7 +173,7 @@ class ControlLoop:
         if wake >= self._stats_due - 0.5 * self.period:  # half a period absorbs float rounding
             self._stats_due += self.stats_period
             if self.telemetry is not None:
-                self.telemetry.stats(self.stats.summary(self.period))
+                self.telemetry.stats({**self.stats.summary(self.period), "t": wake})
             self.stats.reset()
         t4 = clock.now()
         if self.server is not None:

@@ -1,7 +1,11 @@
-"""Motion planning, beside the loop: the planner's side of the motion commands.
+"""The planner's side of the commands: everything a request asks for whose cost grows with its
+arguments or the rig, beside the loop.
 
-Runs in the preparation worker process (:mod:`daemon.preparation`), never in the loop's: it
-decodes a motion request's arguments (up to a 64 KiB list of waypoints), checks them, builds
+Runs in the preparation worker process (:mod:`daemon.preparation`), never in the loop's.
+Controller commands: decode the arguments, then build and validate a controller (a design's
+c2d, a Riccati solve) or derive a parameter change (:func:`build_controller`,
+:func:`prepare_change`). Motion commands: decode the arguments (up to a 64 KiB list of
+waypoints), check them, build
 the reference (inverse kinematics over a path, waypoint and step tables), checks it against
 the joint limits, the arm's reach and the rig's authority (:mod:`controllers.feasibility`),
 chooses the approach move's duration when the request does not, and hands back a finished
@@ -17,7 +21,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from controllers import signals, trajectory
+from controllers import registry, signals, trajectory
+from controllers.base import Controller, ControllerContext
 from controllers.feasibility import Authority, Infeasible
 from daemon import protocol as P
 from daemon.arguments import (
@@ -68,6 +73,30 @@ class Plan:
     name: str  # what status.reference shows while it runs
     reply: dict
     start: tuple[float, ...]  # the set-point it was planned from [rad]
+
+
+def build_controller(context: ControllerContext, request: dict) -> Controller:
+    """``controller.switch`` / ``controller.shadow``: the named controller, built and validated."""
+    args = P.decode_args(request)
+    only(args, "name", "params", "options")
+    name = args.get("name")
+    if not isinstance(name, str):
+        raise bad_args("'name' must be a controller name", "name")
+    params, options = args.get("params", {}), args.get("options", {})
+    if not isinstance(params, dict) or not isinstance(options, dict):
+        raise bad_args("'params' and 'options' must be maps", "params" if not isinstance(params, dict) else "options")
+    return registry.build(name, context, params, options)
+
+
+def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,
+                   request: dict):
+    """``controller.set``: the running controller's change, derived whole by a twin."""
+    args = P.decode_args(request)
+    only(args, "params")
+    params = args.get("params")
+    if not isinstance(params, dict) or not params:
+        raise bad_args("'params' must be a non-empty map", "params")
+    return registry.prepare_change(cls, context, options, values, params)
 
 
 def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:

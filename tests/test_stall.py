@@ -1,7 +1,7 @@
 """A loop that is late anyway: a cycle that runs too long trips and writes the safe state at
 once, and while the loop does not cycle the messenger answers for it (``loop_stalled``) and
-says so on telemetry, so no client waits in silence and nothing it was refused runs later."""
-import sys
+says so on telemetry, so no client waits in silence and nothing it was refused runs later.
+(That planning never runs in the loop's process is tests/test_every_command.py's.)"""
 import time
 
 import msgpack
@@ -98,34 +98,3 @@ def test_while_the_loop_does_not_cycle_the_messenger_answers_for_it_and_refused_
         assert call(loop, command, "ping")["ok"]
     finally:
         srv.close()
-
-
-def test_planning_never_runs_in_the_loops_process(monkeypatch):
-    """Structural: with the feasibility check and the reference builders made to fail in
-    this (the loop's) process, every motion command still plans, so all of that work ran in
-    the worker process."""
-    from controllers import feasibility, trajectory
-
-    def not_here(*args, **kwargs):
-        raise AssertionError("planning ran in the loop's process")
-
-    loop, _, srv = make_loop(server=True)
-    try:
-        for target in (feasibility.Authority.check, feasibility.Authority.shortest, trajectory.JointMove.profile,
-                       trajectory.CartesianPath.profile, trajectory.first_outside_limits):
-            monkeypatch.setattr(_owner(target), target.__name__, not_here)
-        sock = dealer(srv)
-        lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
-        ok(loop, sock, "enable", lease=lease)
-        started = ok(loop, sock, "path", {"name": "translation"}, lease)
-        assert started["approach_chosen"] and loop.trajectory_name == "translation"
-    finally:
-        srv.close()
-
-
-def _owner(function):
-    """The class or module a function was looked up on."""
-    module = sys.modules[function.__module__]
-    owner_name = function.__qualname__.rpartition(".")[0]
-    return getattr(module, owner_name) if owner_name else module
-

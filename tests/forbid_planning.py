@@ -1,0 +1,37 @@
+"""``python -m tests.forbid_planning [pneumad options]``: the real daemon, with the planning
+code made to fail in the daemon's own process. Its worker processes are spawned fresh and
+keep the real code, so a daemon run this way works exactly when every limit and authority
+check, reference profile, design parse and parameter derivation runs beside the loop: a
+structural proof, used by tests/test_every_command.py, with no timing in it."""
+import sys
+
+from controllers import feasibility, lti_design, registry, signals, trajectory  # noqa: F401 (signals: subclasses)
+from daemon import main
+from hal import kinematics
+
+
+def forbidden(*args, **kwargs):
+    raise AssertionError("planning ran in the loop's process")
+
+
+def _subclasses(cls):
+    for sub in cls.__subclasses__():
+        yield sub
+        yield from _subclasses(sub)
+
+
+def forbid() -> None:
+    for cls in (trajectory.Trajectory, *_subclasses(trajectory.Trajectory)):
+        if "profile" in vars(cls):
+            setattr(cls, "profile", forbidden)
+    for name in ("check", "shortest", "shortfalls"):
+        setattr(feasibility.Authority, name, forbidden)
+    trajectory.first_outside_limits = forbidden
+    kinematics.inverse_2link_array = forbidden
+    lti_design.parse = forbidden
+    registry.prepare_change = forbidden
+
+
+if __name__ == "__main__":
+    forbid()
+    sys.exit(main.main(sys.argv[1:]))
