@@ -1,17 +1,35 @@
 """Every command of docs/protocol.md, accepted and refused, with its largest allowed arguments
 (bench/command_cases.py), sent to a real daemon whose own process cannot plan
-(tests/forbid_planning.py): each gets its documented reply, none reaches planning code in the
-loop's process (that would answer ``internal``), and none trips the loop. How long the loop
-took meanwhile is bench/command_stall.py's to measure, not a test's."""
+(tests/forbid_planning.py): each gets its documented reply, valid against the published
+schemas (docs/schemas), none reaches planning code in the loop's process (that would answer
+``internal``), and none trips the loop. The telemetry published meanwhile is checked against
+its schema too. How long the loop took is bench/command_stall.py's to measure, not a test's."""
+import itertools
+import json
 import subprocess
 import sys
+import time
+from pathlib import Path
 
+import jsonschema
+import msgpack
 import pytest
+import zmq
 
-from bench.command_cases import CASES, prepare, send
-from daemon.client import Client, RemoteError
+from bench.command_cases import CASES, prepare
+from daemon import protocol as P
+from daemon.client import Client
 
+SCHEMAS = Path(__file__).resolve().parents[1] / "docs" / "schemas"
 pytestmark = pytest.mark.slow
+_ids = itertools.count(1)
+
+
+def schema(name: str, definition: str | None = None) -> jsonschema.Draft202012Validator:
+    doc = json.loads((SCHEMAS / f"{name}.schema.json").read_text())
+    if definition is not None:
+        doc = {"$schema": doc["$schema"], **doc["$defs"][definition]}
+    return jsonschema.Draft202012Validator(doc)
 
 
 @pytest.fixture(scope="module")
@@ -19,27 +37,65 @@ def daemon(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("every-command")
     eps = {name: f"ipc://{tmp}/{name}" for name in ("command", "control", "telemetry")}
     proc = subprocess.Popen([sys.executable, "-m", "tests.forbid_planning", "run", "--no-rt", "--log-level", "WARNING",
-                             *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+                             "--stats-period", "0.2", *sum(([f"--{k}", v] for k, v in eps.items()), [])])
     client = Client(**eps, timeout=5.0)
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.RCVHWM, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(eps["telemetry"])
     try:
         client.call("ping", timeout=60.0)
         client.acquire_lease(ttl_s=60.0)
         client.keep_lease()
-        yield client
+        yield client, eps, sub
     finally:
         client.close()
+        sub.close()
         proc.terminate()
         proc.wait(10)
 
 
+def raw_call(client: Client, eps: dict, cmd: str, args: dict, control: bool) -> dict:
+    """The whole reply map, as a client in any language would see it."""
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(eps["control" if control else "command"])
+    try:
+        sock.send(P.encode_request(next(_ids), cmd, args, client.lease))
+        assert sock.poll(40_000), f"no reply to {cmd}"
+        return msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+    finally:
+        sock.close()
+
+
 @pytest.mark.parametrize("case", CASES, ids=[c.label for c in CASES])
 def test_every_command_gets_its_documented_reply_and_never_stalls_the_loop(daemon, case):
-    prepare(daemon, case)
-    trips = daemon.status()["trips"]
-    reply = send(daemon, case)
-    code = reply.code if isinstance(reply, RemoteError) else None
-    assert code == case.expect, f"{case.label}: {reply}"
-    if isinstance(reply, RemoteError):
-        assert reply.message and reply.code != "internal"
-    status = daemon.status()
+    client, eps, _ = daemon
+    prepare(client, case)
+    trips = client.status()["trips"]
+    reply = raw_call(client, eps, case.cmd, case.args, case.control)
+    schema("reply").validate(reply)
+    if reply["ok"]:
+        assert case.expect is None, f"{case.label}: accepted, expected {case.expect}"
+        schema("results", case.cmd).validate(reply["result"])
+    else:
+        assert reply["error"]["code"] == case.expect, f"{case.label}: {reply['error']}"
+        if "data" in reply["error"]:
+            schema("error-data").validate(reply["error"]["data"])
+    status = client.status()
     assert status["trips"] == trips, status["cause"]
+
+
+def test_the_telemetry_published_meanwhile_matches_its_schema(daemon):
+    _, _, sub = daemon
+    seen = {"state": 0, "stats": 0, "event": 0}
+    validators = {topic: schema("telemetry", topic) for topic in seen}
+    end = time.monotonic() + 5.0  # what the cases' run left queued, and a little more
+    while time.monotonic() < end and sub.poll(200):
+        topic, body = sub.recv_multipart()
+        topic = topic.decode()
+        if topic != "state" or seen["state"] < 300:  # every event and stats window, a sample of the state stream
+            validators[topic].validate(msgpack.unpackb(body, raw=False))
+        seen[topic] += 1
+    assert seen["state"] > 300 and seen["stats"] and seen["event"] > 20, seen
