@@ -268,3 +268,25 @@ def test_an_infeasible_path_is_refused_with_the_numbers_and_the_shortest_duratio
     ok(loop, sock, "abort")
     slow = call(loop, sock, "set", {"angles_deg": [100.0, -60.0], "duration_s": 0.5}, lease)
     assert slow["error"]["code"] == P.REFUSED and "shortest feasible duration" in slow["error"]["message"]
+
+
+def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_codes():
+    """docs/protocol.md, its schemas and the daemon agree on the names a client branches on."""
+    import json
+    import re
+    from pathlib import Path
+
+    from daemon.commands import Commands
+
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    text = (docs / "protocol.md").read_text()
+    commands_table = text.split("## Commands", 1)[1].split("\n\n", 2)[1]
+    documented = set(re.findall(r"^\| `([a-z.]+)` \|", commands_table, re.M))
+    assert documented == set(Commands.TABLE)
+    codes_table = text.split("### Error codes", 1)[1].split("\n\n", 1)[0]
+    codes = {v for k, v in vars(P).items() if k.isupper() and isinstance(v, str) and k not in ("VERSION",)}
+    assert set(re.findall(r"^\| `([a-z_]+)` \|", codes_table, re.M)) == codes
+    reply = json.loads((docs / "schemas" / "reply.schema.json").read_text())
+    assert set(reply["oneOf"][1]["properties"]["error"]["properties"]["code"]["enum"]) == codes
+    results = json.loads((docs / "schemas" / "results.schema.json").read_text())
+    assert set(results["$defs"]) == set(Commands.TABLE)
