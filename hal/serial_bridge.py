@@ -145,15 +145,17 @@ class SerialBridgeTransport(Transport):
     def _receive(self) -> bool:
         """Take every complete reply waiting; True if a new sample came in."""
         fd = self._port.fileno()
-        try:
-            data = os.read(fd, 4096) if select.select([fd], [], [], 0)[0] else b""
-        except BlockingIOError:
-            data = b""
-        except OSError as exc:
-            self._lose(exc)
-        else:  # readable yet empty: how a tty says its device is gone (as pyserial reads it)
-            if not data and select.select([fd], [], [], 0)[0]:
-                self._lose(EOFError("the device reports data but returns none (disconnected?)"))
+        data = b""
+        if select.select([fd], [], [], 0)[0]:
+            try:
+                data = os.read(fd, 4096)
+            except BlockingIOError:
+                pass
+            except OSError as exc:
+                self._lose(exc)
+            else:  # readable, and then empty: how a tty says its device is gone (as pyserial reads it)
+                if not data:
+                    self._lose(EOFError("the device reports data but returns none (disconnected?)"))
         frames = self._reader.feed(data) if data else ()
         self._count_reader()
         fresh, sent = None, None
