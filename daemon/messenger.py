@@ -13,7 +13,7 @@ sockets and a *doorbell* pipe the loop writes a byte to in a cycle that queued r
 cheap system call, only then); telemetry waits at most ``IDLE_POLL_MS`` in its ring.
 
 It also watches the loop: the loop counts its cycles into a shared *heartbeat*; when the
-count stops for ``STALL_S`` the messenger answers for it instead of leaving clients in
+count stops for ``stall_s`` (``STALL_S``) the messenger answers for it instead of leaving clients in
 silence (``loop_stalled``: command-socket requests are refused and never reach the loop;
 control-socket requests, e-stop first, are still queued for the moment it resumes and said to
 be so), and publishes a ``loop_stalled`` event, then ``loop_resumed``. Its events share the
@@ -26,6 +26,7 @@ if it dies (:meth:`Messenger.check`): clients reconnect by themselves and reques
 are lost (a client's time-out says so); subscribers see the loss in ``seq``.
 
     python -m daemon.messenger --rings DIR --doorbell FD --command EP --control EP --telemetry EP [--cpus 0,1]
+                               [--stall-s 0.5]
 """
 from __future__ import annotations
 
@@ -56,7 +57,7 @@ ROUTER_HWM = 1000
 IDLE_POLL_MS = 2  # telemetry waits at most this long in the ring [ms]
 OWED_LIMIT_S = 60.0  # a reply owed this long is forgotten (the loop always answers sooner)
 CLOSE_LINGER_MS = 500  # how long the last messages may take to leave at exit
-STALL_S = 0.5  # a loop whose cycle count has not moved for this long is answered for [s]
+STALL_S = 0.5  # a loop whose cycle count has not moved for this long is answered for [s] (default)
 _BEAT = struct.Struct("<Q")
 START_TIMEOUT_S = 30.0
 log = logging.getLogger("pneumad")
@@ -98,8 +99,10 @@ class Heartbeat:
 class Messenger:
     """The daemon's handle on the messenger process."""
 
-    def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str):
+    def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
+                 stall_s: float = STALL_S):
         self.rings_dir = rings_dir
+        self.stall_s = stall_s
         self.doorbell = doorbell  # the read end of the loop's doorbell pipe, handed on to the process
         self.asked = {"command": command, "control": control, "telemetry": telemetry}
         self.endpoints: dict[str, str] = {}  # as bound (wildcard ports resolved)
@@ -122,7 +125,7 @@ class Messenger:
     def _spawn(self, endpoints: dict[str, str]) -> None:
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "daemon.messenger", "--rings", self.rings_dir, "--doorbell", str(self.doorbell),
-             "--cpus", self._cpus, *sum(([f"--{k}", v] for k, v in endpoints.items()), [])],
+             "--cpus", self._cpus, "--stall-s", str(self.stall_s), *sum(([f"--{k}", v] for k, v in endpoints.items()), [])],
             stdout=subprocess.PIPE, text=True, pass_fds=(self.doorbell,))
 
     def _line(self, timeout: float) -> str:
@@ -176,6 +179,7 @@ def main(argv=None) -> int:
     for name in ("command", "control", "telemetry"):
         ap.add_argument(f"--{name}", required=True)
     ap.add_argument("--cpus", default="")
+    ap.add_argument("--stall-s", type=float, default=STALL_S)
     args = ap.parse_args(argv)
     parent = os.getppid()
     die_with_parent()
@@ -204,7 +208,7 @@ def main(argv=None) -> int:
     rings = {name: Ring(os.path.join(args.rings, name)) for name in RING_BYTES}
     print("ready", *(sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")),
           flush=True)
-    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings)).run(lambda: os.getppid() == parent)
+    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), args.stall_s).run(lambda: os.getppid() == parent)
     sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)
     for sock in sockets.values():
         sock.close()
@@ -216,8 +220,10 @@ class Relay:
     """Moves requests from the ROUTER sockets into the loop's rings, and replies and
     telemetry from the loop's rings onto the sockets."""
 
-    def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat):
+    def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
+                 stall_s: float = STALL_S):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
+        self.stall_s = stall_s
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
         self._cycle, self._cycle_seen = heartbeat.read(), time.monotonic()  # the loop's count and when it moved
         self.stalled_since: float | None = None
@@ -280,7 +286,7 @@ class Relay:
             if self.stalled_since is not None:
                 self._event({"kind": "loop_resumed", "cycle": cycle, "stalled_s": now - self.stalled_since})
                 self.stalled_since = None
-        elif cycle and self.stalled_since is None and now - self._cycle_seen > STALL_S:
+        elif cycle and self.stalled_since is None and now - self._cycle_seen > self.stall_s:
             self.stalled_since = self._cycle_seen
             self._event({"kind": "loop_stalled", "cycle": cycle,
                          "cause": f"the loop has not cycled for {(now - self._cycle_seen) * 1e3:.0f} ms"})

@@ -16,7 +16,7 @@ import shutil
 import tempfile
 
 from daemon.commands import Commands
-from daemon.messenger import END, TOPICS, Heartbeat, Messenger, create_rings
+from daemon.messenger import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.preparation import Deferred
 from daemon.ring import Ring, RingError
 
@@ -30,14 +30,14 @@ _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 
 class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
-                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2):
+                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S):
         self.max_per_cycle = max_per_cycle
         self._rings_dir = tempfile.mkdtemp(prefix="pneumad-rings-", dir=_shm_dir())
         self.rings = create_rings(self._rings_dir)
         self.heartbeat = Heartbeat(self._rings_dir, create=True)
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
-        self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry)
+        self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s)
         try:
             self.endpoints = self.messenger.start()
         except Exception:

@@ -29,13 +29,17 @@ class Captured:
         return [m for t, m in self.messages if t == topic]
 
 
-def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid"):
+def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid", loop_stall_s: float = 60.0):
+    """The loop on a virtual clock. It cycles only while a test runs it, so the messenger's
+    stall watch (``loop_stall_s``) is set long: a test that thinks for a second between two
+    requests has not stalled a real-time loop."""
     rig = config.parse(rig_text) if rig_text else config.load()
     clock = VirtualClock()
     transport = create_transport(rig, clock.now)
     transport.open()
     io = RigIO(rig, transport)
-    srv = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*") if server else None
+    srv = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*",
+                    loop_stall_s=loop_stall_s) if server else None
     captured = Captured()
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
     loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send))

@@ -51,7 +51,7 @@ def test_a_cycle_that_runs_past_the_stall_limit_trips_and_writes_the_safe_state_
 
 
 def test_while_the_loop_does_not_cycle_the_messenger_answers_for_it_and_refused_requests_never_run():
-    loop, _, srv = make_loop(server=True)
+    loop, _, srv = make_loop(server=True, loop_stall_s=0.5)  # the daemon's own setting
     try:
         command, control = dealer(srv), dealer(srv, "control")
         sub = zmq.Context.instance().socket(zmq.SUB)
