@@ -30,7 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.nominal import NominalJoint
-from controllers.trajectory import Profile, Trajectory
+from controllers.profile import Profile
+from controllers.trajectory import Trajectory
 from hal.identified import K_EP
 
 

@@ -24,7 +24,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.signal import max_len_seq
 
-from controllers.trajectory import Profile, Sample, Trajectory
+from controllers.profile import Profile
+from controllers.trajectory import Sample, Trajectory
 
 CHIRP_FREQUENCIES = 256  # profile grid of a chirp: log-spaced frequencies ...
 CHIRP_PHASES = 32  # ... times phases over one period

@@ -11,7 +11,7 @@ Two sides, one object. The loop calls :meth:`Trajectory.sample` once a cycle: pl
 bounded work whatever the reference's size (a long waypoint path or step sequence finds its
 segment by bisection). The planner, beside the loop, calls :meth:`Trajectory.profile`: the
 demands (angle, rate, acceleration per joint) sampled along the whole reference as numpy
-arrays, for the limit and authority checks. A trajectory is built in the planner process
+arrays (:mod:`controllers.profile`), for the limit and authority checks. A trajectory is built in the planner process
 and sent to the loop whole, so it pickles small: long data are ``array('d')``, never lists
 of lists or one object per segment.
 """
@@ -23,10 +23,10 @@ import math
 from abc import ABC, abstractmethod
 from array import array
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 
+from controllers.profile import Profile, TipShape, cubic_array, tip_profile
 from hal import kinematics
 
 Sample = tuple[list[float], list[float], list[float]]  # angles, velocities, accelerations
@@ -36,27 +36,6 @@ MOVE_POINTS = 65  # ... along one cubic joint move
 PROFILE_BUDGET = 40000  # profile samples along a whole chain of segments (the points per segment shrink)
 
 
-class Profile(NamedTuple):
-    """A reference's demands sampled along it at its own duration: times (N,) [s] and
-    angles, rates, accelerations (N, joints) [rad, rad/s, rad/s^2]; NaN angles where a tip
-    path leaves the arm's reach."""
-
-    t: np.ndarray
-    q: np.ndarray
-    w: np.ndarray
-    a: np.ndarray
-
-    @classmethod
-    def concatenate(cls, parts: Sequence["Profile"], offsets: Sequence[float]) -> "Profile":
-        return cls(np.concatenate([p.t + o for p, o in zip(parts, offsets)]), *(
-            np.concatenate([getattr(p, k) for p in parts]) for k in ("q", "w", "a")))
-
-    @classmethod
-    def at_rest(cls, t: np.ndarray, q: np.ndarray) -> "Profile":
-        zeros = np.zeros_like(q)
-        return cls(t, q, zeros, zeros)
-
-
 def cubic(tau: float) -> tuple[float, float, float]:
     """s, ds/dtau, d2s/dtau2 of the cubic time scaling, tau clamped to [0, 1]."""
     if tau <= 0.0:
@@ -64,11 +43,6 @@ def cubic(tau: float) -> tuple[float, float, float]:
     if tau >= 1.0:
         return 1.0, 0.0, 0.0
     return 3 * tau * tau - 2 * tau ** 3, 6 * tau - 6 * tau * tau, 6 - 12 * tau
-
-
-def cubic_array(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`cubic` over an array of tau in [0, 1]."""
-    return 3 * tau ** 2 - 2 * tau ** 3, 6 * tau - 6 * tau ** 2, 6 - 12 * tau
 
 
 class Trajectory(ABC):
@@ -130,20 +104,6 @@ class JointMove(Trajectory):
         s, ds, dds = cubic_array(tau)
         T = self.duration
         return Profile(tau * T, q0 + np.outer(s, dq), np.outer(ds / T, dq), np.outer(dds / T ** 2, dq))
-
-
-class TipShape(ABC):
-    """A planar tip path p(sigma) [m], sigma in [0, 1], and its tangent dp/dsigma [m]."""
-
-    @abstractmethod
-    def point(self, s: float) -> tuple[float, float]: ...
-
-    @abstractmethod
-    def tangent(self, s: float) -> tuple[float, float]: ...
-
-    @abstractmethod
-    def points(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """x, y, dx/ds, dy/ds over an array of sigma."""
 
 
 class Line(TipShape):
@@ -217,34 +177,8 @@ class CartesianPath(Trajectory):
         return q, [(d * vx - b * vy) / det, (-c * vx + a * vy) / det]
 
     def profile(self, points: int = 0) -> Profile:
-        return _tip_profile([self.shape], [self.duration], points or PATH_POINTS, self.l1, self.l2, self.elbow,
+        return tip_profile([self.shape], [self.duration], points or PATH_POINTS, self.l1, self.l2, self.elbow,
                             len(self._rest))
-
-
-def _tip_profile(shapes: Sequence[TipShape], durations: Sequence[float], points: int, l1: float, l2: float,
-                 elbow: int, rest: int) -> Profile:
-    """The joint demands of tip shapes run one after another, each with cubic scaling over its
-    duration: inverse kinematics [2-9..2-14], rates by the inverse Jacobian, accelerations by
-    differences along each segment. NaN where a point is out of reach (or at a singularity)."""
-    tau = np.linspace(0.0, 1.0, points)
-    s, ds, _ = cubic_array(tau)
-    T = np.asarray(durations, dtype=float)[:, None]  # (segments, 1)
-    xs, ys, txs, tys = (np.stack(c) for c in zip(*(shape.points(s) for shape in shapes)))
-    t = tau[None, :] * T
-    vx, vy = txs * ds / T, tys * ds / T
-    q1, q2 = kinematics.inverse_2link_array(xs, ys, l1, l2, elbow)
-    # Jacobian columns [2-7]: d(x, y)/d(q1) and d(x, y)/d(q2)
-    s1, c1, s12, c12 = np.sin(q1), np.cos(q1), np.sin(q1 + q2), np.cos(q1 + q2)
-    a, c = -l1 * s1 - l2 * s12, l1 * c1 + l2 * c12
-    b, d = -l2 * s12, l2 * c12
-    det = a * d - b * c
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w1, w2 = (d * vx - b * vy) / det, (-c * vx + a * vy) / det
-        a1, a2 = (np.gradient(w, axis=1) / np.gradient(t, axis=1) for w in (w1, w2))
-    offsets = np.concatenate([[0.0], np.cumsum(durations)[:-1]])[:, None]
-    flat = [np.stack([x1.ravel(), x2.ravel(), *([np.zeros(x1.size)] * rest)], axis=1)
-            for x1, x2 in ((q1, q2), (w1, w2), (a1, a2))]
-    return Profile((t + offsets).ravel(), *flat)
 
 
 def line(lengths, elbow, n_joints, duration, start_mm, end_mm, name="line"):
@@ -356,7 +290,7 @@ class CartesianWaypoints(Segmented):
     def profile(self, points: int = 0) -> Profile:
         durations = np.diff(np.concatenate([[0.0], np.frombuffer(self.ends, dtype=float)]))
         shapes = [self._line(k) for k in range(len(self.ends))]
-        return _tip_profile(shapes, durations, points or _points_per_segment(len(shapes), PATH_POINTS),
+        return tip_profile(shapes, durations, points or _points_per_segment(len(shapes), PATH_POINTS),
                             *self.lengths, self.elbow, self.n_joints - 2)
 
 
@@ -393,20 +327,3 @@ class Steps(Segmented):
     def profile(self, points: int = 0) -> Profile:
         starts = np.concatenate([[0.0], np.frombuffer(self.ends, dtype=float)[:-1]])
         return Profile.at_rest(starts, np.frombuffer(self.levels, dtype=float).reshape(-1, self.n).copy())
-
-
-def first_outside_limits(profile: Profile, limits: Sequence[tuple[float, float]], names: Sequence[str]) -> str | None:
-    """Where the reference leaves the joint limits or the arm's reach, in words; None if nowhere."""
-    q = profile.q
-    lo, hi = np.array([lim[0] for lim in limits]), np.array([lim[1] for lim in limits])
-    unreachable = np.isnan(q).any(axis=1)
-    outside = unreachable | ((q < lo) | (q > hi)).any(axis=1)
-    if not outside.any():
-        return None
-    i = int(np.argmax(outside))
-    t = profile.t[i]
-    if unreachable[i]:
-        return f"the tip would leave the arm's reach at t = {t:.2f} s"
-    j = int(np.argmax((q[i] < lo) | (q[i] > hi)))
-    return (f"joint {names[j]} would reach {math.degrees(q[i, j]):.1f} deg at t = {t:.2f} s, outside its limits "
-            f"{math.degrees(lo[j]):.1f}..{math.degrees(hi[j]):.1f} deg")

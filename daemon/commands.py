@@ -78,6 +78,7 @@ class Commands:
         self.requests = 0
         self.errors = 0
         # Built once, off the loop: scanning entry points costs milliseconds.
+        self.owns_preparer = preparer is None  # else whoever passed it closes it
         self.preparer = preparer or Preparer()
         self._controllers = self._describe_controllers()
         self._describe = self._build_describe()

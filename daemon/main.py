@@ -56,9 +56,16 @@ def cmd_run(args) -> int:
 
 
 def _serve(args, clock, server: ZmqServer) -> int:
-    # The controller-building worker is spawned and has imported the controllers before the
+    # The planner worker is spawned and has imported the controllers before the
     # transport opens: a process starting up beside a running wire delayed its replies.
     preparer = Preparer()
+    try:
+        return _run_loop(args, clock, server, preparer)
+    finally:
+        preparer.close()
+
+
+def _run_loop(args, clock, server: ZmqServer, preparer: Preparer) -> int:
     preparer.warm().result(timeout=120)
     loop = build_loop(args, clock, server.publish)
     server.attach(loop, preparer)

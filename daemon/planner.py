@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from controllers import registry, signals, trajectory
 from controllers.base import Controller, ControllerContext
 from controllers.feasibility import Authority, Infeasible
+from controllers.profile import first_outside_limits
 from daemon import protocol as P
 from daemon.arguments import (
     CommandFailed,
@@ -237,7 +238,7 @@ def after_approach(ctx: PlanContext, args: dict, setpoint: list[float], path: tr
     move = trajectory.JointMove(setpoint, start, approach)
     check_authority(ctx, "the approach to its start", move, None if approach else "the rig cannot hold the start")
     chain = trajectory.Chain([move, path])
-    where = trajectory.first_outside_limits(chain.profile(), ctx.limits, ctx.joint_names)
+    where = first_outside_limits(chain.profile(), ctx.limits, ctx.joint_names)
     if where is not None:
         raise CommandFailed(P.REFUSED, where, {"reason": "limits"})
     return Plan(chain, name, {**reply, "approach_s": approach, "approach_chosen": chosen, "total_s": chain.duration},

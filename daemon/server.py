@@ -119,8 +119,9 @@ class ZmqServer:
             pass  # the pipe is full of rings already: the messenger has plenty to wake it
 
     def close(self) -> None:
-        """Stop the preparer, then the messenger once it has passed on what the loop sent."""
-        if self.commands is not None:
+        """Stop the preparer (one of its own), then the messenger once it has passed on what
+        the loop sent."""
+        if self.commands is not None and self.commands.owns_preparer:
             self.commands.preparer.close()
         self.rings["telemetry"].put(END, b"")
         self.messenger.join()

@@ -5,8 +5,8 @@ check, reference profile, design parse and parameter derivation runs beside the 
 structural proof, used by tests/test_every_command.py, with no timing in it."""
 import sys
 
-from controllers import feasibility, lti_design, registry, signals, trajectory  # noqa: F401 (signals: subclasses)
-from daemon import main
+from controllers import feasibility, lti_design, profile, registry, signals, trajectory  # noqa: F401 (signals: subclasses)
+from daemon import main, planner
 from hal import kinematics
 
 
@@ -26,7 +26,8 @@ def forbid() -> None:
             setattr(cls, "profile", forbidden)
     for name in ("check", "shortest", "shortfalls"):
         setattr(feasibility.Authority, name, forbidden)
-    trajectory.first_outside_limits = forbidden
+    profile.first_outside_limits = planner.first_outside_limits = forbidden
+    profile.tip_profile = trajectory.tip_profile = forbidden
     kinematics.inverse_2link_array = forbidden
     lti_design.parse = forbidden
     registry.prepare_change = forbidden

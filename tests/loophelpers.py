@@ -9,6 +9,7 @@ import zmq
 from daemon import protocol
 from daemon.clock import VirtualClock
 from daemon.loop import ControlLoop
+from daemon.preparation import Preparer
 from daemon.server import ZmqServer
 from daemon.telemetry import Telemetry, to_payload
 from hal import config
@@ -44,9 +45,22 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
     loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send))
     if srv is not None:
-        srv.attach(loop)
+        srv.attach(loop, shared_preparer())
     loop.start()
     return loop, captured, srv
+
+
+_preparer: list[Preparer] = []
+
+
+def shared_preparer() -> Preparer:
+    """One planner worker for every in-process loop of a test session, spawned and warmed
+    once (a worker per test cost 1.5 s of start-up each). A job's reply always comes before
+    its test ends, so no test inherits another's work."""
+    if not _preparer:
+        _preparer.append(Preparer())
+        _preparer[0].warm().result(timeout=120)
+    return _preparer[0]
 
 
 def dealer(srv: ZmqServer, which: str = "command") -> zmq.Socket:

@@ -36,6 +36,7 @@ def multicast(channel, **more):
     return {"interface": "udp_multicast", "channel": channel, "open_timeout_s": 20.0, **more}
 
 
+@pytest.mark.slow
 def test_pid_tracks_a_move_over_the_virtual_bus_in_process():
     channel = f"pneumad-{random.random()}"
     bus = can.Bus(interface="virtual", channel=channel)
@@ -51,6 +52,7 @@ def test_pid_tracks_a_move_over_the_virtual_bus_in_process():
         bus.shutdown()
 
 
+@pytest.mark.slow
 def test_pid_tracks_a_move_over_udp_multicast_with_the_node_in_its_own_process():
     channel = group()
     proc = node(channel)

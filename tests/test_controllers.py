@@ -27,6 +27,7 @@ def test_the_thesis_hyperplane_is_a_stable_sliding_motion():
     assert max(sliding_poles(s).real) < 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", HELD_TO_THE_LABS_TARGETS)
 def test_translation_path_tracks_within_the_labs_targets(name):
     loop = S.make_loop(name)
@@ -35,6 +36,7 @@ def test_translation_path_tracks_within_the_labs_targets(name):
     assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", HELD_TO_THE_LABS_TARGETS)
 def test_circle_at_the_shortest_feasible_period_tracks_within_the_targets(name):
     loop = S.make_loop(name)

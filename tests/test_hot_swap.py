@@ -151,11 +151,12 @@ def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):
 @pytest.mark.parametrize("plugin, text", [("DiesWhenBuilt", "worker died (exit code 3)"),
                                           ("HangsWhenBuilt", "took longer than 2 s"),
                                           ("UnsendableWhenBuilt", "could not be sent back")])
-def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_works(moving, plugin, text):
+def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_works(moving, plugin, text,
+                                                                                      monkeypatch):
     """The build runs in a worker process: whatever it does there, the loop keeps its
     controller and its period, the request gets a clear refusal and the next switch works."""
     loop, _, sock, lease = moving
-    loop.server.commands.preparer.time_limit_s = 2.0
+    monkeypatch.setattr(loop.server.commands.preparer, "time_limit_s", 2.0)
     reply = call(loop, sock, "controller.switch", {"name": f"tests.plugins:{plugin}"}, lease)
     assert reply["error"]["code"] == P.REFUSED and text in reply["error"]["message"], reply
     assert loop.controller.name == "pid" and loop.state.value == "enabled"

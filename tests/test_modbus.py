@@ -26,6 +26,7 @@ def peer(port, *args):
     return start_peer("sim_backend.modbus_peer", "--port", str(port), *args, ready=lambda: listening(port))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("framing, least_exchanges", [("tcp", 1500), ("rtu", 100)])
 def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exchanges):
     """3 s of moving. pymodbus's RTU client polls for its reply every millisecond or more,
@@ -106,6 +107,7 @@ time.sleep(600)
 """
 
 
+@pytest.mark.slow
 def test_a_daemon_killed_hard_leaves_no_worker_writing_over_the_dead_man():
     """SIGKILL the process that owns a Modbus transport: its exchange worker goes with it,
     so the safe state the dead-man command writes afterwards stays written."""

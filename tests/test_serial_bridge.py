@@ -32,6 +32,7 @@ def link(tmp_path):
     return tmp_path / "bridge"
 
 
+@pytest.mark.slow
 def test_pid_tracks_a_move_over_the_serial_bridge_as_it_does_in_process(link):
     proc = peer(link)
     try:
