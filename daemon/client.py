@@ -21,9 +21,8 @@ import time
 import msgpack
 import zmq
 
-from controllers import lti_design
 from daemon import protocol
-from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
 class RemoteError(RuntimeError):
@@ -171,6 +170,7 @@ class Client:
     def _candidate(name: str, params: dict | None, design: str | None) -> dict:
         args = {"name": name, "params": params or {}}
         if design is not None:
+            from controllers import lti_design  # here: it imports scipy (0.6 s), which pneumactl mostly needs not
             args["options"] = {"design": lti_design.read_file(design)}
         return args
 

@@ -9,7 +9,7 @@ import time
 
 from daemon import recording
 from daemon.client import Client, RemoteError, read_waypoints
-from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
 def with_lease(client: Client, fn):

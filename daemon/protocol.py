@@ -9,6 +9,9 @@ from __future__ import annotations
 import msgpack
 
 VERSION = 1
+DEFAULT_COMMAND = "tcp://127.0.0.1:5560"  # the daemon's endpoints unless told otherwise (docs/protocol.md)
+DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
+DEFAULT_TELEMETRY = "tcp://127.0.0.1:5562"
 MAX_MESSAGE_BYTES = 64 * 1024  # larger frames are dropped by ZeroMQ before they are read
 
 # Commands whose reply waits for work beside the loop (a plan, a controller build): a client
@@ -28,6 +31,8 @@ REFUSED = "refused"  # valid, but unsafe or infeasible on this rig
 BUSY = "busy"  # work is being prepared beside the loop (a plan, a controller); ask again when its reply is in
 LOOP_STALLED = "loop_stalled"  # from the messenger: the loop has stopped cycling
 INTERNAL = "internal"  # a bug: reported, never fatal
+ERROR_CODES = (BAD_MESSAGE, BAD_VERSION, UNKNOWN_COMMAND, BAD_ARGS, NO_LEASE, LEASE_HELD, BAD_STATE, REFUSED, BUSY,
+               LOOP_STALLED, INTERNAL)
 
 
 class ProtocolError(Exception):

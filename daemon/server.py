@@ -18,11 +18,9 @@ import tempfile
 from daemon.commands import Commands
 from daemon.messenger import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.preparation import Deferred
+from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 from daemon.ring import Ring, RingError
 
-DEFAULT_COMMAND = "tcp://127.0.0.1:5560"
-DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
-DEFAULT_TELEMETRY = "tcp://127.0.0.1:5562"
 MAX_CONTROL_PER_CYCLE = 8
 MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
 _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
