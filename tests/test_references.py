@@ -2,6 +2,7 @@
 PRBS identification signals, as trajectories and through the command protocol."""
 import math
 
+import msgpack
 import numpy as np
 import pytest
 from scipy.signal import chirp, max_len_seq
@@ -185,3 +186,35 @@ def test_a_prbs_starts_and_a_chirp_beyond_the_rig_is_refused_with_the_remedy(arm
                        ({"signal": "prbs", "joint": "bottom", "amplitude_deg": 1.0, "f0_hz": 1.0}, "unknown argument")):
         reply = call(loop, sock, "excite", args, lease)
         assert reply["error"]["code"] == P.BAD_ARGS and text in reply["error"]["message"], reply
+
+
+@pytest.mark.parametrize("overtake", ["abort", "estop", "disable"])
+def test_a_plan_overtaken_while_it_is_prepared_is_discarded_not_started(armed, overtake):
+    """Planning runs beside the loop; an abort, e-stop or disable sent meanwhile is served at
+    once, and the plan that finishes after it is refused, never started."""
+    loop, _, sock, lease = armed
+    control = dealer(loop.server, "control")
+    rows = [[130.0 + 5.0 * math.sin(i), -75.0] for i in range(1000)]
+    sock.send(P.encode_request("plan", "waypoints", {"angles_deg": rows, "durations_s": [1.0] * 999}, lease))
+    for _ in range(5000):  # until the request is taken and its plan is being prepared
+        loop.run(1)
+        if loop.server._waiting:
+            break
+        sock.poll(1)
+    assert loop.server._waiting, "the plan was not handed to the worker"
+    args = {"who": "test"} if overtake == "estop" else {}
+    control.send(P.encode_request("stop", overtake, args, lease))
+    replies = {}
+    for _ in range(20000):
+        loop.run(1)
+        for s in (sock, control):
+            if s.poll(0):
+                reply = msgpack.unpackb(s.recv_multipart()[-1], raw=False)
+                replies[reply["id"]] = reply
+        if len(replies) == 2:
+            break
+    assert replies["stop"]["ok"], replies["stop"]
+    assert replies["plan"]["error"]["code"] == P.BAD_STATE, replies["plan"]
+    assert loop.trajectory_name == "hold"
+    loop.run(100)
+    assert loop.trajectory_name == "hold" and loop.reference_remaining() == 0.0
