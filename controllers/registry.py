@@ -1,4 +1,7 @@
-"""Controllers by name: the built-ins, entry points (group ``pneumad.controllers``), or ``module:Class``."""
+"""Controllers by name: the built-ins, entry points (group ``pneumad.controllers``), plugins the
+daemon's configuration names (``pneumad --controller-plugin NAME=module:Class``), or, for the
+daemon's own start-up choice only, a ``module:Class`` path. A request names a registered
+controller: it never chooses a module to import."""
 from __future__ import annotations
 
 import functools
@@ -24,20 +27,22 @@ def _installed() -> dict[str, str]:
     return {ep.name: ep.value for ep in entry_points(group="pneumad.controllers")}
 
 
-def available() -> dict[str, str]:
-    """Every controller name this process can build, with where it comes from."""
-    return {**_installed(), **BUILTIN}
+def available(plugins: dict[str, str] | None = None) -> dict[str, str]:
+    """Every controller name this process can build, with where it comes from; ``plugins``
+    are the ones the daemon's configuration adds (name -> module:Class)."""
+    return {**_installed(), **(plugins or {}), **BUILTIN}
 
 
-def load(name: str) -> type[Controller]:
-    """The controller class for a name (built-in or entry point) or a ``module:Class`` path."""
-    return load_class(name, available(), Controller, "controller")
+def load(name: str, plugins: dict[str, str] | None = None, paths: bool = True) -> type[Controller]:
+    """The controller class for a registered name, or (``paths``: the daemon's own
+    configuration, never a request) a ``module:Class`` path."""
+    return load_class(name, available(plugins), Controller, "controller", paths)
 
 
-def build(name: str, context: ControllerContext, params: dict | None = None,
-          options: dict | None = None) -> Controller:
+def build(name: str, context: ControllerContext, params: dict | None = None, options: dict | None = None,
+          plugins: dict[str, str] | None = None, paths: bool = True) -> Controller:
     """Construct and validate a controller off the loop; raises LookupError or ParamError."""
-    return load(name)(context, options=options, **(params or {}))
+    return load(name, plugins, paths)(context, options=options, **(params or {}))
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict,

@@ -80,7 +80,7 @@ class Commands:
         # Built once, off the loop: scanning entry points costs milliseconds.
         self.owns_preparer = preparer is None  # else whoever passed it closes it
         self.preparer = preparer or Preparer()
-        self._controllers = self._describe_controllers()
+        self._controllers = self._describe_controllers(loop.controller_plugins)
         self._describe = self._build_describe()
         self._plan_context = planner.PlanContext.of(loop.rig, loop.context)
 
@@ -325,11 +325,11 @@ class Commands:
         return {"active": self.loop.controller.name, "available": self._controllers}
 
     @staticmethod
-    def _describe_controllers() -> list[dict]:
+    def _describe_controllers(plugins: dict[str, str]) -> list[dict]:
         available = []
-        for name in registry.available():
+        for name in registry.available(plugins):
             try:
-                available.append(registry.load(name).describe())
+                available.append(registry.load(name, plugins).describe())
             except LookupError as exc:
                 available.append({"name": name, "error": str(exc)})
         return available
@@ -346,7 +346,8 @@ class Commands:
             self.loop.switch_controller(new)
             return {"active": new.name, "params": new.get_params(), "cycle": self.loop.cycle}
 
-        return self._off_loop(finish, planner.build_controller, self.loop.context, request)
+        return self._off_loop(finish, planner.build_controller, self.loop.context, self.loop.controller_plugins,
+                              request)
 
     def controller_set(self, request):
         """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
@@ -370,7 +371,8 @@ class Commands:
             self.loop.start_shadow(candidate)
             return {"shadow": candidate.name, "active": self.loop.controller.name, "cycle": self.loop.cycle}
 
-        return self._off_loop(finish, planner.build_controller, self.loop.context, request)
+        return self._off_loop(finish, planner.build_controller, self.loop.context, self.loop.controller_plugins,
+                              request)
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""

@@ -33,7 +33,7 @@ START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
 
 class ControlLoop:
     def __init__(self, io: RigIO, clock, period: float = 0.001, controller: str = "pid",
-                 telemetry=None, server=None):
+                 telemetry=None, server=None, controller_plugins: dict[str, str] | None = None):
         self.io = io
         self.rig = io.config
         self.clock = clock
@@ -42,7 +42,8 @@ class ControlLoop:
         self.actuation = BiasedHeadActuation(io.head, io.rod)
         self.context = ControllerContext.for_rig(self.rig, self.actuation, period)
         self.supervisor = Supervisor(self.rig, period)
-        self.controller: Controller = registry.build(controller, self.context)
+        self.controller_plugins = dict(controller_plugins or {})  # name -> module:Class, from the daemon's configuration
+        self.controller: Controller = registry.build(controller, self.context, plugins=self.controller_plugins)
         self.shadow: ShadowRun | None = None
         self.telemetry = telemetry
         self.server = server

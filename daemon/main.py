@@ -41,7 +41,19 @@ def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
     transport.open()
     io = RigIO(rig, transport)
     telemetry = Telemetry(telemetry_send) if telemetry_send is not None else None
-    return ControlLoop(io, clock, args.period, controller=args.controller, telemetry=telemetry)
+    return ControlLoop(io, clock, args.period, controller=args.controller, telemetry=telemetry,
+                       controller_plugins=controller_plugins(args.controller_plugin))
+
+
+def controller_plugins(items: list[str]) -> dict[str, str]:
+    """``--controller-plugin NAME=module:Class`` options as a name -> path map."""
+    plugins = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name.strip() or ":" not in path:
+            raise ConfigError(f"--controller-plugin {item!r}: expected NAME=module:Class")
+        plugins[name.strip()] = path.strip()
+    return plugins
 
 
 def cmd_run(args) -> int:
@@ -159,7 +171,11 @@ def parser() -> argparse.ArgumentParser:
                         help="hold /dev/cpu_dma_latency at this [us] while running, keeping idle CPUs out of "
                              "deep sleep (default 0: poll, as cyclictest does; -1 leaves the system's setting)")
         sp.add_argument("--spin-us", type=float, default=200.0, help="spin this long before each deadline [us]")
-        sp.add_argument("--controller", default="pid", help="controller active at start (default pid)")
+        sp.add_argument("--controller", default="pid", help="controller active at start (default pid; a registered "
+                                                              "name, or module:Class)")
+        sp.add_argument("--controller-plugin", action="append", default=[], metavar="NAME=module:Class",
+                        help="make a third-party controller available to requests under NAME, repeatable (requests "
+                             "name registered controllers only: never a module to import)")
         sp.add_argument("--gil-switch-us", type=float, default=5000.0,
                         help="sys.setswitchinterval [us] (default 5000, Python's own): how soon another Python "
                              "thread can take the GIL from the loop mid-cycle. Shorter measured worse "

@@ -76,8 +76,10 @@ class Plan:
     start: tuple[float, ...]  # the set-point it was planned from [rad]
 
 
-def build_controller(context: ControllerContext, request: dict) -> Controller:
-    """``controller.switch`` / ``controller.shadow``: the named controller, built and validated."""
+def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
+    """``controller.switch`` / ``controller.shadow``: the named controller, built and validated.
+    The name must be registered (a built-in, an entry point, or one of the daemon's
+    configured ``plugins``): a request never names a module to import."""
     args = P.decode_args(request)
     only(args, "name", "params", "options")
     name = args.get("name")
@@ -86,7 +88,7 @@ def build_controller(context: ControllerContext, request: dict) -> Controller:
     params, options = args.get("params", {}), args.get("options", {})
     if not isinstance(params, dict) or not isinstance(options, dict):
         raise bad_args("'params' and 'options' must be maps", "params" if not isinstance(params, dict) else "options")
-    return registry.build(name, context, params, options)
+    return registry.build(name, context, params, options, plugins=plugins, paths=False)
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,

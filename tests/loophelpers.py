@@ -30,7 +30,8 @@ class Captured:
         return [m for t, m in self.messages if t == topic]
 
 
-def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid", loop_stall_s: float = 60.0):
+def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid", loop_stall_s: float = 60.0,
+              plugins: dict[str, str] | None = None):
     """The loop on a virtual clock. It cycles only while a test runs it, so the messenger's
     stall watch (``loop_stall_s``) is set long: a test that thinks for a second between two
     requests has not stalled a real-time loop."""
@@ -43,7 +44,7 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
                     loop_stall_s=loop_stall_s) if server else None
     captured = Captured()
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
-    loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send))
+    loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send), controller_plugins=plugins)
     if srv is not None:
         srv.attach(loop, shared_preparer())
     loop.start()

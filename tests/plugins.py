@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 
 from controllers.base import Controller
@@ -118,3 +119,8 @@ class UnsendableWhenBuilt(_BuildsBadly):
 
     def derive(self, values):
         return lambda: None
+
+
+def imported(module: str) -> bool:
+    """Whether ``module`` was ever imported in this process (asked of a worker by a test)."""
+    return module in sys.modules

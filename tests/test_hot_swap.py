@@ -8,13 +8,19 @@ import pytest
 
 from controllers import lti_design
 from daemon import protocol as P
+from tests import plugins
 from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+
+
+# the misbehaving controllers of tests/plugins.py, registered as the daemon's configuration would
+TEST_PLUGINS = {name: f"tests.plugins:{name}" for name in ("Raising", "DiesWhenBuilt", "HangsWhenBuilt",
+                                                            "UnsendableWhenBuilt")}
 
 
 @pytest.fixture
 def moving():
     """Enabled, the lease held, halfway along the translation path under PID."""
-    loop, captured, srv = make_loop(server=True)
+    loop, captured, srv = make_loop(server=True, plugins=TEST_PLUGINS)
     sock = dealer(srv)
     lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
     ok(loop, sock, "enable", lease=lease)
@@ -119,7 +125,7 @@ def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(mov
 
 def test_a_failing_shadow_ends_its_own_run_and_nothing_else(moving):
     loop, captured, sock, lease = moving
-    ok(loop, sock, "controller.shadow", {"name": "tests.plugins:Raising"}, lease)
+    ok(loop, sock, "controller.shadow", {"name": "Raising"}, lease)
     run_seconds(loop, 0.1)
     assert loop.shadow is None and loop.controller.name == "pid" and loop.state.value == "enabled"
     failed = [e for e in captured.of("event") if e.get("kind") == "shadow" and e.get("action") == "failed"]
@@ -157,7 +163,7 @@ def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_w
     controller and its period, the request gets a clear refusal and the next switch works."""
     loop, _, sock, lease = moving
     monkeypatch.setattr(loop.server.commands.preparer, "time_limit_s", 2.0)
-    reply = call(loop, sock, "controller.switch", {"name": f"tests.plugins:{plugin}"}, lease)
+    reply = call(loop, sock, "controller.switch", {"name": plugin}, lease)
     assert reply["error"]["code"] == P.REFUSED and text in reply["error"]["message"], reply
     assert loop.controller.name == "pid" and loop.state.value == "enabled"
     assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"
@@ -174,3 +180,19 @@ def test_a_parameter_change_for_a_controller_built_from_options_is_derived_by_it
     result = ok(loop, sock, "controller.set", {"params": {"gain": [0.5, 0.8]}}, lease)
     assert loop.controller is running and result["params"]["gain"] == [0.5, 0.8]
     assert list(running.k["gain"]) == [0.5, 0.8]  # the derived constants came back and are in use
+
+
+@pytest.mark.parametrize("name, module", [("tests.planted:Anything", "tests.planted"), ("this:Controller", "this"),
+                                          ("controllers.pid:PID", None)])
+def test_a_request_never_chooses_a_module_to_import(moving, name, module):
+    """A request names a registered controller; a module:Class path, even one that exists,
+    is refused, and its module is never imported in the worker that builds controllers."""
+    loop, _, sock, lease = moving
+    for cmd in ("controller.switch", "controller.shadow"):
+        reply = call(loop, sock, cmd, {"name": name}, lease)
+        assert reply["error"]["code"] == P.BAD_ARGS and "daemon's own configuration" in reply["error"]["message"]
+    if module is not None:
+        asked = loop.server.commands.preparer.submit(lambda found: found, plugins.imported, module)
+        assert asked.future.result(timeout=30) is False
+    assert loop.controller.name == "pid"
+    assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"

@@ -74,7 +74,7 @@ def test_estop_writes_the_safe_state_at_once_and_latches():
 @pytest.mark.parametrize("plugin", ["tests.plugins:Raising", "tests.plugins:ReturnsNaN"])
 def test_failing_controller_trips_to_safe_and_the_loop_keeps_running(plugin):
     loop, captured, _ = enabled_loop()
-    loop.switch_controller(registry.build(plugin, loop.context))
+    loop.switch_controller(registry.build(plugin, loop.context))  # the daemon's own choice: a path is allowed
     cycle = loop.cycle
     run_seconds(loop, 0.5)
     assert loop.cycle == cycle + 500  # never stopped
