@@ -188,9 +188,27 @@ def parse(text: str, origin: str = "<string>") -> RigConfig:
         config = build(RigConfig, data)
     except ConfigError as exc:
         raise ConfigError(f"{origin}: {exc}") from None
+    if not origin.startswith("builtin:"):
+        _require_stated(data, origin)
     object.__setattr__(config, "source", text)
     object.__setattr__(config, "origin", origin)
     return config
+
+
+STATED = {"transport": "backend", "safety": None, "arm": None}  # what a rig file must say itself
+
+
+def _require_stated(data: dict, origin: str) -> None:
+    """A rig file states its transport backend, its safety limits and its arm: defaults for
+    them are the built-in rigs' alone, so a mistyped real rig's file never quietly runs the
+    simulator or another arm's limits."""
+    for section, key in STATED.items():
+        if not isinstance(data.get(section), dict):
+            raise ConfigError(f"{origin}: [{section}]: missing: a rig file must state it (only the built-in rigs "
+                              f"have defaults; copy it from hal/sim_2joint.toml)")
+        if key is not None and key not in data[section]:
+            raise ConfigError(f"{origin}: {section}.{key}: missing: a rig file must name its transport backend "
+                              f"(\"sim\" for the simulator, or serial, modbus, can)")
 
 
 def load(path: str | Path | None = None) -> RigConfig:

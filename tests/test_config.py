@@ -104,3 +104,25 @@ def test_a_command_line_transport_keeps_the_rig_and_changes_its_hash():
 def test_a_transport_option_without_a_key_and_value_is_refused(text):
     with pytest.raises(ConfigError, match="KEY=VALUE"):
         config.parse_option(text)
+
+
+@pytest.mark.parametrize("section, cut, message", [
+    ("transport", 'backend = "sim"', r"transport\.backend: missing: a rig file must name its transport backend"),
+    ("safety", "[safety]", r"\[safety\]: missing: a rig file must state it"),
+    ("arm", "[arm]", r"\[arm\]: missing: a rig file must state it"),
+])
+def test_a_rig_file_states_its_transport_safety_and_arm_itself(tmp_path, section, cut, message):
+    """Defaults are the built-in rigs' alone: a real rig's file that left out its backend would
+    otherwise run the simulator and show a moving arm that is not there."""
+    text = BASE
+    if cut.startswith("["):  # drop the whole table, up to the next one
+        start = text.index(cut)
+        end = text.find("\n[", start + 1)
+        text = text[:start] + (text[end + 1:] if end >= 0 else "")
+    else:
+        text = text.replace(cut, "", 1)
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        config.load(path)
+    assert config.load("sim").transport.backend == "sim"  # the built-in keeps its defaults
