@@ -23,6 +23,7 @@ from daemon.ring import Ring, RingError
 
 MAX_CONTROL_PER_CYCLE = 8
 MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
+RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
 _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 
 
@@ -30,7 +31,8 @@ class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S):
         self.max_per_cycle = max_per_cycle
-        self._rings_dir = tempfile.mkdtemp(prefix="pneumad-rings-", dir=_shm_dir())
+        self.reclaimed = reclaim_stale_rings(_shm_dir())
+        self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
         self.rings = create_rings(self._rings_dir)
         self.heartbeat = Heartbeat(self._rings_dir, create=True)
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
@@ -132,6 +134,29 @@ class ZmqServer:
         os.close(self._doorbell)
         os.close(self._doorbell_read)
         shutil.rmtree(self._rings_dir, ignore_errors=True)
+
+
+def reclaim_stale_rings(directory: str | None) -> list[str]:
+    """Remove the rings a daemon killed outright (SIGKILL, a power cut of its process) left
+    behind: directories named for a process that no longer exists. What was removed."""
+    directory = directory or tempfile.gettempdir()
+    removed = []
+    for name in os.listdir(directory):
+        pid, sep, _ = name[len(RINGS_PREFIX):].partition("-")
+        if name.startswith(RINGS_PREFIX) and sep and pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(os.path.join(directory, name), ignore_errors=True)
+            removed.append(name)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    return True
 
 
 def _shm_dir() -> str | None:

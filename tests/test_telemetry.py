@@ -190,3 +190,19 @@ def test_a_corrupt_request_ring_stops_the_arm_and_the_loop_serves_on(served):
     loop.run(1)
     assert loop.state.value == "fault" and "claims" in loop.supervisor.cause
     assert ok(loop, sock, "ping")["pong"]  # the ring was emptied and serves again
+
+
+def test_rings_a_killed_daemon_left_behind_are_reclaimed_by_the_next_one(tmp_path):
+    """SIGKILL leaves a daemon no time to remove its shared-memory rings (4 MiB in /dev/shm);
+    the next daemon removes every rings directory whose process is gone, and no other."""
+    from daemon.server import RINGS_PREFIX, reclaim_stale_rings
+
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    stale, live, other = (tmp_path / f"{RINGS_PREFIX}{gone.pid}-x1", tmp_path / f"{RINGS_PREFIX}{os.getpid()}-x2",
+                          tmp_path / "unrelated")
+    for d in (stale, live, other):
+        d.mkdir()
+        (d / "command").write_bytes(b"\0" * 64)
+    assert reclaim_stale_rings(str(tmp_path)) == [stale.name]
+    assert not stale.exists() and live.exists() and other.exists()
