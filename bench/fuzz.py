@@ -1,0 +1,249 @@
+"""A protocol fuzzer: malformed and hostile frames at a real daemon's command and control
+sockets, counting what must never happen.
+
+Usage: python -m bench.fuzz [--frames 100000] [--seed 1] [--no-rt]
+
+Frames (seeded, reproducible): random bytes; valid requests cut short; envelopes with every
+field missing, of the wrong type or out of range; deep nesting and huge declared lengths;
+and structure-aware ones: each command's valid arguments (bench/command_cases.py) with one
+argument replaced by NaN, inf, a huge or negative number, a bool, a string (unicode, binary),
+a list, a map, null or a deep nest, deleted, or joined by an unknown one. The client holds
+the lease, so lease-gated commands reach their argument checks.
+
+Counted, goal zero each: a daemon that died; a frame with no reply (a hang: 40 s is the
+longest a deferred reply may take); an ``internal`` reply; an error code docs/protocol.md
+does not list; a rejected frame that changed the arm's state, reference or controller; a
+trip no accepted frame explains. Overruns are counted against a quiet baseline of the same
+length (the VM's own stalls). Accepted frames are counted too (the fuzzer does find valid
+commands) and the daemon is put back in its enabled, holding state after each.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import random
+import time
+from dataclasses import dataclass, field
+
+import msgpack
+import zmq
+
+from bench.command_cases import CASES
+from bench.common import header, spawn_daemon, stats_subscriber
+from daemon import protocol as P
+from daemon.client import Client, RemoteError
+
+HOSTILE_VALUES = [math.nan, math.inf, -math.inf, 1e308, -1e308, 2 ** 63 - 1, -(2 ** 63), 0, -1, True, False, None,
+                  "", "x" * 5000, "\u202e\ud7ff\U0001f600", b"\x00\xff" * 100, [], [1] * 4000, {}, {"a": {"b": {}}},
+                  [[[[[[[[[[]]]]]]]]]], 1.5, "nan", "1e309"]
+COMMANDS = sorted({c.cmd for c in CASES} | {"lease.release", "lease.acquire"})
+
+
+@dataclass
+class Tally:
+    frames: int = 0
+    replies: int = 0
+    accepted: int = 0
+    no_reply: int = 0
+    internal: int = 0
+    undocumented: int = 0
+    changed_by_rejected: int = 0
+    unexplained_trips: int = 0
+    codes: dict[str, int] = field(default_factory=dict)
+    examples: list[str] = field(default_factory=list)
+
+    def bad(self, what: str, frame: bytes) -> None:
+        if len(self.examples) < 10:
+            self.examples.append(f"{what}: {frame[:120]!r}")
+
+
+class Frames:
+    """Seeded hostile frames."""
+
+    def __init__(self, seed: int, lease: str):
+        self.rng = random.Random(seed)
+        self.lease = lease
+        self.valid = [(c.cmd, c.args) for c in CASES]
+
+    def next(self) -> tuple[bytes, bool]:
+        """A frame and whether it goes to the control socket."""
+        kind = self.rng.random()
+        control = self.rng.random() < 0.15
+        if kind < 0.1:
+            return bytes(self.rng.getrandbits(8) for _ in range(self.rng.randrange(0, 300))), control
+        if kind < 0.2:
+            frame = self._request(*self.rng.choice(self.valid))
+            return frame[:self.rng.randrange(0, len(frame))], control
+        if kind < 0.4:
+            return self._bad_envelope(), control
+        if kind < 0.45:
+            return self._declared_huge(), control
+        return self._request(*self._mutated_args()), control
+
+    def _request(self, cmd, args) -> bytes:
+        return msgpack.packb({"v": 1, "id": self.rng.randrange(1 << 30), "cmd": cmd, "args": args,
+                              "lease": self.lease})
+
+    def _bad_envelope(self) -> bytes:
+        env = {"v": 1, "id": self.rng.randrange(1 << 30), "cmd": self.rng.choice(COMMANDS), "args": {},
+               "lease": self.lease}
+        key = self.rng.choice(["v", "id", "cmd", "args", "lease", "extra"])
+        if self.rng.random() < 0.3:
+            env.pop(key, None)
+        else:
+            env[key] = self.rng.choice(HOSTILE_VALUES)
+        if self.rng.random() < 0.1:
+            return msgpack.packb([env])
+        return msgpack.packb(env)
+
+    def _declared_huge(self) -> bytes:
+        """A map, array, string or binary header declaring 2^32 - 1 items or bytes, then little."""
+        return self.rng.choice([b"\xdf", b"\xdd", b"\xdb", b"\xc6"]) + b"\xff\xff\xff\xff" + b"\x00" * 8
+
+    def _mutated_args(self) -> tuple[str, dict]:
+        cmd, args = self.rng.choice(self.valid)
+        args = dict(args)
+        keys = list(args)
+        roll = self.rng.random()
+        if keys and roll < 0.6:
+            key = self.rng.choice(keys)
+            value = args[key]
+            if isinstance(value, list) and value and self.rng.random() < 0.5:  # one element of a list
+                value = list(value)
+                i = self.rng.randrange(len(value))
+                inner = value[i]
+                if isinstance(inner, list) and inner:
+                    inner = list(inner)
+                    inner[self.rng.randrange(len(inner))] = self.rng.choice(HOSTILE_VALUES)
+                    value[i] = inner
+                else:
+                    value[i] = self.rng.choice(HOSTILE_VALUES)
+                args[key] = value
+            else:
+                args[key] = self.rng.choice(HOSTILE_VALUES)
+        elif keys and roll < 0.75:
+            del args[self.rng.choice(keys)]
+        else:
+            args[self.rng.choice(["x", "", "\u0000", "duration_s", "name", "params"])] = self.rng.choice(HOSTILE_VALUES)
+        return cmd, args
+
+
+def status_key(status: dict) -> tuple:
+    return status["state"], status["reference"], status["controller"]
+
+
+def restore(client: Client) -> dict:
+    """Back to enabled, holding, PID, with the lease (a fuzzed lease.release is a valid
+    command): the state rejected frames must not change."""
+    status = client.status()
+    if not status["lease_held"]:
+        client.lease = None
+        client.acquire_lease(ttl_s=60.0)
+    if status["state"] in ("fault", "estop"):
+        client.reset()
+    if client.status()["state"] == "idle":
+        client.enable()
+    client.abort()
+    if client.controller()["name"] != "pid":
+        client.switch_controller("pid")
+    try:
+        client.discard()
+    except RemoteError:
+        pass
+    return client.status()
+
+
+def fuzz(eps: dict[str, str], frames: int, seed: int) -> Tally:
+    client = Client(**eps, timeout=10.0)
+    client.acquire_lease(ttl_s=60.0)
+    client.keep_lease(1.0)
+    ctx = zmq.Context.instance()
+    socks = {}
+    for name in ("command", "control"):
+        socks[name] = ctx.socket(zmq.DEALER)
+        socks[name].setsockopt(zmq.LINGER, 0)
+        socks[name].connect(eps[name])
+    tally = Tally()
+    try:
+        before = restore(client)
+        gen = Frames(seed, client.lease)
+        for _ in range(frames):
+            frame, control = gen.next()
+            sock = socks["control" if control else "command"]
+            sock.send(frame)
+            tally.frames += 1
+            if not sock.poll(40_000):
+                tally.no_reply += 1
+                tally.bad("no reply", frame)
+                continue
+            reply = msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+            tally.replies += 1
+            if reply.get("ok"):
+                tally.accepted += 1
+                before = restore(client)
+                gen.lease = client.lease
+                continue
+            code = reply["error"]["code"]
+            tally.codes[code] = tally.codes.get(code, 0) + 1
+            if code == P.INTERNAL:
+                tally.internal += 1
+                tally.bad(f"internal ({reply['error']['message']})", frame)
+            elif code not in P.ERROR_CODES:
+                tally.undocumented += 1
+                tally.bad(f"code {code}", frame)
+            if tally.frames % 50 == 0 or code == P.INTERNAL:
+                after = client.status()
+                if status_key(after) != status_key(before) or after["trips"] != before["trips"]:
+                    tally.changed_by_rejected += 1
+                    tally.bad(f"state {status_key(before)} -> {status_key(after)}", frame)
+                    before = restore(client)
+    finally:
+        client.close()
+        for sock in socks.values():
+            sock.close()
+    return tally
+
+
+def overruns(stats_sub, seconds: float) -> tuple[int, int]:
+    """Overruns and cycles in the stats windows already queued and those of the next ``seconds``."""
+    end, total, cycles = time.monotonic() + seconds, 0, 0
+    while stats_sub.poll(max(0, int((end - time.monotonic()) * 1e3))):
+        window = msgpack.unpackb(stats_sub.recv_multipart()[1], raw=False)
+        total, cycles = total + window["overruns"], cycles + window["cycles"]
+    return total, cycles
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=100_000)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--no-rt", action="store_true")
+    args = ap.parse_args()
+    header("protocol fuzz")
+    daemon, eps = spawn_daemon(*(["--no-rt"] if args.no_rt else []))
+    try:
+        Client(**eps).call("ping", timeout=60.0)
+        stats = stats_subscriber(eps)
+        time.sleep(1.5)
+        overruns(stats, 0.0)  # start-up's windows
+        start = time.monotonic()
+        tally = fuzz(eps, args.frames, args.seed)
+        busy = time.monotonic() - start
+        during = overruns(stats, 0.0)  # the windows queued while the fuzz ran
+        quiet = overruns(stats, busy)
+        alive = daemon.poll() is None
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    print(f"frames {tally.frames} in {busy:.0f} s, replies {tally.replies}, accepted {tally.accepted}")
+    print(f"daemon died: {0 if alive else 1}; no reply: {tally.no_reply}; internal: {tally.internal}; "
+          f"undocumented codes: {tally.undocumented}; state changed by a rejected frame: {tally.changed_by_rejected}")
+    print(f"overruns during the fuzz: {during[0]} in {during[1]} cycles; in a quiet baseline as long: {quiet[0]} in "
+          f"{quiet[1]} cycles")
+    print("error codes:", ", ".join(f"{k} {v}" for k, v in sorted(tally.codes.items())))
+    for example in tally.examples:
+        print("  ", example)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,34 @@
+"""The protocol fuzzer (bench/fuzz.py), a short run in the suite: hostile and malformed frames
+at a real daemon get a documented error or a result, never silence, an ``internal`` reply or
+a change of the arm's state by a frame that was rejected, and the daemon lives on."""
+import sys
+
+import pytest
+
+from bench.fuzz import fuzz
+from daemon.client import Client
+
+
+@pytest.fixture
+def daemon(tmp_path):
+    import subprocess
+    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "ERROR",
+                             *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    try:
+        Client(**eps).call("ping", timeout=60.0)
+        yield proc, eps
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_fuzzed_frames_get_documented_replies_and_change_nothing_they_are_refused(daemon, seed):
+    proc, eps = daemon
+    tally = fuzz(eps, 1500, seed)
+    assert proc.poll() is None, "the daemon died"
+    assert tally.replies == tally.frames == 1500 and tally.no_reply == 0, tally.examples
+    assert tally.internal == 0 and tally.undocumented == 0, tally.examples
+    assert tally.changed_by_rejected == 0, tally.examples
+    assert tally.accepted and len(tally.codes) >= 5  # it reached deep: valid commands and many refusals
