@@ -47,20 +47,28 @@ def watch(client: Client, seconds: float | None) -> None:
 
 
 def record(client: Client, path: str, seconds: float) -> int:
+    """Record the telemetry to ``path``; a disk that fills or fails ends it with a clear error
+    (exit 1), the file holding what was written before it."""
     describe = client.describe()
     controller = client.controller()
     sub = client.subscribe()
     time.sleep(0.2)  # let the subscription reach the publisher
     n = 0
     end = time.monotonic() + seconds
-    with open(path, "wb") as f:
-        recording.write_header(f, describe, controller, describe["rig"]["source"])
-        while time.monotonic() < end:
-            item = sub.receive(0.5)
-            if item is not None:
-                recording.write_message(f, *item)
-                n += 1
-    sub.close()
+    try:
+        with open(path, "wb") as f:
+            recording.write_header(f, describe, controller, describe["rig"]["source"])
+            while time.monotonic() < end:
+                item = sub.receive(0.5)
+                if item is not None:
+                    recording.write_message(f, *item)
+                    n += 1
+    except OSError as exc:
+        print(f"error: recording to {path} stopped: {exc.strerror or exc} (after {n} messages; the file holds "
+              f"what was written before the error)", file=sys.stderr)
+        return 1
+    finally:
+        sub.close()
     print(f"recorded {n} messages to {path} (lost {sub.lost})")
     return 0
 
@@ -208,7 +216,9 @@ def run(client: Client, args):
             return with_lease(client, lambda: act(args.args[0], key_values(args.args[1:]), args.design))
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "record":
-        record(client, args.file, args.seconds)
+        code = record(client, args.file, args.seconds)
+        if code:
+            raise SystemExit(code)
         return None
     raise SystemExit(f"unknown command {w}")
 

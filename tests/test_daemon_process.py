@@ -200,3 +200,23 @@ def test_latency_qualification_reports_and_judges():
 def test_latency_verdict_bounds(p999, worst, overruns, word):
     from daemon.latency import verdict
     assert verdict({"p99.9": p999, "max": worst}, overruns, 0.001).startswith(word)
+
+
+def test_a_recording_that_runs_out_of_disk_ends_with_a_clear_error(tmp_path):
+    """/dev/full answers every write with ENOSPC, as a full disk does: pneumactl record says
+    so and exits 1, and the daemon is not touched by it."""
+    eps = endpoints(tmp_path)
+    daemon = subprocess.Popen([BIN / "pneumad", "--no-rt", "--log-level", "WARNING",
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], env=env_with())
+    try:
+        ctl = [BIN / "pneumactl", *sum(([f"--{k}", v] for k, v in eps.items()), []), "--timeout", "30"]
+        assert subprocess.run([*ctl, "status"], capture_output=True, env=env_with(), timeout=60).returncode == 0
+        out = subprocess.run([*ctl, "record", "/dev/full", "--seconds", "1"], capture_output=True, text=True,
+                             env=env_with(), timeout=60)
+        assert out.returncode == 1 and "No space left on device" in out.stderr, out.stderr
+        assert "Traceback" not in out.stderr
+        status = subprocess.run([*ctl, "status"], capture_output=True, text=True, env=env_with(), timeout=60)
+        assert json.loads(status.stdout)["trips"] == 0
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
