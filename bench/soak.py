@@ -1,0 +1,176 @@
+"""A soak: a real daemon at full telemetry for a long time, under everything a lab does to it.
+
+Usage: python -m bench.soak [--seconds 3600] [--no-rt] [--kill-every 300]
+
+Three healthy subscribers, one slow (50 ms a message) and one stalled (never reads) on every
+topic; a client holding the lease runs the translation path again and again, switches
+controllers (pid <-> smc) and changes a gain every few seconds; the messenger process is
+killed every ``--kill-every`` s. Figures, goal in brackets: sequence gaps at the healthy
+subscribers outside the seconds after a messenger kill [0] (a kill loses what was in
+flight, by design: docs/protocol.md); the daemon's resident memory at the end against the
+mark at a sixth of the run [within a few MiB]; trips [0]; overruns, against the machine's
+own noise (see docs/benchmarks.md); what the driver did.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+
+import msgpack
+import zmq
+
+from bench.common import header, spawn_daemon
+from daemon.client import Client, RemoteError
+
+KILL_SHADOW_S = 5.0  # a gap this soon after a messenger kill is the kill's
+
+
+@dataclass
+class Watch:
+    """One subscriber's count of messages and sequence gaps (time, messages missing)."""
+
+    delay_s: float = 0.0
+    messages: int = 0
+    gaps: list[tuple[float, int]] = field(default_factory=list)
+
+
+def subscribe(eps: dict[str, str], watch: Watch | None, stop: threading.Event) -> threading.Thread | zmq.Socket:
+    """A subscriber on every topic: read by a thread into ``watch``, or (None) never read."""
+    sock = zmq.Context.instance().socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.SUBSCRIBE, b"")
+    sock.connect(eps["telemetry"])
+    if watch is None:
+        return sock
+
+    def read():
+        last: dict[bytes, int] = {}
+        while not stop.is_set():
+            if not sock.poll(100):
+                continue
+            topic, body = sock.recv_multipart()
+            seq = msgpack.unpackb(body, raw=False).get("seq")
+            if topic in last and seq is not None and seq > last[topic] + 1:
+                watch.gaps.append((time.monotonic(), seq - last[topic] - 1))
+            last[topic] = seq
+            watch.messages += 1
+            if watch.delay_s:
+                time.sleep(watch.delay_s)
+        sock.close()
+
+    thread = threading.Thread(target=read, daemon=True)
+    thread.start()
+    return thread
+
+
+def messenger_pid(daemon_pid: int) -> int | None:
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmdline = f.read()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == daemon_pid and b"daemon.messenger" in cmdline:
+            return int(entry)
+    return None
+
+
+def rss_mib(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float) -> dict:
+    stop = threading.Event()
+    healthy = [Watch() for _ in range(3)]
+    slow = Watch(delay_s=0.05)
+    readers = [subscribe(eps, w, stop) for w in (*healthy, slow)]
+    stalled = subscribe(eps, None, stop)
+    client = Client(**eps, timeout=5.0)
+    done = {"paths": 0, "switches": 0, "gain_changes": 0, "kills": 0, "timeouts": 0, "refused": 0}
+    kills: list[float] = []
+    rss = {}
+    try:
+        client.call("ping", timeout=60.0)
+        client.acquire_lease(ttl_s=10.0)
+        client.keep_lease(0.5)
+        client.enable()
+        start = time.monotonic()
+        next_kill, tick = start + kill_every, 0
+        while (now := time.monotonic()) - start < seconds:
+            if "mark" not in rss and now - start >= seconds / 6:
+                rss["mark"] = rss_mib(daemon_pid)
+            try:
+                if tick % 10 == 0:
+                    client.abort()
+                    client.path("translation")
+                    done["paths"] += 1
+                elif tick % 10 in (3, 6):
+                    client.switch_controller("smc" if client.controller()["name"] == "pid" else "pid")
+                    done["switches"] += 1
+                elif tick % 10 == 8 and client.controller()["name"] == "pid":
+                    client.set_params(Kp=[45.0 + tick % 20, 50.0])
+                    done["gain_changes"] += 1
+            except TimeoutError:
+                done["timeouts"] += 1  # a request in flight through a messenger kill
+            except RemoteError:
+                done["refused"] += 1
+            if now >= next_kill:
+                pid = messenger_pid(daemon_pid)
+                if pid is not None:
+                    os.kill(pid, signal.SIGKILL)
+                    kills.append(now)
+                    done["kills"] += 1
+                next_kill += kill_every
+            tick += 1
+            time.sleep(2.0)
+        status = client.call("status", timeout=10.0)
+        rss["end"] = rss_mib(daemon_pid)
+    finally:
+        client.close()
+        stop.set()
+        for reader in readers:
+            reader.join(2.0)
+        stalled.close()
+
+    def outside_kills(watch: Watch) -> int:
+        return sum(n for t, n in watch.gaps if not any(k <= t <= k + KILL_SHADOW_S for k in kills))
+
+    return {"seconds": seconds, "healthy_messages": [w.messages for w in healthy],
+            "healthy_gaps": [sum(n for _, n in w.gaps) for w in healthy],
+            "healthy_gaps_outside_kills": [outside_kills(w) for w in healthy], "slow_messages": slow.messages,
+            "rss_mark_mib": rss.get("mark", float("nan")), "rss_end_mib": rss["end"], "trips": status["trips"],
+            "cause": status["cause"], "overruns": status["overruns_total"],
+            "messenger_restarts": status["telemetry"]["messenger_restarts"], **done}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=3600.0)
+    ap.add_argument("--kill-every", type=float, default=300.0)
+    ap.add_argument("--no-rt", action="store_true")
+    args = ap.parse_args()
+    header("soak")
+    daemon, eps = spawn_daemon(*(["--no-rt"] if args.no_rt else []))
+    try:
+        report = soak(daemon.pid, eps, args.seconds, args.kill_every)
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    for key, value in report.items():
+        print(f"{key:28s} {value}")
+
+
+if __name__ == "__main__":
+    main()

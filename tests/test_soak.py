@@ -1,0 +1,28 @@
+"""A short soak (bench/soak.py) in the suite: a real daemon at full telemetry with healthy, slow
+and stalled subscribers, paths, controller switches and gain changes, and its messenger
+killed twice: the healthy subscribers lose nothing but what each kill had in flight, the
+messenger comes back each time, and nothing trips. The hour-long run is the bench's."""
+import sys
+
+import pytest
+
+from bench.soak import soak
+
+pytestmark = pytest.mark.slow
+
+
+def test_a_short_soak_loses_nothing_outside_the_messenger_kills_and_trips_nothing(tmp_path):
+    import subprocess
+    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
+    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "ERROR",
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    try:
+        report = soak(daemon.pid, eps, seconds=12.0, kill_every=4.0)
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    assert report["trips"] == 0, report["cause"]
+    assert report["kills"] >= 2 and report["messenger_restarts"] == report["kills"]
+    assert report["healthy_gaps_outside_kills"] == [0, 0, 0], report
+    assert min(report["healthy_messages"]) > 500 and report["slow_messages"] > 50
+    assert report["paths"] >= 1 and report["switches"] >= 1
