@@ -78,3 +78,19 @@ def stats_subscriber(eps: dict[str, str]) -> zmq.Socket:
     sock.setsockopt(zmq.SUBSCRIBE, b"stats")
     sock.connect(eps["telemetry"])
     return sock
+
+
+def child_process(parent: int, marker: str) -> int | None:
+    """The pid of a child of ``parent`` whose command line holds ``marker`` (e.g. the daemon's
+    messenger, ``daemon.messenger``), or None."""
+    for pid in map(int, filter(str.isdigit, os.listdir("/proc"))):
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                cmdline = f.read()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == parent and marker.encode() in cmdline:
+            return pid
+    return None

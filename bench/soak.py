@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import msgpack
 import zmq
 
-from bench.common import header, spawn_daemon
+from bench.common import child_process, header, spawn_daemon
 from daemon.client import Client, RemoteError
 
 KILL_SHADOW_S = 5.0  # a gap this soon after a messenger kill is the kill's
@@ -65,22 +65,6 @@ def subscribe(eps: dict[str, str], watch: Watch | None, stop: threading.Event) -
     thread = threading.Thread(target=read, daemon=True)
     thread.start()
     return thread
-
-
-def messenger_pid(daemon_pid: int) -> int | None:
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as f:
-                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            with open(f"/proc/{entry}/cmdline", "rb") as f:
-                cmdline = f.read()
-        except (OSError, ValueError, IndexError):
-            continue
-        if ppid == daemon_pid and b"daemon.messenger" in cmdline:
-            return int(entry)
-    return None
 
 
 def rss_mib(pid: int) -> float:
@@ -127,7 +111,7 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
             except RemoteError:
                 done["refused"] += 1
             if now >= next_kill:
-                pid = messenger_pid(daemon_pid)
+                pid = child_process(daemon_pid, "daemon.messenger")
                 if pid is not None:
                     os.kill(pid, signal.SIGKILL)
                     kills.append(now)

@@ -6,8 +6,6 @@ schemas (docs/schemas), none reaches planning code in the loop's process (that w
 its schema too. How long the loop took is bench/command_stall.py's to measure, not a test's."""
 import itertools
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,6 +17,7 @@ import zmq
 from bench.command_cases import CASES, prepare
 from daemon import protocol as P
 from daemon.client import Client
+from tests.daemons import real_daemon
 
 SCHEMAS = Path(__file__).resolve().parents[1] / "docs" / "schemas"
 pytestmark = pytest.mark.slow
@@ -34,10 +33,8 @@ def schema(name: str, definition: str | None = None) -> jsonschema.Draft202012Va
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("every-command")
-    eps = {name: f"ipc://{tmp}/{name}" for name in ("command", "control", "telemetry")}
-    proc = subprocess.Popen([sys.executable, "-m", "tests.forbid_planning", "run", "--no-rt", "--log-level", "WARNING",
-                             "--stats-period", "0.2", *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    proc, eps = real_daemon(tmp_path_factory.mktemp("every-command"), "--stats-period", "0.2",
+                            module="tests.forbid_planning")
     client = Client(**eps, timeout=5.0)
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.LINGER, 0)

@@ -1,20 +1,16 @@
 """The protocol fuzzer (bench/fuzz.py), a short run in the suite: hostile and malformed frames
 at a real daemon get a documented error or a result, never silence, an ``internal`` reply or
 a change of the arm's state by a frame that was rejected, and the daemon lives on."""
-import sys
-
 import pytest
 
 from bench.fuzz import fuzz
 from daemon.client import Client
+from tests.daemons import real_daemon
 
 
 @pytest.fixture
 def daemon(tmp_path):
-    import subprocess
-    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
-    proc = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "ERROR",
-                             *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    proc, eps = real_daemon(tmp_path)
     try:
         Client(**eps).call("ping", timeout=60.0)
         yield proc, eps

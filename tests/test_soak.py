@@ -2,20 +2,16 @@
 and stalled subscribers, paths, controller switches and gain changes, and its messenger
 killed twice: the healthy subscribers lose nothing but what each kill had in flight, the
 messenger comes back each time, and nothing trips. The hour-long run is the bench's."""
-import sys
-
 import pytest
 
 from bench.soak import soak
+from tests.daemons import real_daemon
 
 pytestmark = pytest.mark.slow
 
 
 def test_a_short_soak_loses_nothing_outside_the_messenger_kills_and_trips_nothing(tmp_path):
-    import subprocess
-    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "ERROR",
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
+    daemon, eps = real_daemon(tmp_path)
     try:
         report = soak(daemon.pid, eps, seconds=12.0, kill_every=4.0)
     finally:

@@ -11,8 +11,10 @@ import msgpack
 import pytest
 import zmq
 
+from bench.common import child_process
 from daemon.messenger import MessengerError
 from daemon.server import ZmqServer
+from tests.daemons import real_daemon
 from tests.loophelpers import dealer, make_loop, ok
 
 
@@ -100,14 +102,6 @@ def test_a_telemetry_endpoint_in_use_is_a_clear_error():
         squatter.close(linger=0)
 
 
-def real_daemon(tmp_path, **popen) -> tuple[subprocess.Popen, dict[str, str]]:
-    """A real ``pneumad run`` (simulated rig, no real-time set-up) on private ipc endpoints."""
-    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--no-rt", "--log-level", "WARNING",
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
-    return daemon, eps
-
-
 def test_the_messenger_dies_with_the_daemon(tmp_path):
     """SIGKILL to the daemon (no chance to stop its children): the messenger goes too."""
     daemon, _ = real_daemon(tmp_path)
@@ -128,16 +122,9 @@ def test_the_messenger_dies_with_the_daemon(tmp_path):
 def _wait_for_child(parent: int, marker: str, limit_s: float = 60.0) -> int:
     end = time.monotonic() + limit_s
     while time.monotonic() < end:
-        for pid in map(int, filter(str.isdigit, os.listdir("/proc"))):
-            try:
-                with open(f"/proc/{pid}/stat") as f:
-                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-                with open(f"/proc/{pid}/cmdline", "rb") as f:
-                    cmdline = f.read()
-            except (OSError, ValueError, IndexError):
-                continue
-            if ppid == parent and marker.encode() in cmdline:
-                return pid
+        pid = child_process(parent, marker)
+        if pid is not None:
+            return pid
         time.sleep(0.1)
     raise AssertionError(f"no child process of {parent} running {marker}")
 
