@@ -2,6 +2,7 @@
 once, and while the loop does not cycle the messenger answers for it (``loop_stalled``) and
 says so on telemetry, so no client waits in silence and nothing it was refused runs later.
 (That planning never runs in the loop's process is tests/test_every_command.py's.)"""
+import dataclasses
 import time
 
 import msgpack
@@ -19,19 +20,21 @@ from tests.loophelpers import call, dealer, make_loop, ok
 
 
 class SleepsOnce(PID):
-    """PID that holds its cycle for 80 ms once, on its 50th step (a stand-in for any long cycle)."""
+    """PID that holds its cycle for 0.6 s once, on its 50th step (a stand-in for any long cycle)."""
 
     name = "sleeps-once"
 
     def step(self, state, reference):
         self.steps = getattr(self, "steps", 0) + 1
         if self.steps == 50:
-            time.sleep(0.08)
+            time.sleep(0.6)
         return super().step(state, reference)
 
 
 def test_a_cycle_that_runs_past_the_stall_limit_trips_and_writes_the_safe_state_at_once():
-    rig = config.load()
+    # A 0.3 s stall limit (the rig file's is 50 ms): this machine's own stalls, tens of ms,
+    # must not be what trips it; the slow cycle is twice the limit.
+    rig = dataclasses.replace(config.load(), safety=dataclasses.replace(config.load().safety, stall_after_s=0.3))
     clock = MonotonicClock(spin_s=0.0)
     transport = create_transport(rig, clock.now)
     transport.open()
