@@ -25,6 +25,7 @@ import multiprocessing
 import os
 import signal
 import time
+import weakref
 from collections.abc import Callable, Sequence
 
 from hal.errors import TransportError, TransportTimeout
@@ -141,6 +142,10 @@ class OffLoopTransport(Transport):
                                     args=(shared, factory, args, 1.0 / self.rate_hz, self.reopen_every_s,
                                           self.worker_priority))
         self._process.start()
+        # Dropped without close() (an exception on the way, a test that failed), the worker
+        # must not outlive its transport: it would go on writing into shared memory that the
+        # allocator hands to the next transport (seen: one test's link error in the next's).
+        self._finalizer = weakref.finalize(self, _stop_worker, shared, self._process)
         deadline = time.monotonic() + self.open_timeout_s
         while shared.in_seq.value == 0:
             if not self._process.is_alive() or time.monotonic() > deadline:
@@ -159,11 +164,8 @@ class OffLoopTransport(Transport):
             deadline = time.monotonic() + 0.5
             while shared.link_up.value and shared.in_seq.value < flushed and time.monotonic() < deadline:
                 time.sleep(0.001)
-            shared.stop.value = True
-            self._process.join(2.0)
-            if self._process.is_alive():
-                self._process.kill()
-                self._process.join(2.0)
+            self._finalizer.detach()
+            _stop_worker(shared, self._process)
             self._process = None
         super().close()
 
@@ -210,6 +212,15 @@ class OffLoopTransport(Transport):
             h.errors = sum(h.counters[k] for k in COUNTERS if k not in ("exchanges", "reconnects"))
             h.last_error = self._last_error()
         return h
+
+
+def _stop_worker(shared: "_Shared", process) -> None:
+    """Ask the worker to stop, then make sure it has."""
+    shared.stop.value = True
+    process.join(2.0)
+    if process.is_alive():
+        process.kill()
+        process.join(2.0)
 
 
 # -- in the worker process --------------------------------------------------------------------

@@ -53,10 +53,12 @@ def move_and_track(loop: ControlLoop, offsets_deg=(4.0, 3.0), duration_s: float 
 def tracks_like_in_process(loop: ControlLoop):
     """Move over the wire, then the same move in process on the virtual clock: the largest
     joint errors agree within 0.5 deg. Returns the wire's health after the move."""
-    over_wire = move_and_track(loop)
-    assert loop.state.value == "enabled", loop.supervisor.cause
-    health = loop.io.transport.health()
-    loop.shutdown()
+    try:
+        over_wire = move_and_track(loop)
+        assert loop.state.value == "enabled", loop.supervisor.cause
+        health = loop.io.transport.health()
+    finally:
+        loop.shutdown()  # a failing move must not leave its transport (and a worker process) open
     in_process = move_and_track(wire_loop(None, virtual=True)[0])
     assert all(abs(w - p) < 0.5 for w, p in zip(over_wire, in_process)), (over_wire, in_process)
     return health
