@@ -14,3 +14,12 @@ def real_daemon(tmp_path, *options: str, **popen) -> tuple[subprocess.Popen, dic
     daemon = subprocess.Popen([sys.executable, "-m", module, "run", "--no-rt", "--log-level", "WARNING", *options,
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
     return daemon, eps
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False

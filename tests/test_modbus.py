@@ -144,6 +144,7 @@ def test_a_transport_dropped_without_close_takes_its_worker_with_it():
 
     from hal import config
     from hal.transport import create_transport
+    from tests.daemons import running
 
     port = free_port()
     proc = peer(port)
@@ -155,16 +156,9 @@ def test_a_transport_dropped_without_close_takes_its_worker_with_it():
         del transport
         gc.collect()
         end = time.monotonic() + 5.0
-        while _running(worker) and time.monotonic() < end:
+        while running(worker) and time.monotonic() < end:
             time.sleep(0.05)
-        assert not _running(worker)
+        assert not running(worker)
     finally:
         stop_peer(proc)
 
-
-def _running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False

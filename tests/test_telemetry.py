@@ -14,7 +14,7 @@ import zmq
 from bench.common import child_process
 from daemon.messenger import MessengerError
 from daemon.server import ZmqServer
-from tests.daemons import real_daemon
+from tests.daemons import real_daemon, running
 from tests.loophelpers import dealer, make_loop, ok
 
 
@@ -110,9 +110,9 @@ def test_the_messenger_dies_with_the_daemon(tmp_path):
         daemon.send_signal(signal.SIGKILL)
         daemon.wait(10)
         end = time.monotonic() + 5.0
-        while _alive(messenger) and time.monotonic() < end:
+        while running(messenger) and time.monotonic() < end:
             time.sleep(0.05)
-        assert not _alive(messenger)
+        assert not running(messenger)
     finally:
         if daemon.poll() is None:
             daemon.kill()
@@ -127,14 +127,6 @@ def _wait_for_child(parent: int, marker: str, limit_s: float = 60.0) -> int:
             return pid
         time.sleep(0.1)
     raise AssertionError(f"no child process of {parent} running {marker}")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path):
