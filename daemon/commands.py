@@ -256,11 +256,10 @@ class Commands:
 
     # -- state ------------------------------------------------------------------------------
     def estop(self, args):
-        only(args, "who")
+        """Latch the e-stop. Never refused for its arguments: a ``who`` that is not a string is
+        recorded as its repr, anything else is ignored."""
         who = args.get("who", "")
-        if not isinstance(who, str):
-            raise bad_args("'who' must be a string", "who")
-        self.loop.estop(who[:64])
+        self.loop.estop((who if isinstance(who, str) else repr(who))[:64])
         return {"state": self.loop.state.value}
 
     def abort(self, args):

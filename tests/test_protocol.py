@@ -290,3 +290,14 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     assert set(reply["oneOf"][1]["properties"]["error"]["properties"]["code"]["enum"]) == codes
     results = json.loads((docs / "schemas" / "results.schema.json").read_text())
     assert set(results["$defs"]) == set(Commands.TABLE)
+
+
+def test_an_estop_is_never_refused_for_its_arguments(daemon):
+    """Whatever a panicking client puts beside it, an e-stop stops the arm."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    result = ok(loop, dealer(srv, "control"), "estop", {"who": {"not": "a string"}, "speed": float("nan")})
+    assert result["state"] == "estop" and loop.state is State.ESTOP
+    assert loop.supervisor.cause.startswith("e-stop from {")
