@@ -31,12 +31,11 @@ from controllers import registry
 from controllers.base import ParamError
 from daemon import planner
 from daemon import protocol as P
-from daemon.arguments import CommandFailed, bad_args, number, only
+from daemon.arguments import CommandFailed, number, only
 from daemon.preparation import Deferred, Preparer
 from daemon.safety import State, StateError
 
 VERSION = "0.1.0"
-PLANNED = ("set", "path", "waypoints", "steps", "excite")
 
 
 class Commands:
@@ -68,6 +67,7 @@ class Commands:
     }
 
     BESIDE = frozenset({"motion", "controller_switch", "controller_set", "controller_shadow"})
+    CONTROL = tuple(sorted(name for name, (_, _, on_control) in TABLE.items() if on_control))
 
     def __init__(self, loop, preparer: Preparer | None = None):
         self.loop = loop
@@ -141,9 +141,9 @@ class Commands:
                                                    f"(known: {', '.join(sorted(self.TABLE))})")
         method, needs_lease, on_control = entry
         if control and not on_control:
-            served = ", ".join(sorted(k for k, v in self.TABLE.items() if v[2]))
             raise CommandFailed(P.UNKNOWN_COMMAND, f"{request['cmd']!r} is not served on the control socket "
-                                                   f"(it serves {served}; send it on the command socket)")
+                                                   f"(it serves {', '.join(self.CONTROL)}; send it on the command "
+                                                   f"socket)")
         if needs_lease:
             self._check_lease(request["lease"])
         if method in self.BESIDE:  # its arguments are decoded beside the loop, with its work
@@ -249,7 +249,7 @@ class Commands:
             "controllers": self._controllers,
             "states": [s.value for s in State],
             "commands": sorted(self.TABLE),
-            "control_commands": sorted(k for k, v in self.TABLE.items() if v[2]),
+            "control_commands": list(self.CONTROL),
             "deferred_commands": sorted(P.DEFERRED_COMMANDS),
             "deferred_timeout_s": self.preparer.time_limit_s,
         }

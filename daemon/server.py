@@ -11,6 +11,7 @@ by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
 """
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import tempfile
@@ -24,6 +25,7 @@ from daemon.ring import Ring, RingError
 MAX_CONTROL_PER_CYCLE = 8
 MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
 RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
+log = logging.getLogger("pneumad")
 _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 
 
@@ -31,7 +33,8 @@ class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S):
         self.max_per_cycle = max_per_cycle
-        self.reclaimed = reclaim_stale_rings(_shm_dir())
+        for name in reclaim_stale_rings(_shm_dir()):
+            log.warning("removed the rings a killed daemon left behind: %s", name)
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
         self.rings = create_rings(self._rings_dir)
         self.heartbeat = Heartbeat(self._rings_dir, create=True)
