@@ -67,8 +67,12 @@ def test_the_readme_tour_runs_as_written():
                 if words[1] in MOTION:
                     wait_for_reference_end(client)
                 if words[1] == "watch":
+                    # Ctrl-C as a terminal sends it. A test run started in the background by a
+                    # script has SIGINT ignored, and children inherit that (a shell cannot undo
+                    # it): give the command the default action a terminal's would have.
                     proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=ROOT,
-                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                            preexec_fn=restore_sigint)
                     time.sleep(2.0)
                     proc.send_signal(signal.SIGINT)
                     out, err = proc.communicate(timeout=10)
@@ -87,3 +91,8 @@ def test_the_readme_tour_runs_as_written():
         daemon.wait(timeout=10)
         for name in ("run.pnrec", "run.csv"):
             (ROOT / name).unlink(missing_ok=True)
+
+
+def restore_sigint() -> None:
+    """In the child before exec: SIGINT's default action (a terminal's Ctrl-C stops it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
