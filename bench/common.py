@@ -12,6 +12,7 @@ from contextlib import contextmanager
 
 import zmq
 
+from daemon import keys
 from daemon.client import Client
 
 
@@ -72,9 +73,25 @@ def leased_daemon(*options: str, timeout: float = 10.0):
         daemon.wait(10)
 
 
+def with_keys() -> tuple[str, ...]:
+    """CURVE for a bench: a fresh key directory with an operator key, that key in
+    ``PNEUMAD_KEY`` (the Client and :func:`secure` use it), and the daemon's options."""
+    directory = tempfile.mkdtemp(prefix="pneumad-bench-keys-")
+    keys.init_server(os.path.join(directory, "server"))
+    os.environ["PNEUMAD_KEY"] = keys.make_client(os.path.join(directory, "server"), "bench", keys.OPERATOR, directory)
+    return "--keys", os.path.join(directory, "server")
+
+
+def secure(sock: zmq.Socket) -> zmq.Socket:
+    """A raw socket of a bench, given the key in ``PNEUMAD_KEY`` if there is one."""
+    if os.environ.get("PNEUMAD_KEY"):
+        keys.secure_client(sock, os.environ["PNEUMAD_KEY"])
+    return sock
+
+
 def stats_subscriber(eps: dict[str, str]) -> zmq.Socket:
     """A SUB socket on the daemon's ``stats`` topic."""
-    sock = zmq.Context.instance().socket(zmq.SUB)
+    sock = secure(zmq.Context.instance().socket(zmq.SUB))
     sock.setsockopt(zmq.SUBSCRIBE, b"stats")
     sock.connect(eps["telemetry"])
     return sock

@@ -1,6 +1,6 @@
 """The daemon's loop under its full workload, against cyclictest run at the same time.
 
-Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80] [--loop-cpu N]
+Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80] [--loop-cpu N] [--keys]
 
 Starts a real ``pneumad`` (simulated rig, PID enabled, SCHED_FIFO at --priority where
 permitted) and cyclictest at the same priority, then loads the daemon from this process:
@@ -12,6 +12,9 @@ and compute time over the whole run (one stats window), cyclictest's, and their 
 --loop-cpu N sets the machine up as a lab would (isolcpus): the loop alone on CPU N, and
 everything else (the daemon's helper processes, this load generator, cyclictest) on the
 other CPUs, so cyclictest then measures the CPUs that carry the load.
+
+--keys runs the daemon with CURVE keys (every socket encrypted and authenticated, every
+client of this bench holding an allowed key): the same figures, with CURVE's cost in them.
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ import msgpack
 import zmq
 
 from bench import cyclictest
-from bench.common import header, percentiles, spawn_daemon, stats_subscriber
+from bench.common import header, percentiles, secure, spawn_daemon, stats_subscriber, with_keys
 from daemon.client import Client
 
 
@@ -35,6 +38,7 @@ def main() -> None:
     ap.add_argument("--subscribers", type=int, default=10)
     ap.add_argument("--priority", type=int, default=80)
     ap.add_argument("--loop-cpu", type=int, default=None, help="the loop alone on this CPU, the rest elsewhere")
+    ap.add_argument("--keys", action="store_true", help="CURVE on every socket")
     args = ap.parse_args()
     placement = ""
     daemon_options = ["--rt-priority", str(args.priority), "--stats-period", str(args.seconds)]
@@ -43,6 +47,9 @@ def main() -> None:
         os.sched_setaffinity(0, others)  # inherited by the daemon's helpers and cyclictest
         daemon_options += ["--cpus", str(args.loop_cpu)]
         placement = f"; loop alone on CPU {args.loop_cpu}, the rest on {others}"
+    if args.keys:
+        daemon_options += with_keys()
+        placement += "; CURVE keys on every socket"
     header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled{placement}")
     daemon, eps = spawn_daemon(*daemon_options)
     ctx = zmq.Context.instance()
@@ -52,7 +59,7 @@ def main() -> None:
         stats_sub = stats_subscriber(eps)
         stop = threading.Event()
         healthy = [Reader(ctx, eps["telemetry"], stop, keep=(i == 0)) for i in range(max(args.subscribers - 1, 0))]
-        stalled = ctx.socket(zmq.SUB)
+        stalled = secure(ctx.socket(zmq.SUB))
         stalled.setsockopt(zmq.RCVHWM, 10)
         stalled.setsockopt(zmq.SUBSCRIBE, b"")
         if args.subscribers:
@@ -96,7 +103,7 @@ class Reader(threading.Thread):
 
     def __init__(self, ctx, endpoint, stop, keep=False):
         super().__init__(daemon=True)
-        self.sock = ctx.socket(zmq.SUB)
+        self.sock = secure(ctx.socket(zmq.SUB))
         self.sock.setsockopt(zmq.RCVHWM, 0)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"state")
         self.sock.connect(endpoint)

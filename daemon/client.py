@@ -10,18 +10,27 @@ Replies are matched to requests by id; a reply that never comes raises TimeoutEr
 instead of hanging. A command whose reply is deferred (planned or built beside the loop:
 ``protocol.DEFERRED_COMMANDS``) is waited for as long as the daemon's ``describe`` says such
 work may take. ``keep_lease()`` renews the lease from a background thread.
+
+A daemon with keys (docs/protocol.md, "Keys") needs ``key_file``: the client's
+``NAME.key_secret``, which names the daemon's public key itself, or with ``server_key_file``
+(the daemon's ``server.key``); ``PNEUMAD_KEY`` and ``PNEUMAD_SERVER_KEY`` in the environment
+give them too. A daemon that refuses the key (unknown, revoked, or none given) is reported as
+:class:`KeyRefused`, not as a silent time-out.
 """
 from __future__ import annotations
 
 import csv
 import itertools
+import os
 import threading
 import time
 
 import msgpack
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 from daemon import protocol
+from daemon.keys import secure_client
 from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
@@ -33,12 +42,24 @@ class RemoteError(RuntimeError):
         self.code, self.message, self.data = code, message, data
 
 
+class KeyRefused(ConnectionError):
+    """The daemon would not complete the CURVE handshake with this client."""
+
+
+_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+                     | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL | zmq.EVENT_HANDSHAKE_SUCCEEDED)
+
+
 class Client:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
-                 telemetry: str = DEFAULT_TELEMETRY, timeout: float = 2.0, context: zmq.Context | None = None):
+                 telemetry: str = DEFAULT_TELEMETRY, timeout: float = 2.0, context: zmq.Context | None = None,
+                 key_file: str | None = None, server_key_file: str | None = None):
         self.context = context or zmq.Context.instance()
         self.endpoints = {"command": command, "control": control, "telemetry": telemetry}
         self.timeout = timeout
+        self.key_file = key_file or os.environ.get("PNEUMAD_KEY") or None
+        self.server_key_file = server_key_file or os.environ.get("PNEUMAD_SERVER_KEY") or None
+        self._monitors: dict[str, zmq.Socket] = {}
         self._ids = itertools.count(1)
         self._sockets = {name: self._dealer(ep) for name, ep in (("command", command), ("control", control))}
         self._lock = threading.Lock()
@@ -50,15 +71,37 @@ class Client:
     def _dealer(self, endpoint: str) -> zmq.Socket:
         sock = self.context.socket(zmq.DEALER)
         sock.setsockopt(zmq.LINGER, 0)
+        self._secure(sock)
+        self._monitors[endpoint] = sock.get_monitor_socket(_HANDSHAKE_EVENTS)
         sock.connect(endpoint)
         return sock
+
+    def _secure(self, sock: zmq.Socket) -> None:
+        if self.key_file:
+            secure_client(sock, self.key_file, self.server_key_file)
+
+    def _refused(self, endpoint: str) -> KeyRefused | None:
+        """What the handshakes with ``endpoint`` said so far: a refusal, if the last was one."""
+        monitor, last = self._monitors[endpoint], None
+        while monitor.poll(0):
+            last = recv_monitor_message(monitor)["event"]
+        if last in (None, zmq.EVENT_HANDSHAKE_SUCCEEDED):
+            return None
+        if not self.key_file:
+            return KeyRefused(f"{endpoint} wants a key (the daemon runs with CURVE keys): give --key FILE or set "
+                              f"PNEUMAD_KEY (docs/protocol.md, Keys)")
+        return KeyRefused(f"{endpoint} refused the key in {self.key_file}: it is not allowed there (unknown or "
+                          f"revoked), or the daemon's public key given is not that daemon's")
 
     def close(self) -> None:
         self._keeping.clear()
         if self._keeper is not None:
             self._keeper.join()
         for sock in self._sockets.values():
+            sock.disable_monitor()
             sock.close(linger=0)
+        for monitor in self._monitors.values():
+            monitor.close(linger=0)
 
     def __enter__(self):
         return self
@@ -79,13 +122,17 @@ class Client:
         with self._lock:
             sock = self._sockets["control" if control else "command"]
             request_id = next(self._ids)
-            sock.send(protocol.encode_request(request_id, cmd, args, self.lease))
-            deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+            endpoint = self.endpoints["control" if control else "command"]
+            limit = self.timeout if timeout is None else timeout
+            deadline = time.monotonic() + limit
+            # A DEALER with no live connection (its handshake refused) would block in send.
+            if not sock.poll(limit * 1e3, zmq.POLLOUT):
+                self._unanswered(cmd, endpoint, limit)
+            sock.send(protocol.encode_request(request_id, cmd, args, self.lease), zmq.NOBLOCK)
             while True:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not sock.poll(remaining * 1e3):
-                    raise TimeoutError(f"no reply to {cmd!r} within {self.timeout if timeout is None else timeout} s "
-                                       f"from {self.endpoints['control' if control else 'command']}")
+                    self._unanswered(cmd, endpoint, limit)
                 reply = msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
                 if reply.get("id") == request_id:
                     break  # earlier replies that arrived after their timeout are dropped
@@ -93,6 +140,13 @@ class Client:
             error = reply.get("error", {})
             raise RemoteError(error.get("code", "?"), error.get("message", ""), error.get("data"))
         return reply.get("result")
+
+    def _unanswered(self, cmd: str, endpoint: str, limit: float):
+        """Raise why there is no reply: the daemon refused this client's key, or silence."""
+        refused = self._refused(endpoint)
+        if refused is not None:
+            raise refused
+        raise TimeoutError(f"no reply to {cmd!r} within {limit} s from {endpoint}")
 
     def deferred_timeout(self) -> float:
         """How long a deferred reply may take [s]: the daemon's own limit, and a margin."""
@@ -223,7 +277,7 @@ class Client:
 
     # -- telemetry ------------------------------------------------------------------------
     def subscribe(self, topics=(b"state", b"stats", b"event")) -> "Subscription":
-        return Subscription(self.context, self.endpoints["telemetry"], topics)
+        return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
 
 
 def read_waypoints(path) -> dict:
@@ -250,9 +304,11 @@ def read_waypoints(path) -> dict:
 class Subscription:
     """Telemetry messages as (topic, dict), with a count of messages lost (by sequence)."""
 
-    def __init__(self, context: zmq.Context, endpoint: str, topics):
+    def __init__(self, context: zmq.Context, endpoint: str, topics, secure=None):
         self.sock = context.socket(zmq.SUB)
         self.sock.setsockopt(zmq.LINGER, 0)
+        if secure is not None:
+            secure(self.sock)
         self.sock.setsockopt(zmq.RCVHWM, 100000)
         for topic in topics:
             self.sock.setsockopt(zmq.SUBSCRIBE, topic)

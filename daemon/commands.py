@@ -18,20 +18,22 @@ with the request or the rig is handed to the worker process beside the loop
 Status and describe are built from the loop's last cycle record and the static rig
 description; they never wait on anything.
 
-One controlling client holds a lease (a token) and must renew it within its time to live;
-commands that move the arm or change what moves it need the token. Anyone may read, and
-anyone may e-stop or abort. A lease that lapses while the arm is enabled trips it.
+Anyone may read, and anyone may e-stop or abort; commands that move the arm or change what
+moves it need the lease (:mod:`daemon.lease`). Each request comes with who sent it
+(:class:`daemon.keys.Identity`: a CURVE key's name and role, or anonymous without keys), and
+every event a request causes records who asked.
 """
 from __future__ import annotations
 
 import math
-import secrets
 
 from controllers import registry
 from controllers.base import ParamError
 from daemon import planner
 from daemon import protocol as P
 from daemon.arguments import CommandFailed, number, only
+from daemon.keys import ANONYMOUS, Identity
+from daemon.lease import Lease
 from daemon.preparation import Deferred, Preparer
 from daemon.safety import State, StateError
 
@@ -69,12 +71,11 @@ class Commands:
     BESIDE = frozenset({"motion", "controller_switch", "controller_set", "controller_shadow"})
     CONTROL = tuple(sorted(name for name, (_, _, on_control) in TABLE.items() if on_control))
 
-    def __init__(self, loop, preparer: Preparer | None = None):
+    def __init__(self, loop, preparer: Preparer | None = None, security: dict | None = None):
         self.loop = loop
-        self.lease: str | None = None
-        self.lease_expires = 0.0
-        self.lease_ttl = loop.rig.safety.lease_ttl_s
-        self.lease_ttl_active = self.lease_ttl
+        self.security = security or {"mode": "local", "warning": None}
+        self.client = ANONYMOUS  # who sent the request being handled
+        self.lease = Lease(loop)
         self.requests = 0
         self.errors = 0
         # Built once, off the loop: scanning entry points costs milliseconds.
@@ -85,17 +86,22 @@ class Commands:
         self._plan_context = planner.PlanContext.of(loop.rig, loop.context)
 
     # -- entry points -----------------------------------------------------------------------
-    def handle_payload(self, payload: bytes, control: bool = False) -> bytes | Deferred:
-        """Decode, run and encode one request; every failure becomes an error reply. Work
-        done off the loop comes back as a Deferred: see :meth:`complete`."""
+    def handle_payload(self, payload: bytes, control: bool = False, client: Identity = ANONYMOUS,
+                       start: int = 0) -> bytes | Deferred:
+        """Decode, run and encode one request (at ``start`` in ``payload``, from ``client``);
+        every failure becomes an error reply. Work done off the loop comes back as a Deferred:
+        see :meth:`complete`."""
         self.requests += 1
         request_id = None
+        self.client = client
+        events = self.loop.supervisor.events
+        first_event = len(events)
         try:
-            request = P.decode_request(payload)
+            request = P.decode_request(payload, start)
             request_id = request["id"]
             result = self.handle(request, control)
             if isinstance(result, Deferred):
-                result.request_id = request_id
+                result.request_id, result.client = request_id, client
                 return result
             return P.encode_result(request_id, result)
         except P.ProtocolError as exc:
@@ -107,12 +113,16 @@ class Commands:
         except Exception as exc:  # a bug in a handler must not take the loop down
             self.errors += 1
             return P.encode_error(request_id, P.INTERNAL, f"{type(exc).__name__}: {exc}")
+        finally:
+            _signed(events, first_event, client)
 
     def complete(self, deferred: Deferred) -> bytes:
         """The reply to a deferred command whose work is done: its result applied now, at
         this cycle boundary, or the error that stopped it."""
         request_id = deferred.request_id
         data = None
+        events = self.loop.supervisor.events
+        first_event = len(events)
         try:
             return P.encode_result(request_id, deferred.finish(deferred.future.result()))
         except CommandFailed as exc:
@@ -123,6 +133,8 @@ class Commands:
             message, code = str(exc).strip("'\""), P.BAD_ARGS
         except Exception as exc:  # a plugin that fails to build is refused, never fatal
             message, code = f"{type(exc).__name__}: {exc}", P.REFUSED
+        finally:
+            _signed(events, first_event, deferred.client)
         self.errors += 1
         return P.encode_error(request_id, code, message, data)
 
@@ -145,51 +157,27 @@ class Commands:
                                                    f"(it serves {', '.join(self.CONTROL)}; send it on the command "
                                                    f"socket)")
         if needs_lease:
-            self._check_lease(request["lease"])
+            self.lease.check(request["lease"], self.client)
         if method in self.BESIDE:  # its arguments are decoded beside the loop, with its work
             return getattr(self, method)(request)
         return getattr(self, method)(P.decode_args(request))
 
     def tick(self) -> None:
-        """Once a cycle: a lease that lapsed while the arm was enabled trips it."""
-        if self.lease is not None and self.loop.clock.now() > self.lease_expires:
-            self.lease = None
-            if self.loop.supervisor.enabled:
-                self.loop.supervisor.trip("lease lost: the controlling client stopped renewing it")
-
-    def _check_lease(self, token) -> None:
-        if self.lease is None:
-            raise CommandFailed(P.NO_LEASE, "this command needs the lease: send lease.acquire first",
-                                {"reason": "no_lease", "lease_held": False})
-        if token is None:
-            raise CommandFailed(P.NO_LEASE, "this command needs the lease token in the request's 'lease' field (a "
-                                            "client holds the lease: if it is you, send its token)",
-                                {"reason": "no_token", "lease_held": True})
-        if token != self.lease:
-            raise CommandFailed(P.NO_LEASE, "the lease token does not match: another client holds the lease",
-                                {"reason": "wrong_token", "lease_held": True})
+        """Once a cycle: the lease's clock (:meth:`daemon.lease.Lease.tick`)."""
+        self.lease.tick()
 
     # -- lease ------------------------------------------------------------------------------
     def lease_acquire(self, args):
         only(args, "ttl_s")
-        ttl = number(args, "ttl_s", 0.1, 60.0, self.lease_ttl)
-        if self.lease is not None:
-            raise CommandFailed(P.LEASE_HELD, f"another client holds the lease for up to "
-                                              f"{self.lease_expires - self.loop.clock.now():.1f} s more")
-        self.lease = secrets.token_hex(16)
-        self.lease_ttl_active = ttl
-        self.lease_expires = self.loop.clock.now() + ttl
-        return {"lease": self.lease, "ttl_s": ttl}
+        return self.lease.acquire(self.client, number(args, "ttl_s", 0.1, 60.0, self.lease.ttl))
 
     def lease_renew(self, args):
         only(args)
-        self.lease_expires = self.loop.clock.now() + self.lease_ttl_active
-        return {"ttl_s": self.lease_ttl_active}
+        return self.lease.renew()
 
     def lease_release(self, args):
         only(args)
-        self.lease = None
-        return {}
+        return self.lease.release()
 
     # -- reading ----------------------------------------------------------------------------
     def ping(self, args):
@@ -215,7 +203,11 @@ class Commands:
                                                    loop.velocities, loop.u)},
             "force_n": None if loop.force != loop.force else loop.force,
             "faults": list(snap.faults) if snap is not None else [],
-            "lease_held": self.lease is not None,
+            "lease_held": self.lease.held,
+            "lease_holder": self.lease.holder.name if self.lease.held else None,
+            "unleased_disable_in_s": self.lease.disable_in(),
+            "client": {"name": self.client.name, "role": self.client.role},
+            "security": self.security,
             "trips": loop.supervisor.trips,
             "overruns_total": loop.stats.overruns_total,
             "transport": vars(loop.io.transport.health()),
@@ -248,18 +240,21 @@ class Commands:
                       "pressure": "Pa", "force": "N", "time": "s"},
             "controllers": self._controllers,
             "states": [s.value for s in State],
-            "commands": sorted(self.TABLE),
+            "commands": sorted((*self.TABLE, *P.MESSENGER_COMMANDS)),
             "control_commands": list(self.CONTROL),
             "deferred_commands": sorted(P.DEFERRED_COMMANDS),
             "deferred_timeout_s": self.preparer.time_limit_s,
+            "security": self.security,
         }
 
     # -- state ------------------------------------------------------------------------------
     def estop(self, args):
         """Latch the e-stop. Never refused for its arguments: a ``who`` that is not a string is
-        recorded as its repr, anything else is ignored."""
-        who = args.get("who", "")
-        self.loop.estop((who if isinstance(who, str) else repr(who))[:64])
+        recorded as its repr, anything else is ignored. The key that sent it is recorded first."""
+        said = args.get("who", "")
+        said = (said if isinstance(said, str) else repr(said))[:64]
+        who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
+        self.loop.estop(who)
         return {"state": self.loop.state.value}
 
     def abort(self, args):
@@ -386,3 +381,9 @@ class Commands:
         if self.loop.shadow is None:
             raise CommandFailed(P.BAD_STATE, "no shadow run to discard")
         return self.loop.end_shadow("discard")
+
+
+def _signed(events: list[dict], first: int, client: Identity) -> None:
+    """Record who asked in the events a request caused (those from ``first`` on)."""
+    for event in events[first:]:
+        event.setdefault("who", str(client))

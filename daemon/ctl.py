@@ -4,21 +4,25 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 
-from daemon import recording
-from daemon.client import Client, RemoteError, read_waypoints
+from daemon import keys, recording
+from daemon.client import Client, KeyRefused, RemoteError, read_waypoints
 from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
 def with_lease(client: Client, fn):
-    """One-shot commands take the lease, act, and hand it back (the arm keeps its state)."""
+    """One-shot commands take the lease, act, and hand it back (the arm keeps its state; if
+    it stays enabled, the daemon's note on what becomes of it is printed)."""
     client.acquire_lease()
     try:
         return fn()
     finally:
-        client.release_lease()
+        released = client.release_lease()
+        if released and "unleased" in released:
+            print(f"note: {released['unleased']['note']}", file=sys.stderr)
 
 
 def watch(client: Client, seconds: float | None) -> None:
@@ -79,6 +83,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--control", default=DEFAULT_CONTROL)
     p.add_argument("--telemetry", default=DEFAULT_TELEMETRY)
     p.add_argument("--timeout", type=float, default=2.0)
+    p.add_argument("--key", default=None, metavar="FILE",
+                   help="your key (NAME.key_secret) for a daemon with keys (or PNEUMAD_KEY)")
+    p.add_argument("--server-key", default=None, metavar="FILE",
+                   help="the daemon's public key (server.key), if your key file does not hold it (or PNEUMAD_SERVER_KEY)")
     sub = p.add_subparsers(dest="what", required=True)
     for name in ("status", "describe", "enable", "disable", "estop", "reset", "abort"):
         sub.add_parser(name)
@@ -118,6 +126,10 @@ def parser() -> argparse.ArgumentParser:
     e = sub.add_parser("export", help="export a recording to CSV")
     e.add_argument("file")
     e.add_argument("csv")
+    k = sub.add_parser("keys", help="new: make your own key pair; reload: have the daemon read its allow-list again")
+    k.add_argument("action", choices=["new", "reload"])
+    k.add_argument("name", nargs="?", help="new: your key's name (e.g. your login)")
+    k.add_argument("--dir", default=os.path.expanduser("~/.config/pneumad"), help="new: where (default ~/.config/pneumad)")
     return p
 
 
@@ -137,9 +149,19 @@ def main(argv=None) -> int:
         rows = recording.export_csv(args.file, args.csv)
         print(f"wrote {rows} rows to {args.csv}")
         return 0
-    client = Client(args.command, args.control, args.telemetry, timeout=args.timeout)
+    try:
+        if args.what == "keys" and args.action == "new":
+            return new_key(args)
+        client = Client(args.command, args.control, args.telemetry, timeout=args.timeout, key_file=args.key,
+                        server_key_file=args.server_key)
+    except keys.KeyFileError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         result = run(client, args)
+    except KeyRefused as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     except RemoteError as exc:
         print(f"error: {exc}", file=sys.stderr)
         if exc.data:
@@ -158,12 +180,25 @@ def main(argv=None) -> int:
     return 0
 
 
+def new_key(args) -> int:
+    """Your own key pair, made here: the secret stays with you, the public file goes to the lab."""
+    if not args.name:
+        raise SystemExit("pneumactl keys new NAME")
+    public, secret = keys.new_client_pair(args.dir, args.name, args.server_key)
+    print(f"your key: {secret} (mode 0600: keep it to yourself)\n"
+          f"send {public} to the lab, who allow it with `pneumad keys allow {os.path.basename(public)}`"
+          + ("" if args.server_key else "; use it with --server-key server.key (the daemon's public key)"))
+    return 0
+
+
 def timeout_hint(client: Client) -> str:
     """Whether the daemon is there at all: a quick ping on the control socket."""
     try:
         client.call("ping", control=True, timeout=0.5)
     except RemoteError:
         return " (pneumad answers, but not this request: see `pneumactl status`)"
+    except KeyRefused as exc:
+        return f" ({exc})"
     except TimeoutError:
         return " (is pneumad running?)"
     return " (pneumad is running: the request may still be in progress, see `pneumactl status`)"
@@ -215,6 +250,8 @@ def run(client: Client, args):
             act = client.switch_controller if args.action == "switch" else client.shadow
             return with_lease(client, lambda: act(args.args[0], key_values(args.args[1:]), args.design))
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
+    if w == "keys":
+        return client.call("keys.reload", control=True)
     if w == "record":
         code = record(client, args.file, args.seconds)
         if code:

@@ -1,5 +1,6 @@
-"""``pneumad``: the daemon (``run``, the default), the latency qualification, and the
-dead-man command that writes the safe state (``safe-state``, for systemd's ExecStopPost)."""
+"""``pneumad``: the daemon (``run``, the default), the latency qualification, the dead-man
+command that writes the safe state (``safe-state``, for systemd's ExecStopPost), and the
+daemon's CURVE keys (``keys``)."""
 from __future__ import annotations
 
 import argparse
@@ -9,7 +10,7 @@ import signal
 import sys
 import time
 
-from daemon import realtime
+from daemon import keys_cli, realtime
 from daemon.clock import MonotonicClock
 from daemon.loop import ControlLoop
 from daemon.messenger import MessengerError
@@ -60,7 +61,9 @@ def cmd_run(args) -> int:
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
     # Before the real-time set-up: the messenger process keeps normal priority and every CPU.
-    server = ZmqServer(args.command, args.control, args.telemetry)
+    server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure)
+    # systemctl reload: the messenger reads its allow-list again.
+    signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
     try:
         return _serve(args, clock, server)
     finally:
@@ -99,6 +102,8 @@ def _run_loop(args, clock, server: ZmqServer, preparer: Preparer) -> int:
 
     loop.heartbeat = heartbeat
     loop.stats_period = args.stats_period
+    if server.security["warning"]:
+        log.warning("%s", server.security["warning"])
     if notifier.watchdog_interval:
         loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
     for warning in realtime_setup(args):
@@ -140,6 +145,10 @@ def cmd_safe_state(args) -> int:
     finally:
         transport.close()
     return 0
+
+
+def cmd_keys(args) -> int:
+    return keys_cli.run(args)
 
 
 def cmd_latency(args) -> int:
@@ -188,22 +197,27 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--control", default=DEFAULT_CONTROL, help=f"control endpoint (default {DEFAULT_CONTROL})")
     run.add_argument("--telemetry", default=DEFAULT_TELEMETRY, help=f"telemetry endpoint (default {DEFAULT_TELEMETRY})")
     run.add_argument("--stats-period", type=float, default=1.0, help="window of the stats telemetry [s] (default 1)")
+    run.add_argument("--keys", default=None, metavar="DIR",
+                     help="CURVE key directory (pneumad keys init): every client must hold an allowed key")
+    run.add_argument("--insecure", action="store_true",
+                     help="allow binding past loopback without keys (anyone who reaches the port can move the arm)")
     safe = sub.add_parser("safe-state", help="write the rig's safe state once and exit (dead-man path)")
     common(safe)
     lat = sub.add_parser("latency", help="qualify this PC: run the loop on the simulator and judge its latency")
     common(lat)
     timing(lat)
     lat.add_argument("--seconds", type=float, default=10.0)
+    keys_cli.add_parser(sub)
     return p
 
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] not in ("run", "safe-state", "latency", "-h", "--help"):
+    if not argv or argv[0] not in ("run", "safe-state", "latency", "keys", "-h", "--help"):
         argv = ["run", *argv]  # plain `pneumad [options]` runs the daemon
     args = parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level, format="%(name)s %(levelname)s: %(message)s")
-    handlers = {"run": cmd_run, "safe-state": cmd_safe_state, "latency": cmd_latency}
+    logging.basicConfig(level=getattr(args, "log_level", "INFO"), format="%(name)s %(levelname)s: %(message)s")
+    handlers = {"run": cmd_run, "safe-state": cmd_safe_state, "latency": cmd_latency, "keys": cmd_keys}
     try:
         return handlers[args.command_name](args)
     except ConfigError as exc:

@@ -44,6 +44,7 @@ class Deferred:
     future: Future
     finish: Callable[[object], dict]
     request_id: object = None  # of the request it answers, set by the command layer
+    client: object = None  # who sent it (a daemon.keys.Identity), set by the command layer
 
 
 class Preparer:

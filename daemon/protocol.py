@@ -19,6 +19,9 @@ MAX_MESSAGE_BYTES = 64 * 1024  # larger frames are dropped by ZeroMQ before they
 DEFERRED_COMMANDS = ("set", "path", "waypoints", "steps", "excite", "controller.switch", "controller.shadow",
                      "controller.set")
 
+# Commands the messenger answers itself, never passed to the loop (docs/protocol.md, Keys).
+MESSENGER_COMMANDS = ("keys.reload",)
+
 # Error codes a client can branch on.
 BAD_MESSAGE = "bad_message"  # not msgpack, not a map, or a field of the wrong type
 BAD_VERSION = "bad_version"
@@ -30,9 +33,10 @@ BAD_STATE = "bad_state"  # not allowed in the daemon's present state
 REFUSED = "refused"  # valid, but unsafe or infeasible on this rig
 BUSY = "busy"  # work is being prepared beside the loop (a plan, a controller); ask again when its reply is in
 LOOP_STALLED = "loop_stalled"  # from the messenger: the loop has stopped cycling
+FORBIDDEN = "forbidden"  # the client's key may not do this (its role, a lease taken by another key, a revoked key)
 INTERNAL = "internal"  # a bug: reported, never fatal
 ERROR_CODES = (BAD_MESSAGE, BAD_VERSION, UNKNOWN_COMMAND, BAD_ARGS, NO_LEASE, LEASE_HELD, BAD_STATE, REFUSED, BUSY,
-               LOOP_STALLED, INTERNAL)
+               LOOP_STALLED, FORBIDDEN, INTERNAL)
 
 
 class ProtocolError(Exception):
@@ -49,14 +53,15 @@ _LIMITS = dict(max_str_len=MAX_MESSAGE_BYTES, max_bin_len=MAX_MESSAGE_BYTES, max
 _MAP_MARKERS = frozenset(range(0x80, 0x90)) | {0xDE, 0xDF}  # fixmap, map 16, map 32
 
 
-def decode_request(payload: bytes) -> dict:
+def decode_request(payload: bytes, start: int = 0) -> dict:
     """A validated request envelope, or :class:`ProtocolError`. ``args`` is not decoded here
     but located (``args_span``, byte offsets in ``payload``): the loop decodes only the small
     arguments of its own commands (:func:`decode_args`), and a planned command's arguments,
-    up to a 64 KiB list of waypoints, are decoded by the planner beside the loop."""
+    up to a 64 KiB list of waypoints, are decoded by the planner beside the loop. The request
+    starts at ``start`` (after the messenger's few bytes saying who sent it)."""
     unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, max_buffer_size=MAX_MESSAGE_BYTES, **_LIMITS)
     msg, span = {}, None
-    unpacker.feed(payload)
+    unpacker.feed(memoryview(payload)[start:])
     try:
         entries = unpacker.read_map_header()
     except msgpack.OutOfData:
@@ -67,12 +72,12 @@ def decode_request(payload: bytes) -> dict:
         for _ in range(entries):
             key = unpacker.unpack()
             if key == "args":
-                start = unpacker.tell()
+                begin = unpacker.tell()
                 unpacker.skip()
-                span = (start, unpacker.tell())
+                span = (start + begin, start + unpacker.tell())
             else:
                 msg[key] = unpacker.unpack()
-        if unpacker.tell() != len(payload):
+        if start + unpacker.tell() != len(payload):
             raise ValueError("extra data after the message")
     except Exception as exc:  # msgpack raises several types for malformed input
         raise ProtocolError(BAD_MESSAGE, f"not a msgpack message: {type(exc).__name__}: {exc}") from None

@@ -8,6 +8,11 @@ command-socket requests, and queues each reply; telemetry is queued the same way
 that is full refuses: the message is dropped and counted (``telemetry_dropped``,
 ``reply_failures``), never waited for. Frames over ``protocol.MAX_MESSAGE_BYTES`` are refused
 by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
+
+Each request arrives with who sent it (a few bytes the messenger puts first:
+:func:`daemon.keys.pack_identity`). Which clients may connect at all is the messenger's
+(CURVE, :mod:`daemon.guard`); :func:`security` says what a daemon's endpoints and keys add up
+to, and refuses to bind past loopback with nobody's key checked unless told ``insecure``.
 """
 from __future__ import annotations
 
@@ -16,11 +21,14 @@ import os
 import shutil
 import tempfile
 
+from daemon import protocol as P
 from daemon.commands import Commands
+from daemon.keys import unpack_identity
 from daemon.messenger import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.preparation import Deferred
 from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 from daemon.ring import Ring, RingError
+from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
 MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
@@ -31,8 +39,10 @@ _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 
 class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
-                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S):
+                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
+                 keys: str | None = None, insecure: bool = False):
         self.max_per_cycle = max_per_cycle
+        self.security = security((command, control, telemetry), keys, insecure)
         for name in reclaim_stale_rings(_shm_dir()):
             log.warning("removed the rings a killed daemon left behind: %s", name)
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
@@ -40,7 +50,8 @@ class ZmqServer:
         self.heartbeat = Heartbeat(self._rings_dir, create=True)
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
-        self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s)
+        self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
+                                   keys)
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -54,7 +65,7 @@ class ZmqServer:
         self._replied = False
 
     def attach(self, loop, preparer=None) -> None:
-        self.commands = Commands(loop, preparer)
+        self.commands = Commands(loop, preparer, self.security)
         loop.server = self
 
     def publish(self, topic: bytes, body: bytes) -> None:
@@ -103,7 +114,12 @@ class ZmqServer:
             if entry is None:
                 return
             token, payload = entry
-            reply = self.commands.handle_payload(payload, control)
+            try:
+                client, start = unpack_identity(payload)
+            except (IndexError, ValueError):  # only the messenger writes these: a bug, answered as one
+                self._reply(token, P.encode_error(None, P.INTERNAL, "the request reached the loop without who sent it"))
+                continue
+            reply = self.commands.handle_payload(payload, control, client, start)
             if isinstance(reply, Deferred):
                 self._waiting.append((token, reply))
             else:
@@ -165,3 +181,32 @@ def _alive(pid: int) -> bool:
 def _shm_dir() -> str | None:
     """RAM-backed /dev/shm where there is one (the rings never touch a disk), else the default."""
     return "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+
+
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]", "lo")
+
+
+def is_local(endpoint: str) -> bool:
+    """Whether only this machine can reach ``endpoint``: ipc, inproc, or tcp on loopback."""
+    scheme, _, address = endpoint.partition("://")
+    if scheme in ("ipc", "inproc"):
+        return True
+    host = address.rpartition(":")[0]
+    return scheme == "tcp" and (host in LOCAL_HOSTS or host.startswith("127."))
+
+
+def security(endpoints, keys: str | None, insecure: bool) -> dict:
+    """What the endpoints and keys add up to (``describe`` and ``status`` say it): "curve"
+    (every client's key checked), "local" (no keys, loopback only) or "insecure" (no keys past
+    loopback, only with ``insecure``: refused otherwise, a ConfigError)."""
+    if keys:
+        return {"mode": "curve", "warning": None}
+    exposed = [ep for ep in endpoints if not is_local(ep)]
+    if not exposed:
+        return {"mode": "local", "warning": None}
+    if not insecure:
+        raise ConfigError(f"{exposed[0]} is reachable from the network, and without keys anyone who reaches it can "
+                          f"take the lease and move the arm: give the daemon its keys (--keys DIR; make them with "
+                          f"`pneumad keys init`), or bind loopback, or say --insecure if this network is yours alone")
+    return {"mode": "insecure", "warning": f"no authentication: anyone who can reach {', '.join(exposed)} can take "
+                                           f"the lease and move the arm (started with --insecure)"}

@@ -102,6 +102,10 @@ class SafetyConfig:
     stall_after_s: float = 0.05  # a cycle woken this late trips [s]
     velocity_filter_hz: float = 10.0  # low-pass on the differenced angle [Hz]
     lease_ttl_s: float = 2.0  # default lease life without a renewal [s]
+    # An arm left enabled with no client holding the lease (one that enabled and let go):
+    # "disable" it once it has held position that long, or "hold" it until a client comes.
+    unleased_action: str = "disable"
+    unleased_grace_s: float = 60.0  # [s] of holding with no lease holder before the action
 
     def __post_init__(self):
         require(1 <= self.bad_samples_to_trip <= 1000, "bad_samples_to_trip", "must be within 1-1000")
@@ -109,6 +113,8 @@ class SafetyConfig:
         require(0 < self.stall_after_s <= 10.0, "stall_after_s", "must be within (0, 10] s")
         require(0 < self.velocity_filter_hz <= 500, "velocity_filter_hz", "must be within (0, 500] Hz")
         require(0.1 <= self.lease_ttl_s <= 60, "lease_ttl_s", "must be within 0.1-60 s")
+        require(self.unleased_action in ("disable", "hold"), "unleased_action", 'must be "disable" or "hold"')
+        require(1.0 <= self.unleased_grace_s <= 3600, "unleased_grace_s", "must be within 1-3600 s")
 
 
 @dataclass(frozen=True)

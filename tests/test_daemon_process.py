@@ -220,3 +220,18 @@ def test_a_recording_that_runs_out_of_disk_ends_with_a_clear_error(tmp_path):
     finally:
         daemon.terminate()
         daemon.wait(10)
+
+
+def test_the_units_command_lines_are_ones_pneumad_accepts():
+    """ExecStart, ExecStopPost: every option the unit gives exists (systemd-analyze cannot tell)."""
+    import shlex
+
+    from daemon.main import parser
+
+    text = (ROOT / "systemd" / "pneumad.service").read_text().replace("\\\n", " ")
+    lines = [line.split("=", 1)[1] for line in text.splitlines() if line.startswith(("ExecStart=", "ExecStopPost="))]
+    assert len(lines) == 2
+    for line in lines:
+        args = parser().parse_args(shlex.split(line)[1:])
+        assert args.config == "/etc/pneumad/rig.toml"
+    assert parser().parse_args(shlex.split(lines[0])[1:]).keys == "/etc/pneumad/keys"

@@ -96,3 +96,29 @@ def test_the_readme_tour_runs_as_written():
 def restore_sigint() -> None:
     """In the child before exec: SIGINT's default action (a terminal's Ctrl-C stops it)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def test_the_readme_keys_example_runs_as_written(tmp_path):
+    """The "From a laptop: keys" lines, in a fresh directory: keys made, a daemon on every
+    interface with them, and Alice's key answered by name."""
+    section = (ROOT / "README.md").read_text().split("## From a laptop: keys", 1)[1].split("\n## ", 1)[0]
+    lines = [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
+             for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
+    assert len(lines) == 4 and " --keys " in lines[2] and "--key alice.key_secret" in lines[3]
+    for line in lines[:2]:
+        done = subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, (line, done.stderr)
+    daemon = subprocess.Popen(["bash", "-c", "exec " + lines[2] + ("" if os.geteuid() == 0 else " --no-rt")],
+                              cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            assert daemon.poll() is None, "pneumad exited (is another daemon on the default endpoints?)"
+            done = subprocess.run(["bash", "-c", lines[3]], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+            if done.returncode == 0:
+                break
+            assert time.monotonic() < deadline, done.stderr
+        assert '"name": "alice"' in done.stdout and '"mode": "curve"' in done.stdout
+    finally:
+        daemon.terminate()
+        daemon.wait(10)

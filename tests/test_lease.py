@@ -1,0 +1,88 @@
+"""An arm left enabled with nobody holding the lease: the rig file's policy, on the real loop
+(virtual clock) over real sockets."""
+from pathlib import Path
+
+import pytest
+
+from daemon.safety import State
+from tests.loophelpers import dealer, make_loop, ok, run_seconds
+
+RIG = (Path(__file__).resolve().parents[1] / "hal" / "sim_2joint.toml").read_text()
+
+
+def rig(action: str, grace_s: float) -> str:
+    text = RIG.replace('unleased_action = "disable"', f'unleased_action = "{action}"')
+    return text.replace("unleased_grace_s = 60.0", f"unleased_grace_s = {grace_s}")
+
+
+@pytest.fixture
+def enabled_then_released(request):
+    """An arm enabled by a client that then handed the lease back (as ``pneumactl enable``)."""
+    loop, captured, srv = make_loop(rig(*request.param), server=True)
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire")["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    released = ok(loop, sock, "lease.release", lease=lease)
+    yield loop, captured, sock, released
+    srv.close()
+
+
+@pytest.mark.parametrize("enabled_then_released", [("disable", 2.0)], indirect=True)
+def test_an_unleased_arm_holds_for_the_grace_time_then_is_disabled_to_the_safe_state(enabled_then_released):
+    loop, captured, sock, released = enabled_then_released
+    assert released["unleased"]["action"] == "disable" and "2 s" in released["unleased"]["note"]
+    run_seconds(loop, 1.0)
+    status = ok(loop, sock, "status")
+    assert status["state"] == "enabled" and 0.5 < status["unleased_disable_in_s"] < 1.5
+    run_seconds(loop, 1.5)
+    assert loop.state is State.IDLE
+    assert list(loop.io.transport.output_volts) == pytest.approx(list(loop.io.safe_volts), abs=1e-3)
+    loop.telemetry.flush()
+    kinds = [e["kind"] for e in captured.of("event")]
+    assert "unleased" in kinds and ok(loop, sock, "status")["unleased_disable_in_s"] is None
+
+
+@pytest.mark.parametrize("enabled_then_released", [("disable", 2.0)], indirect=True)
+def test_a_reference_runs_to_its_end_before_the_grace_time_starts(enabled_then_released):
+    loop, _, sock, _ = enabled_then_released
+    lease = ok(loop, sock, "lease.acquire")["lease"]
+    ok(loop, sock, "set", {"angles_deg": [130.0, -90.0], "duration_s": 4.0}, lease)
+    ok(loop, sock, "lease.release", lease=lease)
+    run_seconds(loop, 3.5)
+    assert loop.state is State.ENABLED and ok(loop, sock, "status")["unleased_disable_in_s"] is None
+    run_seconds(loop, 2.0)  # the move ended at 4 s: 1.5 s of holding so far
+    assert loop.state is State.ENABLED
+    run_seconds(loop, 1.0)
+    assert loop.state is State.IDLE
+
+
+@pytest.mark.parametrize("enabled_then_released", [("disable", 2.0)], indirect=True)
+def test_a_client_taking_the_lease_in_the_grace_time_keeps_the_arm(enabled_then_released):
+    loop, _, sock, _ = enabled_then_released
+    run_seconds(loop, 1.5)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 10.0})["lease"]
+    run_seconds(loop, 3.0)
+    assert loop.state is State.ENABLED
+    ok(loop, sock, "lease.release", lease=lease)  # and a fresh grace time from here
+    run_seconds(loop, 1.5)
+    assert loop.state is State.ENABLED
+    run_seconds(loop, 1.0)
+    assert loop.state is State.IDLE
+
+
+@pytest.mark.parametrize("enabled_then_released", [("hold", 1.0)], indirect=True)
+def test_the_hold_policy_keeps_an_unleased_arm_enabled(enabled_then_released):
+    loop, _, sock, released = enabled_then_released
+    assert released["unleased"]["action"] == "hold"
+    run_seconds(loop, 3.0)
+    assert loop.state is State.ENABLED and ok(loop, sock, "status")["unleased_disable_in_s"] is None
+
+
+def test_releasing_the_lease_of_an_idle_arm_says_nothing_more():
+    loop, _, srv = make_loop(server=True)
+    try:
+        sock = dealer(srv)
+        lease = ok(loop, sock, "lease.acquire")["lease"]
+        assert ok(loop, sock, "lease.release", lease=lease) == {}
+    finally:
+        srv.close()
