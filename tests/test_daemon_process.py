@@ -16,13 +16,14 @@ import pytest
 from daemon.client import Client
 from daemon.notify import Notifier
 from hal import config
+from tests.daemons import tolerant_rig_text
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
 
 def rig_file(tmp_path: Path) -> Path:
-    text = config.load().source.replace('backend = "sim"', 'backend = "tests.plugins:RecordingTransport"')
+    text = tolerant_rig_text().replace('backend = "sim"', 'backend = "tests.plugins:RecordingTransport"')
     text = text.replace("[transport.options]\n", f"[transport.options]\nrecord_to = \"{tmp_path / 'writes.json'}\"\n")
     path = tmp_path / "rig.toml"
     path.write_text(text)
