@@ -39,8 +39,7 @@ class Guard:
     def __init__(self, context: zmq.Context, directory: str):
         self.public, self._secret = server_pair(directory)
         self.allowed = AllowList(directory)
-        for problem in self.allowed.problems:
-            log.warning("keys: %s (left out)", problem)
+        self._say_problems()
         self._auth = _Authenticator(context, self.allowed)
         self._auth.start()
         self._auth.configure_curve_callback(DOMAIN, self.allowed)
@@ -59,12 +58,15 @@ class Guard:
     def reload(self) -> dict:
         """Read the allow-list again; what changed (names), as a reply and a log line say it."""
         added, removed = self.allowed.reload()
-        for problem in self.allowed.problems:
-            log.warning("keys: %s (left out)", problem)
+        self._say_problems()
         log.info("keys reloaded: %d allowed (added %s, removed %s)", len(self.allowed.clients),
                  sorted(added) or "none", sorted(removed) or "none")
         return {"allowed": sorted(c.name for c in self.allowed.clients.values()), "added": sorted(added),
                 "removed": sorted(removed), "problems": self.allowed.problems}
+
+    def _say_problems(self) -> None:
+        for problem in self.allowed.problems:
+            log.warning("keys: %s (left out)", problem)
 
     def close(self) -> None:
         self._auth.stop()
