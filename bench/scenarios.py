@@ -18,17 +18,23 @@ from hal import config, kinematics
 from hal.rig import RigIO
 from hal.transport import create_transport
 
+NO_TRACKING_RULE = {"tracking_error_deg = 10.0": "tracking_error_deg = 0.0"}  # a make_loop ``replace``
 SETTLE_S = 5.0  # hold at the path's start before it runs [s]
 TAIL_S = 2.0  # measured after the path ends [s]
 
 
 def make_loop(controller: str, params: dict | None = None, rig: str = "sim", replace: dict | None = None,
-              options: dict | None = None) -> ControlLoop:
-    """An enabled loop on the built-in simulated rig with the named controller active."""
+              options: dict | None = None, plant: dict | None = None) -> ControlLoop:
+    """An enabled loop on the built-in simulated rig with the named controller active.
+    ``plant`` is merged into the simulator's ``[transport.options]`` (e.g. a joint's
+    ``overrides``, ``adc_noise_volts``): the true plant changes, the controllers' nominal
+    models (the rig's ``[[joints]] model``) do not."""
     text = config.load(rig).source
     for old, new in (replace or {}).items():
         text = text.replace(old, new)
     cfg = config.parse(text, f"builtin:{rig}")
+    if plant:
+        cfg = config.with_transport(cfg, cfg.transport.backend, {**cfg.transport.options, **plant})
     clock = VirtualClock()
     transport = create_transport(cfg, clock.now)
     transport.open()
@@ -113,9 +119,12 @@ def make_path(loop: ControlLoop, name: str, duration: float) -> trajectory.Traje
     return make(loop.rig.arm.link_lengths_m, loop.rig.arm.elbow, loop.n, duration)
 
 
-def shortest_feasible(loop: ControlLoop, name: str) -> float:
-    """The shortest duration of a reference path the rig's authority allows [s]."""
-    return math.ceil(authority(loop).shortest(make_path(loop, name, 1.0)) * 10.0) / 10.0
+def shortest_feasible(loop: ControlLoop, name: str, fraction: float = 1.0) -> float:
+    """The shortest duration of a reference path [s] with ``fraction`` of V_MV's range: by
+    default the whole of it, the rig's physical limit the lab comparison runs at (the
+    daemon accepts only what its rig file's ``limits.authority_fraction`` leaves)."""
+    full = Authority.of(loop.rig, loop.context, fraction)
+    return math.ceil(full.shortest(make_path(loop, name, 1.0)) * 10.0) / 10.0
 
 
 @dataclass

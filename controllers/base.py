@@ -43,6 +43,18 @@ class ParamSpec:
 
 
 @dataclass(frozen=True)
+class SignalSpec:
+    """An internal signal a controller publishes (one value per joint), e.g. SMC's sigma."""
+
+    name: str
+    unit: str
+    doc: str
+
+    def describe(self) -> dict:
+        return {"name": self.name, "unit": self.unit, "doc": self.doc}
+
+
+@dataclass(frozen=True)
 class OptionSpec:
     """A construction option: fixed for the controller's life, checked by ``check_options``."""
 
@@ -107,10 +119,14 @@ class Controller(ABC):
     name: ClassVar[str] = ""
     params: ClassVar[tuple[ParamSpec, ...]] = ()
     options: ClassVar[tuple[OptionSpec, ...]] = ()
+    internals: ClassVar[tuple[SignalSpec, ...]] = ()
 
     def __init__(self, context: ControllerContext, options: Mapping[str, object] | None = None,
                  **values: Sequence[float] | float):
         self.context = context
+        # the output range step() clamps to and its anti-windup judges saturation by [V]; a
+        # wrapper that adds to the output (the disturbance observer) shifts it every cycle
+        self.u_lo, self.u_hi = list(context.u_min), list(context.u_max)
         self.given_options = self._known_options(options or {})  # kept to build a twin elsewhere
         self.chosen = self.check_options(self.given_options)
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
@@ -146,7 +162,13 @@ class Controller(ABC):
 
     @abstractmethod
     def step(self, state: JointState, reference: Reference) -> list[float]:
-        """V_MV per joint [V] for this cycle."""
+        """V_MV per joint [V] for this cycle, within ``u_lo``..``u_hi``; an integrating state
+        must not wind up while its joint's output sits at a limit."""
+
+    def internal_signals(self) -> list[list[float]]:
+        """This cycle's internal signals, one list per entry of ``internals`` (one value per
+        joint). Read at a decimated rate (telemetry's ``internals`` topic), so it may compute."""
+        return []
 
     def applied(self, output: Sequence[float]) -> None:
         """The output the loop applied this cycle when it was not this controller's own (a
@@ -203,7 +225,8 @@ class Controller(ABC):
     @classmethod
     def describe(cls) -> dict:
         return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
-                "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options]}
+                "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options],
+                "internals": [s.describe() for s in cls.internals]}
 
 
 def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:

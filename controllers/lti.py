@@ -12,8 +12,12 @@ equals the one in force and, as far as the design allows, at rest for the presen
 (least squares on [(I - A) x = B e, C x = u/gain - D e], the output rows weighted heavily;
 its pseudo-inverse is derived with the controller, beside the loop, so the take-over cycle is
 two small vector sums).
-Anti-windup: while a joint's output is clamped, its part of the state is held
-(conditional integration), the one rule that fits any design.
+The measured angle passes a first-order low-pass ahead of the design (``filter_hz``, 20 Hz
+by default, :mod:`controllers.smoothing`; set 0 for a design that filters its own).
+Anti-windup by conditional integration, the one rule that fits any design: while a joint's
+output is clamped, its part of the state is held whenever its update would move the output
+further past the limit (judged by C times the update), and moves freely when it draws the
+output back in.
 """
 from __future__ import annotations
 
@@ -21,8 +25,9 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from controllers import lti_design
-from controllers.base import Controller, JointState, OptionSpec, ParamSpec, Reference
-from controllers.dob import DOB_PARAMS, WithDisturbanceObserver
+from controllers.base import Controller, JointState, OptionSpec, ParamSpec, Reference, SignalSpec
+from controllers.dob import D_HAT, DOB_PARAMS, WithDisturbanceObserver
+from controllers.smoothing import smoothing_gains, smoothing_param
 
 OUTPUT_WEIGHT = 1e3  # of the output-matching rows in the bumpless least-squares fit
 
@@ -34,7 +39,9 @@ class LTI(Controller):
     options = (OptionSpec("design", "the design as a map {joints: {name: {A, B, C, D, dt, input, method}}}; "
                                     "pneumactl reads it from a .toml or .npz file (see docs/controllers.md)",
                           required=True),)
-    params = (ParamSpec("gain", "-", 0.0, 10.0, (1.0, 1.0), "scale on the design's output"),)
+    params = (ParamSpec("gain", "-", 0.0, 10.0, (1.0, 1.0), "scale on the design's output"),
+              smoothing_param("filter_hz", "the measured angle, ahead of the design (0 if it filters its own)"))
+    internals = (SignalSpec("state_norm", "-", "Euclidean norm of the joint's controller state x"),)
 
     def check_options(self, options):
         return lti_design.parse(options["design"], self.context.joint_names, self.context.dt)
@@ -50,32 +57,44 @@ class LTI(Controller):
         # [x(k+1); v(k)] = M [x(k); e(k)], one product per cycle (the cost goal)
         m = np.block([[a, b], [gain[:, None] * c, np.diag(gain * d)]])
         return {"a": a, "b": b, "c": c, "d": d, "gain": gain, "rows": rows, "m": m, "nx": start,
+                "smooth": smoothing_gains(values["filter_hz"], self.context.dt),
                 "takeover": [_takeover(a, b, c, j, r) for j, r in enumerate(rows)]}
 
     def __init__(self, context, **values):
         super().__init__(context, **values)
         self._z = np.zeros(self.k["nx"] + context.n)  # [x; e]: the state, then this cycle's error
         self._taking_over: list[float] | None = None
+        self._q = [0.0] * context.n  # filtered angle [rad]
 
     def reset(self, state: JointState, last_output) -> None:
         self._taking_over = [float(u) for u in last_output]
+        self._q = [float(q) for q in state.angles]
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
         k, z, nx = self.k, self._z, self.k["nx"]
-        e = [r - q for r, q in zip(reference.angles, state.angles)]
+        q, smooth = self._q, k["smooth"]
+        for j, (a, measured) in enumerate(zip(smooth, state.angles)):
+            q[j] += a * (measured - q[j])
+        e = [r - qj for r, qj in zip(reference.angles, q)]
         if self._taking_over is not None:
             z[:nx] = self._state_for(np.array(e), self._taking_over)
             self._taking_over = None
         z[nx:] = e
         after = k["m"] @ z
         out = []
-        for j, (v, lo, hi) in enumerate(zip(after[nx:].tolist(), self.context.u_min, self.context.u_max)):
-            if v < lo or v > hi:  # anti-windup: a clamped joint's state is held
-                after[k["rows"][j]] = z[k["rows"][j]]
+        for j, (v, lo, hi) in enumerate(zip(after[nx:].tolist(), self.u_lo, self.u_hi)):
+            if v < lo or v > hi:  # anti-windup: a clamped joint's state moves only to draw v back in
+                rows = k["rows"][j]
+                drift = float(k["m"][nx + j, rows] @ (after[rows] - z[rows]))  # the move's effect on v
+                if (drift > 0.0) == (v > hi):
+                    after[rows] = z[rows]
                 v = lo if v < lo else hi
             out.append(v)
         z[:nx] = after[:nx]
         return out
+
+    def internal_signals(self) -> list[list[float]]:
+        return [[float(np.linalg.norm(self._z[rows])) for rows in self.k["rows"]]]
 
     def _state_for(self, e: np.ndarray, output: list[float]) -> np.ndarray:
         """The state that gives ``output`` now, at rest for the error e if the design allows."""
@@ -102,4 +121,5 @@ class LTIWithDOB(WithDisturbanceObserver):
     name = "lti_dob"
     inner_class = LTI
     params = LTI.params + DOB_PARAMS
+    internals = LTI.internals + (D_HAT,)
     options = LTI.options

@@ -28,7 +28,10 @@ Per joint, in SI (rad, V, s):
 * no adaptation while |e_y| is within ``adapt_deadzone`` (the dead-zone modification of
   robust adaptive control, our addition; 0.17 deg on the middle joint by default): holding
   against a disturbance, the middle joint otherwise hunts in a +-0.6 deg stick-slip cycle,
-  its integral gains ramping while friction holds it and overshooting when it breaks away.
+  its integral gains ramping while friction holds it and overshooting when it breaks away;
+* anti-windup by conditional adaptation (our addition): while the output sits at a limit, the
+  integral gains do not learn in the direction that drives it further in (the sigma leak
+  goes on), so the gains are where they were when the reference comes back into reach.
 
 The plant output y is the angle predicted T_dly ahead by :class:`DelayedStateEstimator`
 (the dead time would otherwise break the positive-realness SAC relies on). Gains adapt from
@@ -41,7 +44,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from controllers.base import Controller, JointState, ParamSpec, Reference, clamp
+from controllers.base import Controller, JointState, ParamSpec, Reference, SignalSpec, clamp
 from controllers.estimation import ESTIMATOR_PARAMS, DelayedStateEstimator
 
 DEG = math.pi / 180.0
@@ -89,10 +92,16 @@ class SAC(Controller):
                   "dead-zone modification: no adaptation while |e_y| is below this (our addition)"),
         ParamSpec("switch_boundary", "rad", 1e-6, 1.0, (0.01, 0.01), "boundary layer delta of the switching term"),
     ) + ESTIMATOR_PARAMS
+    internals = (SignalSpec("e_y", "rad", "augmented error y_m - (y + PFC)"),
+                 SignalSpec("k_e", "V/rad", "integral adaptive gain on e_y"),
+                 SignalSpec("k_um", "V/rad", "integral adaptive gain on the reference u_m"),
+                 SignalSpec("k_1", "V", "integral adaptive gain on the constant (spring and bias offset)"),
+                 SignalSpec("pfc", "rad", "parallel feedforward compensator output"))
 
     def __init__(self, context, **values):
         self.models = context.require_models("sac")
         n = context.n
+        self._e_y = [0.0] * n
         self._xm = [[0.0] * 3 for _ in range(n)]  # reference model states [rad]
         self._xf = [0.0] * n  # PFC state [rad]
         self._ki = [[0.0] * 6 for _ in range(n)]  # integral adaptive gains on [e_y, x_m1..3, u_m, 1]
@@ -135,21 +144,26 @@ class SAC(Controller):
             xm[0] = a * xm[0] + (1 - a) * r
             xm[1] = a * xm[1] + (1 - a) * xm[0]
             xm[2] = a * xm[2] + (1 - a) * xm[1]
-            e = xm[2] - (predicted[j][0] + self._xf[j])
+            e = self._e_y[j] = xm[2] - (predicted[j][0] + self._xf[j])
             rv = (e, xm[0], xm[1], xm[2], r, 1.0)
             ki = self._ki[j]
             leak = (k.s1[j] * e * e + k.s2[j]) * dt  # sigma-modification
             gains = (k.gi_e[j],) + (k.gi_x[j],) * 5
             v = k.gp[j] * e * e * e  # the proportional gain acts on e_y only: (e G_P e) e
             v += k.switch[j] * e / (abs(e) + k.boundary[j])  # breaks stiction
-            learn = e if abs(e) > k.deadzone[j] else 0.0  # dead-zone modification: no learning from noise and stiction
             for i in range(6):
-                ki[i] += learn * gains[i] * rv[i] - leak * ki[i]
                 v += ki[i] * rv[i]
             if self._first is not None:  # bumpless: the offset makes this first output the one in force
                 self._offset[j] = self._first[j] - v
             self._offset[j] *= k.decay[j]
-            out.append(clamp(v + self._offset[j], ctx.u_min[j], ctx.u_max[j]))
+            v += self._offset[j]
+            u = clamp(v, self.u_lo[j], self.u_hi[j])
+            out.append(u)
+            # dead-zone modification: no learning from noise and stiction; and none that winds the
+            # output further into a limit (learning moves v by e sum(G rv^2), the sign of e)
+            learn = e if abs(e) > k.deadzone[j] and (u == v or (u > v) == (e > 0)) else 0.0
+            for i in range(6):
+                ki[i] += learn * gains[i] * rv[i] - leak * ki[i]
         self._first = None
         for j, uj in enumerate(out):  # the PFC's time update, fed the washed-out output
             self._u_mean[j] = k.aw[j] * self._u_mean[j] + (1 - k.aw[j]) * uj
@@ -166,3 +180,7 @@ class SAC(Controller):
             self._u_mean[j] += (1 - k.aw[j]) * change
             self._xf[j] += (1 - k.af[j]) * k.kf[j] * k.aw[j] * change
         k.estimator.replace_last(output)
+
+    def internal_signals(self) -> list[list[float]]:
+        return [list(self._e_y), [g[0] for g in self._ki], [g[4] for g in self._ki], [g[5] for g in self._ki],
+                list(self._xf)]

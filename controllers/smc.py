@@ -24,6 +24,19 @@ at least the breakaway friction in volts, Fs / kt, which is 0.31 V on the bottom
 away, and overshoots by degrees before sigma turns the output round (4.5 deg on the circle
 at 1 V). A faster integral (q_z) cures that too but makes the middle joint's step ring.
 
+**Keep the plant's damping (our tuning, after the thesis's legible S).** The joints are
+heavily overdamped (D/J = 331 1/s bottom, 1440 1/s middle). The equivalent control cancels
+whatever of the plant's dynamics the hyperplane does not ask for: with a velocity weight
+k2 = S[2] far below D/J it cancels the damping, the loop then rests on the reaching part
+alone, and a saturated output turns that cancellation into positive velocity feedback (a
+joint pushed past the rig's authority ran away into its limit, and swung limit to limit
+after). So q_w is chosen to put k2 at about D/J, as the thesis's own S does (354.7 against
+331 on the bottom joint, normalised on th''), and q_z, q_th to put the two slow sliding poles
+where they were (-9.3 +- 8.2j bottom, -2.7 +- 2.2j middle); the fast pole sits at -D/J.
+
+**Anti-windup (conditional integration).** While the output is clamped, z integrates only
+when that draws the output back into range (v moves as -s0 e); otherwise it is held.
+
 Units: rad, rad/s, rad/s^2; sigma in rad/s^2 (S normalised so its th'' entry is 1); u = V_MV
 [V]. The state comes from :class:`controllers.estimation.DelayedStateEstimator`: the plant's
 dead time is not in [2-43], so the control acts on the state predicted T_dly ahead (our
@@ -43,8 +56,9 @@ from controllers.base import (
     ParamError,
     ParamSpec,
     Reference,
+    SignalSpec,
 )
-from controllers.dob import DOB_PARAMS, WithDisturbanceObserver
+from controllers.dob import D_HAT, DOB_PARAMS, WithDisturbanceObserver
 from controllers.estimation import ESTIMATOR_PARAMS, DelayedStateEstimator
 
 A11 = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])  # x1 = [z, th, th']
@@ -76,11 +90,11 @@ class _Design:
     reach: tuple[float, ...]  # [1/s]
     estimator: DelayedStateEstimator
 
-    def per_joint(self, u_min, u_max) -> tuple[tuple[float, ...], ...]:
+    def per_joint(self) -> tuple[tuple[float, ...], ...]:
         """What step() reads per joint, as plain floats (numpy scalars cost several times more):
-        (S, SA, SB, k, eta, lambda, u_min, u_max)."""
-        return tuple((*map(float, s), *sa, sb, k, eta, reach, lo, hi) for s, sa, sb, k, eta, reach, lo, hi
-                     in zip(self.s, self.sa, self.sb, self.switch, self.eta, self.reach, u_min, u_max))
+        (S, SA, SB, k, eta, lambda)."""
+        return tuple((*map(float, s), *sa, sb, k, eta, reach) for s, sa, sb, k, eta, reach
+                     in zip(self.s, self.sa, self.sb, self.switch, self.eta, self.reach))
 
 
 class SMC(Controller):
@@ -88,20 +102,28 @@ class SMC(Controller):
 
     name = "smc"
     params = (
-        ParamSpec("q_z", "1/s^6", 1e-6, 1e15, (2.0e6, 2.0e3), "LQ weight on the error integral (relative to th'')"),
+        ParamSpec("q_z", "1/s^6", 1e-6, 1e15, (2.0e9, 2.0e8), "LQ weight on the error integral (relative to th'')"),
         ParamSpec("q_th", "1/s^4", 0.0, 1e12, (1.0e4, 1.0e2), "LQ weight on the angle"),
-        ParamSpec("q_w", "1/s^2", 0.0, 1e9, (10.0, 10.0), "LQ weight on the velocity"),
+        ParamSpec("q_w", "1/s^2", 0.0, 1e9, (1.1e5, 2.07e6),
+                  "LQ weight on the velocity; about (D/J)^2 keeps the plant's own damping (see the module doc)"),
         ParamSpec("eps", "1/s", 0.0, 100.0, (1.0, 0.5), "Riccati shift: every sliding pole left of -eps"),
         ParamSpec("switch_volts", "V", 0.0, 10.0, (1.0, 3.0),
                   "switching amplitude k (S B)^-1; above the breakaway friction Fs/kt (0.31 V bottom, 1.66 V middle)"),
         ParamSpec("boundary", "rad/s^2", 1e-6, 1e6, (2.0, 2.0), "boundary layer eta of sigma/(|sigma|+eta)"),
         ParamSpec("reach_rate", "1/s", 0.0, 1e4, (5.0, 5.0), "proportional reaching term: sigma' = -reach_rate sigma"),
     ) + ESTIMATOR_PARAMS
+    internals = (SignalSpec("sigma", "rad/s^2", "switching function S x"),
+                 SignalSpec("u_eq", "V", "equivalent control"),
+                 SignalSpec("u_reach", "V", "switching and reaching part"),
+                 SignalSpec("z", "rad s", "integral of the tracking error"))
 
     def __init__(self, context, **values):
         self.models = context.require_models("smc")
         super().__init__(context, **values)
         self._z = [0.0] * context.n
+        self._sigma = [0.0] * context.n
+        self._u_eq = [0.0] * context.n
+        self._u_reach = [0.0] * context.n
         self._taking_over: list[float] | None = None
 
     def derive(self, values) -> _Design:
@@ -126,13 +148,13 @@ class SMC(Controller):
 
     def apply_params(self, prepared) -> None:
         super().apply_params(prepared)
-        self._joints = self.k.per_joint(self.context.u_min, self.context.u_max)
+        self._joints = self.k.per_joint()
 
     def step(self, state: JointState, reference: Reference) -> list[float]:
         dt, z, estimator = self.context.dt, self._z, self.k.estimator
         x = estimator.estimate(state.angles)
         out = []
-        for j, (s0, s1, s2, s3, sa0, sa1, sa2, sb, k, eta, reach, lo, hi) in enumerate(self._joints):
+        for j, (s0, s1, s2, s3, sa0, sa1, sa2, sb, k, eta, reach) in enumerate(self._joints):
             th, w, acc = x[j]
             r = reference.angles[j]
             u_eq = -(sa0 * th + sa1 * w + sa2 * acc + s0 * r) / sb - estimator.u_off[j]
@@ -140,10 +162,15 @@ class SMC(Controller):
             if self._taking_over is not None:  # bumpless: choose z so that u equals the output in force
                 z[j] = _integral_for(self._taking_over[j] - u_eq, self.k, j, rest)
             sigma = s0 * z[j] + rest
-            v = u_eq - k * sigma / (abs(sigma) + eta) - reach * sigma / sb
+            reaching = -k * sigma / (abs(sigma) + eta) - reach * sigma / sb
+            v = u_eq + reaching
+            self._sigma[j], self._u_eq[j], self._u_reach[j] = sigma, u_eq, reaching
+            lo, hi = self.u_lo[j], self.u_hi[j]
             u = lo if v < lo else hi if v > hi else v
             e = r - th
-            if u == v or (u > v) == (e * s0 > 0):  # integrate unless it winds further into saturation
+            # conditional integration: while clamped, z moves only if it draws v back into range.
+            # v falls as sigma rises (SB > 0), and z' = e moves sigma by s0 e, so v moves as -s0 e.
+            if u == v or (u > v) == (s0 * e < 0):
                 z[j] += e * dt
             out.append(u)
         self._taking_over = None
@@ -152,6 +179,9 @@ class SMC(Controller):
 
     def applied(self, output) -> None:
         self.k.estimator.replace_last(output)
+
+    def internal_signals(self) -> list[list[float]]:
+        return [list(self._sigma), list(self._u_eq), list(self._u_reach), list(self._z)]
 
 
 def _integral_for(target: float, d: _Design, j: int, rest: float) -> float:
@@ -172,3 +202,4 @@ class SMCWithDOB(WithDisturbanceObserver):
     name = "smc_dob"
     inner_class = SMC
     params = SMC.params + DOB_PARAMS
+    internals = SMC.internals + (D_HAT,)

@@ -276,7 +276,7 @@ class Client:
         self._keeper.start()
 
     # -- telemetry ------------------------------------------------------------------------
-    def subscribe(self, topics=(b"state", b"stats", b"event")) -> "Subscription":
+    def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> "Subscription":
         return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
 
 

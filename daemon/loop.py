@@ -9,6 +9,7 @@ lockstep with the simulator.
 """
 from __future__ import annotations
 
+import copy
 import math
 
 from controllers import registry
@@ -25,6 +26,7 @@ from controllers.trajectory import Trajectory
 from daemon.safety import State, Supervisor
 from daemon.shadow import ShadowRun
 from daemon.stats import LoopStats
+from daemon.tracking import TrackingGuard
 from hal.actuation import BiasedHeadActuation
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
@@ -45,6 +47,11 @@ class ControlLoop:
         self.controller_plugins = dict(controller_plugins or {})  # name -> module:Class, from the daemon's configuration
         self.controller: Controller = registry.build(controller, self.context, plugins=self.controller_plugins)
         self.shadow: ShadowRun | None = None
+        safety = self.rig.safety
+        self.tracking = TrackingGuard(io.joint_names, safety.tracking_error_deg, safety.tracking_window_s)
+        # built now, before the loop runs, and copied when needed: a fallback never builds in a cycle
+        self._fallback = (registry.build(safety.fallback_controller, self.context, plugins=self.controller_plugins)
+                          if safety.tracking_action == "fallback" else None)
         self.telemetry = telemetry
         self.server = server
         self.stats = LoopStats()
@@ -207,6 +214,9 @@ class ControlLoop:
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return
         self.u = list(u)  # the loop's own copy: a plugin may reuse its buffer
+        lost = self.tracking.check(now, ref[0], self.angles)
+        if lost is not None:
+            self.controller_lost(lost)
         if self.shadow is not None:
             try:
                 self.shadow.step(state, reference, self.u)
@@ -221,6 +231,19 @@ class ControlLoop:
         hold.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
         self.controller = hold
         self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause})
+
+    def controller_lost(self, cause: str) -> None:
+        """The tracking rule fired: the fallback controller takes over and holds the arm where
+        it is, or (no fallback configured, or the fallback itself lost the joint) a trip."""
+        lost, spare = self.controller.name, self._fallback
+        if spare is not None and lost != spare.name:
+            self.supervisor.events.append({"kind": "tracking", "controller": lost, "cause": cause,
+                                           "action": "fallback", "to": spare.name})
+            self.switch_controller(copy.deepcopy(spare), f"fallback: {lost}: {cause}")
+            self.hold_position()
+            return
+        self.supervisor.events.append({"kind": "tracking", "controller": lost, "cause": cause, "action": "trip"})
+        self.supervisor.trip(f"controller {lost}: {cause}")
 
     def _write_command(self) -> None:
         p_head, p_rod = self.actuation.pressures(self.u)
@@ -264,6 +287,7 @@ class ControlLoop:
         self.trajectory_generation += 1
         self.trajectory_t0 = self.clock.now() + self.period  # sampled from the next cycle on
         self.reference = trajectory.sample(0.0)
+        self.tracking.clear()
 
     def enable(self) -> None:
         self.supervisor.enable()
@@ -292,6 +316,7 @@ class ControlLoop:
         new.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
         old = self.controller.name
         self.controller = new
+        self.tracking.clear()
         self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": cause})
 
     def start_shadow(self, candidate: Controller) -> None:

@@ -53,7 +53,7 @@ from daemon.keys import KeyFileError
 from daemon.ring import Ring
 from hal.offloop import die_with_parent
 
-TOPICS = (b"", b"state", b"stats", b"event")  # telemetry ring tags; 0 ends the stream
+TOPICS = (b"", b"state", b"stats", b"event", b"internals")  # telemetry ring tags; 0 ends the stream
 END = 0
 RING_BYTES = {"telemetry": 1 << 20, "control": 1 << 20, "command": 1 << 20, "replies": 1 << 20}
 TELEMETRY_HWM = 1000  # messages queued per subscriber before ZeroMQ drops (100 ms of state batches)

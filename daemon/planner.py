@@ -135,9 +135,15 @@ def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     name = choice(args, "name", PATHS)
     make, default_duration = PATHS[name]
     duration = number(args, "duration_s", 0.5, MAX_DURATION_S, default_duration)
+    reply = {"path": name, "duration_s": duration}
+    if "duration_s" not in args and ctx.authority is not None:  # no duration asked: the thesis's, or
+        shortest = ctx.authority.shortest(make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration))  # the fastest
+        if shortest is not None and shortest > duration:  # the rig accepts if that is beyond it
+            reply["duration_s"] = duration = math.ceil(shortest * 10.0) / 10.0
+            reply["stretched_from_s"] = default_duration
     path = make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration)
     check_authority(ctx, f"the {name} path", path)
-    return after_approach(ctx, args, setpoint, path, name, {"path": name, "duration_s": duration})
+    return after_approach(ctx, args, setpoint, path, name, reply)
 
 
 def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:

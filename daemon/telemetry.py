@@ -3,7 +3,9 @@
 - ``state``: every cycle, batched (``batch`` cycles a message), columns named with units;
   ``shadow_u_volts`` is what a shadow-run candidate would have commanded (None without one);
 - ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns);
-- ``event``: state changes, trips, controller switches, at once.
+- ``event``: state changes, trips, controller switches, at once;
+- ``internals``: the active controller's internal signals (its ``describe`` names them, e.g.
+  SMC's sigma, the DOB's d_hat), one sample per ``state`` batch while the arm is enabled.
 Every message carries a per-topic ``seq`` so a subscriber can count what it missed.
 
 The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's numbers into a
@@ -43,7 +45,7 @@ class Telemetry:
         """``send(topic: bytes, body: bytes)`` must not block."""
         self._send = send
         self.batch = batch
-        self.seq = {b"state": 0, b"stats": 0, b"event": 0}
+        self.seq = {b"state": 0, b"stats": 0, b"event": 0, b"internals": 0}
         self._shape: tuple[int, int] | None = None
         self._rows = 0
         self._buf = bytearray()
@@ -62,6 +64,19 @@ class Telemetry:
         self._rows += 1
         if self._rows >= self.batch:
             self.flush()
+            if loop.supervisor.enabled and loop.controller.internals:
+                self.internals(loop)
+
+    def internals(self, loop) -> None:
+        """One sample of the active controller's internal signals (decimated: a few dozen
+        numbers once a batch). A plugin whose signals cannot be read publishes none."""
+        controller = loop.controller
+        try:
+            values = [[float(v) for v in row] for row in controller.internal_signals()]
+        except Exception:  # a plugin's failure must never take the loop down
+            return
+        self._publish(b"internals", {"cycle": loop.cycle, "t": loop.clock.now(), "controller": controller.name,
+                                     "signals": {spec.name: row for spec, row in zip(controller.internals, values)}})
 
     def _start(self, n: int, m: int) -> None:
         self._shape = (n, m)

@@ -68,6 +68,21 @@ class ReturnsNaN(Controller):
         return [math.nan if self.steps >= 5 else 0.0] * self.context.n
 
 
+class PushesAway(Controller):
+    """A controller that has lost the joint: it pushes the last joint the wrong way at its
+    limit whatever the error (as a wound-up or sign-flipped controller would)."""
+
+    name = "pushes_away"
+
+    def reset(self, state, last_output):
+        pass
+
+    def step(self, state, reference):
+        out = [0.0] * self.context.n
+        out[-1] = self.context.u_max[-1] if state.angles[-1] >= reference.angles[-1] else self.context.u_min[-1]
+        return out
+
+
 class Slow(Controller):
     """Takes 3.5 periods of the (virtual) clock on every 100th step."""
 

@@ -9,6 +9,7 @@ from bench import scenarios as S
 from controllers import registry
 from controllers.base import ControllerContext, JointState, ParamError, Reference
 from controllers.estimation import DelayedStateEstimator
+from controllers.feasibility import Authority
 from controllers.smc import sliding_hyperplane, sliding_poles
 from controllers.trajectory import JointMove
 
@@ -145,14 +146,23 @@ def test_a_model_based_controller_without_an_identified_model_is_refused_clearly
         registry.build("smc", bare)
 
 
-def test_feasibility_finds_the_shortest_duration_exactly():
+@pytest.mark.parametrize("fraction", [1.0, 0.8])
+def test_feasibility_finds_the_shortest_duration_exactly(fraction):
     loop = S.make_loop("pid")
-    auth = S.authority(loop)
+    auth = Authority.of(loop.rig, loop.context, fraction)
     make = lambda d: S.make_path(loop, "circle", d)  # noqa: E731
-    shortest = S.shortest_feasible(loop, "circle")
+    shortest = S.shortest_feasible(loop, "circle", fraction)
     assert not auth.shortfalls(make(shortest))
     assert auth.shortfalls(make(shortest - 0.2))
-    assert not auth.shortfalls(S.make_path(loop, "translation", 15.0))  # the thesis's own path
+    # the thesis's own 15 s path needs the whole range; the margin asks for more time
+    assert bool(auth.shortfalls(S.make_path(loop, "translation", 15.0))) == (fraction < 1.0)
+
+
+def test_the_built_in_rig_keeps_a_fifth_of_v_mv_for_feedback():
+    loop = S.make_loop("pid")
+    assert loop.rig.limits.authority_fraction == 0.8
+    # the thesis's 15 s translation fits the whole range (14.5 s), not the range less the margin
+    assert S.shortest_feasible(loop, "translation", 0.8) > 15.0 > S.shortest_feasible(loop, "translation")
 
 
 @pytest.mark.parametrize("joint", [0, 1])

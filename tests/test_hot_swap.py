@@ -24,7 +24,7 @@ def moving():
     sock = dealer(srv)
     lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
     ok(loop, sock, "enable", lease=lease)
-    ok(loop, sock, "path", {"name": "translation", "duration_s": 15.0, "approach_s": 6.0}, lease=lease)
+    ok(loop, sock, "path", {"name": "translation", "approach_s": 6.0}, lease=lease)
     run_seconds(loop, 12.0)
     yield loop, captured, sock, lease
     srv.close()
