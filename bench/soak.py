@@ -8,8 +8,9 @@ controllers (pid <-> smc) and changes a gain every few seconds; the messenger pr
 killed every ``--kill-every`` s. Figures, goal in brackets: sequence gaps at the healthy
 subscribers outside the seconds after a messenger kill [0] (a kill loses what was in
 flight, by design: docs/protocol.md); the daemon's resident memory at the end against the
-mark at a sixth of the run [within a few MiB]; trips [0]; overruns, against the machine's
-own noise (see docs/benchmarks.md); what the driver did.
+mark at a sixth of the run [within a few MiB]; trips and their causes [none that a fault
+did not cause: the driver resets and re-enables after each, so one trip does not end the
+soak]; overruns, against the machine's own noise (see docs/benchmarks.md); what the driver did.
 """
 from __future__ import annotations
 
@@ -83,6 +84,7 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
     stalled = subscribe(eps, None, stop)
     client = Client(**eps, timeout=5.0)
     done = {"paths": 0, "switches": 0, "gain_changes": 0, "kills": 0, "timeouts": 0, "refused": 0}
+    trips: list[str] = []  # causes, in order; the driver resets and re-enables after each
     kills: list[float] = []
     rss = {}
     try:
@@ -96,6 +98,11 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
             if "mark" not in rss and now - start >= seconds / 6:
                 rss["mark"] = rss_mib(daemon_pid)
             try:
+                state = client.status()
+                if state["state"] == "fault":  # note the cause, and carry on soaking
+                    trips.append(state["cause"])
+                    client.reset()
+                    client.enable()
                 if tick % 10 == 0:
                     client.abort()
                     client.path("translation")
@@ -135,7 +142,8 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
             "healthy_gaps": [sum(n for _, n in w.gaps) for w in healthy],
             "healthy_gaps_outside_kills": [outside_kills(w) for w in healthy], "slow_messages": slow.messages,
             "rss_mark_mib": rss.get("mark", float("nan")), "rss_end_mib": rss["end"], "trips": status["trips"],
-            "cause": status["cause"], "overruns": status["overruns_total"],
+            "trip_causes": trips + ([status["cause"]] if status["state"] == "fault" else []),
+            "overruns": status["overruns_total"],
             "messenger_restarts": status["telemetry"]["messenger_restarts"], **done}
 
 

@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from daemon import keys, recording
+from daemon import keys, mcap_log, recording
 from daemon.client import Client, KeyRefused, RemoteError, read_waypoints
 from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -51,29 +51,15 @@ def watch(client: Client, seconds: float | None) -> None:
 
 
 def record(client: Client, path: str, seconds: float) -> int:
-    """Record the telemetry to ``path``; a disk that fills or fails ends it with a clear error
-    (exit 1), the file holding what was written before it."""
-    describe = client.describe()
-    controller = client.controller()
-    sub = client.subscribe()
-    time.sleep(0.2)  # let the subscription reach the publisher
-    n = 0
-    end = time.monotonic() + seconds
+    """Record the telemetry to ``path`` as MCAP (:mod:`daemon.mcap_log`); a disk that fills or
+    fails ends it with a clear error (exit 1), the file readable up to its last complete chunk."""
     try:
-        with open(path, "wb") as f:
-            recording.write_header(f, describe, controller, describe["rig"]["source"])
-            while time.monotonic() < end:
-                item = sub.receive(0.5)
-                if item is not None:
-                    recording.write_message(f, *item)
-                    n += 1
+        written, lost = mcap_log.record(client, path, seconds)
     except OSError as exc:
-        print(f"error: recording to {path} stopped: {exc.strerror or exc} (after {n} messages; the file holds "
-              f"what was written before the error)", file=sys.stderr)
+        print(f"error: recording to {path} stopped: {exc.strerror or exc} (the file is readable up to its last "
+              f"complete chunk)", file=sys.stderr)
         return 1
-    finally:
-        sub.close()
-    print(f"recorded {n} messages to {path} (lost {sub.lost})")
+    print(f"recorded {written} messages to {path} (lost {lost}, marked in the file)")
     return 0
 
 
@@ -120,12 +106,15 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
     c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
     c.add_argument("--design", default=None, help="LTI design file (.toml or .npz) for lti and lti_dob")
-    r = sub.add_parser("record", help="record telemetry to a self-describing file")
+    r = sub.add_parser("record", help="record telemetry to an MCAP file (Foxglove, PlotJuggler open it)")
     r.add_argument("file")
     r.add_argument("--seconds", type=float, default=10.0)
-    e = sub.add_parser("export", help="export a recording to CSV")
+    e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")
+    pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs")
+    pl.add_argument("files", nargs="+")
+    pl.add_argument("--out", default=".", help="directory for the PNGs (default: here)")
     k = sub.add_parser("keys", help="new: make your own key pair; reload: have the daemon read its allow-list again")
     k.add_argument("action", choices=["new", "reload"])
     k.add_argument("name", nargs="?", help="new: your key's name (e.g. your login)")
@@ -145,8 +134,17 @@ def key_values(items) -> dict:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    if args.what == "export":
-        rows = recording.export_csv(args.file, args.csv)
+    if args.what in ("export", "plot"):
+        try:
+            if args.what == "plot":
+                from daemon import plots  # matplotlib: only when asked for pictures
+                for written in plots.plot_runs(args.files, args.out):
+                    print(written)
+                return 0
+            rows = recording.export_csv(args.file, args.csv)
+        except (OSError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
         print(f"wrote {rows} rows to {args.csv}")
         return 0
     try:

@@ -1,72 +1,109 @@
-"""Telemetry recordings: a self-describing file, and its export to CSV.
+"""Reading recordings, whatever wrote them: MCAP (:mod:`daemon.mcap_log`, what pneumad
+records today) and the msgpack ``.pnrec`` of earlier versions; export to CSV and loading into
+numpy arrays for a notebook.
 
-A recording is a stream of msgpack objects: first a header map (format, software version,
-the daemon's describe() answer including the rig file's hash, the rig file's text, the
-active controller and its parameters, start time), then one ``[topic, message]`` pair per
-telemetry message as received. Any msgpack reader can read it.
+A ``.pnrec`` is a stream of msgpack objects: a header map (format, software version, the
+daemon's describe() answer including the rig file's hash, the rig file's text, the active
+controller, start time), then one ``[topic, message]`` pair per telemetry message.
 """
 from __future__ import annotations
 
 import csv
-import time
-from collections.abc import Iterator
+from dataclasses import dataclass, field
 
 import msgpack
+import numpy as np
+
+from daemon import mcap_log
 
 FORMAT = "pneumad-recording/1"
+MCAP_MAGIC = b"\x89MCAP"
 
 
-def write_header(f, describe: dict, controller: dict, rig_source: str) -> None:
-    f.write(msgpack.packb({"format": FORMAT, "software": describe.get("version"), "started": time.time(),
-                           "describe": describe, "rig_source": rig_source, "controller": controller}))
+@dataclass
+class Run:
+    """A recording's contents: the daemon's describe answer, the controller at the start,
+    one state sample per cycle (:func:`daemon.mcap_log.state_samples`'s shape), the other
+    topics' messages, and whether the file was cut short."""
+
+    describe: dict
+    controller: dict
+    samples: list[dict] = field(default_factory=list)
+    messages: dict[str, list[dict]] = field(default_factory=dict)
+    truncated: str = ""
+
+    @property
+    def joints(self) -> list[str]:
+        return [j["name"] for j in self.describe["joints"]]
 
 
-def write_message(f, topic: str, message: dict) -> None:
-    f.write(msgpack.packb([topic, message]))
+def open_run(path) -> Run:
+    """Read a recording of either format (ValueError if it is neither)."""
+    with open(path, "rb") as f:
+        magic = f.read(len(MCAP_MAGIC))
+    if magic == MCAP_MAGIC:
+        found = mcap_log.read(path)
+        messages = {t: m for t, m in found.messages.items() if t != "state"}
+        return Run(found.describe, found.controller, found.messages["state"], messages, found.truncated)
+    return _read_pnrec(path)
 
 
-def read(path) -> tuple[dict, Iterator[tuple[str, dict]]]:
-    """The header and an iterator over (topic, message)."""
-    f = open(path, "rb")
-    unpacker = msgpack.Unpacker(f, raw=False)
-    try:
-        header = next(unpacker)
-    except StopIteration:
-        f.close()
-        raise ValueError(f"{path}: empty file") from None
-    if not isinstance(header, dict) or header.get("format") != FORMAT:
-        f.close()
-        raise ValueError(f"{path}: not a pneumad recording (format {header.get('format') if isinstance(header, dict) else '?'})")
-
-    def messages():
-        with f:
-            for item in unpacker:
-                yield item[0], item[1]
-
-    return header, messages()
+def _read_pnrec(path) -> Run:
+    with open(path, "rb") as f:
+        unpacker = msgpack.Unpacker(f, raw=False)
+        try:
+            header = next(unpacker)
+        except StopIteration:
+            raise ValueError(f"{path}: empty file") from None
+        except (ValueError, msgpack.UnpackException):
+            header = None
+        if not isinstance(header, dict) or header.get("format") != FORMAT:
+            raise ValueError(f"{path}: not a pneumad recording (neither MCAP nor {FORMAT})")
+        run = Run(header["describe"], header["controller"])
+        outputs = [o[0] for o in run.describe["transport"]["outputs"]]
+        try:
+            for topic, message in unpacker:
+                if topic == "state":
+                    run.samples.extend(mcap_log.state_samples(message, run.joints, outputs))
+                else:
+                    run.messages.setdefault(topic, []).append(message)
+        except (ValueError, msgpack.UnpackException) as exc:
+            run.truncated = f"{type(exc).__name__}: {exc}"
+    return run
 
 
 def export_csv(path, out) -> int:
     """Write the state stream as CSV, one row per cycle, columns named with units; rows written."""
-    header, messages = read(path)
-    names = [j["name"] for j in header["describe"]["joints"]]
-    per_joint = ["angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts", "p_head_pa", "p_rod_pa"]
-    outputs = [o[0] for o in header["describe"]["transport"]["outputs"]]
-    columns = (["cycle", "t"] + [f"{n}.{f}" for f in per_joint for n in names]
+    run = open_run(path)
+    outputs = [o[0] for o in run.describe["transport"]["outputs"]]
+    columns = (["cycle", "t"] + [f"{n}.{f}" for f in mcap_log.PER_JOINT for n in run.joints]
                + [f"volts.{o}" for o in outputs] + ["force_n", "mode"])
-    rows = 0
     with open(out, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(columns)
-        for topic, m in messages:
-            if topic != "state":
-                continue
-            for i in range(len(m["cycle"])):
-                row = [m["cycle"][i], m["t"][i]]
-                for f in per_joint:
-                    row.extend(m[f][i])
-                row.extend(m["out_volts"][i])
-                row.extend([m["force_n"][i], m["mode"][i]])
-                w.writerow(row)
-                rows += 1
-    return rows
+        for s in run.samples:
+            w.writerow([s["cycle"], s["t"]] + [s["joints"][n][f] for f in mcap_log.PER_JOINT for n in run.joints]
+                       + [s["out_volts"].get(o) for o in outputs] + [s["force_n"], s["mode"]])
+    return len(run.samples)
+
+
+def load(path) -> dict[str, np.ndarray]:
+    """The state stream as numpy columns named with their units (``t``, ``cycle``,
+    ``middle.angle_rad`` ...), and the controller's internal signals as
+    ``internals.t`` and ``internals.<signal>.<joint>`` where recorded: for a notebook.
+    ``pandas.DataFrame(load(path))`` works for the state columns (same length)."""
+    run = open_run(path)
+    out = {"t": np.array([s["t"] for s in run.samples], dtype=float),
+           "cycle": np.array([s["cycle"] for s in run.samples], dtype=np.int64),
+           "force_n": np.array([s["force_n"] for s in run.samples], dtype=float)}
+    for name in run.joints:
+        for key in mcap_log.PER_JOINT:
+            out[f"{name}.{key}"] = np.array([s["joints"][name][key] for s in run.samples], dtype=float)
+    internals = run.messages.get("internals", [])
+    if internals:
+        out["internals.t"] = np.array([m["t"] for m in internals], dtype=float)
+        for signal in internals[-1]["signals"]:
+            for j, name in enumerate(run.joints):
+                out[f"internals.{signal}.{name}"] = np.array(
+                    [m["signals"].get(signal, [np.nan] * len(run.joints))[j] for m in internals], dtype=float)
+    return out

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from daemon import recording
 from daemon.client import Client
 from daemon.notify import Notifier
 from hal import config
@@ -118,10 +119,15 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         ctl = [BIN / "pneumactl", *sum(([f"--{k}", v] for k, v in eps.items()), [])]
         out = subprocess.run([*ctl, "status"], capture_output=True, text=True, env=env_with(), timeout=30)
         assert out.returncode == 0 and json.loads(out.stdout)["state"] == "enabled"
-        rec = tmp_path / "run.pnrec"
+        rec = tmp_path / "run.mcap"
         out = subprocess.run([*ctl, "record", str(rec), "--seconds", "1"], capture_output=True, text=True,
                              env=env_with(), timeout=30)
         assert out.returncode == 0, out.stderr
+        run = recording.open_run(rec)
+        signals = [m["signals"] for m in run.messages["internals"]]  # the enabled PID's parts
+        assert len(signals) > 50 and set(signals[-1]) == {"p", "i", "d"} and not run.truncated
+        assert [s["name"] for s in next(c for c in run.describe["controllers"] if c["name"] == "pid")["internals"]] \
+            == ["p", "i", "d"]
         csv = tmp_path / "run.csv"
         out = subprocess.run([*ctl, "export", str(rec), str(csv)], capture_output=True, text=True, env=env_with(), timeout=30)
         assert out.returncode == 0, out.stderr

@@ -8,6 +8,7 @@ refused by design); ``watch`` is left with Ctrl-C after a moment.
 """
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -91,11 +92,19 @@ def test_the_readme_tour_runs_as_written(tmp_path):
                 assert expected in (None, state), (line, state)
                 assert state != "fault", (line, client.status()["cause"])
             assert client.status()["trips"] == 0
+            # the notebook lines, on the recording the tour made
+            text = (ROOT / "README.md").read_text()
+            snippet = "\n".join(line.strip() for line in text.splitlines()
+                                 if "from daemon import recording" in line or "recording.load(" in line)
+            done = subprocess.run([sys.executable, "-c", snippet + "\nassert len(data['middle.angle_rad']) > 1000"],
+                                  cwd=ROOT, capture_output=True, text=True, timeout=60)
+            assert done.returncode == 0, (snippet, done.stderr)
     finally:
         daemon.send_signal(signal.SIGTERM)
         daemon.wait(timeout=10)
-        for name in ("run.pnrec", "run.csv"):
+        for name in ("run.mcap", "run.csv"):
             (ROOT / name).unlink(missing_ok=True)
+        shutil.rmtree(ROOT / "plots", ignore_errors=True)
 
 
 def restore_sigint() -> None:

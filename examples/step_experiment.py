@@ -1,0 +1,57 @@
+"""A step experiment from a script or a notebook: take the lease, enable, step the bottom
+joint by 5 deg, record it, and plot it; the recording then loads into numpy arrays.
+
+    python examples/step_experiment.py [--out step-run] [--step-deg 5] [--seconds 8]
+
+Needs a running daemon (``pneumad``; the simulated rig by default). Writes OUT.mcap and the
+figures OUT-joints.png, OUT-errors.png ... next to it, and prints the step's overshoot.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import threading
+from pathlib import Path
+
+from daemon import mcap_log, plots, recording
+from daemon.client import Client
+from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="step-run")
+    ap.add_argument("--step-deg", type=float, default=5.0)
+    ap.add_argument("--seconds", type=float, default=8.0)
+    for name, default in (("command", DEFAULT_COMMAND), ("control", DEFAULT_CONTROL), ("telemetry", DEFAULT_TELEMETRY)):
+        ap.add_argument(f"--{name}", default=default, help=f"the daemon's {name} endpoint (default {default})")
+    args = ap.parse_args()
+    endpoints = {"command": args.command, "control": args.control, "telemetry": args.telemetry}
+    path = Path(args.out).with_suffix(".mcap")
+    with Client(**endpoints, timeout=5.0) as c:
+        c.acquire_lease()
+        c.keep_lease()
+        c.enable()
+        start = c.status()["joints"]
+        target = [j["angle_deg"] for j in start.values()]
+        target[0] += args.step_deg
+        with Client(**endpoints, timeout=5.0) as listener:  # its own client: a client's sockets serve one thread
+            recorder = threading.Thread(target=mcap_log.record, args=(listener, path, args.seconds))
+            recorder.start()  # records while the step runs
+            threading.Event().wait(1.0)
+            c.set(angles_deg=target)  # a step: no duration
+            recorder.join()
+        c.disable()
+        c.release_lease()
+    data = recording.load(path)  # numpy columns named with units
+    name = next(iter(start))
+    angle = [math.degrees(a) for a in data[f"{name}.angle_rad"]]
+    first, peak = angle[0], max(angle) if args.step_deg > 0 else min(angle)
+    print(f"{name}: step {args.step_deg:g} deg, overshoot {100 * (abs(peak - first) / abs(args.step_deg) - 1):.1f} %")
+    for figure in plots.plot_runs([path], path.parent):
+        print(figure)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

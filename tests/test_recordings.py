@@ -1,0 +1,170 @@
+"""Recordings as MCAP (issue: recordings a lab already knows how to open): the mcap package's
+own reader opens them with their schemas, attachment and metadata; one message per cycle
+stamped with the daemon's clock; lost telemetry written where it happened; a file cut short
+readable up to its last complete chunk; earlier .pnrec files still export; numpy loading and
+the plots."""
+import json
+import math
+
+import jsonschema
+import msgpack
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from controllers.trajectory import JointMove
+from daemon import mcap_log, recording
+from tests.loophelpers import dealer, make_loop, ok
+
+
+@pytest.fixture(scope="module")
+def session():
+    """A short PID move on the in-process loop: its describe, controller and telemetry."""
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
+    start = len(captured.messages)
+    loop.enable()
+    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(4.0), loop.angles[1]], 1.0), "move")
+    loop.run(3000)
+    srv.close()
+    return describe, controller, captured.messages[start:]
+
+
+def write(path, session, skip_state_batch: int | None = None):
+    describe, controller, messages = session
+    with open(path, "wb") as f:
+        rec = mcap_log.McapRecording(f, describe, controller)
+        batches = 0
+        for topic, message in messages:
+            if topic == "state":
+                batches += 1
+                if batches == skip_state_batch:
+                    continue
+            rec.write(topic, message)
+        rec.finish()
+    return rec
+
+
+def test_the_mcap_package_reads_a_recording_with_its_schemas_attachment_and_metadata(tmp_path, session):
+    describe = session[0]
+    path = tmp_path / "run.mcap"
+    write(path, session)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        topics = {c.topic: c for c in summary.channels.values()}
+        assert {"/pneumad/state", "/pneumad/event", "/pneumad/internals", "/pneumad/stats"} <= set(topics)
+        state = topics["/pneumad/state"]
+        assert state.message_encoding == "json" and summary.schemas[state.schema_id].encoding == "jsonschema"
+        schema = json.loads(summary.schemas[state.schema_id].data)
+        cycles = []
+        for _, channel, message in reader.iter_messages(topics=["/pneumad/state"]):
+            sample = json.loads(message.data)
+            jsonschema.validate(sample, schema)
+            assert message.log_time == round(sample["t"] * 1e9) and message.sequence == sample["cycle"]
+            cycles.append(sample["cycle"])
+        assert cycles == list(range(cycles[0], cycles[0] + len(cycles))) and len(cycles) >= 3000
+        attachments = {a.name: a for a in reader.iter_attachments()}
+        assert attachments["rig.toml"].data.decode() == describe["rig"]["source"]
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert metadata["pneumad"]["rig_hash"] == describe["rig"]["hash"]
+        assert metadata["pneumad"]["controller"] == "pid"
+        assert json.loads(metadata["describe"]["json"]) == describe
+    samples = recording.open_run(path).samples
+    assert samples[-1]["joints"]["bottom"]["angle_rad"] == pytest.approx(samples[-1]["joints"]["bottom"]["setpoint_rad"],
+                                                                         abs=math.radians(1.0))
+
+
+def test_lost_telemetry_is_written_where_it_happened(tmp_path, session):
+    path = tmp_path / "gap.mcap"
+    rec = write(path, session, skip_state_batch=100)
+    run = recording.open_run(path)
+    assert rec.gaps == 1 and run.messages["gap"] == [{"topic": "state", "missing": 1, "after_seq": run.messages["gap"][0]["after_seq"]}]
+    cycles = [s["cycle"] for s in run.samples]
+    holes = [b - a for a, b in zip(cycles, cycles[1:]) if b - a != 1]
+    assert holes == [11]  # the ten cycles of the missing batch
+
+
+@pytest.mark.parametrize("keep", [0.3, 0.6, 0.95])
+def test_a_recording_cut_short_reads_up_to_its_last_complete_chunk(tmp_path, session, keep):
+    full = tmp_path / "full.mcap"
+    write(full, session)
+    data = full.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:int(len(data) * keep)])
+    whole, part = recording.open_run(full), recording.open_run(cut)
+    assert part.truncated
+    assert 0 < len(part.samples) < len(whole.samples)
+    assert part.samples == whole.samples[:len(part.samples)]  # what is there is right, in order
+    assert recording.export_csv(cut, tmp_path / "cut.csv") == len(part.samples)
+
+
+def test_a_file_that_is_no_recording_is_refused_clearly(tmp_path):
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"\x89MCAP0\r\n" + bytes(40))
+    with pytest.raises(ValueError, match="not a pneumad MCAP recording"):
+        recording.open_run(junk)
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    with pytest.raises(ValueError, match="not a pneumad recording"):
+        recording.open_run(text)
+
+
+def test_an_earlier_pnrec_still_exports(tmp_path, session):
+    describe, controller, messages = session
+    old = tmp_path / "old.pnrec"
+    with open(old, "wb") as f:  # the format of earlier versions, written as they wrote it
+        f.write(msgpack.packb({"format": recording.FORMAT, "software": "0.1", "started": 0.0, "describe": describe,
+                               "rig_source": describe["rig"]["source"], "controller": controller}))
+        for topic, message in messages:
+            f.write(msgpack.packb([topic, message]))
+    rows = recording.export_csv(old, tmp_path / "old.csv")
+    lines = (tmp_path / "old.csv").read_text().splitlines()
+    assert rows == len(lines) - 1 >= 3000 and lines[0].startswith("cycle,t,bottom.angle_rad,middle.angle_rad")
+
+
+def test_load_gives_numpy_columns_named_with_units(tmp_path, session):
+    path = tmp_path / "run.mcap"
+    write(path, session)
+    data = recording.load(path)
+    assert {"t", "cycle", "bottom.angle_rad", "middle.u_volts", "internals.t", "internals.p.bottom"} <= set(data)
+    n = len(data["t"])
+    assert all(len(data[k]) == n for k in data if not k.startswith("internals."))
+    assert np.all(np.diff(data["t"]) > 0) and np.all(np.diff(data["cycle"]) == 1)
+
+
+def test_plot_writes_the_figures_of_one_run_and_of_an_overlay(tmp_path, session):
+    from daemon import plots
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    write(a, session)
+    write(b, session)
+    one = plots.plot_runs([a], tmp_path / "one")
+    assert {p.name for p in one} >= {"a-joints.png", "a-errors.png", "a-output.png", "a-tip.png", "a-internals.png"}
+    both = plots.plot_runs([a, b], tmp_path / "both")
+    assert {p.name for p in both} >= {"compare-joints.png", "compare-tip.png", "compare-internals-2.png"}
+    assert all(p.stat().st_size > 10_000 for p in one + both)
+
+
+@pytest.mark.slow
+def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.daemons import real_daemon
+    root = Path(__file__).resolve().parents[1]
+    daemon, eps = real_daemon(tmp_path)
+    try:
+        out = subprocess.run([sys.executable, str(root / "examples" / "step_experiment.py"), "--out",
+                              str(tmp_path / "step"), "--seconds", "6", *sum(([f"--{k}", v] for k, v in eps.items()), [])],
+                             cwd=root, capture_output=True, text=True, timeout=120)
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    assert out.returncode == 0, out.stderr
+    assert "bottom: step 5 deg, overshoot" in out.stdout
+    data = recording.load(tmp_path / "step.mcap")
+    moved = math.degrees(data["bottom.angle_rad"][-1] - data["bottom.angle_rad"][0])
+    assert abs(moved - 5.0) < 0.5  # the step settled in the recording
+    assert (tmp_path / "step-joints.png").stat().st_size > 10_000
