@@ -3,10 +3,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
-import time
 
 from daemon import keys, mcap_log, recording
 from daemon.client import Client, KeyRefused, RemoteError, read_waypoints
@@ -23,31 +21,6 @@ def with_lease(client: Client, fn):
         released = client.release_lease()
         if released and "unleased" in released:
             print(f"note: {released['unleased']['note']}", file=sys.stderr)
-
-
-def watch(client: Client, seconds: float | None) -> None:
-    sub = client.subscribe((b"state", b"event"))
-    end = None if seconds is None else time.monotonic() + seconds
-    last_print = 0.0
-    try:
-        while end is None or time.monotonic() < end:
-            item = sub.receive(1.0)
-            if item is None:
-                print("(no telemetry)", flush=True)
-                continue
-            topic, m = item
-            if topic == "event":
-                print(f"EVENT {m.get('kind')}: {m.get('cause', '')} {m.get('to', '')}", flush=True)
-            elif time.monotonic() - last_print >= 0.1:
-                last_print = time.monotonic()
-                q = "  ".join(f"{math.degrees(a):8.2f}" for a in m["angle_rad"][-1])
-                e = "  ".join(f"{math.degrees(a):6.2f}" for a in m["error_rad"][-1])
-                print(f"{m['mode'][-1]:8s} cycle {m['cycle'][-1]:9d}  angle deg {q}   error deg {e}  "
-                      f"lost {sub.lost}", flush=True)
-    except (KeyboardInterrupt, BrokenPipeError):
-        pass
-    finally:
-        sub.close()
 
 
 def record(client: Client, path: str, seconds: float) -> int:
@@ -213,6 +186,7 @@ def run(client: Client, args):
     if w in ("enable", "disable", "reset"):
         return with_lease(client, getattr(client, w))
     if w == "watch":
+        from daemon.watch import watch  # rich: only for the live view
         watch(client, args.seconds)
         return None
     if w == "set":

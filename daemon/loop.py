@@ -28,7 +28,7 @@ from daemon.shadow import ShadowRun
 from daemon.stats import LoopStats
 from daemon.tracking import TrackingGuard
 from hal.actuation import BiasedHeadActuation
-from hal.errors import CommandError, TransportError
+from hal.errors import CommandError, ConfigError, TransportError
 from hal.rig import RigIO, Snapshot
 
 START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
@@ -45,13 +45,20 @@ class ControlLoop:
         self.context = ControllerContext.for_rig(self.rig, self.actuation, period)
         self.supervisor = Supervisor(self.rig, period)
         self.controller_plugins = dict(controller_plugins or {})  # name -> module:Class, from the daemon's configuration
-        self.controller: Controller = registry.build(controller, self.context, plugins=self.controller_plugins)
+        try:
+            self.controller: Controller = registry.build(controller, self.context, plugins=self.controller_plugins)
+        except (LookupError, ValueError) as exc:  # ParamError is a ValueError
+            raise ConfigError(f"--controller: {exc}") from None
         self.shadow: ShadowRun | None = None
         safety = self.rig.safety
         self.tracking = TrackingGuard(io.joint_names, safety.tracking_error_deg, safety.tracking_window_s)
         # built now, before the loop runs, and copied when needed: a fallback never builds in a cycle
-        self._fallback = (registry.build(safety.fallback_controller, self.context, plugins=self.controller_plugins)
-                          if safety.tracking_action == "fallback" else None)
+        self._fallback = None
+        if safety.tracking_action == "fallback":
+            try:
+                self._fallback = registry.build(safety.fallback_controller, self.context, plugins=self.controller_plugins)
+            except (LookupError, ValueError) as exc:  # ParamError is a ValueError
+                raise ConfigError(f"safety.fallback_controller: {exc}") from None
         self.telemetry = telemetry
         self.server = server
         self.stats = LoopStats()

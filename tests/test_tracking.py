@@ -3,11 +3,14 @@ rig's edges): it trips, or hands the arm to the fallback controller, long before
 reaches its limit; a joint that is catching up on a large move is left alone."""
 import math
 
+import pytest
+
 from bench import scenarios as S
 from controllers import registry
 from controllers.trajectory import JointMove
 from daemon.tracking import TrackingGuard
 from hal import config
+from hal.errors import ConfigError
 from tests.loophelpers import make_loop
 
 LOST_RIG = {'tracking_action = "trip"': 'tracking_action = "fallback"'}
@@ -109,3 +112,14 @@ def test_a_sensor_stuck_during_a_move_is_caught_by_the_tracking_rule():
     # caught, and only late: the joint it cannot see runs at up to 27 deg/s meanwhile (docs/faults.md)
     assert loop.state.value == "fault" and "joint bottom lost" in loop.supervisor.cause
     assert loop.p_head == list(loop.io.safe_pressures[0])
+
+
+def test_a_fallback_controller_that_cannot_be_built_is_a_configuration_error():
+    rig = config.load().source.replace('tracking_action = "trip"', 'tracking_action = "fallback"')
+    with pytest.raises(ConfigError, match="safety.fallback_controller: unknown controller 'nope'"):
+        make_loop(rig.replace('fallback_controller = "pid"', 'fallback_controller = "nope"'))
+
+
+def test_an_unknown_start_controller_is_a_configuration_error():
+    with pytest.raises(ConfigError, match="--controller: unknown controller 'nope'"):
+        make_loop(controller="nope")

@@ -1,0 +1,41 @@
+"""``pneumactl watch``'s live view, rendered from real telemetry and a real status of the
+in-process loop: state, controller, lease, per-joint numbers and output bars, loop health."""
+import math
+
+from rich.console import Console
+
+from controllers.trajectory import JointMove
+from daemon.watch import View, _bar
+from tests.loophelpers import dealer, make_loop, ok
+
+
+def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    describe = ok(loop, sock, "describe")
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(5.0), loop.angles[1]], 2.0), "move")
+    loop.run(1500)  # a stats window and then some
+    status = ok(loop, sock, "status")
+    srv.close()
+    view = View(describe)
+    for topic, message in captured.messages:
+        view.take(topic, message)
+    view.status = status
+    console = Console(record=True, width=140)
+    console.print(view.render())
+    text = console.export_text()
+    assert "enabled" in text and "controller pid" in text and "reference move" in text
+    assert "lease held" in text
+    last = captured.of("state")[-1]
+    for j, name in enumerate(("bottom", "middle")):
+        assert name in text and f"{last['u_volts'][-1][j]:+6.2f} V" in text
+    assert "loop: wake-up p99" in text and "faults: none" in text
+    assert "idle -> enabled (enabled)" in text  # the events
+
+
+def test_an_output_bar_is_full_at_either_limit_and_marks_zero():
+    full_high, full_low, zero = (str(_bar(u, -4.0, 6.0)) for u in (6.0, -4.0, 0.0))
+    assert full_high.rstrip("]").endswith("█") and full_low.lstrip("[").startswith("█")
+    assert zero.count("█") == 0 and zero.count("|") == 1
