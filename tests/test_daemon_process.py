@@ -18,6 +18,7 @@ from daemon.client import Client
 from daemon.notify import Notifier
 from hal import config
 from tests.daemons import tolerant_rig_text
+from tests.schemas import schema
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -126,6 +127,9 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         run = recording.open_run(rec)
         signals = [m["signals"] for m in run.messages["internals"]]  # the enabled PID's parts
         assert len(signals) > 50 and set(signals[-1]) == {"p", "i", "d"} and not run.truncated
+        internals_schema = schema("telemetry", "internals")
+        for message in run.messages["internals"]:  # as the daemon published them
+            internals_schema.validate(message)
         assert [s["name"] for s in next(c for c in run.describe["controllers"] if c["name"] == "pid")["internals"]] \
             == ["p", "i", "d"]
         csv = tmp_path / "run.csv"

@@ -5,11 +5,8 @@ schemas (docs/schemas), none reaches planning code in the loop's process (that w
 ``internal``), and none trips the loop. The telemetry published meanwhile is checked against
 its schema too. How long the loop took is bench/command_stall.py's to measure, not a test's."""
 import itertools
-import json
 import time
-from pathlib import Path
 
-import jsonschema
 import msgpack
 import pytest
 import zmq
@@ -17,18 +14,11 @@ import zmq
 from bench.command_cases import CASES, prepare
 from daemon import protocol as P
 from daemon.client import Client
+from tests.schemas import schema
 from tests.daemons import real_daemon
 
-SCHEMAS = Path(__file__).resolve().parents[1] / "docs" / "schemas"
 pytestmark = pytest.mark.slow
 _ids = itertools.count(1)
-
-
-def schema(name: str, definition: str | None = None) -> jsonschema.Draft202012Validator:
-    doc = json.loads((SCHEMAS / f"{name}.schema.json").read_text())
-    if definition is not None:
-        doc = {"$schema": doc["$schema"], **doc["$defs"][definition]}
-    return jsonschema.Draft202012Validator(doc)
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +76,7 @@ def test_every_command_gets_its_documented_reply_and_never_stalls_the_loop(daemo
 
 def test_the_telemetry_published_meanwhile_matches_its_schema(daemon):
     _, _, sub = daemon
-    seen = {"state": 0, "stats": 0, "event": 0}
+    seen = {"state": 0, "stats": 0, "event": 0, "internals": 0}
     validators = {topic: schema("telemetry", topic) for topic in seen}
     end = time.monotonic() + 2.0  # what the cases' run left queued, and a little more
     while time.monotonic() < end and sub.poll(200):
@@ -95,4 +85,4 @@ def test_the_telemetry_published_meanwhile_matches_its_schema(daemon):
         if topic != "state" or seen["state"] < 100:  # every event and stats window, a sample of the state stream
             validators[topic].validate(msgpack.unpackb(body, raw=False))
         seen[topic] += 1
-    assert seen["state"] > 100 and seen["stats"] and seen["event"] > 20, seen
+    assert seen["state"] > 100 and seen["stats"] and seen["event"] > 20, seen  # internals: only while enabled
