@@ -3,13 +3,16 @@
 and a step disturbance torque per joint. The LTI controllers run the shipped example design,
 controllers/designs/pi_thesis.toml (the thesis's PI as matrices).
 
-    python -m bench.compare_controllers > docs/controllers-table.md
+    python -m bench.compare_controllers > docs/controllers-table.md   # and docs/images/compare-*.png
 """
 from __future__ import annotations
 
 import argparse
 import multiprocessing
 import sys
+from pathlib import Path
+
+import numpy as np
 
 from bench import scenarios as S
 
@@ -26,7 +29,17 @@ def evaluate(name: str) -> dict:
     loop = fresh()
     circle_s = S.shortest_feasible(loop, "circle")
     out = {"name": name, "circle_s": circle_s}
-    out["translation"] = S.run_path(loop, S.make_path(loop, "translation", 15.0))
+    trace = {"t": [], "ref": [], "q": [], "u": []}
+
+    def keep(lp, i):  # every 20th cycle of the translation, for the figures
+        if i % 20 == 0:
+            trace["t"].append(i * lp.period)
+            trace["ref"].append(list(lp.reference[0][:2]))
+            trace["q"].append(list(lp.angles[:2]))
+            trace["u"].append(list(lp.u[:2]))
+
+    out["translation"] = S.run_path(loop, S.make_path(loop, "translation", 15.0), keep)
+    out["trace"], out["lengths"] = trace, list(loop.rig.arm.link_lengths_m)
     out["circle"] = S.run_path(fresh(), S.make_path(loop, "circle", circle_s))
     out["steps"] = [S.step_response(fresh(), j, STEPS_DEG[j], 20.0) for j in range(2)]
     torques = [m.kt * 1.0 for m in loop.context.models]
@@ -61,12 +74,51 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def figures(results: list[dict], out_dir: Path) -> list[Path]:
+    """The translation run of every controller: tip paths against the reference, and the tip
+    error [mm] and V_MV [V] against time [s]."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig_tip, ax_tip = plt.subplots(figsize=(9, 4.5))
+    fig_err, (ax_err, ax_u) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    for r in results:
+        tr, (l1, l2) = r["trace"], r["lengths"][:2]
+        ref, q = np.array(tr["ref"]), np.array(tr["q"])
+
+        def tip(a):
+            return (l1 * np.cos(a[:, 0]) + l2 * np.cos(a[:, 0] + a[:, 1])) * 1e3, \
+                   (l1 * np.sin(a[:, 0]) + l2 * np.sin(a[:, 0] + a[:, 1])) * 1e3
+        (rx, ry), (mx, my) = tip(ref), tip(q)
+        if r is results[0]:
+            ax_tip.plot(rx, ry, "k--", lw=1.0, label="reference")
+        ax_tip.plot(mx, my, lw=1.2, label=r["name"])
+        ax_err.plot(tr["t"], np.hypot(rx - mx, ry - my), lw=1.1, label=r["name"])
+        ax_u.plot(tr["t"], np.array(tr["u"])[:, 1], lw=1.0, label=r["name"])
+    ax_tip.set(xlabel="x [mm]", ylabel="y [mm]", title="translation, 15 s: the tip on the simulated rig")
+    ax_err.set(ylabel="tip error [mm]", title="translation, 15 s")
+    ax_u.set(xlabel="time from the path's start [s]", ylabel="middle joint V_MV [V]")
+    for ax in (ax_tip, ax_err, ax_u):
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small", ncol=2)
+    written = [out_dir / "compare-translation-tip.png", out_dir / "compare-translation-error.png"]
+    for fig, path in zip((fig_tip, fig_err), written):
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return written
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("controllers", nargs="*", default=CONTROLLERS)
+    parser.add_argument("--figures", default="docs/images", help="directory for the PNG figures (default docs/images)")
     args = parser.parse_args(argv)
     with multiprocessing.Pool(min(len(args.controllers), multiprocessing.cpu_count())) as pool:
         results = pool.map(evaluate, args.controllers)
+    figures(results, Path(args.figures))
     print(f"Produced by: python -m bench.compare_controllers {' '.join(args.controllers)}\n")
     print(table(results))
     return 0
