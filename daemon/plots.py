@@ -87,17 +87,8 @@ def _tip(runs) -> plt.Figure | None:
             y = lengths[0] * np.sin(q1) + lengths[1] * np.sin(q1 + q2)
             ax.plot(x, y, style, color=colour, lw=1.0 if what == "reference" else 1.4, label=f"{label} {what}")
         drawn = True
-    if not drawn:
-        plt.close(fig)
-        return None
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize="small")
-    ax.set_title("tip path in the workspace (forward kinematics of the first two joints)")
-    fig.tight_layout()
-    return fig
+    return _finish(fig, ax, drawn, "x [mm]", "y [mm]", "tip path in the workspace (forward kinematics of the first two joints)")
 
 
 def _force(runs) -> plt.Figure | None:
@@ -108,14 +99,17 @@ def _force(runs) -> plt.Figure | None:
         if np.isfinite(force).any():
             ax.plot(_time(run), force, lw=1.2, label=label)
             drawn = True
+    return _finish(fig, ax, drawn, "time [s]", "force [N]", "tip force")
+
+
+def _finish(fig, ax, drawn: bool, xlabel: str, ylabel: str, title: str) -> plt.Figure | None:
+    """Labels, grid and legend on a one-axes figure; None (and the figure closed) if nothing was drawn."""
     if not drawn:
         plt.close(fig)
         return None
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("force [N]")
+    ax.set(xlabel=xlabel, ylabel=ylabel, title=title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
-    ax.set_title("tip force")
     fig.tight_layout()
     return fig
 
