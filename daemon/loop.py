@@ -75,7 +75,7 @@ class ControlLoop:
         self.velocities = [0.0] * self.n  # filtered [rad/s]
         self.force = math.nan
         self.snapshot: Snapshot | None = None
-        self._alpha = 1.0 - math.exp(-2 * math.pi * self.rig.safety.velocity_filter_hz * period)
+        self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
         self._deadline = 0.0
         self._stats_due = 0.0
@@ -200,14 +200,18 @@ class ControlLoop:
 
     def _update_measurement(self, snap: Snapshot) -> None:
         """Keep the last valid angle per joint (one bad sample is not yet a fault) and a
-        low-pass filtered velocity."""
-        self.snapshot = snap
-        a, inv_dt = self._alpha, 1.0 / self.period
-        for i, q in enumerate(snap.angles):
-            if q == q:
-                raw = (q - self.angles[i]) * inv_dt
-                self.velocities[i] += a * (raw - self.velocities[i])
-                self.angles[i] = q
+        low-pass filtered velocity [rad/s]. The angle is differenced over the time between
+        the two samples, not over a period: after a stall (the loop's or the transport's) the
+        arm has moved for all of it, and dividing that by 1 ms would read as a speed trip."""
+        previous, self.snapshot = self.snapshot, snap
+        dt = snap.t - previous.t if previous is not None else self.period
+        if dt > 0.0:
+            a, inv_dt = -math.expm1(-self._filter_w * dt), 1.0 / dt
+            for i, q in enumerate(snap.angles):
+                if q == q:
+                    raw = (q - self.angles[i]) * inv_dt
+                    self.velocities[i] += a * (raw - self.velocities[i])
+                    self.angles[i] = q
         self.force = snap.force
 
     def _control(self, now: float) -> None:

@@ -6,6 +6,7 @@ import pytest
 from controllers import registry, trajectory
 from daemon.safety import State
 from daemon.stats import LoopStats
+from tests.daemons import tolerant_rig_text
 from tests.loophelpers import make_loop, run_seconds, tracking
 from tests.plugins import Slow
 
@@ -120,6 +121,25 @@ def test_a_stalled_loop_trips():
     loop.clock.t += 0.2  # the process was frozen for 200 ms
     loop.run(1)
     assert loop.state is State.FAULT and "loop stalled" in loop.supervisor.cause and safe(loop)
+
+
+def test_a_stall_within_the_limit_is_not_read_as_speed():
+    # The arm moves for the whole of a stall; its speed is the angle moved over the time
+    # between the two samples. Divided by one period instead, a 45 ms stall mid-move read
+    # as -63 deg/s and tripped the README's tour.
+    loop, _, _ = enabled_loop(rig_text=tolerant_rig_text())  # stall limit 0.5 s
+    start = list(loop.angles)
+    goal = [start[0] - math.radians(12.0), start[1]]
+    loop.set_trajectory(trajectory.JointMove(start, goal, 1.5), "move")  # cubic: peak 12 deg/s
+    seen = []
+    for _ in range(12):
+        loop.run(100)
+        loop.clock.t += 0.045  # the hypervisor stops the process mid-move
+        loop.run(1)
+        seen.append(abs(math.degrees(loop.velocities[0])))
+    assert loop.state is State.ENABLED, loop.supervisor.cause
+    assert max(seen) < 20.0  # the true peak is 12 deg/s (and the filter lags it)
+    assert max(seen) > 5.0  # and it does see the move
 
 
 def test_joint_limit_trips():
