@@ -92,6 +92,14 @@ CASES: list[Case] = [
     Case("controller.commit", "controller.commit", needs="shadow"),
     Case("controller.discard", "controller.discard", needs="shadow"),
     Case("controller.commit, no shadow", "controller.commit", {}, P.BAD_STATE, needs="pid"),
+    Case("record.start, the longest name, 24 h", "record.start", {"name": "r" * 80, "seconds": 86400.0}, needs="any"),
+    Case("record.start, a name with a path in it", "record.start", {"name": "../../etc/passwd"}, P.BAD_ARGS,
+         needs="any"),
+    Case("record.list", "record.list", needs="any"),
+    Case("record.stop", "record.stop", needs="any"),
+    Case("record.stop, nothing running", "record.stop", {}, P.BAD_STATE, needs="any"),
+    Case("path translation, recorded", "path", {"name": "translation", "record": True}),
+    Case("path, record not a boolean", "path", {"name": "translation", "record": "yes"}, P.BAD_ARGS),
 ]
 
 

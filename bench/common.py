@@ -48,7 +48,8 @@ def spawn_daemon(*options: str) -> tuple[subprocess.Popen, dict[str, str]]:
     """A real ``pneumad run`` on private ipc endpoints (the simulated rig), and the endpoints."""
     tmp = tempfile.mkdtemp(prefix="pneumad-bench-")
     eps = {k: f"ipc://{tmp}/{k}" for k in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--log-level", "WARNING", *options,
+    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--log-level", "WARNING",
+                               "--record-dir", f"{tmp}/recordings", *options,
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])])
     return daemon, eps
 

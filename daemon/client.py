@@ -179,16 +179,17 @@ class Client:
     def reset(self):
         return self.call("reset")
 
-    def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0):
-        args = {"duration_s": duration_s}
+    def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False):
+        args = {"duration_s": duration_s, **_record(record)}
         if angles_deg is not None:
             args["angles_deg"] = list(angles_deg)
         if xy_mm is not None:
             args["xy_mm"] = list(xy_mm)
         return self.call("set", args)
 
-    def path(self, name: str, duration_s: float | None = None, approach_s: float | None = None):
-        args = {"name": name}
+    def path(self, name: str, duration_s: float | None = None, approach_s: float | None = None, record: bool = False):
+        """A reference path; ``record``: the daemon records it, start to end (the reply's ``recording``)."""
+        args = {"name": name, **_record(record)}
         if duration_s is not None:
             args["duration_s"] = duration_s
         if approach_s is not None:
@@ -201,9 +202,10 @@ class Client:
     def controller(self):
         return self.call("controller.get")
 
-    def waypoints(self, angles_deg=None, xy_mm=None, durations_s=(), approach_s: float | None = None):
+    def waypoints(self, angles_deg=None, xy_mm=None, durations_s=(), approach_s: float | None = None,
+                  record: bool = False):
         """A path through joint (``angles_deg``) or tip (``xy_mm``) waypoints; see read_waypoints."""
-        args = {"durations_s": list(durations_s)}
+        args = {"durations_s": list(durations_s), **_record(record)}
         if angles_deg is not None:
             args["angles_deg"] = [list(p) for p in angles_deg]
         if xy_mm is not None:
@@ -212,13 +214,27 @@ class Client:
             args["approach_s"] = approach_s
         return self.call("waypoints", args)
 
-    def steps(self, angles_deg, hold_s):
+    def steps(self, angles_deg, hold_s, record: bool = False):
         """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds."""
-        return self.call("steps", {"angles_deg": [list(p) for p in angles_deg], "hold_s": list(hold_s)})
+        return self.call("steps", {"angles_deg": [list(p) for p in angles_deg], "hold_s": list(hold_s),
+                                   **_record(record)})
 
-    def excite(self, signal: str, joint: str, amplitude_deg: float, **settings):
+    def excite(self, signal: str, joint: str, amplitude_deg: float, record: bool = False, **settings):
         """An identification signal (chirp: f0_hz, f1_hz, duration_s; prbs: order, bit_s, periods)."""
-        return self.call("excite", {"signal": signal, "joint": joint, "amplitude_deg": amplitude_deg, **settings})
+        return self.call("excite", {"signal": signal, "joint": joint, "amplitude_deg": amplitude_deg, **settings,
+                                    **_record(record)})
+
+    def record_start(self, name: str | None = None, seconds: float | None = None):
+        """The daemon records its telemetry (MCAP, in its recording directory) until
+        :meth:`record_stop` or for ``seconds``; nothing a slow network loses is lost to it."""
+        args = {k: v for k, v in (("name", name), ("seconds", seconds)) if v is not None}
+        return self.call("record.start", args)
+
+    def record_stop(self, name: str | None = None):
+        return self.call("record.stop", {"name": name} if name else {})
+
+    def record_list(self):
+        return self.call("record.list")
 
     @staticmethod
     def _candidate(name: str, params: dict | None, design: str | None) -> dict:
@@ -278,6 +294,10 @@ class Client:
     # -- telemetry ------------------------------------------------------------------------
     def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> "Subscription":
         return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
+
+
+def _record(record: bool) -> dict:
+    return {"record": True} if record else {}
 
 
 def read_waypoints(path) -> dict:

@@ -307,8 +307,8 @@ class Commands:
                 raise CommandFailed(P.BAD_STATE, "the reference changed while this was planned (an abort, a reset, "
                                                  "another command): nothing was started", {"reason": "overtaken"})
             self._require_enabled()
-            loop.set_trajectory(plan.trajectory, plan.name)
-            return {**plan.reply, "cycle": loop.cycle}
+            loop.set_trajectory(plan.trajectory, plan.name, plan.record)
+            return {**plan.reply, "cycle": loop.cycle, **({"recording": plan.record} if plan.record else {})}
 
         return self._off_loop(finish, planner.plan, self._plan_context, request, setpoint)
 
@@ -356,7 +356,9 @@ class Commands:
                                                f"change for {c.name} was prepared; nothing was applied",
                                     {"reason": "overtaken"})
             c.apply_params(prepared)
-            return {"name": c.name, "params": c.get_params(), "cycle": self.loop.cycle}
+            params = c.get_params()
+            self.loop.supervisor.events.append({"kind": "params", "controller": c.name, "params": params})
+            return {"name": c.name, "params": params, "cycle": self.loop.cycle}
 
         return self._off_loop(finish, planner.prepare_change, type(c), c.context, c.given_options, c.get_params(),
                               request)

@@ -36,6 +36,36 @@ def record(client: Client, path: str, seconds: float) -> int:
     return 0
 
 
+def motion(client: Client, args):
+    """A motion command (with the lease); ``--wait`` follows it to its end (and its recording)."""
+    w, record = args.what, args.record
+    if w == "set":
+        kw = {"xy_mm": args.values} if args.xy else {"angles_deg": args.values}
+        send = lambda: client.set(duration_s=args.duration, record=record, **kw)  # noqa: E731
+    elif w == "path":
+        send = lambda: client.path(args.name, args.duration, args.approach, record=record)  # noqa: E731
+    elif w == "waypoints":
+        try:
+            spec = read_waypoints(args.file)
+        except (OSError, ValueError) as exc:
+            raise SystemExit(str(exc)) from None
+        send = lambda: client.waypoints(**spec, approach_s=args.approach, record=record)  # noqa: E731
+    elif w == "steps":
+        levels = [[float(v) for v in level.split(",")] for level in args.levels]
+        holds = [float(v) for v in args.hold.split(",")]
+        holds = holds * len(levels) if len(holds) == 1 else holds
+        send = lambda: client.steps(levels, holds, record=record)  # noqa: E731
+    else:
+        settings = ({"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration} if args.signal == "chirp"
+                    else {"order": args.order, "bit_s": args.bit, "periods": args.periods})
+        send = lambda: client.excite(args.signal, args.joint, args.amplitude, record=record, **settings)  # noqa: E731
+    result = with_lease(client, send)
+    if not args.wait:
+        return result
+    from daemon.progress import follow  # rich: only for the progress display
+    return {**result, **follow(client, result.get("total_s", result.get("duration_s", 0.0)), result.get("recording"))}
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
     p.add_argument("--command", default=DEFAULT_COMMAND)
@@ -52,20 +82,25 @@ def parser() -> argparse.ArgumentParser:
     w = sub.add_parser("watch", help="live text view")
     w.add_argument("--seconds", type=float, default=None)
     s = sub.add_parser("set", help="move to joint angles [deg] or a tip point [mm]")
+    motion = [s]
     s.add_argument("values", type=float, nargs="+")
     s.add_argument("--xy", action="store_true", help="values are x y in mm")
     s.add_argument("--duration", type=float, default=0.0)
     pa = sub.add_parser("path", help="run a reference path")
+    motion.append(pa)
     pa.add_argument("name", choices=["translation", "circle"])
     pa.add_argument("--duration", type=float, default=None)
     pa.add_argument("--approach", type=float, default=None)
     wp = sub.add_parser("waypoints", help="run a path through waypoints from a CSV file")
+    motion.append(wp)
     wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
     wp.add_argument("--approach", type=float, default=None)
     st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint angles [deg]")
+    motion.append(st)
     st.add_argument("levels", nargs="+")
     st.add_argument("--hold", default="5", help="hold time per level [s], one value or one per level (comma list)")
     ex = sub.add_parser("excite", help="identification signal on one joint: chirp or prbs")
+    motion.append(ex)
     ex.add_argument("signal", choices=["chirp", "prbs"])
     ex.add_argument("joint")
     ex.add_argument("--amplitude", type=float, default=1.0, help="[deg] (default 1)")
@@ -75,6 +110,10 @@ def parser() -> argparse.ArgumentParser:
     ex.add_argument("--order", type=int, default=8, help="PRBS register length (default 8: 255 bits)")
     ex.add_argument("--bit", type=float, default=0.2, help="PRBS bit time [s] (default 0.2)")
     ex.add_argument("--periods", type=int, default=1, help="PRBS repetitions (default 1)")
+    for m in motion:
+        m.add_argument("--record", action="store_true",
+                       help="the daemon records it, start to end plus 3 s, in its recording directory")
+        m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended")
     c = sub.add_parser("controller", help="list, get, switch, set, shadow, commit, discard")
     c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
     c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
@@ -82,6 +121,12 @@ def parser() -> argparse.ArgumentParser:
     r = sub.add_parser("record", help="record telemetry to an MCAP file (Foxglove, PlotJuggler open it)")
     r.add_argument("file")
     r.add_argument("--seconds", type=float, default=10.0)
+    rs = sub.add_parser("record.start", help="the daemon records telemetry (MCAP, in its recording directory)")
+    rs.add_argument("--name", default=None, help="the file's name without .mcap (default: the time and 'record')")
+    rs.add_argument("--seconds", type=float, default=None, help="end after this long (default: at record.stop)")
+    rt = sub.add_parser("record.stop", help="end a recording the daemon is making")
+    rt.add_argument("--name", default=None, help="which (needed when several run)")
+    sub.add_parser("record.list", help="the daemon's recordings: those running, and its files")
     e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")
@@ -189,26 +234,14 @@ def run(client: Client, args):
         from daemon.watch import watch  # rich: only for the live view
         watch(client, args.seconds)
         return None
-    if w == "set":
-        kw = {"xy_mm": args.values} if args.xy else {"angles_deg": args.values}
-        return with_lease(client, lambda: client.set(duration_s=args.duration, **kw))
-    if w == "path":
-        return with_lease(client, lambda: client.path(args.name, args.duration, args.approach))
-    if w == "waypoints":
-        try:
-            spec = read_waypoints(args.file)
-        except (OSError, ValueError) as exc:
-            raise SystemExit(str(exc)) from None
-        return with_lease(client, lambda: client.waypoints(**spec, approach_s=args.approach))
-    if w == "steps":
-        levels = [[float(v) for v in level.split(",")] for level in args.levels]
-        holds = [float(v) for v in args.hold.split(",")]
-        holds = holds * len(levels) if len(holds) == 1 else holds
-        return with_lease(client, lambda: client.steps(levels, holds))
-    if w == "excite":
-        settings = ({"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration} if args.signal == "chirp"
-                    else {"order": args.order, "bit_s": args.bit, "periods": args.periods})
-        return with_lease(client, lambda: client.excite(args.signal, args.joint, args.amplitude, **settings))
+    if w in ("set", "path", "waypoints", "steps", "excite"):
+        return motion(client, args)
+    if w == "record.start":
+        return client.record_start(args.name, args.seconds)
+    if w == "record.stop":
+        return client.record_stop(args.name)
+    if w == "record.list":
+        return client.record_list()
     if w == "controller":
         if args.action == "list":
             return client.controllers()

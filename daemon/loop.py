@@ -68,6 +68,7 @@ class ControlLoop:
         self.trajectory_name = "hold"
         self.trajectory_t0 = 0.0
         self.trajectory_generation = 0  # counts every change of reference: a plan made before one is stale
+        self._reference_running = False  # a timed reference whose end event is still to come
         self.u = [0.0] * self.n  # last V_MV [V]
         self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
         self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
@@ -215,6 +216,8 @@ class ControlLoop:
         self.force = snap.force
 
     def _control(self, now: float) -> None:
+        if self._reference_running and now - self.trajectory_t0 >= self.trajectory.duration:
+            self._end_reference()
         ref = self.trajectory.sample(now - self.trajectory_t0)
         self.reference = ref
         state, reference = JointState(now, self.angles, self.velocities), Reference(*ref)
@@ -241,7 +244,8 @@ class ControlLoop:
         hold = Hold(self.context)
         hold.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
         self.controller = hold
-        self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause})
+        self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
+                                       "params": hold.get_params()})
 
     def controller_lost(self, cause: str) -> None:
         """The tracking rule fired: the fallback controller takes over and holds the arm where
@@ -293,12 +297,27 @@ class ControlLoop:
             return 0.0
         return max(self.trajectory.duration - (self.clock.now() - self.trajectory_t0), 0.0)
 
-    def set_trajectory(self, trajectory: Trajectory, name: str) -> None:
+    def set_trajectory(self, trajectory: Trajectory, name: str, record: str | None = None) -> None:
+        """Install a reference from the next cycle on. One that runs for a time has ``reference``
+        events at its start and end (a recording bound to it, ``record``, follows them); one
+        replaced before its end ends ``cut``."""
+        if self._reference_running:
+            self._end_reference(cut=f"replaced by {name}")
         self.trajectory, self.trajectory_name = trajectory, name
         self.trajectory_generation += 1
         self.trajectory_t0 = self.clock.now() + self.period  # sampled from the next cycle on
         self.reference = trajectory.sample(0.0)
         self.tracking.clear()
+        self._reference_running = trajectory.duration > 0.0 or record is not None  # a recorded step: its response
+        if self._reference_running:
+            self.supervisor.events.append({"kind": "reference", "action": "start", "name": name,
+                                           "generation": self.trajectory_generation,
+                                           "duration_s": trajectory.duration, "record": record})
+
+    def _end_reference(self, cut: str = "") -> None:
+        self._reference_running = False
+        self.supervisor.events.append({"kind": "reference", "action": "end", "name": self.trajectory_name,
+                                       "generation": self.trajectory_generation, "cut": cut})
 
     def enable(self) -> None:
         self.supervisor.enable()
@@ -328,7 +347,8 @@ class ControlLoop:
         old = self.controller.name
         self.controller = new
         self.tracking.clear()
-        self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": cause})
+        self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": cause,
+                                       "params": new.get_params()})
 
     def start_shadow(self, candidate: Controller) -> None:
         """Run ``candidate`` beside the active controller from the next cycle (replacing any

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import gc
 import logging
+import os
 import signal
 import sys
 import time
@@ -61,7 +62,10 @@ def cmd_run(args) -> int:
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
     # Before the real-time set-up: the messenger process keeps normal priority and every CPU.
-    server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure)
+    recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
+                                                         "min_free_mb": args.record_min_free_mb}
+    server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
+                       recording=recording)
     # systemctl reload: the messenger reads its allow-list again.
     signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
     try:
@@ -201,6 +205,12 @@ def parser() -> argparse.ArgumentParser:
                      help="CURVE key directory (pneumad keys init): every client must hold an allowed key")
     run.add_argument("--insecure", action="store_true",
                      help="allow binding past loopback without keys (anyone who reaches the port can move the arm)")
+    run.add_argument("--record-dir", default=os.path.join(os.environ.get("STATE_DIRECTORY", "").split(":")[0], "recordings"),
+                     help="where record.start and `path --record` write MCAP files (default ./recordings, or "
+                          "$STATE_DIRECTORY/recordings under systemd; 'none': the daemon records nothing)")
+    run.add_argument("--record-max-mb", type=float, default=2048.0, help="a recording ends at this size (default 2048)")
+    run.add_argument("--record-min-free-mb", type=float, default=200.0,
+                     help="recordings end when the disk has less than this left (default 200)")
     safe = sub.add_parser("safe-state", help="write the rig's safe state once and exit (dead-man path)")
     common(safe)
     lat = sub.add_parser("latency", help="qualify this PC: run the loop on the simulator and judge its latency")

@@ -31,7 +31,7 @@ only (:mod:`daemon.guard`); each request goes to the loop with who sent it
 never by the loop) reads the allow-list again.
 
     python -c 'from daemon.messenger import main; main()' --rings DIR --doorbell FD --command EP --control EP --telemetry EP [--cpus 0,1]
-                               [--stall-s 0.5] [--keys DIR]
+                               [--stall-s 0.5] [--keys DIR] [--recorder]
 """
 from __future__ import annotations
 
@@ -104,8 +104,9 @@ class Messenger:
     """The daemon's handle on the messenger process."""
 
     def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
-                 stall_s: float = STALL_S, keys: str | None = None):
+                 stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False):
         self.rings_dir = rings_dir
+        self.recorder = recorder  # hand telemetry and record.* requests to the recorder process
         self.stall_s = stall_s
         self.keys = keys
         self.doorbell = doorbell  # the read end of the loop's doorbell pipe, handed on to the process
@@ -132,6 +133,7 @@ class Messenger:
             # Imported, not run as __main__: daemon.relay shares this module's state (the reloads).
             [sys.executable, "-c", "import sys; from daemon.messenger import main; sys.exit(main())", "--rings", self.rings_dir, "--doorbell", str(self.doorbell),
              "--cpus", self._cpus, "--stall-s", str(self.stall_s), *(["--keys", self.keys] if self.keys else []),
+             *(["--recorder"] if self.recorder else []),
              *sum(([f"--{k}", v] for k, v in endpoints.items()), [])],
             stdout=subprocess.PIPE, text=True, pass_fds=(self.doorbell,))
 
@@ -193,6 +195,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cpus", default="")
     ap.add_argument("--stall-s", type=float, default=STALL_S)
     ap.add_argument("--keys", default=None)
+    ap.add_argument("--recorder", action="store_true", help="the daemon runs a recorder process (daemon.recorder)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="pneumad messenger %(levelname)s: %(message)s")
     parent = os.getppid()
@@ -216,11 +219,16 @@ def main(argv=None) -> int:
     except zmq.ZMQError as exc:
         print(f"cannot bind the {name} endpoint {getattr(args, name)}: {exc}", flush=True)
         return 1
-    from daemon.relay import Relay  # the process's own work: the daemon's side never needs it
+    from daemon.recorder_link import Recorder  # the process's own work: the daemon's side never needs them
+    from daemon.relay import Relay
     rings = {name: Ring(os.path.join(args.rings, name)) for name in RING_BYTES}
+    recorder = Recorder(ctx, args.rings) if args.recorder else None
     print("ready", *(sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")),
           flush=True)
-    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), args.stall_s, guard).run(lambda: os.getppid() == parent)
+    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), args.stall_s, guard, recorder).run(
+        lambda: os.getppid() == parent)
+    if recorder is not None:
+        recorder.close()
     sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)
     for sock in sockets.values():
         sock.close()

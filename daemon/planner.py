@@ -18,6 +18,7 @@ refuses. Angles in rad inside, deg at the protocol; durations in s.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -74,6 +75,7 @@ class Plan:
     name: str  # what status.reference shows while it runs
     reply: dict
     start: tuple[float, ...]  # the set-point it was planned from [rad]
+    record: str | None = None  # the name of the daemon's recording of it (``record: true``)
 
 
 def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
@@ -105,7 +107,13 @@ def prepare_change(cls: type[Controller], context: ControllerContext, options: d
 def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:
     """The worker's entry point: decode and plan one motion request."""
     args = P.decode_args(request)
-    return PLANNERS[request["cmd"]](ctx, args, list(setpoint))
+    record = args.pop("record", False)
+    if not isinstance(record, bool):
+        raise bad_args("must be true or false: true records the reference, start to end, on the daemon", "record")
+    plan = PLANNERS[request["cmd"]](ctx, args, list(setpoint))
+    if record:
+        plan.record = f"{time.strftime('%Y%m%d-%H%M%S')}-{request['cmd']}-{plan.name}"
+    return plan
 
 
 def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:

@@ -21,6 +21,8 @@ DEFERRED_COMMANDS = ("set", "path", "waypoints", "steps", "excite", "controller.
 
 # Commands the messenger answers itself, never passed to the loop (docs/protocol.md, Keys).
 MESSENGER_COMMANDS = ("keys.reload",)
+# Commands the messenger passes to the recorder process, never to the loop (docs/protocol.md, Recordings).
+RECORDER_COMMANDS = ("record.start", "record.stop", "record.list")
 
 # Error codes a client can branch on.
 BAD_MESSAGE = "bad_message"  # not msgpack, not a map, or a field of the wrong type
@@ -104,6 +106,15 @@ def decode_request(payload: bytes, start: int = 0) -> dict:
     if unknown:
         raise ProtocolError(BAD_MESSAGE, f"unknown envelope field {sorted(map(str, unknown))[0][:80]!r}", request_id)
     return {"id": request_id, "cmd": cmd, "lease": lease, "payload": payload, "args_span": span}
+
+
+def request_id_of(payload: bytes):
+    """A request's id as the loop would echo it (None if it cannot be read), for a reply given
+    outside the loop (the messenger, the recorder)."""
+    try:
+        return decode_request(payload)["id"]
+    except ProtocolError as exc:
+        return exc.request_id
 
 
 def decode_args(request: dict) -> dict:

@@ -16,6 +16,7 @@ from daemon import protocol
 from daemon.guard import Guard
 from daemon.keys import ANONYMOUS, OPERATOR, pack_identity
 from daemon.messenger import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
+from daemon.recorder_link import Recorder, send_reply
 from daemon.ring import Ring, RingError
 from daemon.telemetry import to_payload
 
@@ -25,8 +26,9 @@ class Relay:
     telemetry from the loop's rings onto the sockets."""
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
-                 stall_s: float = STALL_S, guard: Guard | None = None):
+                 stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
+        self.recorder = recorder
         self.stall_s = stall_s
         self.guard = guard
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
@@ -39,6 +41,8 @@ class Relay:
         for name in ("control", "command"):
             self.poller.register(sockets[name], zmq.POLLIN)
         self.poller.register(doorbell, zmq.POLLIN)
+        if recorder is not None:
+            self.poller.register(recorder.control, zmq.POLLIN)
 
     def run(self, parent_alive) -> None:
         """Until the telemetry ring's END, or until the parent is gone."""
@@ -48,6 +52,8 @@ class Relay:
             for name in ("control", "command"):  # control first: an e-stop overtakes a flood
                 if self.sockets[name] in ready:
                     self._take_requests(name)
+            if self.recorder is not None and self.recorder.control in ready:
+                self.recorder.take_answers(self._event)
             if self.doorbell in ready:
                 os.read(self.doorbell, 4096)  # the rings say what there is; the bytes only woke us
             self._send_replies()
@@ -64,6 +70,8 @@ class Relay:
                 if not parent_alive():
                     return
                 self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
+                if self.recorder is not None:
+                    self.recorder.expire(now)
 
     def _take_requests(self, name: str) -> None:
         """Every waiting request that fits in the loop's ring; the rest stay queued in ZeroMQ.
@@ -83,33 +91,36 @@ class Relay:
             if b"keys.reload" in body and _command(body) in protocol.MESSENGER_COMMANDS:
                 self._answer_reload(sock, envelope, body, identity)
                 continue
+            if b"record." in body and _command(body) in protocol.RECORDER_COMMANDS:
+                self._to_recorder(sock, envelope, body, identity)
+                continue
             if self.stalled_since is not None and name == "command":
-                self._answer_stalled(sock, envelope, _request_id(body),
+                self._answer_stalled(sock, envelope, protocol.request_id_of(body),
                                      "refused without reaching the loop: nothing was done")
                 continue
             token = next(self._tokens)
             ring.put(token, pack_identity(identity) + body)
             if self.stalled_since is not None:  # a control request: kept for the loop, answered now
-                self._answer_stalled(sock, envelope, _request_id(body), "queued: it takes effect if the loop resumes")
+                self._answer_stalled(sock, envelope, protocol.request_id_of(body), "queued: it takes effect if the loop resumes")
             else:
-                self.owed[token] = (sock, envelope, time.monotonic(), _request_id(body))
+                self.owed[token] = (sock, envelope, time.monotonic(), protocol.request_id_of(body))
 
     # -- keys ------------------------------------------------------------------------------
     def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:
-        self._send(sock, envelope, protocol.encode_error(_request_id(body), protocol.FORBIDDEN, message, data))
+        self._send(sock, envelope, protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, message, data))
 
     def _answer_reload(self, sock: zmq.Socket, envelope: list, body: bytes, identity) -> None:
         """``keys.reload``, answered here: the allow-list is this process's."""
         if self.guard is None:
-            reply = protocol.encode_error(_request_id(body), protocol.BAD_STATE, "this daemon runs without keys "
+            reply = protocol.encode_error(protocol.request_id_of(body), protocol.BAD_STATE, "this daemon runs without keys "
                                           "(pneumad run --keys DIR): there is no allow-list to reload",
                                           {"reason": "no_keys"})
         elif identity.role != OPERATOR:
-            reply = protocol.encode_error(_request_id(body), protocol.FORBIDDEN, f"key {identity.name!r} is an "
+            reply = protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, f"key {identity.name!r} is an "
                                           f"{identity.role}: only an operator may reload the keys",
                                           {"reason": "role", "role": identity.role})
         else:
-            reply = protocol.encode_result(_request_id(body), self._reload_keys())
+            reply = protocol.encode_result(protocol.request_id_of(body), self._reload_keys())
         self._send(sock, envelope, reply)
 
     def _reload_keys(self) -> dict:
@@ -127,12 +138,24 @@ class Relay:
                                               f"removed {changes['removed'] or 'none'}", **changes})
         return changes
 
-    @staticmethod
-    def _send(sock: zmq.Socket, envelope: list, reply: bytes) -> None:
-        try:
-            sock.send_multipart([*envelope, reply], zmq.NOBLOCK)
-        except zmq.ZMQError:
-            pass  # the peer is gone or not reading: its loss
+    _send = staticmethod(send_reply)
+
+    # -- the recorder ----------------------------------------------------------------------
+    def _to_recorder(self, sock: zmq.Socket, envelope: list, body: bytes, identity) -> None:
+        """``record.*``: passed to the recorder process (its answer comes back through
+        :meth:`Recorder.take_answers`), never to the loop; starting and stopping is an operator's."""
+        command = _command(body)
+        if self.recorder is None:
+            self._send(sock, envelope, protocol.encode_error(
+                protocol.request_id_of(body), protocol.BAD_STATE, "this daemon records nothing: start it with --record-dir DIR",
+                {"reason": "no_recorder"}))
+        elif command != "record.list" and identity.role != OPERATOR:
+            self._refuse(sock, envelope, body, f"key {identity.name!r} is an {identity.role}: only an operator may "
+                         f"start or stop the daemon's recordings", {"reason": "role", "role": identity.role})
+        elif not self.recorder.ask(next(self._tokens), sock, envelope, body, str(identity)):
+            self._send(sock, envelope, protocol.encode_error(
+                protocol.request_id_of(body), protocol.BAD_STATE, "the recorder is not taking requests just now (restarting?): "
+                                                       "ask again", {"reason": "recorder_unavailable"}))
 
     # -- the loop's heartbeat --------------------------------------------------------------
     def _watch_loop(self, now: float) -> None:
@@ -159,12 +182,16 @@ class Relay:
                                       {"reason": "loop_stalled", "stalled_s": since, "cycle": self._cycle})
         self._send(sock, envelope, reply)
 
-    def _event(self, event: dict) -> None:
-        """Publish an event of the messenger's own, numbered in the loop's event sequence."""
+    def _event(self, event: dict, source: str = "messenger") -> None:
+        """Publish an event of this process's own (or the recorder's), numbered in the loop's
+        event sequence."""
         self._injected += 1
         self._event_seq += 1
-        body = msgpack.packb({"t": time.monotonic(), **event, "seq": self._event_seq, "source": "messenger"})
+        body = msgpack.packb({"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq,
+                              "source": source})
         self.sockets["telemetry"].send_multipart((b"event", body))
+        if self.recorder is not None:
+            self.recorder.feed(b"event", body)
 
     def _send_replies(self) -> None:
         ring = self.rings["replies"]
@@ -172,10 +199,7 @@ class Relay:
             token, reply = entry
             owed = self.owed.pop(token, None)
             if owed is not None:
-                try:
-                    owed[0].send_multipart([*owed[1], reply], zmq.NOBLOCK)
-                except zmq.ZMQError:
-                    pass  # the peer is gone or not reading: its loss
+                send_reply(owed[0], owed[1], reply)
 
     def _publish(self) -> bool:
         """Pass the telemetry on; False at the END of the stream."""
@@ -183,6 +207,8 @@ class Relay:
         while (entry := self._get(ring)) is not None:
             tag, body = entry
             if tag == END:
+                if self.recorder is not None:
+                    self.recorder.feed(b"", b"")  # the recorder finishes its files
                 return False
             if tag >= len(TOPICS):
                 self._bad(tag, "unknown topic")
@@ -191,9 +217,13 @@ class Relay:
             if topic == b"event":
                 body = self._renumber(body)
             try:
-                pub.send_multipart((topic, to_payload(topic, body)))  # PUB drops at a subscriber's high-water mark
+                payload = to_payload(topic, body)
             except (struct.error, IndexError) as exc:
                 self._bad(tag, str(exc))
+                continue
+            pub.send_multipart((topic, payload))  # PUB drops at a subscriber's high-water mark
+            if self.recorder is not None:
+                self.recorder.feed(topic, payload)
         return True
 
     def _renumber(self, body: bytes) -> bytes:
@@ -242,12 +272,3 @@ def _command(request: bytes):
         return protocol.decode_request(request)["cmd"]
     except protocol.ProtocolError:
         return None
-
-
-def _request_id(request: bytes):
-    """A request's id as the loop would echo it (None if it cannot be read), for a reply the
-    messenger gives itself."""
-    try:
-        return protocol.decode_request(request)["id"]
-    except protocol.ProtocolError as exc:
-        return exc.request_id

@@ -26,6 +26,7 @@ from daemon.commands import Commands
 from daemon.keys import unpack_identity
 from daemon.messenger import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.preparation import Deferred
+from daemon.recorder import RecorderProcess, write_metadata
 from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 from daemon.ring import Ring, RingError
 from hal.errors import ConfigError
@@ -40,8 +41,12 @@ _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
-                 keys: str | None = None, insecure: bool = False):
+                 keys: str | None = None, insecure: bool = False, recording: dict | None = None):
+        """``recording``: where and how the daemon records (``directory``, ``max_mb``,
+        ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not."""
         self.max_per_cycle = max_per_cycle
+        self.recording = recording
+        self.recorder: RecorderProcess | None = None
         self.security = security((command, control, telemetry), keys, insecure)
         for name in reclaim_stale_rings(_shm_dir()):
             log.warning("removed the rings a killed daemon left behind: %s", name)
@@ -51,7 +56,7 @@ class ZmqServer:
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
-                                   keys)
+                                   keys, recorder=recording is not None)
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -67,6 +72,11 @@ class ZmqServer:
     def attach(self, loop, preparer=None) -> None:
         self.commands = Commands(loop, preparer, self.security)
         loop.server = self
+        if self.recording is not None:
+            write_metadata(self._rings_dir, self.commands.describe({}), self.commands.controller_get({}))
+            self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
+                                            self.recording["min_free_mb"])
+            self.recorder.start()
 
     def publish(self, topic: bytes, body: bytes) -> None:
         """Queue a telemetry message for the messenger (dropped and counted if the ring is full)."""
@@ -96,6 +106,9 @@ class ZmqServer:
             notice = self.messenger.check()
             if notice is not None:
                 loop.supervisor.events.append({"kind": "messenger", "cause": notice})
+            notice = self.recorder.check() if self.recorder is not None else None
+            if notice is not None:
+                loop.supervisor.events.append({"kind": "recorder", "cause": notice})
 
     def _complete(self) -> None:
         """Reply to deferred commands whose work is done (applying it at this boundary)."""
@@ -144,6 +157,8 @@ class ZmqServer:
             self.commands.preparer.close()
         self.rings["telemetry"].put(END, b"")
         self.messenger.join()
+        if self.recorder is not None:
+            self.recorder.join()  # the messenger's END reached it: it finishes its files
         self._release_rings()
 
     def _release_rings(self) -> None:

@@ -142,6 +142,22 @@ def test_a_stall_within_the_limit_is_not_read_as_speed():
     assert max(seen) > 5.0  # and it does see the move
 
 
+def test_a_timed_reference_has_start_and_end_events_and_one_replaced_ends_cut():
+    loop, captured, _ = enabled_loop()
+    start = list(loop.angles)
+    loop.set_trajectory(trajectory.JointMove(start, [start[0] - 0.05, start[1]], 0.5), "set", "a-recording")
+    run_seconds(loop, 1.0)
+    loop.set_trajectory(trajectory.JointMove(list(loop.reference[0]), start, 2.0), "set")
+    run_seconds(loop, 0.5)
+    loop.hold_position()  # an abort
+    loop.run(10)
+    refs = [e for e in captured.of("event") if e["kind"] == "reference"]
+    assert [(e["action"], e.get("cut", "")) for e in refs] == [("start", ""), ("end", ""), ("start", ""),
+                                                                ("end", "replaced by hold")]
+    assert refs[0]["record"] == "a-recording" and refs[2]["record"] is None
+    assert refs[1]["cycle"] - refs[0]["cycle"] == pytest.approx(500, abs=2)  # ended when its 0.5 s were up
+
+
 def test_joint_limit_trips():
     loop, _, _ = enabled_loop()
     loop.set_trajectory(trajectory.Hold([math.radians(158.0), loop.angles[1]]), "beyond")  # limit 155

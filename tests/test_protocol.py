@@ -285,7 +285,7 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     text = (docs / "protocol.md").read_text()
     commands_table = text.split("## Commands", 1)[1].split("\n\n", 2)[1]
     documented = set(re.findall(r"^\| `([a-z.]+)` \|", commands_table, re.M))
-    everything = set(Commands.TABLE) | set(P.MESSENGER_COMMANDS)
+    everything = set(Commands.TABLE) | set(P.MESSENGER_COMMANDS) | set(P.RECORDER_COMMANDS)
     assert documented == everything
     codes_table = text.split("### Error codes", 1)[1].split("\n\n", 1)[0]
     codes = set(P.ERROR_CODES)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from daemon import mcap_log
 from daemon.client import Client
 from tests.daemons import tolerant_rig
 
@@ -62,8 +63,9 @@ def test_the_readme_tour_runs_as_written(tmp_path):
     # One change to the rig: its stall limit (tests.daemons.tolerant_rig_text says why); the
     # tour checks the README's commands, not this machine's latency.
     rig = tolerant_rig(tmp_path)
-    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config", str(rig)],
-                              cwd=ROOT)
+    # Its recordings go to the test's own directory, not the checkout's ./recordings.
+    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config", str(rig),
+                               "--record-dir", str(tmp_path / "recordings")], cwd=ROOT)
     try:
         with Client(timeout=5.0) as client:
             wait_for_daemon(client, daemon)
@@ -92,6 +94,10 @@ def test_the_readme_tour_runs_as_written(tmp_path):
                 assert expected in (None, state), (line, state)
                 assert state != "fault", (line, client.status()["cause"])
             assert client.status()["trips"] == 0
+            # the daemon's own recording of the translation, whole
+            recorded, = (tmp_path / "recordings").glob("*-path-translation.mcap")
+            cycles = [m["cycle"] for m in mcap_log.read(recorded).messages["state"]]
+            assert len(cycles) > 20_000 and cycles == list(range(cycles[0], cycles[0] + len(cycles)))
             # the notebook lines, on the recording the tour made
             text = (ROOT / "README.md").read_text()
             snippet = "\n".join(line.strip() for line in text.splitlines()

@@ -92,6 +92,10 @@ def test_an_observer_reads_and_may_estop_but_never_takes_the_lease(lab):
         with pytest.raises(RemoteError) as reload_refused:
             bob.call("keys.reload")
         assert reload_refused.value.code == P.FORBIDDEN
+        with pytest.raises(RemoteError) as record_refused:  # the lab PC's disk is an operator's to fill
+            bob.record_start()
+        assert record_refused.value.code == P.FORBIDDEN and record_refused.value.data["role"] == "observer"
+        assert bob.record_list()["active"] == []  # but he may see what is recorded
         alice.acquire_lease()
         alice.keep_lease()
         try:

@@ -1,0 +1,225 @@
+"""The daemon's own recordings (daemon/recorder.py, daemon/archive.py), against a real daemon:
+a recorded path loses nothing while a client is stalled, record.start/stop/list answer as
+documented, and a write error, a full disk or a killed recorder end a recording with an event,
+the file readable, the loop untouched."""
+import os
+import resource
+import signal
+import time
+
+import msgpack
+import pytest
+import zmq
+from mcap.reader import make_reader
+
+from daemon import mcap_log
+from daemon.client import Client, RemoteError
+from tests.daemons import real_daemon
+from tests.schemas import schema
+
+pytestmark = pytest.mark.slow
+
+
+def start(tmp_path, *options):
+    tmp_path.mkdir(exist_ok=True)
+    daemon, eps = real_daemon(tmp_path, *options)
+    client = Client(**eps, timeout=5.0)
+    client.call("ping", timeout=60.0)
+    return daemon, eps, client
+
+
+def stop(daemon, client):
+    client.close()
+    daemon.terminate()
+    daemon.wait(10)
+
+
+def recorder_pid(daemon) -> int:
+    """The daemon's recorder process."""
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                cmdline = f.read()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == daemon.pid and b"daemon.recorder" in cmdline:
+            return int(pid)
+    raise AssertionError("no recorder process")
+
+
+def events(eps) -> zmq.Socket:
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"event")
+    sub.connect(eps["telemetry"])
+    time.sleep(0.3)  # the subscription reaches the publisher
+    return sub
+
+
+def wait_event(sub, match, timeout=20.0) -> dict:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if sub.poll(200):
+            event = msgpack.unpackb(sub.recv_multipart()[1], raw=False)
+            schema("telemetry", "event").validate(event)
+            if match(event):
+                return event
+    raise AssertionError("the event never came")
+
+
+def finished(client, name, timeout=40.0) -> str:
+    """The file of recording ``name`` once it has ended."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        listing = client.record_list()
+        if not any(a["name"] == name for a in listing["active"]) and any(f["name"] == name for f in listing["files"]):
+            return os.path.join(listing["directory"], name + ".mcap")
+        time.sleep(0.2)
+    raise AssertionError(f"{name} never ended")
+
+
+def test_a_recorded_path_loses_nothing_while_a_client_is_stalled(tmp_path):
+    daemon, eps, client = start(tmp_path)
+    stalled = zmq.Context.instance().socket(zmq.SUB)  # subscribed, and never reads until the end
+    stalled.setsockopt(zmq.LINGER, 0)
+    stalled.setsockopt(zmq.RCVHWM, 10)
+    stalled.setsockopt(zmq.SUBSCRIBE, b"state")
+    stalled.connect(eps["telemetry"])
+    try:
+        client.acquire_lease(ttl_s=60.0)
+        client.keep_lease()
+        client.enable()
+        reply = client.path("translation", record=True)
+        schema("results", "path").validate(reply)
+        path = finished(client, reply["recording"], timeout=reply["total_s"] + 30.0)
+        status = client.status()
+        assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
+    finally:
+        stop(daemon, client)
+    contents = mcap_log.read(path)
+    assert not contents.truncated
+    cycles = [m["cycle"] for m in contents.messages["state"]]
+    assert all(b - a == 1 for a, b in zip(cycles, cycles[1:])), "a cycle is missing from the recording"
+    assert contents.messages["gap"] == []
+    # It holds the whole reference, and the settling after it.
+    assert cycles[0] <= reply["cycle"] + 1 and len(cycles) >= (reply["total_s"] + 1.5) * 1000
+    kinds = [(e["kind"], e.get("action")) for e in contents.messages["event"]]
+    assert ("reference", "start") in kinds and ("reference", "end") in kinds
+    assert contents.controller["name"] == "pid" and contents.describe["rig"]["name"] == "sim-2joint"
+    # The stalled client did lose: the recording did not depend on it.
+    seqs = []
+    while stalled.poll(100):
+        seqs.append(msgpack.unpackb(stalled.recv_multipart()[1], raw=False)["seq"])
+    stalled.close()
+    # (ZeroMQ queued it ~1000 batches, then dropped the rest: the path's ~2700 batches did not fit.)
+    assert len(seqs) < len(cycles) // 10 - 1000, "the stalled client lost nothing: it was not stalled"
+    # The mcap package's own reader opens it, schemas and the rig file included.
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        topics = {c.topic for c in summary.channels.values()}
+        assert {"/pneumad/state", "/pneumad/event", "/pneumad/gap"} <= topics
+        assert {s.encoding for s in summary.schemas.values()} == {"jsonschema"}
+        assert [a.name for a in reader.iter_attachments()] == ["rig.toml"]
+
+
+def test_record_start_stop_list_as_documented_and_refusals(tmp_path):
+    daemon, eps, client = start(tmp_path)
+    try:
+        started = client.record_start("by-hand")
+        schema("results", "record.start").validate(started)
+        again = client.record_start("by-hand", seconds=0.5)  # the name is taken: a suffix, said in the reply
+        assert again["name"] == "by-hand-2"
+        listing = client.record_list()
+        schema("results", "record.list").validate(listing)
+        assert {a["name"] for a in listing["active"]} == {"by-hand", "by-hand-2"}
+        time.sleep(1.0)
+        stopped = client.record_stop()  # the one still running by request
+        schema("results", "record.stop").validate(stopped)
+        assert stopped["name"] == "by-hand" and stopped["messages"] > 50 and stopped["gaps"] == 0
+        assert "record.stop" in stopped["cause"]
+        files = {f["name"] for f in client.record_list()["files"]}
+        assert {"by-hand", "by-hand-2"} <= files
+        assert len(mcap_log.read(stopped["file"]).messages["state"]) > 500
+        for args, code, words in (({}, "bad_state", "no recording started by record.start"),
+                                  ({"name": "nope"}, "bad_state", "no recording named"),
+                                  ({"name": 7}, "bad_state", "no recording named")):
+            with pytest.raises(RemoteError) as err:
+                client.call("record.stop", args)
+            assert err.value.code == code and words in str(err.value)
+        for args, argument in (({"name": "../x"}, "name"), ({"name": ""}, "name"), ({"seconds": -1}, "seconds"),
+                               ({"seconds": float("nan")}, "seconds"), ({"colour": 1}, "colour")):
+            with pytest.raises(RemoteError) as err:
+                client.call("record.start", args)
+            assert err.value.code == "bad_args" and err.value.data["argument"] == argument, err.value
+        assert not os.path.exists(tmp_path / "x.mcap")
+        assert client.status()["trips"] == 0
+    finally:
+        stop(daemon, client)
+
+
+def test_a_daemon_without_a_recording_directory_or_disk_says_so(tmp_path):
+    daemon, eps, client = start(tmp_path / "a", "--record-dir", "none")
+    try:
+        with pytest.raises(RemoteError) as err:
+            client.record_start()
+        assert err.value.code == "bad_state" and err.value.data["reason"] == "no_recorder"
+    finally:
+        stop(daemon, client)
+    daemon, eps, client = start(tmp_path / "b", "--record-min-free-mb", "1e12")  # more than any disk has
+    try:
+        with pytest.raises(RemoteError) as err:
+            client.record_start()
+        assert err.value.code == "bad_state" and "nearly full" in str(err.value)
+    finally:
+        stop(daemon, client)
+
+
+def test_a_write_error_ends_the_recording_with_an_event_and_the_loop_runs_on(tmp_path):
+    daemon, eps, client = start(tmp_path)
+    sub = events(eps)
+    try:
+        client.acquire_lease(ttl_s=60.0)
+        client.keep_lease()
+        client.enable()
+        started = client.record_start("limited")
+        time.sleep(0.5)
+        # The file may grow by 300 kB more, then every write fails (EFBIG, as a full disk's ENOSPC).
+        limit = os.path.getsize(started["file"]) + 300_000
+        resource.prlimit(recorder_pid(daemon), resource.RLIMIT_FSIZE, (limit, limit))
+        failed = wait_event(sub, lambda e: e["kind"] == "record" and e["action"] == "failed")
+        assert failed["name"] == "limited" and "write error" in failed["cause"] and "large" in failed["cause"]
+        contents = mcap_log.read(started["file"])  # readable up to its last complete chunk
+        assert len(contents.messages["state"]) > 100
+        assert client.record_list()["active"] == []
+        status = client.status()
+        assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
+    finally:
+        sub.close()
+        stop(daemon, client)
+
+
+def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(tmp_path):
+    daemon, eps, client = start(tmp_path)
+    sub = events(eps)
+    try:
+        started = client.record_start("cut-short")
+        time.sleep(1.5)
+        os.kill(recorder_pid(daemon), signal.SIGKILL)
+        restarted = wait_event(sub, lambda e: e["kind"] == "recorder")
+        assert "restarted" in restarted["cause"]
+        contents = mcap_log.read(started["file"])
+        assert contents.truncated and len(contents.messages["state"]) > 100
+        for _ in range(50):  # the new recorder is starting
+            try:
+                again = client.record_start("after", seconds=0.5)
+                break
+            except RemoteError as exc:
+                assert exc.data["reason"] == "recorder_unavailable", exc
+                time.sleep(0.2)
+        assert finished(client, again["name"]) and len(mcap_log.read(again["file"]).messages["state"]) > 100
+    finally:
+        sub.close()
+        stop(daemon, client)
