@@ -26,8 +26,10 @@ def with_lease(client: Client, fn):
 def record(client: Client, path: str, seconds: float) -> int:
     """Record the telemetry to ``path`` as MCAP (:mod:`daemon.mcap_log`); a disk that fills or
     fails ends it with a clear error (exit 1), the file readable up to its last complete chunk."""
+    from daemon.progress import recording_bar  # rich: only for the progress display
     try:
-        written, lost = mcap_log.record(client, path, seconds)
+        with recording_bar(path, seconds) as progress:
+            written, lost = mcap_log.record(client, path, seconds, progress)
     except OSError as exc:
         print(f"error: recording to {path} stopped: {exc.strerror or exc} (the file is readable up to its last "
               f"complete chunk)", file=sys.stderr)

@@ -65,7 +65,7 @@ def cmd_run(args) -> int:
     recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
                                                          "min_free_mb": args.record_min_free_mb}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
-                       recording=recording)
+                       recording=recording, plotjuggler=args.plotjuggler)
     # systemctl reload: the messenger reads its allow-list again.
     signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
     try:
@@ -211,6 +211,9 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--record-max-mb", type=float, default=2048.0, help="a recording ends at this size (default 2048)")
     run.add_argument("--record-min-free-mb", type=float, default=200.0,
                      help="recordings end when the disk has less than this left (default 200)")
+    run.add_argument("--plotjuggler", default=None, metavar="ENDPOINT",
+                     help="also publish one msgpack row per cycle, with its own time field 't', for PlotJuggler's "
+                          "ZMQ Subscriber (e.g. tcp://127.0.0.1:9872; docs/protocol.md, PlotJuggler)")
     safe = sub.add_parser("safe-state", help="write the rig's safe state once and exit (dead-man path)")
     common(safe)
     lat = sub.add_parser("latency", help="qualify this PC: run the loop on the simulator and judge its latency")

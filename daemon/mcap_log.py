@@ -129,21 +129,24 @@ class McapRecording:
         self._writer.finish()
 
 
-def record(client, path, seconds: float) -> tuple[int, int]:
+def record(client, path, seconds: float, progress=None) -> tuple[int, int]:
     """Record a daemon's telemetry for ``seconds`` through ``client`` (a
     :class:`daemon.client.Client`) to ``path``; (messages, messages lost). An OSError (a full
-    disk) propagates, the file readable up to its last complete chunk."""
+    disk) propagates, the file readable up to its last complete chunk. ``progress(elapsed_s,
+    messages, lost)`` is called after every message or idle half second."""
     describe, controller = client.describe(), client.controller()
     sub = client.subscribe()
     time.sleep(0.2)  # let the subscription reach the publisher
     try:
         with open(path, "wb") as f:
             rec = McapRecording(f, describe, controller)
-            end = time.monotonic() + seconds
-            while time.monotonic() < end:
+            start = time.monotonic()
+            while time.monotonic() < start + seconds:
                 item = sub.receive(0.5)
                 if item is not None:
                     rec.write(*item)
+                if progress is not None:
+                    progress(time.monotonic() - start, rec.messages, sub.lost)
             rec.finish()
     finally:
         sub.close()

@@ -31,7 +31,7 @@ only (:mod:`daemon.guard`); each request goes to the loop with who sent it
 never by the loop) reads the allow-list again.
 
     python -c 'from daemon.messenger import main; main()' --rings DIR --doorbell FD --command EP --control EP --telemetry EP [--cpus 0,1]
-                               [--stall-s 0.5] [--keys DIR] [--recorder]
+                               [--stall-s 0.5] [--keys DIR] [--recorder] [--plotjuggler EP]
 """
 from __future__ import annotations
 
@@ -104,8 +104,10 @@ class Messenger:
     """The daemon's handle on the messenger process."""
 
     def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
-                 stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False):
+                 stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False,
+                 plotjuggler: str | None = None):
         self.rings_dir = rings_dir
+        self.plotjuggler = plotjuggler  # an endpoint for PlotJuggler's rows (daemon.plotjuggler)
         self.recorder = recorder  # hand telemetry and record.* requests to the recorder process
         self.stall_s = stall_s
         self.keys = keys
@@ -133,7 +135,7 @@ class Messenger:
             # Imported, not run as __main__: daemon.relay shares this module's state (the reloads).
             [sys.executable, "-c", "import sys; from daemon.messenger import main; sys.exit(main())", "--rings", self.rings_dir, "--doorbell", str(self.doorbell),
              "--cpus", self._cpus, "--stall-s", str(self.stall_s), *(["--keys", self.keys] if self.keys else []),
-             *(["--recorder"] if self.recorder else []),
+             *(["--recorder"] if self.recorder else []), *(["--plotjuggler", self.plotjuggler] if self.plotjuggler else []),
              *sum(([f"--{k}", v] for k, v in endpoints.items()), [])],
             stdout=subprocess.PIPE, text=True, pass_fds=(self.doorbell,))
 
@@ -196,6 +198,7 @@ def main(argv=None) -> int:
     ap.add_argument("--stall-s", type=float, default=STALL_S)
     ap.add_argument("--keys", default=None)
     ap.add_argument("--recorder", action="store_true", help="the daemon runs a recorder process (daemon.recorder)")
+    ap.add_argument("--plotjuggler", default=None, help="an endpoint for PlotJuggler's rows (daemon.plotjuggler)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="pneumad messenger %(levelname)s: %(message)s")
     parent = os.getppid()
@@ -213,9 +216,14 @@ def main(argv=None) -> int:
         return 1
     signal.signal(signal.SIGHUP, lambda *_: reloads.append(1))  # systemctl reload, or the daemon's SIGHUP
     sockets = {}
+    plotjuggler = None
     try:
         for name in ("command", "control", "telemetry"):
             sockets[name] = open_socket(ctx, name, getattr(args, name), guard)
+        if args.plotjuggler:
+            from daemon.plotjuggler import PlotJugglerFeed
+            name = "plotjuggler"
+            plotjuggler = PlotJugglerFeed(ctx, args.plotjuggler, args.rings)
     except zmq.ZMQError as exc:
         print(f"cannot bind the {name} endpoint {getattr(args, name)}: {exc}", flush=True)
         return 1
@@ -225,10 +233,11 @@ def main(argv=None) -> int:
     recorder = Recorder(ctx, args.rings) if args.recorder else None
     print("ready", *(sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")),
           flush=True)
-    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), args.stall_s, guard, recorder).run(
+    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), args.stall_s, guard, recorder, plotjuggler).run(
         lambda: os.getppid() == parent)
-    if recorder is not None:
-        recorder.close()
+    for helper in (recorder, plotjuggler):
+        if helper is not None:
+            helper.close()
     sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)
     for sock in sockets.values():
         sock.close()

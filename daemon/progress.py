@@ -1,5 +1,6 @@
-"""Progress of a long command (``pneumactl ... --wait``): a reference running on the daemon,
-and the daemon's recording of it, followed until both have ended.
+"""Progress of a long command: a reference running on the daemon and the daemon's recording
+of it, followed until both have ended (``pneumactl ... --wait``), and a recording made here
+(``pneumactl record``).
 
 In a terminal a rich progress bar (the reference's name, elapsed / total, time left, the
 arm's state); piped, a line every ``LINE_EVERY_S``. It follows ``status`` on the control
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import contextmanager
 
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -66,3 +68,24 @@ def _recording_file(client: Client, name: str) -> str | None:
             return f"{listing['directory']}/{name}.mcap"
         time.sleep(POLL_S)
     return None
+
+
+@contextmanager
+def recording_bar(path: str, seconds: float):
+    """A ``progress(elapsed_s, messages, lost)`` for :func:`daemon.mcap_log.record`: a bar in a
+    terminal, a line every ``LINE_EVERY_S`` when piped."""
+    if sys.stderr.isatty():
+        with Progress(TextColumn(f"recording {path}"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                      TextColumn("{task.fields[counts]}")) as bar:
+            task = bar.add_task("record", total=seconds, counts="")
+            yield lambda elapsed, messages, lost: bar.update(task, completed=elapsed,
+                                                             counts=f"{messages} messages, lost {lost}")
+        return
+    last = [0.0]
+
+    def line(elapsed, messages, lost):
+        if elapsed - last[0] >= LINE_EVERY_S:
+            last[0] = elapsed
+            print(f"recording {path}: {elapsed:.0f} of {seconds:g} s, {messages} messages, lost {lost}",
+                  file=sys.stderr, flush=True)
+    yield line

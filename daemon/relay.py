@@ -18,7 +18,8 @@ from daemon.keys import ANONYMOUS, OPERATOR, pack_identity
 from daemon.messenger import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
 from daemon.recorder_link import Recorder, send_reply
 from daemon.ring import Ring, RingError
-from daemon.telemetry import to_payload
+from daemon.plotjuggler import PlotJugglerFeed
+from daemon.telemetry import state_message
 
 
 class Relay:
@@ -26,9 +27,11 @@ class Relay:
     telemetry from the loop's rings onto the sockets."""
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
-                 stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None):
+                 stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
+                 plotjuggler: PlotJugglerFeed | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.recorder = recorder
+        self.plotjuggler = plotjuggler
         self.stall_s = stall_s
         self.guard = guard
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
@@ -217,14 +220,29 @@ class Relay:
             if topic == b"event":
                 body = self._renumber(body)
             try:
-                payload = to_payload(topic, body)
+                columns = state_message(body) if topic == b"state" else None
             except (struct.error, IndexError) as exc:
                 self._bad(tag, str(exc))
                 continue
+            payload = msgpack.packb(columns) if columns is not None else body
             pub.send_multipart((topic, payload))  # PUB drops at a subscriber's high-water mark
             if self.recorder is not None:
                 self.recorder.feed(topic, payload)
+            if self.plotjuggler is not None:
+                self._plot(topic, columns, body)
         return True
+
+    def _plot(self, topic: bytes, columns: dict | None, body: bytes) -> None:
+        """The rows PlotJuggler plots (:mod:`daemon.plotjuggler`)."""
+        if columns is not None:
+            self.plotjuggler.state(columns)
+        elif topic in (b"internals", b"stats"):
+            try:
+                message = msgpack.unpackb(body, raw=False)
+                (self.plotjuggler.internals if topic == b"internals" else self.plotjuggler.stats)(message)
+            except Exception as exc:  # only the loop writes these: a bug, said loudly, never fatal
+                print(f"pneumad messenger: no PlotJuggler row for a {topic.decode()} message: {exc}", file=sys.stderr,
+                      flush=True)
 
     def _renumber(self, body: bytes) -> bytes:
         """A loop event, its seq moved past the messenger's own events (events are rare)."""

@@ -41,13 +41,19 @@ _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
 class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
-                 keys: str | None = None, insecure: bool = False, recording: dict | None = None):
+                 keys: str | None = None, insecure: bool = False, recording: dict | None = None,
+                 plotjuggler: str | None = None):
         """``recording``: where and how the daemon records (``directory``, ``max_mb``,
-        ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not."""
+        ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
+        ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.plotjuggler`)."""
         self.max_per_cycle = max_per_cycle
         self.recording = recording
         self.recorder: RecorderProcess | None = None
         self.security = security((command, control, telemetry), keys, insecure)
+        if plotjuggler and not is_local(plotjuggler) and not insecure:
+            raise ConfigError(f"--plotjuggler {plotjuggler}: PlotJuggler cannot use keys, so its endpoint must be "
+                              f"local (tcp://127.0.0.1:PORT or ipc://; from a laptop, ssh -L PORT:127.0.0.1:PORT "
+                              f"LAB-PC), or say --insecure")
         for name in reclaim_stale_rings(_shm_dir()):
             log.warning("removed the rings a killed daemon left behind: %s", name)
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
@@ -56,7 +62,7 @@ class ZmqServer:
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
-                                   keys, recorder=recording is not None)
+                                   keys, recorder=recording is not None, plotjuggler=plotjuggler)
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -72,8 +78,8 @@ class ZmqServer:
     def attach(self, loop, preparer=None) -> None:
         self.commands = Commands(loop, preparer, self.security)
         loop.server = self
+        write_metadata(self._rings_dir, self.commands.describe({}), self.commands.controller_get({}))
         if self.recording is not None:
-            write_metadata(self._rings_dir, self.commands.describe({}), self.commands.controller_get({}))
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
                                             self.recording["min_free_mb"])
             self.recorder.start()

@@ -2,7 +2,8 @@
 
 State and its cause, the controller and the running reference with the time it has left,
 the lease holder, per joint the angle, set-point, error and V_MV with a bar over the joint's
-output range, the loop's health from the ``stats`` topic, faults and the last events. Piped
+output range, the loop's health from the ``stats`` topic, faults, the daemon's recordings in
+progress and the last events. Piped
 or redirected (no terminal), it prints one line every 100 ms instead, which a script can read.
 """
 from __future__ import annotations
@@ -61,6 +62,10 @@ def _lines(sub, end) -> None:
 def _live(client: Client, sub, end) -> None:
     describe = client.describe()
     view = View(describe)
+    try:
+        view.recordings = {a["name"]: a["who"] for a in client.record_list()["active"]}
+    except RemoteError:
+        pass  # a daemon that records nothing
     status_due = 0.0
     with Live(view.render(), refresh_per_second=10, screen=False) as live:
         while end is None or time.monotonic() < end:
@@ -87,6 +92,7 @@ class View:
         self.stats: dict | None = None
         self.status: dict = {}
         self.events: deque[str] = deque(maxlen=5)
+        self.recordings: dict[str, str] = {}  # the daemon's recordings in progress: name -> who
         self.lost = 0
 
     def take(self, topic: str, m: dict) -> None:
@@ -97,6 +103,12 @@ class View:
         elif topic == "event":
             if m.get("kind") == "state":
                 self.events.append(f"{m.get('from')} -> {m.get('to')} ({m.get('cause', '')})")
+            elif m.get("kind") == "record":
+                if m.get("action") == "start":
+                    self.recordings[m.get("name", "?")] = m.get("who", "")
+                else:
+                    self.recordings.pop(m.get("name", "?"), None)
+                self.events.append(f"record {m.get('action')}: {m.get('name')} {m.get('cause', '')}".strip())
             else:
                 self.events.append(f"{m.get('kind')}: {m.get('cause', '')} {m.get('to', '')}".strip())
 
@@ -129,8 +141,10 @@ class View:
                           f"{st['cycles']} cycles ({st['overruns_total']} in all); telemetry lost here {self.lost}")
         faults = Text("faults: " + (", ".join(s.get("faults") or []) or "none"),
                       style="red" if s.get("faults") else "dim")
+        recording = Text("recording: " + (", ".join(f"{name} ({who})" for name, who in self.recordings.items())
+                                          or "none"), style="bold magenta" if self.recordings else "dim")
         events = Text("\n".join(self.events) or "no events yet", style="dim")
-        return Panel(Group(head, table, health, faults, Text("events:", style="bold"), events),
+        return Panel(Group(head, table, health, faults, recording, Text("events:", style="bold"), events),
                      title="pneumad", subtitle="Ctrl-C to leave")
 
 

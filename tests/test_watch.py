@@ -33,6 +33,15 @@ def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
         assert name in text and f"{last['u_volts'][-1][j]:+6.2f} V" in text
     assert "loop: wake-up p99" in text and "faults: none" in text
     assert "idle -> enabled (enabled)" in text  # the events
+    assert "recording: none" in text
+    # The recorder's events (their fields as docs/protocol.md gives them) say what is recorded.
+    view.take("event", {"kind": "record", "action": "start", "name": "step-1", "who": "alice", "source": "recorder"})
+    console.print(view.render())
+    assert "recording: step-1 (alice)" in console.export_text()
+    view.take("event", {"kind": "record", "action": "failed", "name": "step-1", "cause": "write error: disk full"})
+    console.print(view.render())
+    text = console.export_text()
+    assert "recording: none" in text and "record failed: step-1 write error: disk full" in text
 
 
 def test_an_output_bar_is_full_at_either_limit_and_marks_zero():
