@@ -12,6 +12,7 @@ import pytest
 import zmq
 from mcap.reader import make_reader
 
+from bench.common import child_process
 from daemon import mcap_log
 from daemon.client import Client, RemoteError
 from tests.daemons import real_daemon
@@ -36,17 +37,9 @@ def stop(daemon, client):
 
 def recorder_pid(daemon) -> int:
     """The daemon's recorder process."""
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            with open(f"/proc/{pid}/stat") as f:
-                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            with open(f"/proc/{pid}/cmdline", "rb") as f:
-                cmdline = f.read()
-        except (OSError, ValueError, IndexError):
-            continue
-        if ppid == daemon.pid and b"daemon.recorder" in cmdline:
-            return int(pid)
-    raise AssertionError("no recorder process")
+    pid = child_process(daemon.pid, "daemon.recorder")
+    assert pid is not None, "no recorder process"
+    return pid
 
 
 def events(eps) -> zmq.Socket:
