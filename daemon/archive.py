@@ -77,19 +77,19 @@ class Archive:
             request = P.decode_request(body)
         except P.ProtocolError as exc:
             return P.encode_error(exc.request_id, exc.code, exc.message)
+        handler = {"record.start": self._start_request, "record.stop": self._stop_request,
+                   "record.list": self._list}.get(request["cmd"])
+        if handler is None:
+            return P.encode_error(request["id"], P.UNKNOWN_COMMAND, f"unknown command {request['cmd'][:80]!r}")
         try:
             args = P.decode_args(request)
             if not isinstance(args, dict):
                 raise bad_args("'args' must be a map")
-            handler = {"record.start": self._start_request, "record.stop": self._stop_request,
-                       "record.list": self._list}[request["cmd"]]
             return P.encode_result(request["id"], handler(args, who))
         except CommandFailed as exc:
             return P.encode_error(request["id"], exc.code, str(exc), exc.data)
         except P.ProtocolError as exc:
             return P.encode_error(request["id"], exc.code, exc.message)
-        except KeyError:
-            return P.encode_error(request["id"], P.UNKNOWN_COMMAND, f"unknown command {request['cmd']!r}")
 
     def _start_request(self, args: dict, who: str) -> dict:
         unknown = set(args) - {"name", "seconds"}
