@@ -128,7 +128,10 @@ class Client:
             # A DEALER with no live connection (its handshake refused) would block in send.
             if not sock.poll(limit * 1e3, zmq.POLLOUT):
                 self._unanswered(cmd, endpoint, limit)
-            sock.send(protocol.encode_request(request_id, cmd, args, self.lease), zmq.NOBLOCK)
+            try:
+                sock.send(protocol.encode_request(request_id, cmd, args, self.lease), zmq.NOBLOCK)
+            except zmq.Again:  # the connection went between the poll and the send: a refused handshake
+                self._unanswered(cmd, endpoint, limit)
             while True:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not sock.poll(remaining * 1e3):
