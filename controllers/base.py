@@ -80,7 +80,7 @@ class ControllerContext:
     def for_rig(cls, rig, actuation, dt: float) -> "ControllerContext":
         """The context of a configured rig: its joints, its V_MV range, its nominal models."""
         return cls(tuple(j.name for j in rig.joints), dt, actuation.u_min, actuation.u_max,
-                   tuple(NominalJoint.from_rig(j) for j in rig.joints))
+                   tuple(NominalJoint.from_rig(j, rig.joint_params(j)) for j in rig.joints))
 
     @property
     def n(self) -> int:

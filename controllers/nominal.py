@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hal.identified import IDENTIFIED
+from hal.identified import JointParams
 from hal.regulator import ITV0051
 
 PER_DEG_TO_PER_RAD = 180.0 / math.pi
@@ -40,9 +40,9 @@ class NominalJoint:
     bias_torque: float  # torque of the bias pressures on both chambers [N m]
 
     @classmethod
-    def from_rig(cls, joint, model: str | None = None) -> "NominalJoint | None":
-        """The nominal model of one configured joint, or None when no identified set fits it."""
-        p = IDENTIFIED.get(model or joint.model_name)
+    def from_rig(cls, joint, p: JointParams | None) -> "NominalJoint | None":
+        """The nominal model of one configured joint from its model set (the rig's
+        ``joint_params``), or None when it has none."""
         if p is None:
             return None
         bias_head, bias_rod = ITV0051(joint.head).bias_pa, ITV0051(joint.rod).bias_pa  # the rig's calibration

@@ -35,14 +35,25 @@ class Excitation(Trajectory):
     """Base angles [rad] held, one joint's reference offset by a signal."""
 
     scalable = False
+    definition: dict | None = None  # the request's settings, for the recording (set by the planner)
 
     def __init__(self, base: Sequence[float], joint: int, duration: float):
         self.base, self.joint, self.duration = list(base), joint, duration
         self._zeros = [0.0] * len(base)
 
+    @property
+    def peak(self) -> float:
+        """The largest |offset| the signal reaches."""
+        return self.amplitude
+
     @abstractmethod
     def offset(self, t: float) -> tuple[float, float, float]:
         """The signal, its rate and its acceleration at t [rad, rad/s, rad/s^2]."""
+
+    @abstractmethod
+    def series(self, t: np.ndarray) -> np.ndarray:
+        """The signal at many times at once (0 after its end), for planning: what
+        :meth:`offset` gives one at a time."""
 
     def sample(self, t: float) -> Sample:
         r, w, a = self.offset(min(max(t, 0.0), self.duration))
@@ -78,6 +89,11 @@ class LogChirp(Excitation):
         s, c = math.sin(phase), math.cos(phase)
         return A * s, A * c * omega, -A * s * omega * omega + A * c * omega * ln_k / T
 
+    def series(self, t: np.ndarray) -> np.ndarray:
+        T = self.duration
+        phase = 2 * np.pi * self.f0 * T * (np.exp(self._ln_k * t / T) - 1.0) / self._ln_k
+        return np.where(t < T, self.amplitude * np.sin(phase), 0.0)
+
     def profile(self, points: int = 0) -> Profile:
         """Every phase at each of a grid of the sweep's frequencies: the chirp passes through
         all of them near that frequency, so its worst demand is on this grid."""
@@ -102,7 +118,94 @@ class PRBS(Excitation):
             return 0.0, 0.0, 0.0
         return (self.amplitude if self.bits[int(t / self.bit_s) % len(self.bits)] else -self.amplitude), 0.0, 0.0
 
+    def series(self, t: np.ndarray) -> np.ndarray:
+        bits = np.frombuffer(self.bits, dtype=np.uint8)
+        level = np.where(bits[(t / self.bit_s).astype(np.int64) % len(bits)] == 1, self.amplitude, -self.amplitude)
+        return np.where(t < self.duration, level, 0.0)
+
     def profile(self, points: int = 0) -> Profile:
         """Its two levels (it steps between them: the rig must hold each)."""
         zeros = np.zeros(2)
         return self._profile(zeros, np.array([self.amplitude, -self.amplitude]), zeros, zeros)
+
+
+class Multisine(Excitation):
+    """Periodic: up to ``components`` harmonics of 1 / ``period_s``, log-spaced over f0..f1 [Hz]
+    (repeated harmonics merged), each of amplitude A / sqrt(count), with Schroeder's phases
+    phi_k = -pi k (k - 1) / count, which keep the crest factor low; ``periods`` periods. A
+    whole number of periods has no leakage in a frequency response. Evaluated in closed
+    form: a bounded number of sines a cycle (MAX_COMPONENTS)."""
+
+    MAX_COMPONENTS = 32
+
+    def __init__(self, base, joint: int, amplitude: float, f0: float, f1: float, components: int, period_s: float,
+                 periods: int = 1):
+        if not 0 < f0 < f1:
+            raise ValueError(f"a multisine needs 0 < f0 < f1, got {f0} and {f1} Hz")
+        if not 1 <= components <= self.MAX_COMPONENTS:
+            raise ValueError(f"a multisine has 1-{self.MAX_COMPONENTS} components, got {components}")
+        harmonics = sorted({max(int(round(h)), 1) for h in np.geomspace(f0 * period_s, f1 * period_s, components)})
+        self.omegas = [2 * math.pi * h / period_s for h in harmonics]
+        count = len(harmonics)
+        self.phases = [-math.pi * k * (k - 1) / count for k in range(1, count + 1)]
+        self.a_k = amplitude / math.sqrt(count)
+        self.period_s = period_s
+        super().__init__(base, joint, period_s * periods)
+        self.amplitude = amplitude
+        self._peak = float(np.max(np.abs(self.series(np.arange(0.0, period_s, 1e-3)))))
+
+    @property
+    def peak(self) -> float:
+        return self._peak
+
+    def offset(self, t: float) -> tuple[float, float, float]:
+        if t >= self.duration:
+            return 0.0, 0.0, 0.0
+        r = w = a = 0.0
+        for om, ph in zip(self.omegas, self.phases):
+            s, c = math.sin(om * t + ph), math.cos(om * t + ph)
+            r += s
+            w += c * om
+            a -= s * om * om
+        return self.a_k * r, self.a_k * w, self.a_k * a
+
+    def series(self, t: np.ndarray) -> np.ndarray:
+        total = np.zeros_like(t, dtype=float)
+        for om, ph in zip(self.omegas, self.phases):
+            total += np.sin(om * t + ph)
+        return np.where(t < self.duration, self.a_k * total, 0.0)
+
+    def profile(self, points: int = 0) -> Profile:
+        """Its worst demands: its peak, and every term at its peak at once bounding the rates."""
+        peak = self._peak
+        rate = self.a_k * sum(self.omegas)
+        accel = self.a_k * sum(om * om for om in self.omegas)
+        zeros = np.zeros(2)
+        return self._profile(zeros, np.array([peak, -peak]), np.array([rate, -rate]), np.array([accel, -accel]))
+
+
+class Levels(Excitation):
+    """Steps between levels (each held ``hold_s``), then back to zero: a staircase or a
+    step test. Looked up by bisection (at most MAX_LEVELS)."""
+
+    MAX_LEVELS = 256
+
+    def __init__(self, base, joint: int, levels: Sequence[float], hold_s: float):
+        if not 1 <= len(levels) <= self.MAX_LEVELS:
+            raise ValueError(f"1-{self.MAX_LEVELS} levels, got {len(levels)}")
+        super().__init__(base, joint, len(levels) * hold_s)
+        self.levels, self.hold_s = [float(v) for v in levels], hold_s
+        self.amplitude = max(abs(v) for v in self.levels)
+
+    def offset(self, t: float) -> tuple[float, float, float]:
+        if t >= self.duration:
+            return 0.0, 0.0, 0.0
+        return self.levels[min(int(t / self.hold_s), len(self.levels) - 1)], 0.0, 0.0
+
+    def series(self, t: np.ndarray) -> np.ndarray:
+        index = np.minimum((t / self.hold_s).astype(np.int64), len(self.levels) - 1)
+        return np.where(t < self.duration, np.asarray(self.levels)[index], 0.0)
+
+    def profile(self, points: int = 0) -> Profile:
+        zeros = np.zeros(len(self.levels))
+        return self._profile(zeros, np.array(self.levels), zeros, zeros)

@@ -23,6 +23,7 @@ from controllers.base import (
 from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
+from daemon.open_loop import OpenLoopRun
 from daemon.safety import State, Supervisor
 from daemon.shadow import ShadowRun
 from daemon.stats import LoopStats
@@ -69,6 +70,7 @@ class ControlLoop:
         self.trajectory_t0 = 0.0
         self.trajectory_generation = 0  # counts every change of reference: a plan made before one is stale
         self._reference_running = False  # a timed reference whose end event is still to come
+        self.open_loop: OpenLoopRun | None = None  # an input-side experiment in progress
         self.u = [0.0] * self.n  # last V_MV [V]
         self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
         self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
@@ -228,7 +230,13 @@ class ControlLoop:
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return
         self.u = list(u)  # the loop's own copy: a plugin may reuse its buffer
-        lost = self.tracking.check(now, ref[0], self.angles)
+        judged = ref[0]
+        if self.open_loop is not None:
+            if self.open_loop.apply(self, now):
+                judged = self.open_loop.tracking_reference(ref[0], self.angles)
+            else:
+                self._end_open_loop()
+        lost = self.tracking.check(now, judged, self.angles)
         if lost is not None:
             self.controller_lost(lost)
         if self.shadow is not None:
@@ -303,16 +311,32 @@ class ControlLoop:
         replaced before its end ends ``cut``."""
         if self._reference_running:
             self._end_reference(cut=f"replaced by {name}")
+        if self.open_loop is not None:
+            self.open_loop.ended = ""
+            self._end_open_loop()
         self.trajectory, self.trajectory_name = trajectory, name
         self.trajectory_generation += 1
         self.trajectory_t0 = self.clock.now() + self.period  # sampled from the next cycle on
         self.reference = trajectory.sample(0.0)
         self.tracking.clear()
         self._reference_running = trajectory.duration > 0.0 or record is not None  # a recorded step: its response
+        if getattr(trajectory, "open_loop", False):
+            self.open_loop = OpenLoopRun(trajectory, self.trajectory_t0, self.io.joint_names[trajectory.joint])
         if self._reference_running:
             self.supervisor.events.append({"kind": "reference", "action": "start", "name": name,
                                            "generation": self.trajectory_generation,
-                                           "duration_s": trajectory.duration, "record": record})
+                                           "duration_s": trajectory.duration, "record": record,
+                                           "signal": getattr(trajectory, "definition", None)})
+
+    def _end_open_loop(self) -> None:
+        """Feedback takes the excited joint back, bumplessly from the output in force; an
+        experiment that left its band is cut, the arm held where it is."""
+        run, self.open_loop = self.open_loop, None
+        self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        if run.ended and run.ended != "done":
+            self.supervisor.events.append({"kind": "experiment", "action": "abort", "joint": run.name,
+                                           "cause": run.ended})
+            self.hold_position()
 
     def _end_reference(self, cut: str = "") -> None:
         self._reference_running = False

@@ -22,7 +22,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from controllers import registry, signals, trajectory
+from controllers import registry, trajectory
 from controllers.base import Controller, ControllerContext
 from controllers.feasibility import Authority, Infeasible
 from controllers.profile import first_outside_limits
@@ -33,7 +33,6 @@ from daemon.arguments import (
     checked_number,
     checked_numbers,
     choice,
-    integer,
     number,
     numbers,
     only,
@@ -203,38 +202,9 @@ def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 
 def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    """An identification signal on one joint's reference about its present set-point:
-    ``signal`` chirp (``f0_hz``, ``f1_hz``, ``duration_s``) or prbs (``order``, ``bit_s``,
-    ``periods``), of ``amplitude_deg``; the other joints hold."""
-    signal = choice(args, "signal", ("chirp", "prbs"))
-    if signal == "chirp":
-        only(args, "signal", "joint", "amplitude_deg", "f0_hz", "f1_hz", "duration_s")
-    else:
-        only(args, "signal", "joint", "amplitude_deg", "order", "bit_s", "periods")
-    joint = choice(args, "joint", ctx.joint_names)
-    j = ctx.joint_names.index(joint)
-    amplitude = math.radians(number(args, "amplitude_deg", 0.01, 45.0))
-    if signal == "chirp":
-        f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
-        f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
-        if f1 <= f0:
-            raise bad_args(f"'f1_hz' ({f1}) must be above 'f0_hz' ({f0})", "f1_hz")
-        excitation = signals.LogChirp(setpoint, j, amplitude, f0, f1, number(args, "duration_s", 1.0, MAX_DURATION_S,
-                                                                            60.0))
-    else:
-        excitation = signals.PRBS(setpoint, j, amplitude, integer(args, "order", 2, 16, 8),
-                                  number(args, "bit_s", 0.001, 60.0, 0.2), integer(args, "periods", 1, 100, 1))
-    lo, hi = ctx.limits[j]
-    if not (lo <= setpoint[j] - amplitude and setpoint[j] + amplitude <= hi):
-        raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(setpoint[j]):.1f} deg +- "
-                                       f"{math.degrees(amplitude):.1f} deg leaves its limits "
-                                       f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
-                            {"reason": "limits", "argument": "amplitude_deg", "joint": joint,
-                             "limits_deg": [math.degrees(lo), math.degrees(hi)]})
-    check_authority(ctx, f"the {signal}", excitation,
-                    "lower the amplitude" + (" or the top frequency" if signal == "chirp" else ""))
-    return Plan(excitation, signal, {"signal": signal, "joint": joint, "duration_s": excitation.duration},
-                tuple(setpoint))
+    """An identification experiment (:mod:`daemon.excite_plan`)."""
+    from daemon import excite_plan  # it builds on this module's checks
+    return excite_plan.plan_excite(ctx, args, setpoint)
 
 
 PLANNERS = {"set": plan_set, "path": plan_path, "waypoints": plan_waypoints, "steps": plan_steps,

@@ -17,7 +17,7 @@ from typing import Any
 
 from hal.errors import ConfigError
 from hal.force_sensor import ForceSensorConfig
-from hal.identified import IDENTIFIED
+from hal.identified import IDENTIFIED, JointParams, parse_models
 from hal.potentiometer import PotentiometerConfig
 from hal.regulator import RegulatorConfig
 from hal.schema import build, require
@@ -36,7 +36,7 @@ class JointConfig:
     head: RegulatorConfig  # head-side chamber, commanded V_INI + V_MV [2-30]
     rod: RegulatorConfig  # rod-side chamber, held at V_INI [2-31]
     max_speed_deg_s: float = 60.0  # faster than this is a trip [deg/s]
-    model: str = ""  # identified model set (hal.identified) for model-based controllers; default: name
+    model: str = ""  # the joint's model: a [models.NAME] table or a built-in set (hal/models.toml); default: name
     neutral_angle_deg: float | None = None  # th_0 of the joint's spring; default: mid-range [deg]
 
     def __post_init__(self):
@@ -44,8 +44,6 @@ class JointConfig:
         require(self.min_angle_deg < self.max_angle_deg, "max_angle_deg",
                 f"limits inverted: min {self.min_angle_deg} >= max {self.max_angle_deg}")
         require(self.max_speed_deg_s > 0, "max_speed_deg_s", "must be > 0")
-        require(not self.model or self.model in IDENTIFIED, "model",
-                f"no identified model {self.model!r} (known: {', '.join(IDENTIFIED)})")
 
     @property
     def limits_rad(self) -> tuple[float, float]:
@@ -155,11 +153,21 @@ class RigConfig:
     limits: LimitsConfig = LimitsConfig()
     safety: SafetyConfig = SafetyConfig()
     force_sensor: ForceSensorConfig | None = None
+    models: dict[str, Any] = field(default_factory=dict)  # [models.NAME] tables (hal.identified.parse_models)
+    joint_models: dict[str, JointParams] = field(default_factory=dict, init=False, compare=False)  # built-in + own
     source: str = field(default="", init=False, compare=False)  # the TOML text it was built from
     origin: str = field(default="", init=False, compare=False)  # a path or "builtin:NAME"
 
     def __post_init__(self):
         require(len(self.joints) >= 1, "joints", "at least one joint is needed")
+        try:
+            object.__setattr__(self, "joint_models", {**IDENTIFIED, **parse_models(self.models, IDENTIFIED)})
+        except ValueError as exc:
+            key, _, message = str(exc).partition(": ")
+            require(False, key, message)
+        for i, j in enumerate(self.joints):
+            require(not j.model or j.model in self.joint_models, f"joints[{i}].model",
+                    f"no model {j.model!r} (known: {', '.join(self.joint_models)})")
         names = [j.name for j in self.joints]
         dup = _first_duplicate(names)
         require(dup is None, "joints", f"joint name {dup!r} is used twice")
@@ -183,6 +191,10 @@ class RigConfig:
                 reg = getattr(j, side)
                 require(reg.safe_mpa <= self.limits.max_pressure_mpa, f"joints.{j.name}.{side}.safe_mpa",
                         f"{reg.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
+
+    def joint_params(self, joint: JointConfig) -> JointParams | None:
+        """The model a joint names (``model``, else its own name), or None when there is none."""
+        return self.joint_models.get(joint.model_name)
 
     @property
     def hash(self) -> str:

@@ -1,8 +1,10 @@
-"""Identified parameters of the cylinder joints, rig-facts §1 (table "Identified values").
+"""Identified models of the cylinder joints, rig-facts §1 (table "Identified values").
 
-They are a fact of the rig, so they live beside its configuration: the simulator takes them
-as the true plant, model-based controllers as their nominal plant (a rig file names the set
-per joint, ``[[joints]] model``, so the two can be made to differ on purpose).
+They are a fact of the rig, so they live in its configuration: ``[models.NAME]`` tables,
+the built-in ones in ``hal/models.toml`` (the thesis's values), a rig file's own beside them
+(what ``pneumactl identify`` writes). The simulator takes a joint's model as its true plant,
+model-based controllers as their nominal plant (``[[joints]] model`` names the set per
+joint, and the simulator's options can name another, so the two can differ on purpose).
 
 **Units.** As rig-facts §1 "Units" argues, the fit was made with the joint angle in degrees:
 th [deg], th' [deg/s], J [N m s^2/deg], D [N m s/deg], K [N m/deg], Fs, Fc [N m],
@@ -13,7 +15,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import tomllib
 from dataclasses import dataclass
+from importlib import resources
 
 K_EP = 0.0899e6  # regulator slope [Pa/V], [2-29]
 P_OFFSET = 0.001e6  # regulator pressure at 0 V [Pa], [2-29]
@@ -73,14 +77,47 @@ class JointParams:
         return new
 
 
-IDENTIFIED: dict[str, JointParams] = {
-    "bottom": JointParams(K_mdl=1.034, L=5.166e-2, J=5.680e-4, D=1.880e-1, K=1.740e-2, T_ep=4.371e-2,
-                          T_dly=8.117e-2, Fs=2.664e-1, Fc=8.918e-2, vs=9.919e-2, alpha=1.961, beta=1.683,
-                          bore=15e-3, rod=5e-3, stroke=20e-3),
-    "middle": JointParams(K_mdl=1.007, L=1.867e-2, J=1.660e-4, D=2.390e-1, K=1.315e-2, T_ep=4.277e-2,
-                          T_dly=3.941e-2, Fs=2.200e-1, Fc=1.371e-2, vs=9.194e-2, alpha=1.966, beta=1.737,
-                          bore=10e-3, rod=5e-3, stroke=15e-3),
-}
-# The top joint was never identified; it has the middle joint's cylinder, so it takes the
-# middle joint's model (an assumption, stated in the built-in 3-joint rig).
-IDENTIFIED["top"] = IDENTIFIED["middle"]
+UNITS = {"K_mdl": "-", "L": "m", "J": "N m s^2/deg", "D": "N m s/deg", "K": "N m/deg", "T_ep": "s", "T_dly": "s",
+         "Fs": "N m", "Fc": "N m", "vs": "deg/s", "alpha": "-", "beta": "-", "bore": "m", "rod": "m", "stroke": "m"}
+TABLE_KEYS = ("source", "based_on")  # a model table's keys beside the parameters
+
+
+def parse_models(tables: dict, known: dict[str, JointParams] | None = None) -> dict[str, JointParams]:
+    """``[models.NAME]`` tables -> parameter sets. A table gives every parameter, or names
+    ``based_on`` (a built-in or an earlier table) and gives what differs; ``source`` says where
+    its numbers came from. ValueError names the table and the key."""
+    out: dict[str, JointParams] = {}
+    names = [f.name for f in dataclasses.fields(JointParams)]
+    for name, table in tables.items():
+        where = f"models.{name}"
+        if not isinstance(table, dict):
+            raise ValueError(f"{where}: expected a table")
+        unknown = sorted(set(table) - set(names) - set(TABLE_KEYS))
+        if unknown:
+            raise ValueError(f"{where}.{unknown[0]}: unknown key (allowed: {', '.join(names + list(TABLE_KEYS))})")
+        for key in TABLE_KEYS:
+            if key in table and not isinstance(table[key], str):
+                raise ValueError(f"{where}.{key}: expected a string")
+        values = {k: v for k, v in table.items() if k not in TABLE_KEYS}
+        for key, v in values.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ValueError(f"{where}.{key}: expected a number [{UNITS[key]}], got {v!r}")
+        base_name = table.get("based_on")
+        try:
+            if base_name is not None:
+                base = out.get(base_name) or (known or {}).get(base_name)
+                if base is None:
+                    raise ValueError(f"based_on: no model {base_name!r} (known: {', '.join([*(known or {}), *out])})")
+                out[name] = base.replace({k: float(v) for k, v in values.items()})
+            else:
+                missing = [n for n in names if n not in values]
+                if missing:
+                    raise ValueError(f"{missing[0]}: missing (give every parameter, or based_on = \"NAME\")")
+                out[name] = JointParams(**{k: float(v) for k, v in values.items()}).replace({})
+        except (KeyError, ValueError) as exc:
+            raise ValueError(f"{where}: {str(exc).strip(chr(39))}") from None
+    return out
+
+
+IDENTIFIED: dict[str, JointParams] = parse_models(tomllib.loads(resources.files("hal").joinpath("models.toml")
+                                                                .read_text())["models"])

@@ -11,7 +11,7 @@ from hal.schema import require
 class SimJointOptions:
     """Plant choices for one joint (``[transport.options.joints.NAME]``)."""
 
-    model: str = ""  # the true plant's identified set (bottom/middle/top); default: the rig's joint model
+    model: str = ""  # the true plant's model set (a [models.NAME] of the rig, or a built-in); default: the joint's
     neutral_angle_deg: float | None = None  # th_0 of the spring; default: the rig's joint neutral angle
     initial_angle_deg: float | None = None  # default: equilibrium at the bias pressures
     end_stop_margin_deg: float = 10.0  # mechanical stops this far beyond the software limits

@@ -12,7 +12,6 @@ from hal.bounds import clip
 from hal.config import RigConfig
 from hal.errors import ConfigError
 from hal.identified import (
-    IDENTIFIED,
     K_EP,
     P_OFFSET,
     P_SET_MAX,
@@ -45,11 +44,11 @@ class SimArm:
         for jc in rig.joints:
             jo = options.joints.get(jc.name, SimJointOptions())
             model = jo.model or jc.model_name
-            if model not in IDENTIFIED:
+            if model not in rig.joint_models:
                 raise ConfigError(f"transport.options.joints.{jc.name}.model: no identified model {model!r} "
-                                  f"(known: {', '.join(IDENTIFIED)})")
+                                  f"(known: {', '.join(rig.joint_models)})")
             try:
-                params = IDENTIFIED[model].replace(jo.overrides)
+                params = rig.joint_models[model].replace(jo.overrides)
             except (KeyError, ValueError) as exc:
                 raise ConfigError(f"transport.options.joints.{jc.name}.overrides: {exc}") from None
             neutral = jo.neutral_angle_deg if jo.neutral_angle_deg is not None else jc.neutral_deg

@@ -22,7 +22,8 @@ def nominal_plant(model):
 
 @pytest.mark.parametrize("joint", [0, 1])
 def test_a_step_input_disturbance_is_estimated_at_its_size_and_nothing_before_it(joint):
-    model = NominalJoint.from_rig(config.load().joints[joint])
+    rig = config.load()
+    model = NominalJoint.from_rig(rig.joints[joint], rig.joint_params(rig.joints[joint]))
     ad, bd = nominal_plant(model)
     u, d_step = 0.5, 0.3  # V_MV held [V], the disturbance that arrives at 1 s [V]
     v0 = u + model.input_offset

@@ -1,0 +1,216 @@
+"""Fit of the joint model [2-36..2-45] to an experiment's time data, as the lab's thesis did it
+(rig-facts §1 "Experiments": differential evolution, population 40, up to 1500 generations),
+then a local polish and the model's quality by [2-49]:
+
+    Fit = (1 - ||y - y_hat|| / ||y - mean(y)||) * 100 %
+
+The search runs over the logarithm of each positive parameter relative to a prior model (the
+set the rig file names), within a factor ``SPAN`` of it: so a bound reads "a third to three
+times the prior". The dead time is searched on [0, MAX_DEAD_TIME_S], Coulomb friction as a
+fraction of the static, and the start's held friction torque ``c`` within +-4 prior Fs. The
+Stribeck shape parameters alpha and beta stay at the prior's values: at the sensor's noise
+they change the fit by less than it can tell (stated in docs/identification.md).
+
+Confidence: the polish (``scipy.optimize.least_squares``) gives the Jacobian at the optimum;
+the parameters' covariance is s^2 (J^T J)^-1 in the search coordinates, so a log parameter's
+standard deviation reads as a relative one.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import differential_evolution, least_squares, minimize_scalar
+
+from controllers.identification.simulate import FITTED, simulate
+from hal.identified import JointParams
+
+SPAN = {"J": 10.0, "D": 3.0, "K": 3.0, "T_ep": 3.0, "Fs": 2.5, "vs": 4.0}  # factor either side of the prior
+MAX_DEAD_TIME_S = 0.3
+SEARCH = ("J", "D", "K", "T_ep", "T_dly", "Fs", "Fc_ratio", "vs", "c")  # c: one per estimation experiment
+
+
+@dataclass
+class Experiment:
+    """One joint's experiment as the fit needs it: the recording's period ``dt`` [s], the
+    pressure lever L (A_H dP_set,H - A_L dP_set,L) [N m per unit K_mdl] per sample, the joint
+    angle's deviation from the start ``y`` [deg] per sample (the angle before that sample's
+    command), and what describes it (signal, operating point, rig hash, source file)."""
+
+    dt: float
+    lever: np.ndarray
+    y: np.ndarray
+    t: np.ndarray
+    u: np.ndarray  # V_MV commanded [V], for figures
+    start_deg: float
+    info: dict = field(default_factory=dict)
+
+    def segment(self, start_s: float, end_s: float) -> "Experiment":
+        """The part between two times from its start, re-zeroed (it must start at rest to fit)."""
+        i, j = int(start_s / self.dt), int(end_s / self.dt)
+        return dataclasses.replace(self, lever=self.lever[i:j] - self.lever[i], y=self.y[i:j] - self.y[i],
+                                   t=self.t[i:j], u=self.u[i:j], start_deg=self.start_deg + self.y[i])
+
+
+@dataclass
+class FitResult:
+    params: JointParams  # the identified set (geometry and shape parameters from the prior)
+    c: list[float]  # held friction torque at the start of each estimation experiment [N m]
+    fit_percent: list[float]  # [2-49] on each estimation experiment
+    heldout_fit_percent: list[float]  # [2-49] on each validation experiment
+    relative_std: dict[str, float]  # 1 sigma per fitted parameter: relative (T_dly [s], Fc_ratio: absolute); nan: not determined
+    wall_s: float
+    generations: int
+    evaluations: int
+    settings: dict
+
+    def summary(self) -> dict:
+        return {"params": {n: getattr(self.params, n) for n in FITTED}, "c_nm": list(self.c),
+                "fit_percent": self.fit_percent, "heldout_fit_percent": self.heldout_fit_percent,
+                "relative_std": self.relative_std, "wall_s": self.wall_s, "generations": self.generations,
+                "evaluations": self.evaluations, "settings": self.settings}
+
+
+def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """[2-49]: (1 - ||y - y_hat|| / ||y - mean(y)||) * 100 [%]."""
+    spread = np.linalg.norm(y - np.mean(y))
+    return float((1.0 - np.linalg.norm(y - y_hat) / spread) * 100.0) if spread > 0 else float("nan")
+
+
+class _Problem:
+    """The search coordinates <-> parameter rows, and the residuals on the estimation data:
+    one or more experiments, each with its own held friction torque c at its start."""
+
+    def __init__(self, prior: JointParams, data: list[Experiment], step: float):
+        self.prior, self.data, self.step = prior, data, step
+        self.m = [max(int(round(step / d.dt)), 1) for d in data]
+        self.targets = [d.y[m::m] for d, m in zip(data, self.m)]
+        self.scale = max(float(np.std(np.concatenate(self.targets))), 1e-6)
+        self.size = sum(len(t) for t in self.targets)
+        lo, hi = [], []
+        for name in SEARCH[:-1]:
+            if name in SPAN:
+                lo.append(-math.log(SPAN[name]))
+                hi.append(math.log(SPAN[name]))
+            elif name == "T_dly":
+                lo.append(0.0)
+                hi.append(MAX_DEAD_TIME_S)
+            else:  # Fc_ratio
+                lo.append(0.0)
+                hi.append(1.0)
+        lo += [-2 * prior.Fs] * len(data)
+        hi += [2 * prior.Fs] * len(data)
+        self.bounds = np.array([lo, hi]).T
+
+    def rows(self, x: np.ndarray, experiment: int = 0) -> np.ndarray:
+        """Search points (S, N) -> parameter rows (S, FITTED + c) for one experiment."""
+        x = np.atleast_2d(x)
+        p = self.prior
+        out = np.empty((len(x), len(FITTED) + 1))
+        out[:, 0] = p.K_mdl
+        for col, name in enumerate(("J", "D", "K", "T_ep"), start=1):
+            out[:, col] = getattr(p, name) * np.exp(x[:, col - 1])
+        out[:, 5] = x[:, 4]
+        out[:, 6] = p.Fs * np.exp(x[:, 5])
+        out[:, 7] = x[:, 6] * out[:, 6]
+        out[:, 8] = p.vs * np.exp(x[:, 7])
+        out[:, 9] = x[:, 8 + experiment]
+        return out
+
+    def errors(self, x: np.ndarray) -> np.ndarray:
+        """Scaled output errors, all experiments end to end: (S, samples)."""
+        parts = []
+        for i, (d, target) in enumerate(zip(self.data, self.targets)):
+            y_hat = simulate(self.rows(x, i), d.lever, d.dt, self.step, self.prior.alpha, self.prior.beta)
+            parts.append(y_hat[:, :len(target)] - target)
+        return np.concatenate(parts, axis=1) / self.scale
+
+    def cost(self, xt: np.ndarray) -> np.ndarray:
+        """Mean square scaled error per member; DE's vectorised call passes (N, S)."""
+        err = self.errors(xt.T)
+        return np.mean(err * err, axis=1)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.errors(x)[0]
+
+    def params(self, x: np.ndarray) -> tuple[JointParams, list[float]]:
+        row = self.rows(x)[0]
+        return (self.prior.replace(dict(zip(FITTED, map(float, row[:9])))),
+                [float(v) for v in np.atleast_2d(x)[0, 8:]])
+
+
+def fit_joint(estimation: list[Experiment], prior: JointParams, validation: list[Experiment] = (),
+              population: int = 40, generations: int = 1500, step: float = 0.005, tol: float = 1e-3,
+              seed: int = 0, progress=None) -> FitResult:
+    """Differential evolution (``population`` members in all, at most ``generations``; it stops
+    earlier when the population's spread in cost falls below ``tol`` of its mean), then a
+    least-squares polish; ``progress(generation, best_cost)`` after each generation. The Fit %
+    is reported on the estimation data and on each ``validation`` experiment (held out)."""
+    started = time.perf_counter()
+    problem = _Problem(prior, list(estimation), step)
+    dims = len(problem.bounds)
+    state = {"generation": 0}
+
+    def callback(intermediate_result):
+        state["generation"] += 1
+        if progress is not None:
+            progress(state["generation"], float(intermediate_result.fun))
+
+    found = differential_evolution(problem.cost, problem.bounds, popsize=max(population // dims, 1), maxiter=generations,
+                                   tol=tol, seed=seed, polish=False, vectorized=True, updating="deferred",
+                                   init="sobol", callback=callback)
+    polished = least_squares(problem.residuals, found.x, bounds=(problem.bounds[:, 0], problem.bounds[:, 1]),
+                             x_scale="jac", diff_step=1e-3)
+    best = polished.x if 2 * polished.cost / problem.size <= found.fun else found.x
+    params, c = problem.params(best)
+    estimation_fit = [fit_percent(t, t + problem.scale * e) for t, e in
+                      zip(problem.targets, np.split(problem.residuals(best), np.cumsum([len(t) for t in problem.targets])[:-1]))]
+    heldout = [heldout_fit(params, v, step) for v in validation]
+    return FitResult(params, c, estimation_fit, heldout, _relative_std(polished, problem.bounds),
+                     time.perf_counter() - started, state["generation"], int(found.nfev + polished.nfev),
+                     {"population": population, "generations": generations, "step_s": step, "tol": tol,
+                      "seed": seed, "search": list(SEARCH[:-1]), "experiments": len(problem.data)})
+
+
+def predict(params: JointParams, data: Experiment, step: float, c: float) -> np.ndarray:
+    """The model's angle deviation [deg] on the step grid (sample m, 2m, ...) for ``data``."""
+    row = np.array([[params.K_mdl, params.J, params.D, params.K, params.T_ep, params.T_dly, params.Fs, params.Fc,
+                     params.vs, c]])
+    return simulate(row, data.lever, data.dt, step, params.alpha, params.beta)[0]
+
+
+def heldout_fit(params: JointParams, data: Experiment, step: float) -> float:
+    """[2-49] on data the fit did not see. Only the start's held friction torque c (an
+    initial condition, not a model parameter) is chosen for it, within +-Fs."""
+    m = max(int(round(step / data.dt)), 1)
+    target = data.y[m::m]
+
+    def cost(c):
+        y_hat = predict(params, data, step, c)
+        n = min(len(y_hat), len(target))
+        return float(np.mean((y_hat[:n] - target[:n]) ** 2))
+
+    c = minimize_scalar(cost, bounds=(-params.Fs, params.Fs), method="bounded", options={"xatol": 1e-4}).x
+    y_hat = predict(params, data, step, c)
+    n = min(len(y_hat), len(target))
+    return fit_percent(target[:n], y_hat[:n])
+
+
+def _relative_std(polished, bounds: np.ndarray) -> dict[str, float]:
+    """1 sigma per parameter from the polish's Jacobian: relative for log parameters. A
+    parameter the data does not move (a zero Jacobian column, or one pinned at a bound, where
+    the polish's Jacobian is one-sided) is nan: not determined by this experiment."""
+    jac = polished.jac
+    dof = max(polished.fun.size - jac.shape[1], 1)
+    s2 = 2 * polished.cost / dof
+    cov = np.linalg.pinv(jac.T @ jac) * s2
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    out = {}
+    for i, name in enumerate(SEARCH[:-1]):
+        column = np.linalg.norm(jac[:, i])
+        at_bound = min(abs(polished.x[i] - bounds[i, 0]), abs(polished.x[i] - bounds[i, 1])) < 1e-6
+        out[name] = float(std[i]) if column > 1e-12 and not at_bound else float("nan")
+    return out

@@ -1,0 +1,97 @@
+"""The joint model simulated for a whole population of parameter sets at once: what the
+differential-evolution fit evaluates, one generation a call.
+
+Model (rig-facts §1 [2-36..2-39, 2-45]), in the model's own units (deg; see :mod:`hal.identified`),
+as deviations from the operating point where the experiment started at rest:
+
+    T(t) = K_mdl L (A_H dP_H(t) - A_L dP_L(t)),   T_ep dP_i' = dP_set,i(t - T_dly) - dP_i     [N m, Pa]
+    J y'' + D y' + K y = T(t) + c - tau_s(y')                                                 [deg]
+    tau_s(w) = (Fc + (Fs - Fc) exp(-(|w|/vs)^alpha)) tanh(beta w / vs)                        [2-45]
+
+``c`` [N m] is the torque static friction held at the start (the operating point is a rest
+inside the friction band, so its value is unknown and fitted). The pressure path is linear,
+so it is filtered at the recording's rate (1 ms) for every member at once; the mechanics are
+stepped at a coarser ``step`` [s] (exact zero-order hold of the 2x2 linear part, the same
+Karnopp stick rule as the simulator in :mod:`sim_backend.joint_model`), vectorised over the
+population: one Python loop over time, numpy over the members.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import expm
+from scipy.signal import lfilter
+
+# the fitted parameters, in this order in every parameter array (then the nuisance c)
+FITTED = ("K_mdl", "J", "D", "K", "T_ep", "T_dly", "Fs", "Fc", "vs")
+NUISANCE = ("c",)
+
+
+def delayed_lagged(q: np.ndarray, dt: float, t_ep: np.ndarray, t_dly: np.ndarray) -> np.ndarray:
+    """q [any unit] at period dt [s], delayed by T_dly and through the lag 1/(T_ep s + 1), per
+    member: shape (members, samples). The delay's fraction of a period interpolates between
+    the two samples it falls between; the lag is exact for a held input."""
+    out = np.empty((len(t_ep), len(q)))
+    padded = np.concatenate([np.zeros(1), q])
+    for i, (tau, delay) in enumerate(zip(t_ep, t_dly)):
+        n = int(delay / dt)
+        frac = delay / dt - n
+        shifted = np.zeros_like(q)
+        if n < len(q):
+            now = padded[1:len(q) - n + 1]  # q[k - n]
+            before = padded[:len(q) - n]  # q[k - n - 1]
+            shifted[n:] = (1.0 - frac) * now + frac * before
+        a = np.exp(-dt / tau)
+        out[i] = lfilter([0.0, 1.0 - a], [1.0, -a], shifted)
+    return out
+
+
+def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float, beta: float) -> np.ndarray:
+    """Joint angle deviation y [deg] at the end of each step, for per-member torque [N m] of
+    shape (members, steps) held over each step. ``params`` columns follow FITTED + NUISANCE."""
+    k_mdl, J, D, K, _, _, Fs, Fc, vs, c = params.T
+    members, steps = torque.shape
+    a = np.zeros((members, 2, 2))
+    a[:, 0, 1] = 1.0
+    a[:, 1, 0] = -K / J
+    a[:, 1, 1] = -D / J
+    block = np.zeros((members, 3, 3))
+    block[:, :2, :2] = a * step
+    block[:, 1, 2] = step / J
+    e = expm(block)
+    p11, p12, p21, p22 = e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1]
+    g1, g2 = e[:, 0, 2], e[:, 1, 2]  # response of (y, w) to one N m held over the step
+    th, w = np.zeros(members), np.zeros(members)
+    out = np.empty((members, steps))
+    inv_vs = 1.0 / vs
+    tau_all = torque + c[:, None]
+    for k in range(steps):
+        tau = tau_all[:, k]
+        th_lin = p11 * th + p12 * w + g1 * tau
+        w_lin = p21 * th + p22 * w + g2 * tau
+        moving = w != 0.0
+        speed = np.abs(w) * inv_vs
+        f_slip = (Fc + (Fs - Fc) * np.exp(-speed ** alpha)) * np.tanh(beta * w * inv_vs)
+        w_try = w_lin - g2 * f_slip
+        slipping = moving & (w_try * w > 0.0)
+        hold = w_lin / g2
+        sticks = ~slipping & (np.abs(hold) <= Fs)
+        f = np.where(slipping, f_slip, np.where(sticks, hold, np.copysign(Fs, hold)))
+        new_th = th_lin - g1 * f
+        new_th = np.where(sticks & ~moving, th, new_th)  # stuck all step: not a hair of motion
+        w = np.where(sticks, 0.0, w_lin - g2 * f)
+        th = new_th
+        out[:, k] = th
+    return out
+
+
+def simulate(params: np.ndarray, lever: np.ndarray, dt: float, step: float, alpha: float,
+             beta: float) -> np.ndarray:
+    """Angle deviation [deg] on the step grid (every ``step / dt``-th sample from the first
+    step on) for each row of ``params``; ``lever`` = L (A_H dP_set,H - A_L dP_set,L) [N m per
+    unit K_mdl] at the recording's period dt [s]."""
+    params = np.atleast_2d(params)
+    m = max(int(round(step / dt)), 1)
+    torque = params[:, 0:1] * delayed_lagged(lever, dt, params[:, 4], params[:, 5])
+    usable = (torque.shape[1] // m) * m
+    held = torque[:, :usable].reshape(len(params), -1, m).mean(axis=2)
+    return mechanics(params, held, m * dt, alpha, beta)
