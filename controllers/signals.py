@@ -131,10 +131,10 @@ class PRBS(Excitation):
 
 class Multisine(Excitation):
     """Periodic: up to ``components`` harmonics of 1 / ``period_s``, log-spaced over f0..f1 [Hz]
-    (repeated harmonics merged), each of amplitude A / sqrt(count), with Schroeder's phases
-    phi_k = -pi k (k - 1) / count, which keep the crest factor low; ``periods`` periods. A
-    whole number of periods has no leakage in a frequency response. Evaluated in closed
-    form: a bounded number of sines a cycle (MAX_COMPONENTS)."""
+    (repeated harmonics merged), of equal amplitudes scaled so that the peak is A, with
+    Schroeder's phases phi_k = -pi k (k - 1) / count, which keep the crest factor low;
+    ``periods`` periods. A whole number of periods has no leakage in a frequency response.
+    Evaluated in closed form: a bounded number of sines a cycle (MAX_COMPONENTS)."""
 
     MAX_COMPONENTS = 32
 
@@ -148,15 +148,11 @@ class Multisine(Excitation):
         self.omegas = [2 * math.pi * h / period_s for h in harmonics]
         count = len(harmonics)
         self.phases = [-math.pi * k * (k - 1) / count for k in range(1, count + 1)]
-        self.a_k = amplitude / math.sqrt(count)
         self.period_s = period_s
         super().__init__(base, joint, period_s * periods)
+        self.a_k = 1.0
+        self.a_k = amplitude / float(np.max(np.abs(self.series(np.arange(0.0, period_s, 1e-3)))))
         self.amplitude = amplitude
-        self._peak = float(np.max(np.abs(self.series(np.arange(0.0, period_s, 1e-3)))))
-
-    @property
-    def peak(self) -> float:
-        return self._peak
 
     def offset(self, t: float) -> tuple[float, float, float]:
         if t >= self.duration:
@@ -177,7 +173,7 @@ class Multisine(Excitation):
 
     def profile(self, points: int = 0) -> Profile:
         """Its worst demands: its peak, and every term at its peak at once bounding the rates."""
-        peak = self._peak
+        peak = self.amplitude
         rate = self.a_k * sum(self.omegas)
         accel = self.a_k * sum(om * om for om in self.omegas)
         zeros = np.zeros(2)

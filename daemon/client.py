@@ -227,6 +227,12 @@ class Client:
         return self.call("excite", {"signal": signal, "joint": joint, "amplitude_deg": amplitude_deg, **settings,
                                     **_record(record)})
 
+    def excite_input(self, signal: str, joint: str, amplitude_v: float, record: bool = False, **settings):
+        """An open-loop experiment: the signal on the joint's V_MV about the present set-point
+        (chirp, prbs, multisine, steps; settle_s, band_deg and the signal's settings)."""
+        return self.call("excite", {"side": "input", "signal": signal, "joint": joint, "amplitude_v": amplitude_v,
+                                    **settings, **_record(record)})
+
     def record_start(self, name: str | None = None, seconds: float | None = None):
         """The daemon records its telemetry (MCAP, in its recording directory) until
         :meth:`record_stop` or for ``seconds``; nothing a slow network loses is lost to it."""

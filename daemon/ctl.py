@@ -58,9 +58,14 @@ def motion(client: Client, args):
         holds = holds * len(levels) if len(holds) == 1 else holds
         send = lambda: client.steps(levels, holds, record=record)  # noqa: E731
     else:
-        settings = ({"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration} if args.signal == "chirp"
-                    else {"order": args.order, "bit_s": args.bit, "periods": args.periods})
-        send = lambda: client.excite(args.signal, args.joint, args.amplitude, record=record, **settings)  # noqa: E731
+        settings = {"chirp": {"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration},
+                    "prbs": {"order": args.order, "bit_s": args.bit, "periods": args.periods},
+                    "multisine": {"f0_hz": args.f0, "f1_hz": args.f1, "components": args.components,
+                                  "period_s": args.period, "periods": args.periods}}[args.signal]
+        if args.input:
+            settings.update(settle_s=args.settle, band_deg=args.band)
+        excite = client.excite_input if args.input else client.excite
+        send = lambda: excite(args.signal, args.joint, args.amplitude, record=record, **settings)  # noqa: E731
     result = with_lease(client, send)
     if not args.wait:
         return result
@@ -101,21 +106,41 @@ def parser() -> argparse.ArgumentParser:
     motion.append(st)
     st.add_argument("levels", nargs="+")
     st.add_argument("--hold", default="5", help="hold time per level [s], one value or one per level (comma list)")
-    ex = sub.add_parser("excite", help="identification signal on one joint: chirp or prbs")
+    ex = sub.add_parser("excite", help="identification signal on one joint's reference (or, --input, its V_MV)")
     motion.append(ex)
-    ex.add_argument("signal", choices=["chirp", "prbs"])
+    ex.add_argument("signal", choices=["chirp", "prbs", "multisine"])
     ex.add_argument("joint")
-    ex.add_argument("--amplitude", type=float, default=1.0, help="[deg] (default 1)")
+    ex.add_argument("--amplitude", type=float, default=1.0, help="[deg], or [V] with --input (default 1)")
+    ex.add_argument("--input", action="store_true",
+                    help="open loop: the signal on the joint's V_MV about the present set-point, the others held")
+    ex.add_argument("--settle", type=float, default=2.0, help="--input: feedback holds this long first [s] (default 2)")
+    ex.add_argument("--band", type=float, default=10.0,
+                    help="--input: the joint is stopped and held if it leaves +- this [deg] (default 10)")
+    ex.add_argument("--components", type=int, default=16, help="multisine: sines (default 16)")
+    ex.add_argument("--period", type=float, default=20.0, help="multisine: period [s] (default 20)")
     ex.add_argument("--f0", type=float, default=0.1, help="chirp start frequency [Hz] (default 0.1)")
     ex.add_argument("--f1", type=float, default=1.0, help="chirp end frequency [Hz] (default 1)")
     ex.add_argument("--duration", type=float, default=60.0, help="chirp duration [s] (default 60)")
     ex.add_argument("--order", type=int, default=8, help="PRBS register length (default 8: 255 bits)")
     ex.add_argument("--bit", type=float, default=0.2, help="PRBS bit time [s] (default 0.2)")
-    ex.add_argument("--periods", type=int, default=1, help="PRBS repetitions (default 1)")
+    ex.add_argument("--periods", type=int, default=1, help="PRBS or multisine repetitions (default 1)")
     for m in motion:
         m.add_argument("--record", action="store_true",
                        help="the daemon records it, start to end plus 3 s, in its recording directory")
         m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended")
+    idp = sub.add_parser("identify", help="identify a joint's model: excite, record, fit, plot, write a rig file")
+    idp.add_argument("joint")
+    idp.add_argument("--out", default=None, help="directory for the rig file, figures and report "
+                                                 "(default identify-JOINT-DATE-TIME)")
+    idp.add_argument("--from", dest="source", default=None, metavar="RECORDING",
+                     help="analyse this recording's experiments instead of running them (no daemon needed)")
+    idp.add_argument("--amplitude", type=float, default=None, help="V_MV amplitude [V] (default: from the model)")
+    idp.add_argument("--at", type=float, nargs="+", default=None, metavar="DEG",
+                     help="move to these joint angles first [deg] (default: the experiments run where the arm is)")
+    idp.add_argument("--band", type=float, default=10.0, help="stop if the joint leaves +- this [deg] (default 10)")
+    idp.add_argument("--quick", action="store_true", help="experiments half as long (a first look)")
+    idp.add_argument("--population", type=int, default=40, help="differential evolution (default 40, the thesis's)")
+    idp.add_argument("--generations", type=int, default=1500, help="at most (default 1500, the thesis's)")
     c = sub.add_parser("controller", help="list, get, switch, set, shadow, commit, discard")
     c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
     c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
@@ -154,6 +179,8 @@ def key_values(items) -> dict:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
+    if args.what == "identify" and args.source:
+        return identify(None, args)
     if args.what in ("export", "plot"):
         try:
             if args.what == "plot":
@@ -195,6 +222,28 @@ def main(argv=None) -> int:
               f"--approach S to choose)", file=sys.stderr)
     if result is not None:
         print(json.dumps(result, indent=2))
+    return 0
+
+
+def identify(client: Client | None, args) -> int:
+    """``pneumactl identify``: the experiments (unless ``--from``), then the fit and its files."""
+    import time
+    from pathlib import Path
+
+    from daemon import identify as ident  # scipy and matplotlib: only when identifying
+    out = Path(args.out or f"identify-{args.joint}-{time.strftime('%Y%m%d-%H%M%S')}")
+    try:
+        source = Path(args.source) if args.source else out / "experiments.mcap"
+        if client is not None:
+            out.mkdir(parents=True, exist_ok=True)
+            ident.run_experiments(client, args.joint, source, ident.Plan.of(args.quick), args.amplitude, args.at,
+                                  args.band)
+        report = ident.analyse(source, args.joint, out, args.population, args.generations)
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps({k: report[k] for k in ("joint", "model", "rig_file", "figures", "fit_percent",
+                                             "heldout_fit_percent", "wall_s")}, indent=2))
     return 0
 
 
@@ -259,6 +308,11 @@ def run(client: Client, args):
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "keys":
         return client.call("keys.reload", control=True)
+    if w == "identify":
+        code = identify(client, args)
+        if code:
+            raise SystemExit(code)
+        return None
     if w == "record":
         code = record(client, args.file, args.seconds)
         if code:

@@ -6,9 +6,10 @@ set-point and, after ``settle_s``, adds the signal to the excited joint's V_MV [
 feedback set aside (:mod:`controllers.experiment`): an open-loop one. The input side is
 checked before it runs: the band (``band_deg`` about the set-point) inside the joint's limits,
 the operating point's V_MV (from the nominal model) plus the signal's peak inside the V_MV
-range, and the nominal linear model's predicted excursion (friction aside, so an overestimate)
-inside the band; the loop stops it (holding the joint where it is) if the joint leaves the
-band all the same. The cost of these checks grows with the signal's duration, so they run
+range, and the nominal linear model's predicted excursion (friction and the centring aside,
+so an overestimate) inside the band; the centring PI's gains come from the nominal model
+(``centre_hz`` its crossover, 0 for none); the loop stops it (holding the joint where it
+is) if the joint leaves the band all the same. The cost of these checks grows with the signal's duration, so they run
 here, never in the loop.
 """
 from __future__ import annotations
@@ -35,7 +36,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     args = {k: v for k, v in args.items() if k != "side"}
     signal = choice(args, "signal", ("chirp", "prbs", "multisine", "steps") if side == "input"
                     else ("chirp", "prbs", "multisine"))
-    common = ("signal", "joint", "amplitude_v", "settle_s", "band_deg") if side == "input" else \
+    common = ("signal", "joint", "amplitude_v", "settle_s", "band_deg", "centre_hz") if side == "input" else \
         ("signal", "joint", "amplitude_deg")
     only(args, *common, *SIGNAL_KEYS[signal])
     joint = choice(args, "joint", ctx.joint_names)
@@ -43,7 +44,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     if side == "input":
         return _plan_input(ctx, args, setpoint, signal, joint, j)
     amplitude = math.radians(number(args, "amplitude_deg", 0.01, 45.0))
-    excitation = _signal(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
+    excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
     lo, hi = ctx.limits[j]
     if not (lo <= setpoint[j] - excitation.peak and setpoint[j] + excitation.peak <= hi):
         raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(setpoint[j]):.1f} deg +- "
@@ -59,8 +60,9 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                                      "duration_s": excitation.duration}, tuple(setpoint))
 
 
-def _signal(args: dict, signal: str, base, j: int, amplitude: float, longest: float) -> signals.Excitation:
-    """The signal of the request, about ``base`` on joint j; its duration at most ``longest``."""
+def signal_of(args: dict, signal: str, base, j: int, amplitude: float, longest: float) -> signals.Excitation:
+    """The signal of the request, about ``base`` on joint j; its duration at most ``longest``.
+    The same settings give the same signal: an analysis rebuilds it from the recording."""
     if signal == "chirp":
         f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
         f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
@@ -102,7 +104,8 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
     volts = number(args, "amplitude_v", 0.01, 10.0)
     settle = number(args, "settle_s", 0.2, 60.0, 2.0)
     band = math.radians(number(args, "band_deg", 0.5, 45.0, 10.0))
-    excitation = _signal(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
+    centre_hz = number(args, "centre_hz", 0.0, 0.2, 0.03)
+    excitation = signal_of(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
     lo, hi = ctx.limits[j]
     q = setpoint[j]
     if not (lo <= q - band and q + band <= hi):
@@ -134,14 +137,24 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
                                            f"signal's lowest frequency)",
                                 {"reason": "excursion", "argument": "amplitude_v", "joint": joint,
                                  "predicted_deg": math.degrees(excursion), "band_deg": math.degrees(band)})
+    gains = centring_gains(model, centre_hz) if model is not None else (0.0, 0.0)
     definition = {"side": "input", "signal": signal, "joint": joint, "amplitude_v": volts, "settle_s": settle,
                   "band_deg": math.degrees(band), "operating_point_deg": [math.degrees(a) for a in setpoint],
-                  **_settings(args, signal)}
-    experiment = InputExperiment(setpoint, j, excitation, settle, (q - band, q + band), definition)
+                  "centre_v_per_deg": math.radians(gains[0]), **_settings(args, signal)}
+    experiment = InputExperiment(setpoint, j, excitation, settle, (q - band, q + band), definition, gains)
     reply = {"signal": signal, "joint": joint, "side": "input", "duration_s": experiment.duration, "settle_s": settle,
              "predicted_excursion_deg": None if excursion is None else math.degrees(excursion),
              "u_op_estimate_v": u_op}
     return Plan(experiment, f"{signal}-input", reply, tuple(setpoint))
+
+
+def centring_gains(model, crossover_hz: float) -> tuple[float, float]:
+    """(kp [V/rad], ki [V/(rad s)]) of a PI that crosses over at ``crossover_hz`` on the joint's
+    slow dynamics kt / (D s + K) [rad/V] (the viscous term dominates there): |kp kt / (D j w)| = 1,
+    its zero a third of the crossover below."""
+    w = 2 * math.pi * crossover_hz
+    kp = w * model.D / model.kt
+    return kp, kp * w / 3.0
 
 
 def predicted_excursion(model, u: np.ndarray) -> float:

@@ -129,11 +129,11 @@ class McapRecording:
         self._writer.finish()
 
 
-def record(client, path, seconds: float, progress=None) -> tuple[int, int]:
-    """Record a daemon's telemetry for ``seconds`` through ``client`` (a
-    :class:`daemon.client.Client`) to ``path``; (messages, messages lost). An OSError (a full
-    disk) propagates, the file readable up to its last complete chunk. ``progress(elapsed_s,
-    messages, lost)`` is called after every message or idle half second."""
+def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int, int]:
+    """Record a daemon's telemetry for ``seconds`` (or until the event ``stop`` is set) through
+    ``client`` (a :class:`daemon.client.Client`) to ``path``; (messages, messages lost). An
+    OSError (a full disk) propagates, the file readable up to its last complete chunk.
+    ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second."""
     describe, controller = client.describe(), client.controller()
     sub = client.subscribe()
     time.sleep(0.2)  # let the subscription reach the publisher
@@ -141,7 +141,7 @@ def record(client, path, seconds: float, progress=None) -> tuple[int, int]:
         with open(path, "wb") as f:
             rec = McapRecording(f, describe, controller)
             start = time.monotonic()
-            while time.monotonic() < start + seconds:
+            while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()):
                 item = sub.receive(0.5)
                 if item is not None:
                     rec.write(*item)

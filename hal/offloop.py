@@ -40,6 +40,8 @@ from hal.transport import (
 COUNTERS = ("exchanges", "timeouts", "exception_replies", "bad_replies", "link_lost", "reconnects")
 _ERROR_BYTES = 240
 _READ_TRIES = 100_000  # a write takes about a microsecond; this is tens of milliseconds
+LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whole sample
+OUTPUTS_PATIENCE_S = 1.0  # the exchange waits this long for the loop to finish writing its outputs [s]
 
 
 class LinkDown(Exception):
@@ -94,10 +96,10 @@ def _write_locked(seq, array, values) -> None:
     seq.value += 1
 
 
-def _read_locked(seq, array, extra=None):
-    """(sequence number, values, extra.value) read consistently, retrying across a write;
-    TransportError if no consistent read comes (a writer that died halfway through)."""
-    for _ in range(_READ_TRIES):
+def _try_read(seq, array, extra=None, tries: int = _READ_TRIES):
+    """(sequence number, values, extra.value) read consistently, retrying across a write up to
+    ``tries`` times; None if the writer is still in the middle of one."""
+    for _ in range(tries):
         before = seq.value
         if before & 1:
             continue
@@ -105,7 +107,22 @@ def _read_locked(seq, array, extra=None):
         more = extra.value if extra is not None else None
         if seq.value == before:
             return before, values, more
-    raise TransportError("shared sample stays half-written: its writer stopped in the middle")
+    return None
+
+
+def _read_locked(seq, array, extra=None, patience_s: float = 0.0):
+    """As :func:`_try_read`, but a TransportError if no consistent read comes (a writer that
+    died halfway through). After spinning, it sleeps and retries for ``patience_s``: a writer
+    descheduled in the middle of its write (a busy machine) is not a dead one, and spinning
+    would only keep it from the CPU."""
+    give_up = time.monotonic() + patience_s
+    while True:
+        found = _try_read(seq, array, extra)
+        if found is not None:
+            return found
+        if time.monotonic() >= give_up:
+            raise TransportError("shared sample stays half-written: its writer stopped in the middle")
+        time.sleep(0.0005)
 
 
 class OffLoopTransport(Transport):
@@ -174,7 +191,10 @@ class OffLoopTransport(Transport):
         shared = self._shared
         if shared is None:
             raise TransportError(f"{self.backend}: not open")
-        seq, raw, t_reply = _read_locked(shared.in_seq, shared.inputs, shared.in_t)
+        found = _try_read(shared.in_seq, shared.inputs, shared.in_t, LOOP_READ_TRIES)
+        if found is None:  # the exchange is mid-write (descheduled there): the last whole sample,
+            return self._sweep  # whose age the supervisor judges; the loop never spins on it
+        seq, raw, t_reply = found
         self._health.reads += 1
         if seq != self._last_seq:
             self._last_seq = seq
@@ -253,7 +273,7 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
                 _error(shared, str(exc))
                 next_try = time.monotonic() + reopen_every_s
                 continue
-        _, outputs, _ = _read_locked(shared.out_seq, shared.outputs)
+        _, outputs, _ = _read_locked(shared.out_seq, shared.outputs, patience_s=OUTPUTS_PATIENCE_S)
         try:
             inputs = link.exchange(outputs)
         except LinkDown as exc:

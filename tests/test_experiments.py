@@ -32,7 +32,8 @@ def test_an_input_prbs_drives_the_joint_open_loop_and_feedback_takes_it_back_aft
     try:
         here = [math.degrees(a) for a in loop.reference[0]]
         result = ok(loop, sock, "excite", {"side": "input", "signal": "prbs", "joint": "bottom", "amplitude_v": 1.0,
-                                           "order": 6, "bit_s": 0.1, "settle_s": 1.0, "band_deg": 10.0}, lease)
+                                           "order": 6, "bit_s": 0.1, "settle_s": 1.0, "band_deg": 10.0,
+                                           "centre_hz": 0.0}, lease)
         assert result["side"] == "input" and result["duration_s"] == pytest.approx(1.0 + 6.3)
         assert 0.5 < result["predicted_excursion_deg"] < 10.0
         start = loop.cycle
@@ -64,7 +65,8 @@ def test_a_joint_that_leaves_its_band_is_stopped_and_held_where_it_is():
     try:
         here = math.degrees(loop.reference[0][0])
         result = ok(loop, sock, "excite", {"side": "input", "signal": "prbs", "joint": "bottom", "amplitude_v": 1.0,
-                                           "order": 6, "bit_s": 0.1, "settle_s": 1.0, "band_deg": 4.5}, lease)
+                                           "order": 6, "bit_s": 0.1, "settle_s": 1.0, "band_deg": 4.5,
+                                           "centre_hz": 0.0}, lease)
         assert result["predicted_excursion_deg"] < 4.5
         run_seconds(loop, 8.0)
         aborted = [e for e in events(captured, "experiment") if e["action"] == "abort"]

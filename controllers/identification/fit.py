@@ -7,9 +7,13 @@ then a local polish and the model's quality by [2-49]:
 The search runs over the logarithm of each positive parameter relative to a prior model (the
 set the rig file names), within a factor ``SPAN`` of it: so a bound reads "a third to three
 times the prior". The dead time is searched on [0, MAX_DEAD_TIME_S], Coulomb friction as a
-fraction of the static, and the start's held friction torque ``c`` within +-4 prior Fs. The
-Stribeck shape parameters alpha and beta stay at the prior's values: at the sensor's noise
-they change the fit by less than it can tell (stated in docs/identification.md).
+fraction of the static, and the start's held friction torque ``c`` within +-2 prior Fs. Held at
+the prior's values (docs/identification.md shows why): the gain K_mdl (from V_MV to the angle,
+scaling every torque of the model together changes nothing, so only the torques relative to
+it are identifiable); the inertia J (its pole, D / J, is at 50-230 Hz, far beyond what the
+regulator's 3.6 Hz lag lets through, and it trades off against T_ep and T_dly); the Stribeck
+velocity vs (0.1 deg/s, below what the angle's noise lets a 1 ms difference resolve) and the
+shape parameters alpha and beta, which trade off against Fs.
 
 Confidence: the polish (``scipy.optimize.least_squares``) gives the Jacobian at the optimum;
 the parameters' covariance is s^2 (J^T J)^-1 in the search coordinates, so a log parameter's
@@ -28,9 +32,9 @@ from scipy.optimize import differential_evolution, least_squares, minimize_scala
 from controllers.identification.simulate import FITTED, simulate
 from hal.identified import JointParams
 
-SPAN = {"J": 10.0, "D": 3.0, "K": 3.0, "T_ep": 3.0, "Fs": 2.5, "vs": 4.0}  # factor either side of the prior
+SPAN = {"D": 3.0, "K": 3.0, "T_ep": 3.0, "Fs": 2.5}  # factor either side of the prior
 MAX_DEAD_TIME_S = 0.3
-SEARCH = ("J", "D", "K", "T_ep", "T_dly", "Fs", "Fc_ratio", "vs", "c")  # c: one per estimation experiment
+SEARCH = ("D", "K", "T_ep", "T_dly", "Fs", "Fc_ratio", "c")  # c: one per estimation experiment
 
 
 @dataclass
@@ -44,15 +48,17 @@ class Experiment:
     lever: np.ndarray
     y: np.ndarray
     t: np.ndarray
-    u: np.ndarray  # V_MV commanded [V], for figures
+    u: np.ndarray  # V_MV commanded [V]
     start_deg: float
     info: dict = field(default_factory=dict)
+    r: np.ndarray | None = None  # the joint's reference, deviation from the start [deg] (closed loop)
 
     def segment(self, start_s: float, end_s: float) -> "Experiment":
         """The part between two times from its start, re-zeroed (it must start at rest to fit)."""
         i, j = int(start_s / self.dt), int(end_s / self.dt)
         return dataclasses.replace(self, lever=self.lever[i:j] - self.lever[i], y=self.y[i:j] - self.y[i],
-                                   t=self.t[i:j], u=self.u[i:j], start_deg=self.start_deg + self.y[i])
+                                   t=self.t[i:j] - self.t[i], u=self.u[i:j], start_deg=self.start_deg + self.y[i],
+                                   r=None if self.r is None else self.r[i:j] - self.r[i])
 
 
 @dataclass
@@ -110,14 +116,14 @@ class _Problem:
         x = np.atleast_2d(x)
         p = self.prior
         out = np.empty((len(x), len(FITTED) + 1))
-        out[:, 0] = p.K_mdl
-        for col, name in enumerate(("J", "D", "K", "T_ep"), start=1):
-            out[:, col] = getattr(p, name) * np.exp(x[:, col - 1])
-        out[:, 5] = x[:, 4]
-        out[:, 6] = p.Fs * np.exp(x[:, 5])
-        out[:, 7] = x[:, 6] * out[:, 6]
-        out[:, 8] = p.vs * np.exp(x[:, 7])
-        out[:, 9] = x[:, 8 + experiment]
+        out[:, 0], out[:, 1] = p.K_mdl, p.J
+        for col, name in enumerate(("D", "K", "T_ep"), start=2):
+            out[:, col] = getattr(p, name) * np.exp(x[:, col - 2])
+        out[:, 5] = x[:, 3]
+        out[:, 6] = p.Fs * np.exp(x[:, 4])
+        out[:, 7] = x[:, 5] * out[:, 6]
+        out[:, 8] = p.vs
+        out[:, 9] = x[:, 6 + experiment]
         return out
 
     def errors(self, x: np.ndarray) -> np.ndarray:
@@ -139,7 +145,7 @@ class _Problem:
     def params(self, x: np.ndarray) -> tuple[JointParams, list[float]]:
         row = self.rows(x)[0]
         return (self.prior.replace(dict(zip(FITTED, map(float, row[:9])))),
-                [float(v) for v in np.atleast_2d(x)[0, 8:]])
+                [float(v) for v in np.atleast_2d(x)[0, 6:]])
 
 
 def fit_joint(estimation: list[Experiment], prior: JointParams, validation: list[Experiment] = (),
@@ -182,21 +188,25 @@ def predict(params: JointParams, data: Experiment, step: float, c: float) -> np.
     return simulate(row, data.lever, data.dt, step, params.alpha, params.beta)[0]
 
 
-def heldout_fit(params: JointParams, data: Experiment, step: float) -> float:
-    """[2-49] on data the fit did not see. Only the start's held friction torque c (an
-    initial condition, not a model parameter) is chosen for it, within +-Fs."""
+def best_c(params: JointParams, data: Experiment, step: float) -> float:
+    """The start's held friction torque c [N m] within +-Fs that fits ``data`` best: an
+    initial condition of that experiment, not a model parameter."""
     m = max(int(round(step / data.dt)), 1)
     target = data.y[m::m]
 
     def cost(c):
-        y_hat = predict(params, data, step, c)
-        n = min(len(y_hat), len(target))
-        return float(np.mean((y_hat[:n] - target[:n]) ** 2))
+        y_hat = predict(params, data, step, c)[:len(target)]
+        return float(np.mean((y_hat - target[:len(y_hat)]) ** 2))
 
-    c = minimize_scalar(cost, bounds=(-params.Fs, params.Fs), method="bounded", options={"xatol": 1e-4}).x
-    y_hat = predict(params, data, step, c)
-    n = min(len(y_hat), len(target))
-    return fit_percent(target[:n], y_hat[:n])
+    return float(minimize_scalar(cost, bounds=(-params.Fs, params.Fs), method="bounded", options={"xatol": 1e-4}).x)
+
+
+def heldout_fit(params: JointParams, data: Experiment, step: float) -> float:
+    """[2-49] on data the fit did not see (only its start's c is chosen, :func:`best_c`)."""
+    m = max(int(round(step / data.dt)), 1)
+    target = data.y[m::m]
+    y_hat = predict(params, data, step, best_c(params, data, step))[:len(target)]
+    return fit_percent(target[:len(y_hat)], y_hat)
 
 
 def _relative_std(polished, bounds: np.ndarray) -> dict[str, float]:

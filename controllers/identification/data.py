@@ -1,0 +1,110 @@
+"""One joint's experiments, read back from a recording (MCAP or .pnrec; :mod:`daemon.recording`).
+
+An experiment is found by its ``reference`` start event, which carries the signal's settings
+(``excite``'s ``signal``: side, joint, amplitude, operating point). An input-side one starts
+at its ``experiment`` ``open_loop`` event (the operating point's V_MV, ``u_op_v``) and ends at
+its reference's end or its ``abort``; a reference-side one spans its reference. The rig's
+source text and hash come from the recording's ``describe``, so the prior model the fit
+starts from is the one the daemon ran with.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from controllers.identification.fit import Experiment
+from daemon import recording
+from hal import config
+from hal.identified import JointParams
+from hal.regulator import ITV0051
+
+
+def rig_of(run: recording.Run) -> config.RigConfig:
+    """The rig configuration the recording was made with (its source text)."""
+    rig = run.describe["rig"]
+    return config.parse(rig["source"], rig.get("origin") or "<recording>")
+
+
+def prior_of(rig: config.RigConfig, joint: str) -> JointParams:
+    """The model the rig gave the joint: where the fit starts, and its geometry."""
+    for j in rig.joints:
+        if j.name == joint:
+            params = rig.joint_params(j)
+            if params is None:
+                raise ValueError(f"joint {joint} has no model in the rig file: give it [[joints]] model")
+            return params
+    raise ValueError(f"no joint {joint!r} in the rig (joints: {', '.join(j.name for j in rig.joints)})")
+
+
+def experiments(path, joint: str | None = None) -> list[Experiment]:
+    """Every experiment in a recording (on ``joint``, if given), in order."""
+    run = recording.open_run(path)
+    rig = rig_of(run)
+    events = run.messages.get("event", [])
+    found = []
+    for i, ev in enumerate(events):
+        signal = ev.get("signal") if ev.get("kind") == "reference" and ev.get("action") == "start" else None
+        if not signal or (joint is not None and signal["joint"] != joint):
+            continue
+        generation = ev["generation"]
+        later = events[i + 1:]
+        end = next((e for e in later if e.get("kind") == "reference" and e.get("action") == "end"
+                    and e.get("generation") == generation), None)
+        abort = next((e for e in later if e.get("kind") == "experiment" and e.get("action") == "abort"
+                      and (end is None or e["cycle"] <= end["cycle"])), None)
+        if signal["side"] == "input":
+            opened = next((e for e in later if e.get("kind") == "experiment" and e.get("action") == "open_loop"), None)
+            if opened is None:
+                continue
+            first, u_op = opened["cycle"], opened["u_op_v"]
+        else:
+            first, u_op = ev["cycle"], None
+        last = min(c["cycle"] for c in (end, abort, {"cycle": math.inf}) if c is not None)
+        info = {"source": str(path), "rig_hash": run.describe["rig"]["hash"], "signal": signal, "u_op_v": u_op,
+                "start_cycle": first, "aborted": abort["cause"] if abort else "", "cut": (end or {}).get("cut", "")}
+        found.append(_experiment(run, rig, signal["joint"], first, last, info))
+    return found
+
+
+def _input_signal(definition: dict, samples: int, dt: float) -> np.ndarray:
+    """The input-side signal [V] from its settings, as the planner built it, on the samples
+    from the open-loop phase's first cycle."""
+    from daemon.excite_plan import MAX_INPUT_DURATION_S, signal_of
+    settings = {k: v for k, v in definition.items() if k not in ("side", "signal", "joint", "amplitude_v")}
+    signal = signal_of(settings, definition["signal"], [0.0], 0, definition["amplitude_v"], MAX_INPUT_DURATION_S)
+    return signal.series(np.arange(samples) * dt)
+
+
+def _experiment(run: recording.Run, rig: config.RigConfig, joint: str, first: int, last: float,
+                info: dict) -> Experiment:
+    rows = [s for s in run.samples if first <= s["cycle"] < last]
+    if len(rows) < 100:
+        raise ValueError(f"{info['source']}: the {info['signal']['signal']} on {joint} has {len(rows)} samples "
+                         f"recorded: too few to analyse (was the recording started before it?)")
+    cycles = np.array([s["cycle"] for s in rows])
+    if np.any(np.diff(cycles) != 1):
+        missing = int(np.sum(np.diff(cycles) - 1))
+        raise ValueError(f"{info['source']}: {missing} cycles of the experiment are missing from the recording "
+                         f"(a subscriber too slow?): record it with the daemon's recorder (record: true)")
+    prior = prior_of(rig, joint)
+    t = np.array([s["t"] for s in rows])
+    data = {k: np.array([s["joints"][joint][k] for s in rows]) for k in ("angle_rad", "u_volts", "p_head_pa",
+                                                                           "p_rod_pa", "setpoint_rad")}
+    # the pressures are changes from those that held the joint at rest before: for an input-side
+    # experiment the operating point's V_MV through the head regulator (its first command
+    # already carries the signal, and may be slew-limited)
+    head_ref = data["p_head_pa"][0]
+    if info["u_op_v"] is not None:
+        jc = next(j for j in rig.joints if j.name == joint)
+        head_ref = ITV0051(jc.head).pressure(jc.head.bias_volts + info["u_op_v"])
+    lever = prior.L * (prior.area_head * (data["p_head_pa"] - head_ref)
+                       - prior.area_rod * (data["p_rod_pa"] - data["p_rod_pa"][0]))
+    y = np.degrees(data["angle_rad"] - data["angle_rad"][0])
+    dt = float(np.median(np.diff(t)))
+    if info["signal"]["side"] == "input":
+        r = _input_signal(info["signal"], len(rows), dt)  # the instrument of the joint input-output method [V]
+    else:
+        r = np.degrees(data["setpoint_rad"] - data["setpoint_rad"][0])  # [deg]
+    return Experiment(dt, lever, y, t - t[0], data["u_volts"], float(np.degrees(data["angle_rad"][0])),
+                      {**info, "joint": joint}, r)

@@ -1,0 +1,98 @@
+"""``pneumactl identify`` end to end, through a real wire: the simulated plant, perturbed
+without the daemon's rig file knowing it, served by pymodbus's own server in its own process;
+a real daemon reaching it over Modbus TCP; the command line running the experiments, fitting,
+writing the figures and a rig file; then the daemon run again with that file."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from importlib import resources
+
+import pytest
+
+from bench.wires import free_port, listening
+from daemon.client import Client
+from hal import config
+from hal.identified import IDENTIFIED
+from tests.daemons import tolerant_rig_text, real_daemon
+from tests.wirehelpers import start_peer, stop_peer
+
+pytestmark = pytest.mark.slow
+
+TRUTH = {"D": 0.8, "T_dly": 1.25}  # the plant's bottom joint: factors on the built-in values
+
+
+def pneumactl(eps, *args, timeout=600):
+    endpoints = sum(([f"--{k}", v] for k, v in eps.items()), [])
+    return subprocess.run([sys.executable, "-m", "daemon.ctl", *endpoints, *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def wired_rig(tmp_path, text: str):
+    """A rig file for a daemon on a wire: the stall-tolerant rig with a stale limit a
+    non-real-time process can keep over Modbus (tests/wirehelpers.py's RELAXED)."""
+    path = tmp_path / "wired.toml"
+    path.write_text(text.replace("stale_after_s = 0.005", "stale_after_s = 0.15"))
+    return path
+
+
+def start(tmp_path, rig_path, port):
+    tmp_path.mkdir(exist_ok=True)
+    daemon, eps = real_daemon(tmp_path, "--config", str(rig_path), "--transport", "modbus",
+                              "--transport-option", f"port={port}")
+    client = Client(**eps, timeout=5.0)
+    client.call("ping", timeout=60.0)
+    return daemon, eps, client
+
+
+def test_identify_over_modbus_writes_a_rig_file_and_figures_the_daemon_then_runs_with(tmp_path):
+    prior = IDENTIFIED["bottom"]
+    overrides = ", ".join(f"{k} = {getattr(prior, k) * f!r}" for k, f in TRUTH.items())
+    plant = tmp_path / "plant.toml"
+    plant.write_text(resources.files("hal").joinpath("sim_2joint.toml").read_text()
+                     + f"\n[transport.options.joints.bottom]\noverrides = {{{overrides}}}\n")
+    port = free_port()
+    peer = start_peer("sim_backend.modbus_peer", "--port", str(port), "--config", str(plant),
+                      ready=lambda: listening(port))
+    try:
+        daemon, eps, client = start(tmp_path / "first", wired_rig(tmp_path, tolerant_rig_text()), port)
+        try:
+            assert pneumactl(eps, "enable").returncode == 0
+            out = tmp_path / "identified"
+            run = pneumactl(eps, "identify", "bottom", "--quick", "--generations", "60", "--out", str(out))
+            assert run.returncode == 0, run.stderr[-3000:]
+            print(run.stderr[-4000:])
+        finally:
+            client.close()
+            daemon.terminate()
+            daemon.wait(10)
+        report = json.loads((out / "report.json").read_text())
+        assert [e["signal"] for e in report["experiments"]] == ["prbs", "chirp", "multisine"]
+        assert all(e["side"] == "input" for e in report["experiments"])
+        assert report["heldout_fit_percent"][0] >= 85.0
+        for name, factor in TRUTH.items():  # the plant, which nothing told it
+            assert report["params"][name] == pytest.approx(getattr(prior, name) * factor, rel=0.1), name
+        for figure in report["figures"]:
+            assert (tmp_path / "identified" / figure.rsplit("/", 1)[-1]).stat().st_size > 20_000
+        written = config.load(out / "rig.toml")
+        bottom = written.joints[0]
+        assert bottom.model == "bottom-identified"
+        assert written.joint_params(bottom).D == pytest.approx(report["params"]["D"])
+
+        daemon, eps, client = start(tmp_path / "second", wired_rig(tmp_path, (out / "rig.toml").read_text()), port)
+        try:
+            assert "[models.bottom-identified]" in client.describe()["rig"]["source"]
+            assert pneumactl(eps, "enable").returncode == 0
+            assert pneumactl(eps, "set", "120", "-90", "--duration", "4", "--wait").returncode == 0
+            time.sleep(1.0)
+            status = client.status()
+            assert status["state"] == "enabled"
+            assert abs(status["joints"]["bottom"]["angle_deg"] - 120.0) < 1.0
+        finally:
+            client.close()
+            daemon.terminate()
+            daemon.wait(10)
+    finally:
+        stop_peer(peer)
