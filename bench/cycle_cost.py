@@ -16,6 +16,8 @@ import time
 
 from bench.common import header
 from controllers.base import JointState, Reference
+from controllers.experiment import InputExperiment
+from controllers.signals import Multisine
 from daemon.clock import VirtualClock
 from daemon.main import build_loop, parser
 from daemon.server import ZmqServer
@@ -63,6 +65,15 @@ def main() -> None:
         for name, fn in parts.items():
             per_call_us(fn, n // 10)  # warm
             print(f"{name:45s} {per_call_us(fn, n):6.2f} us")
+        # an open-loop experiment in progress: the largest signal excite allows (a 32-sine
+        # multisine) and the centring PI, instead of the reference's sample alone
+        signal = Multisine([0.0], 0, 0.3, 0.05, 20.0, Multisine.MAX_COMPONENTS, 600.0)
+        loop.set_trajectory(InputExperiment(list(loop.reference[0]), 0, signal, 0.01, (-10.0, 10.0), {}, (0.5, 0.1)),
+                            "multisine-input")
+        loop.run(50)  # past its settling
+        control = lambda: loop._control(clock.t)  # noqa: E731
+        per_call_us(control, n // 10)
+        print(f"{'  control: + input multisine (32 sines)':45s} {per_call_us(control, n):6.2f} us")
         gc.enable()
     finally:
         server.close()

@@ -29,9 +29,10 @@ from pathlib import Path
 from bench import scenarios
 from controllers.identification.simulate import FITTED
 from daemon import identify, mcap_log
+from daemon.client import RemoteError
 from hal.identified import IDENTIFIED, JointParams
 
-CONTROLLER = "smc_dob"  # model-based: its design and its observer use the nominal model
+CONTROLLERS = ("smc", "smc_dob")  # model-based: SMC's design (and the DOB's observer) use the nominal model
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,7 @@ def rig_text(case: Case) -> str:
 
 def record(case: Case, plan: identify.Plan, path: Path) -> None:
     """The three open-loop experiments through the real loop (virtual clock), recorded as MCAP."""
-    from tests.loophelpers import dealer, make_loop, ok, run_seconds  # the in-process daemon
+    from tests.loophelpers import call, dealer, make_loop, ok, run_seconds  # the in-process daemon
     loop, captured, srv = make_loop(rig_text(case), server=True)
     try:
         sock = dealer(srv)
@@ -97,9 +98,10 @@ def record(case: Case, plan: identify.Plan, path: Path) -> None:
         for signal, settings in (("prbs", plan.prbs), ("chirp", plan.chirp), ("multisine", plan.multisine)):
             ok(loop, sock, "lease.renew", lease=lease)  # the clock is virtual: the lease counts its seconds
             u_op = identify.holding_volts(rig, case.joint, math.degrees(loop.reference[0][j]))
-            volts = identify.default_amplitude(prior, u_op, u_range)
-            reply = ok(loop, sock, "excite", {"side": "input", "signal": signal, "joint": case.joint,
-                                              "amplitude_v": volts, "settle_s": plan.settle_s, **settings}, lease)
+            args = {"side": "input", "signal": signal, "joint": case.joint, "settle_s": plan.settle_s, **settings}
+            reply = identify.excite_fitting(lambda v: _result(call(loop, sock, "excite", {**args, "amplitude_v": v},
+                                                                   lease)),
+                                            signal, identify.default_amplitude(prior, u_op, u_range), fixed=False)
             run_seconds(loop, reply["duration_s"] + 0.05)
             _rest(loop, j, run_seconds)
         with open(path, "wb") as f:
@@ -109,6 +111,14 @@ def record(case: Case, plan: identify.Plan, path: Path) -> None:
             rec.finish()
     finally:
         srv.close()
+
+
+def _result(reply: dict) -> dict:
+    """A reply's result, or its error raised as the client would."""
+    if reply["ok"]:
+        return reply["result"]
+    error = reply["error"]
+    raise RemoteError(error["code"], error["message"], error.get("data"))
 
 
 def _rest(loop, j: int, run_seconds, timeout_s: float = 30.0) -> None:
@@ -123,11 +133,11 @@ def _rest(loop, j: int, run_seconds, timeout_s: float = 30.0) -> None:
             return
 
 
-def tracking(case: Case, rig_path: str | None) -> float:
-    """RMS joint error [deg] of CONTROLLER on the translation path, on the perturbed plant,
+def tracking(case: Case, rig_path: str | None, controller: str) -> float:
+    """RMS joint error [deg] of ``controller`` on the translation path, on the perturbed plant,
     designed on the rig file's model (None: the built-in, stale one)."""
     pinned = {case.joint: {"model": case.joint, "overrides": {k: getattr(truth(case), k) for k in case.factors}}}
-    loop = scenarios.make_loop(CONTROLLER, rig=rig_path or "sim", options=scenarios.example_options(CONTROLLER),
+    loop = scenarios.make_loop(controller, rig=rig_path or "sim", options=scenarios.example_options(controller),
                                plant={"joints": pinned}, replace=scenarios.NO_TRACKING_RULE)
     path = scenarios.make_path(loop, "translation", 20.0)
     result = scenarios.run_path(loop, path)
@@ -144,7 +154,8 @@ def run_case(case: Case, plan: identify.Plan, generations: int, out: Path) -> di
     prior = IDENTIFIED[case.joint]
     want, got = comparable(truth(case), prior), comparable(JointParams(**{**vars(prior), **report["params"]}), prior)
     errors = {k: got[k] / want[k] - 1.0 for k in want}
-    stale, rebuilt = tracking(case, None), tracking(case, report["rig_file"])
+    stale = {c: tracking(case, None, c) for c in CONTROLLERS}
+    rebuilt = {c: tracking(case, report["rig_file"], c) for c in CONTROLLERS}
     return {"case": case, "want": want, "got": got, "errors": errors, "fit": report["fit_percent"],
             "heldout": report["heldout_fit_percent"][0], "fit_s": report["wall_s"],
             "generations": report["generations"], "recorded_s": recorded_s, "stale_rms": stale,
@@ -152,10 +163,11 @@ def run_case(case: Case, plan: identify.Plan, generations: int, out: Path) -> di
 
 
 def table(rows: list[dict]) -> str:
-    keys = ("gain", "D", "K", "T_ep", "T_dly", "Fs", "Fc", "J", "vs")
+    keys = ("gain", "D", "K", "T_ep", "T_dly", "Fs", "Fc")
     head = ("| case | perturbed (x built-in) | " + " | ".join(f"{k} err" for k in keys)
-            + " | held-out Fit | fit time | stale -> rebuilt RMS |")
-    lines = [head, "|" + "---|" * (len(keys) + 5)]
+            + " | Fit fitted / held out | fit time | " + " | ".join(f"{c} RMS stale -> rebuilt" for c in CONTROLLERS)
+            + " |")
+    lines = [head, "|" + "---|" * (len(keys) + 4 + len(CONTROLLERS))]
     for r in rows:
         def cell(k):
             e = r["errors"][k] * 100
@@ -163,8 +175,9 @@ def table(rows: list[dict]) -> str:
             return f"{e:+.1f} %{mark}"
         perturbed = ", ".join(f"{k} {v:g}" for k, v in r["case"].factors.items()) or "none (the seed's values)"
         lines.append(f"| {r['case'].name} | {perturbed} | " + " | ".join(cell(k) for k in keys)
-                     + f" | {r['heldout']:.1f} % | {r['fit_s']:.0f} s ({r['generations']} gen.) | "
-                     f"{r['stale_rms']:.2f} -> {r['rebuilt_rms']:.2f} deg |")
+                     + f" | {' / '.join(f'{v:.1f}' for v in r['fit'])} / {r['heldout']:.1f} % | "
+                     f"{r['fit_s']:.0f} s ({r['generations']} gen.) | "
+                     + " | ".join(f"{r['stale_rms'][c]:.2f} -> {r['rebuilt_rms'][c]:.2f} deg" for c in CONTROLLERS) + " |")
     return "\n".join(lines)
 
 

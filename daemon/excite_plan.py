@@ -125,7 +125,7 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
             raise CommandFailed(P.REFUSED, f"joint {joint} needs about {centre:+.2f} V of V_MV to hold "
                                            f"{math.degrees(q):.1f} deg; +- {peak:.2f} V of signal leaves the V_MV range "
                                            f"{u_lo:+.2f}..{u_hi:+.2f} V: lower amplitude_v",
-                                {"reason": "authority", "argument": "amplitude_v", "joint": joint,
+                                {"reason": "input_range", "argument": "amplitude_v", "joint": joint,
                                  "u_op_v": centre, "peak_v": peak, "range_v": [u_lo, u_hi]})
     excursion = None
     if model is not None:

@@ -136,28 +136,32 @@ def _move(client: Client, target: list[float], here: list[float]) -> dict:
 
 
 def _excite(client, joint, j, describe, prior, signal, settings, settle_s, amplitude, band_deg, u_op) -> dict:
-    """Start one experiment; an amplitude the daemon finds too large is scaled to what it
-    says would fit and tried again (at most three times)."""
+    """Start one experiment (the daemon records it too)."""
     u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
-    volts = amplitude
+    args = {**settings, "settle_s": settle_s, "band_deg": band_deg}
+    return excite_fitting(lambda volts: client.excite_input(signal, joint, volts, record=True, **args), signal,
+                          amplitude if amplitude is not None else default_amplitude(prior, u_op, u_range),
+                          fixed=amplitude is not None)
+
+
+def excite_fitting(send, signal: str, volts: float, fixed: bool) -> dict:
+    """``send(volts)``'s reply; an amplitude the daemon finds too large (``input_range``,
+    ``excursion``) is scaled to what its numbers say would fit and tried again, at most three
+    times, unless the user ``fixed`` it."""
     for _ in range(4):
-        args = {**settings, "settle_s": settle_s, "band_deg": band_deg}
-        if volts is None:
-            volts = default_amplitude(prior, u_op, u_range)
         try:
-            return client.excite_input(signal, joint, volts, record=True, **args)
+            return send(volts)
         except RemoteError as exc:
             data = exc.data or {}
-            if exc.code != P.REFUSED or amplitude is not None or data.get("reason") not in ("authority", "excursion"):
+            if exc.code != P.REFUSED or fixed or data.get("reason") not in ("input_range", "excursion"):
                 raise
-            if data["reason"] == "authority":
+            if data["reason"] == "input_range":
                 lo, hi = data["range_v"]
-                room = 0.9 * min(data["u_op_v"] - lo, hi - data["u_op_v"])
-                volts = volts * room / data["peak_v"]
+                volts *= 0.9 * min(data["u_op_v"] - lo, hi - data["u_op_v"]) / data["peak_v"]
             else:
                 volts *= 0.8 * data["band_deg"] / data["predicted_deg"]
             print(f"{signal}: {exc.message}; trying {volts:.2f} V", file=sys.stderr)
-    raise SystemExit(f"no amplitude for the {signal} on {joint} fits the rig here: choose one with --amplitude")
+    raise SystemExit(f"no amplitude for the {signal} fits the rig here: choose one with --amplitude")
 
 
 def _wait(client: Client, seconds: float, what: str) -> None:

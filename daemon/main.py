@@ -58,7 +58,33 @@ def controller_plugins(items: list[str]) -> dict[str, str]:
     return plugins
 
 
+def check_config(args) -> int:
+    """``pneumad --check``: the rig file read and validated, the starting controller built on
+    it (with the joints' models), a summary printed; nothing opened, nothing moved."""
+    rig = load_rig(args)
+    from controllers import registry
+    from controllers.base import ControllerContext
+    from hal.actuation import BiasedHeadActuation
+    from hal.regulator import ITV0051
+    actuation = BiasedHeadActuation([ITV0051(j.head) for j in rig.joints], [ITV0051(j.rod) for j in rig.joints])
+    context = ControllerContext.for_rig(rig, actuation, args.period)
+    try:
+        registry.build(args.controller, context, plugins=controller_plugins(args.controller_plugin))
+    except (LookupError, ValueError) as exc:
+        raise ConfigError(f"--controller: {exc}") from None
+    print(f"{rig.origin}: rig {rig.rig.name!r} ({rig.hash[:12]}), transport {rig.transport.backend}, "
+          f"controller {args.controller}")
+    for j in rig.joints:
+        params = rig.joint_params(j)
+        print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, model "
+              + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
+                 if params is not None else "none"))
+    return 0
+
+
 def cmd_run(args) -> int:
+    if args.check:
+        return check_config(args)
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
     # Before the real-time set-up: the messenger process keeps normal priority and every CPU.
@@ -197,6 +223,8 @@ def parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run the daemon (the default)")
     common(run)
     timing(run)
+    run.add_argument("--check", action="store_true",
+                     help="read and validate the rig file, build the controller on it, print a summary, and exit")
     run.add_argument("--command", default=DEFAULT_COMMAND, help=f"command endpoint (default {DEFAULT_COMMAND})")
     run.add_argument("--control", default=DEFAULT_CONTROL, help=f"control endpoint (default {DEFAULT_CONTROL})")
     run.add_argument("--telemetry", default=DEFAULT_TELEMETRY, help=f"telemetry endpoint (default {DEFAULT_TELEMETRY})")

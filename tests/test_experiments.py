@@ -10,6 +10,7 @@ from importlib import resources
 
 from daemon import protocol as P
 from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+from tests.schemas import schema
 
 BUILTIN = resources.files("hal").joinpath("sim_2joint.toml").read_text()
 
@@ -44,6 +45,8 @@ def test_an_input_prbs_drives_the_joint_open_loop_and_feedback_takes_it_back_aft
         reference = [e for e in events(captured, "reference") if e["action"] == "start"][-1]
         assert reference["signal"]["side"] == "input" and reference["signal"]["amplitude_v"] == 1.0
         assert reference["signal"]["operating_point_deg"] == pytest.approx(here)
+        for event in events(captured, "experiment") + [reference]:
+            schema("telemetry", "event").validate(event)
         rows = [(c, u, q) for m in captured.of("state")
                 for c, u, q in zip(m["cycle"], m["u_volts"], m["angle_rad"]) if start + 1100 < c < start + 7200]
         levels = {round(u[0] - u_op, 9) for _, u, _ in rows}
@@ -82,7 +85,7 @@ def test_a_joint_that_leaves_its_band_is_stopped_and_held_where_it_is():
 
 
 @pytest.mark.parametrize("args, reason", [
-    ({"signal": "prbs", "amplitude_v": 6.0, "order": 6, "bit_s": 0.1}, "authority"),
+    ({"signal": "prbs", "amplitude_v": 6.0, "order": 6, "bit_s": 0.1}, "input_range"),
     ({"signal": "steps", "amplitude_v": 2.0, "levels": [1.0], "hold_s": 30.0}, "excursion"),
     ({"signal": "chirp", "amplitude_v": 0.5, "band_deg": 45.0}, "limits"),
 ])
@@ -93,6 +96,7 @@ def test_an_input_experiment_that_cannot_run_safely_is_refused_with_the_numbers(
         assert not reply["ok"] and reply["error"]["code"] == P.REFUSED, reply
         assert reply["error"]["data"]["reason"] == reason and reply["error"]["data"]["argument"] in (
             "amplitude_v", "band_deg")
+        schema("error-data").validate(reply["error"]["data"])
         assert loop.trajectory_name == "hold" and loop.open_loop is None
     finally:
         srv.close()

@@ -6,6 +6,7 @@ bin directory), in the repository, and must exit 0. Before a motion line the tes
 the reference in force to end, as a user would (a motion command while another runs is
 refused by design); ``watch`` is left with Ctrl-C after a moment.
 """
+import json
 import os
 import re
 import shutil
@@ -142,3 +143,31 @@ def test_the_readme_keys_example_runs_as_written(tmp_path):
     finally:
         daemon.terminate()
         daemon.wait(10)
+
+
+def test_the_readme_identify_section_runs_as_written(tmp_path):
+    """The "Identifying a joint" lines, in a fresh directory, against a real daemon on the
+    built-in rig: the experiments, the fit, the figures and the rig file, which the daemon
+    then takes."""
+    section = (ROOT / "README.md").read_text().split("## Identifying a joint", 1)[1].split("\n## ", 1)[0]
+    lines = [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
+             for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
+    assert [line.split()[1] for line in lines] == ["enable", "identify", "--no-rt"]
+    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config",
+                               str(tolerant_rig(tmp_path)), "--record-dir", str(tmp_path / "recordings")], cwd=tmp_path)
+    try:
+        with Client(timeout=5.0) as client:
+            wait_for_daemon(client, daemon)
+            for line in lines[:2]:
+                done = subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+                assert done.returncode == 0, (line, done.stderr[-3000:])
+            assert client.status()["trips"] == 0
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        daemon.wait(timeout=10)
+    out = tmp_path / "identified"
+    assert {p.name for p in out.iterdir()} >= {"rig.toml", "report.json", "experiments.mcap", "bode-bottom.png",
+                                               "time-bottom.png"}
+    assert json.loads((out / "report.json").read_text())["heldout_fit_percent"][0] > 80.0
+    done = subprocess.run(["bash", "-c", lines[2]], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "model 'bottom-identified'" in done.stdout, done.stderr
