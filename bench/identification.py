@@ -76,7 +76,7 @@ def rig_text(case: Case) -> str:
 
 
 def record(case: Case, plan: identify.Plan, path: Path) -> None:
-    """The three open-loop experiments through the real loop (virtual clock), recorded as MCAP."""
+    """The open-loop experiments through the real loop (virtual clock), recorded as MCAP."""
     from tests.loophelpers import call, dealer, make_loop, ok, run_seconds  # the in-process daemon
     loop, captured, srv = make_loop(rig_text(case), server=True)
     try:
@@ -95,7 +95,7 @@ def record(case: Case, plan: identify.Plan, path: Path) -> None:
         run_seconds(loop, reply["duration_s"])
         _rest(loop, j, run_seconds)
         u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
-        for signal, settings in (("prbs", plan.prbs), ("chirp", plan.chirp), ("multisine", plan.multisine)):
+        for signal, settings in plan.experiments:
             ok(loop, sock, "lease.renew", lease=lease)  # the clock is virtual: the lease counts its seconds
             u_op = identify.holding_volts(rig, case.joint, math.degrees(loop.reference[0][j]))
             args = {"side": "input", "signal": signal, "joint": case.joint, "settle_s": plan.settle_s, **settings}

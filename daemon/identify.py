@@ -3,7 +3,8 @@
 
 The experiments are open loop on the joint's V_MV about its present set-point (the other
 joints held by feedback): an M-sequence (PRBS) and the thesis's 0.1-1 Hz log chirp, which the
-fit uses, then a multisine it does not see (held out: the Fit % that judges the model). The
+fit uses, then a second M-sequence of other bits it does not see (held out: the Fit % that
+judges the model). The
 telemetry is recorded here, as MCAP (and by the daemon too, ``record: true``); the fit runs
 here, in the client's process, never in the daemon's. ``--from FILE`` analyses a recording
 made earlier instead.
@@ -37,20 +38,21 @@ REST_DEG, REST_SPREAD_DEG, REST_S = 0.5, 0.2, 0.5  # at rest: within [deg] of th
 
 @dataclass(frozen=True)
 class Plan:
-    """The three experiments' settings (``quick``: about half as long, for a first look)."""
+    """The experiments, in order, as (signal, settings): the last is held out of the fit
+    (``quick``: about half as long, for a first look)."""
 
-    prbs: dict
-    chirp: dict
-    multisine: dict
+    experiments: tuple[tuple[str, dict], ...]
     settle_s: float = 2.0
 
     @classmethod
     def of(cls, quick: bool) -> "Plan":
         if quick:
-            return cls({"order": 7, "bit_s": 0.1}, {"f0_hz": 0.1, "f1_hz": 1.0, "duration_s": 15.0},
-                       {"f0_hz": 0.1, "f1_hz": 2.0, "components": 12, "period_s": 10.0, "periods": 2})
-        return cls({"order": 8, "bit_s": 0.1}, {"f0_hz": 0.1, "f1_hz": 1.0, "duration_s": 30.0},
-                   {"f0_hz": 0.05, "f1_hz": 2.0, "components": 16, "period_s": 20.0, "periods": 2})
+            return cls((("prbs", {"order": 7, "bit_s": 0.1}),
+                        ("chirp", {"f0_hz": 0.1, "f1_hz": 1.0, "duration_s": 15.0}),
+                        ("prbs", {"order": 6, "bit_s": 0.2})))
+        return cls((("prbs", {"order": 8, "bit_s": 0.1}),
+                    ("chirp", {"f0_hz": 0.1, "f1_hz": 1.0, "duration_s": 30.0}),
+                    ("prbs", {"order": 7, "bit_s": 0.17})))
 
 
 def default_amplitude(params, u_op: float, u_range: tuple[float, float]) -> float:
@@ -68,8 +70,8 @@ def holding_volts(rig, joint: str, setpoint_deg: float) -> float:
 
 
 def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitude: float | None,
-                    at_deg: list[float] | None, band_deg: float) -> list[dict]:
-    """Run the three experiments on ``joint`` while recording to ``path``; their replies."""
+                    at_deg: list[float] | None, band_deg: float) -> None:
+    """Run the plan's experiments on ``joint`` while recording to ``path``."""
     describe = client.describe()
     rig = config.parse(describe["rig"]["source"], "<daemon>")
     names = [j["name"] for j in describe["joints"]]
@@ -93,18 +95,16 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
             reply = _move(client, target, here)
             _wait(client, reply.get("duration_s", 0.0), "the move to the operating point")
             _wait_for_rest(client, joint)
-        replies = []
-        for signal, settings in (("prbs", plan.prbs), ("chirp", plan.chirp), ("multisine", plan.multisine)):
+        for signal, settings in plan.experiments:
             u_op = holding_volts(rig, joint, client.status()["joints"][joint]["setpoint_deg"])
-            replies.append(_excite(client, joint, j, describe, prior, signal, settings, plan.settle_s,
-                                   amplitude, band_deg, u_op))
-            _wait(client, replies[-1]["duration_s"], f"{signal} on {joint}")
+            reply = _excite(client, joint, j, describe, prior, signal, settings, plan.settle_s, amplitude, band_deg,
+                            u_op)
+            _wait(client, reply["duration_s"], f"{signal} on {joint}")
             _wait_for_rest(client, joint)  # each experiment starts at rest: the fit assumes it
     finally:
         stop.set()
         recorder.join(5.0)
         client.release_lease()
-    return replies
 
 
 def operating_point(rig, j: int, angles_deg: list[float], band_deg: float) -> list[float]:
@@ -205,12 +205,12 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
     result = fit_joint(estimation, prior, held_out, population=population, generations=generations, seed=seed,
                        progress=_fit_progress(generations))
     out.mkdir(parents=True, exist_ok=True)
-    responses = [(f"{e.info['signal']['signal']}", frf.estimate(e, period_s=frf.period_of(e.info["signal"])))
-                 for e in found]
+    labels = [f"{e.info['signal']['signal']} ({'held out' if i == len(found) - 1 else 'fitted'})"
+              for i, e in enumerate(found)]
+    responses = [(label, frf.estimate(e, period_s=frf.period_of(e.info["signal"]))) for label, e in zip(labels, found)]
     bode = plots.bode(out / f"bode-{joint}.png", joint, responses,
                       [(f"identified (held-out Fit {result.heldout_fit_percent[0]:.1f} %)", result.params),
                        ("prior (rig file)", prior)], THESIS_BAND_HZ)
-    labels = [f"{e.info['signal']['signal']} ({'held out' if i == len(found) - 1 else 'fitted'})" for i, e in enumerate(found)]
     overlay = plots.time_overlay(out / f"time-{joint}.png", joint, list(zip(labels, found))[::-1],
                                  [("identified", result.params), ("prior", prior)], result.settings["step_s"])
     name = f"{joint}-identified"

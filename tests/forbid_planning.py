@@ -6,7 +6,7 @@ structural proof, used by tests/test_every_command.py, with no timing in it."""
 import sys
 
 from controllers import feasibility, lti_design, profile, registry, signals, trajectory  # noqa: F401 (signals: subclasses)
-from daemon import main, planner
+from daemon import excite_plan, main, planner
 from hal import kinematics
 
 
@@ -24,6 +24,10 @@ def forbid() -> None:
     for cls in (trajectory.Trajectory, *_subclasses(trajectory.Trajectory)):
         if "profile" in vars(cls):
             setattr(cls, "profile", forbidden)
+    for cls in _subclasses(signals.Excitation):
+        if "series" in vars(cls):  # a signal's whole run: planning and analysis, never a cycle
+            setattr(cls, "series", forbidden)
+    excite_plan.signal_of = excite_plan.predicted_excursion = excite_plan.plan_excite = forbidden
     for name in ("check", "shortest", "shortfalls"):
         setattr(feasibility.Authority, name, forbidden)
     profile.first_outside_limits = planner.first_outside_limits = forbidden

@@ -21,7 +21,6 @@ standard deviation reads as a relative one.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -52,13 +51,6 @@ class Experiment:
     start_deg: float
     info: dict = field(default_factory=dict)
     r: np.ndarray | None = None  # the joint's reference, deviation from the start [deg] (closed loop)
-
-    def segment(self, start_s: float, end_s: float) -> "Experiment":
-        """The part between two times from its start, re-zeroed (it must start at rest to fit)."""
-        i, j = int(start_s / self.dt), int(end_s / self.dt)
-        return dataclasses.replace(self, lever=self.lever[i:j] - self.lever[i], y=self.y[i:j] - self.y[i],
-                                   t=self.t[i:j] - self.t[i], u=self.u[i:j], start_deg=self.start_deg + self.y[i],
-                                   r=None if self.r is None else self.r[i:j] - self.r[i])
 
 
 @dataclass

@@ -61,27 +61,25 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
     p11, p12, p21, p22 = e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1]
     g1, g2 = e[:, 0, 2], e[:, 1, 2]  # response of (y, w) to one N m held over the step
     th, w = np.zeros(members), np.zeros(members)
-    out = np.empty((members, steps))
-    inv_vs = 1.0 / vs
-    tau_all = torque + c[:, None]
+    out = np.empty((steps, members))
+    slope = Fs - Fc
+    sharp = beta / vs
+    inv_vs, inv_g2 = 1.0 / vs, 1.0 / g2
+    tau_all = np.ascontiguousarray((torque + c[:, None]).T)  # a row a step
     for k in range(steps):
-        tau = tau_all[:, k]
+        tau = tau_all[k]
         th_lin = p11 * th + p12 * w + g1 * tau
         w_lin = p21 * th + p22 * w + g2 * tau
-        moving = w != 0.0
-        speed = np.abs(w) * inv_vs
-        f_slip = (Fc + (Fs - Fc) * np.exp(-speed ** alpha)) * np.tanh(beta * w * inv_vs)
-        w_try = w_lin - g2 * f_slip
-        slipping = moving & (w_try * w > 0.0)
-        hold = w_lin / g2
+        f_slip = (Fc + slope * np.exp(-np.power(np.abs(w) * inv_vs, alpha))) * np.tanh(sharp * w)
+        slipping = (w_lin - g2 * f_slip) * w > 0.0  # moving on, the same way
+        hold = w_lin * inv_g2  # the torque that would stop it this step
         sticks = ~slipping & (np.abs(hold) <= Fs)
         f = np.where(slipping, f_slip, np.where(sticks, hold, np.copysign(Fs, hold)))
-        new_th = th_lin - g1 * f
-        new_th = np.where(sticks & ~moving, th, new_th)  # stuck all step: not a hair of motion
+        new_th = np.where(sticks & (w == 0.0), th, th_lin - g1 * f)  # stuck all step: not a hair of motion
         w = np.where(sticks, 0.0, w_lin - g2 * f)
         th = new_th
-        out[:, k] = th
-    return out
+        out[k] = th
+    return out.T
 
 
 def simulate(params: np.ndarray, lever: np.ndarray, dt: float, step: float, alpha: float,
