@@ -61,7 +61,7 @@ def test_identify_over_modbus_writes_a_rig_file_and_figures_the_daemon_then_runs
         try:
             assert pneumactl(eps, "enable").returncode == 0
             out = tmp_path / "identified"
-            run = pneumactl(eps, "identify", "bottom", "--quick", "--generations", "60", "--out", str(out))
+            run = pneumactl(eps, "identify", "bottom", "--quick", "--generations", "200", "--out", str(out))
             assert run.returncode == 0, run.stderr[-3000:]
             print(run.stderr[-4000:])
         finally:
