@@ -243,14 +243,22 @@ def _fit_progress(generations: int):
     return show
 
 
+def _uncertainty(name: str, value: float) -> str:
+    """A fit's uncertainty figure in the terms of its search coordinate."""
+    if name in HELD:
+        return ""
+    return f"{value * 1e3:.1f} ms" if name == "T_dly" else f"{value:.3f} Fs" if name == "Fc" else f"{value * 100:.1f} %"
+
+
 def _print_table(report: dict) -> None:
-    print(f"{'parameter':>9} {'prior':>11} {'identified':>11} {'1 sigma':>8}  unit", file=sys.stderr)
+    """The parameters against the prior, with the Jacobian's 1 sigma (the noise's share) and
+    the final population's spread (how far apart fits the data rates alike are)."""
+    print(f"{'parameter':>9} {'prior':>11} {'identified':>11} {'1 sigma':>8} {'spread':>8}  unit", file=sys.stderr)
     for n in FITTED:
-        std = report["relative_std"].get(n if n != "Fc" else "Fc_ratio", float("nan"))
-        sigma = ("" if n in HELD else f"{std * 1e3:.1f} ms" if n == "T_dly" else
-                 f"{std:.3f} Fs" if n == "Fc" else f"{std * 100:.1f} %")
-        print(f"{n:>9} {report['prior'][n]:11.4g} {report['params'][n]:11.4g} {sigma:>8}  {report['units'][n]}"
-              + (f"  (held: {HELD[n]})" if n in HELD else ""), file=sys.stderr)
+        key = n if n != "Fc" else "Fc_ratio"
+        figures = [_uncertainty(n, report[kind].get(key, float("nan"))) for kind in ("relative_std", "population_std")]
+        print(f"{n:>9} {report['prior'][n]:11.4g} {report['params'][n]:11.4g} {figures[0]:>8} {figures[1]:>8}  "
+              f"{report['units'][n]}" + (f"  (held: {HELD[n]})" if n in HELD else ""), file=sys.stderr)
     print(f"Fit [2-49]: {', '.join(f'{v:.1f} %' for v in report['fit_percent'])} fitted, "
           f"{', '.join(f'{v:.1f} %' for v in report['heldout_fit_percent'])} held out; "
           f"{report['generations']} generations in {report['wall_s']:.1f} s", file=sys.stderr)

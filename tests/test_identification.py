@@ -70,6 +70,9 @@ def test_the_fit_recovers_the_simulated_plant_within_the_tolerances(joint, facto
     assert abs(error("Fs")) < 0.15
     assert result.heldout_fit_percent[0] >= 90.0
     assert result.relative_std["D"] < 0.05  # and it knows it is sure of it
+    for name, miss in (("D", error("D")), ("Fs", error("Fs")), ("T_dly", result.params.T_dly - truth.T_dly)):
+        stated = max(result.relative_std[name], result.population_std[name])  # relative; T_dly in s
+        assert abs(miss) <= 3.0 * stated, name  # the uncertainty it states covers what it got wrong
 
 
 def closed_loop(noise: float, seed: int = 0):

@@ -17,7 +17,8 @@ shape parameters alpha and beta, which trade off against Fs.
 
 Confidence: the polish (``scipy.optimize.least_squares``) gives the Jacobian at the optimum;
 the parameters' covariance is s^2 (J^T J)^-1 in the search coordinates, so a log parameter's
-standard deviation reads as a relative one.
+standard deviation reads as a relative one. That is the noise's share at one optimum; the
+final population's spread says how far apart the fits are that the data rates as good as it.
 """
 from __future__ import annotations
 
@@ -60,6 +61,7 @@ class FitResult:
     fit_percent: list[float]  # [2-49] on each estimation experiment
     heldout_fit_percent: list[float]  # [2-49] on each validation experiment
     relative_std: dict[str, float]  # 1 sigma per fitted parameter: relative (T_dly [s], Fc_ratio: absolute); nan: not determined
+    population_std: dict[str, float]  # the final DE population's spread, in the same terms (:func:`_population_std`)
     wall_s: float
     generations: int
     evaluations: int
@@ -68,7 +70,7 @@ class FitResult:
     def summary(self) -> dict:
         return {"params": {n: getattr(self.params, n) for n in FITTED}, "c_nm": list(self.c),
                 "fit_percent": self.fit_percent, "heldout_fit_percent": self.heldout_fit_percent,
-                "relative_std": self.relative_std, "wall_s": self.wall_s, "generations": self.generations,
+                "relative_std": self.relative_std, "population_std": self.population_std, "wall_s": self.wall_s, "generations": self.generations,
                 "evaluations": self.evaluations, "settings": self.settings}
 
 
@@ -168,6 +170,7 @@ def fit_joint(estimation: list[Experiment], prior: JointParams, validation: list
                       zip(problem.targets, np.split(problem.residuals(best), np.cumsum([len(t) for t in problem.targets])[:-1]))]
     heldout = [heldout_fit(params, v, step) for v in validation]
     return FitResult(params, c, estimation_fit, heldout, _relative_std(polished, problem.bounds),
+                     _population_std(found),
                      time.perf_counter() - started, state["generation"], int(found.nfev + polished.nfev),
                      {"population": population, "generations": generations, "step_s": step, "tol": tol,
                       "seed": seed, "search": list(SEARCH[:-1]), "experiments": len(problem.data)})
@@ -199,6 +202,15 @@ def heldout_fit(params: JointParams, data: Experiment, step: float) -> float:
     target = data.y[m::m]
     y_hat = predict(params, data, step, best_c(params, data, step))[:len(target)]
     return fit_percent(target[:len(y_hat)], y_hat)
+
+
+def _population_std(found) -> dict[str, float]:
+    """The spread (standard deviation) of each parameter over differential evolution's final
+    population, relative for log parameters: fits the data can barely tell apart (the lag
+    T_ep against the dead time T_dly, along which the friction makes the cost rugged, so the
+    Jacobian's figure alone is too small), and large when the search stopped unconverged."""
+    spread = np.std(found.population, axis=0)
+    return {name: float(spread[i]) for i, name in enumerate(SEARCH[:-1])}
 
 
 def _relative_std(polished, bounds: np.ndarray) -> dict[str, float]:
