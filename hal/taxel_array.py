@@ -1,0 +1,88 @@
+"""The array pressure sensor (rig-facts §3): a 16 x 16 taxel pad, 40 x 40 mm, 0-1025 kPa,
+read through a multiplexed 16-bit A/D as one frame of volts per scan.
+
+A frame of volts becomes a frame of pressures [Pa] by each taxel's own linear calibration,
+``p = gain_pa_per_v[i] * (V - offset_v[i])``; dead taxels (a broken trace reads a constant)
+are masked as NaN, so an estimator knows the value is missing rather than zero. A frame is
+implausible when a live taxel reads more than ``margin`` of full scale outside 0..full scale
+(a saturated or disconnected multiplexer), or when it has the wrong size: :meth:`pressures`
+raises :class:`ValueError` saying which, so a stream of such frames cannot pass as contact.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+TAXELS = 16  # per side
+PAD_M = 0.040  # side of the pad [m]
+FULL_SCALE_PA = 1.025e6
+ACCURACY_PA = 0.005 * FULL_SCALE_PA  # +-0.5 % FS (rig-facts §3)
+SENSING_SIDE_M = 1.9e-6 ** 0.5  # each taxel senses about 1.9 mm^2: a square of 1.38 mm
+
+
+def sensing_offsets_m(n: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """dx, dy [m] of n x n points spread over a taxel's sensing square, whose mean pressure
+    the taxel reports: how the simulator reads a contact and the estimator models it."""
+    offsets = (np.arange(n) - (n - 1) / 2) * SENSING_SIDE_M / n
+    dx, dy = np.meshgrid(offsets, offsets)
+    return dx.ravel(), dy.ravel()
+
+
+@dataclass(frozen=True)
+class TaxelCalibration:
+    """Per-taxel calibration, row-major (row = y, column = x); ``dead``: (row, column) pairs."""
+
+    offset_v: np.ndarray = field(default_factory=lambda: np.zeros((TAXELS, TAXELS)))
+    gain_pa_per_v: np.ndarray = field(default_factory=lambda: np.full((TAXELS, TAXELS), FULL_SCALE_PA / 10.0))
+    dead: tuple[tuple[int, int], ...] = ()
+    margin: float = 0.05  # of full scale, outside 0..FS before a frame is implausible
+
+    def __post_init__(self):
+        for name in ("offset_v", "gain_pa_per_v"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (TAXELS, TAXELS) or not np.all(np.isfinite(value)):
+                raise ValueError(f"taxel calibration: {name} must be {TAXELS} x {TAXELS} finite numbers")
+            object.__setattr__(self, name, value)
+        if np.any(self.gain_pa_per_v == 0):
+            raise ValueError("taxel calibration: gain_pa_per_v must not be zero")
+        for row, col in self.dead:
+            if not (0 <= row < TAXELS and 0 <= col < TAXELS):
+                raise ValueError(f"taxel calibration: dead taxel ({row}, {col}) is outside the {TAXELS} x {TAXELS} pad")
+
+
+def taxel_centres_m() -> tuple[np.ndarray, np.ndarray]:
+    """x, y [m] of every taxel's centre, pad centre at 0 (arrays of shape (16, 16))."""
+    pitch = PAD_M / TAXELS
+    axis = (np.arange(TAXELS) + 0.5) * pitch - PAD_M / 2
+    return np.meshgrid(axis, axis)
+
+
+class TaxelArray:
+    """Volts per taxel -> pressure [Pa] per taxel, dead taxels NaN."""
+
+    def __init__(self, calibration: TaxelCalibration = TaxelCalibration()):
+        self.calibration = calibration
+        self.live = np.ones((TAXELS, TAXELS), dtype=bool)
+        for row, col in calibration.dead:
+            self.live[row, col] = False
+
+    def pressures(self, volts) -> np.ndarray:
+        """One frame [Pa]; ValueError on a frame that cannot be a reading (see the module)."""
+        v = np.asarray(volts, dtype=float)
+        if v.size != TAXELS * TAXELS:
+            raise ValueError(f"taxel frame: {v.size} values, want {TAXELS * TAXELS}")
+        c = self.calibration
+        p = c.gain_pa_per_v * (v.reshape(TAXELS, TAXELS) - c.offset_v)
+        live = p[self.live]
+        bound = c.margin * FULL_SCALE_PA
+        if not np.all(np.isfinite(live)) or np.any(live < -bound) or np.any(live > FULL_SCALE_PA + bound):
+            worst = live[~np.isfinite(live)] if not np.all(np.isfinite(live)) else live[np.argmax(np.abs(live - FULL_SCALE_PA / 2))]
+            raise ValueError(f"taxel frame: a live taxel reads {float(np.ravel(worst)[0]) / 1e3:.1f} kPa, "
+                             f"outside 0..{FULL_SCALE_PA / 1e3:.0f} kPa by more than {c.margin:.0%} of full scale")
+        return np.where(self.live, p, np.nan)
+
+    def volts_for(self, pressures_pa: np.ndarray) -> np.ndarray:
+        """The volts this calibration expects for a frame of pressures (for simulators)."""
+        c = self.calibration
+        return np.asarray(pressures_pa, dtype=float) / c.gain_pa_per_v + c.offset_v

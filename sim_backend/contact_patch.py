@@ -1,0 +1,123 @@
+"""A contact patch pressed into the array pressure sensor's pad by an impact (rig-facts §3),
+read as the sensor reads it.
+
+Contact model (rig-facts §3): an elliptical area, semi-axes a (along x) and b (along y), with
+
+    p(x, y) = p_max (1 - (x - cx)^2/a^2 - (y - cy)^2/b^2)^beta   inside, 0 outside   [Pa, m]
+
+**Interpretation** (the paper's impact records are not legible): an impact at speed v lasts
+``duration_s`` (0.5 s, the paper's) as a half sine of indentation, s(t) = sin(pi t / T); by
+Hertz's scaling the peak contact radius and pressure grow as v^0.4 and, within the impact,
+as s^0.5 (a = a_peak s^0.5, p_max = p_peak s^0.5); beta rises from 0.5 (Hertz) towards
+``beta_peak`` as the body's surface conforms (beta = 0.5 + (beta_peak - 0.5) s); the centre
+slides at ``slide_m_s``. At 0.11 m/s the peak is 14 x 11 mm and 600 kPa, at 0.03 m/s 8.3 x
+6.7 mm and 360 kPa (b / a = 0.8): within the pad and its range.
+
+The sensor: each taxel reports the mean pressure over its sensing area (1.9 mm^2, a square
+of 1.38 mm, sampled 3 x 3), plus noise uniform within its +-0.5 % FS accuracy, clipped to
+0..FS, quantised by its 16-bit A/D; through a per-taxel calibration (a spread of gains and
+offsets the device's calibration undoes) and dead taxels that read 0 V.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hal.taxel_array import (ACCURACY_PA, FULL_SCALE_PA, TAXELS, TaxelArray, TaxelCalibration, sensing_offsets_m,
+                             taxel_centres_m)
+
+ADC_BITS = 16
+ADC_SPAN_V = 10.0
+
+
+@dataclass(frozen=True)
+class Contact:
+    """The true contact at one instant: centre, semi-axes [m], peak pressure [Pa], shape beta."""
+
+    cx: float
+    cy: float
+    a: float
+    b: float
+    p_max: float
+    beta: float
+
+    def pressure(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        phi = 1.0 - ((x - self.cx) / self.a) ** 2 - ((y - self.cy) / self.b) ** 2
+        return np.where(phi > 0, self.p_max * np.clip(phi, 0.0, None) ** self.beta, 0.0)
+
+    @property
+    def force_n(self) -> float:
+        """Total normal force [N]: the integral of p over the ellipse, pi a b p_max / (beta + 1)."""
+        return math.pi * self.a * self.b * self.p_max / (self.beta + 1.0)
+
+    @property
+    def area_m2(self) -> float:
+        return math.pi * self.a * self.b
+
+
+@dataclass(frozen=True)
+class Impact:
+    """One impact's contact over time (see the module's interpretation)."""
+
+    speed_m_s: float = 0.08
+    duration_s: float = 0.5
+    centre_m: tuple[float, float] = (0.0, 0.0)
+    slide_m_s: tuple[float, float] = (0.008, -0.004)
+    aspect: float = 0.8  # b / a
+    beta_peak: float = 0.8
+
+    def __post_init__(self):
+        if not 0.0 < self.speed_m_s <= 0.2:
+            raise ValueError(f"impact speed {self.speed_m_s} m/s: 0 < v <= 0.2")
+
+    @property
+    def a_peak_m(self) -> float:
+        return 0.014 * (self.speed_m_s / 0.11) ** 0.4
+
+    @property
+    def p_peak_pa(self) -> float:
+        return 6.0e5 * (self.speed_m_s / 0.11) ** 0.4
+
+    def at(self, t: float) -> Contact | None:
+        """The contact at time t [s] from first touch, or None when there is none."""
+        if not 0.0 < t < self.duration_s:
+            return None
+        s = math.sin(math.pi * t / self.duration_s)
+        a = self.a_peak_m * math.sqrt(s)
+        return Contact(self.centre_m[0] + self.slide_m_s[0] * t, self.centre_m[1] + self.slide_m_s[1] * t,
+                       a, self.aspect * a, self.p_peak_pa * math.sqrt(s), 0.5 + (self.beta_peak - 0.5) * s)
+
+
+def spread_calibration(seed: int, dead: tuple[tuple[int, int], ...] = ((5, 9), (11, 3))) -> TaxelCalibration:
+    """A pad whose taxels differ (gain +-10 %, offset +-50 mV), as a calibrated real one does."""
+    rng = np.random.default_rng(seed)
+    gain = FULL_SCALE_PA / 10.0 * rng.uniform(0.9, 1.1, (TAXELS, TAXELS))
+    return TaxelCalibration(rng.uniform(0.0, 0.05, (TAXELS, TAXELS)), gain, dead)
+
+
+class SimTaxelPad:
+    """Frames of volts from a contact, as the sensor's A/D delivers them."""
+
+    def __init__(self, calibration: TaxelCalibration, seed: int = 0):
+        self.device = TaxelArray(calibration)
+        self.rng = np.random.default_rng(seed)
+        x, y = taxel_centres_m()
+        dx, dy = sensing_offsets_m()
+        self.x = x[..., None] + dx  # (16, 16, 9): the sensing area's sample points
+        self.y = y[..., None] + dy
+
+    def pressures(self, contact: Contact | None) -> np.ndarray:
+        """The true mean pressure over each taxel's sensing area [Pa]."""
+        if contact is None:
+            return np.zeros((TAXELS, TAXELS))
+        return contact.pressure(self.x, self.y).mean(axis=2)
+
+    def frame_volts(self, contact: Contact | None) -> np.ndarray:
+        """One frame [V]: noise, clipping to the range, calibration, quantisation, dead taxels."""
+        p = self.pressures(contact) + self.rng.uniform(-ACCURACY_PA, ACCURACY_PA, (TAXELS, TAXELS))
+        v = self.device.volts_for(np.clip(p, 0.0, FULL_SCALE_PA))
+        lsb = ADC_SPAN_V / 2 ** ADC_BITS
+        v = np.round(v / lsb) * lsb
+        return np.where(self.device.live, v, 0.0)
