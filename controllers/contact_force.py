@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from hal.taxel_array import ACCURACY_PA, sensing_offsets_m, taxel_centres_m
+from hal.taxel_array import ACCURACY_PA, Contact, sensing_offsets_m, taxel_centres_m
 
 THRESHOLD_PA = 2.0 * ACCURACY_PA
 MIN_TAXELS = 8  # the quadric has 5 coefficients: fewer active taxels give no estimate
@@ -55,25 +55,16 @@ MM = 1e3  # the fits run in mm, so their columns are of like size
 
 
 @dataclass(frozen=True)
-class ContactEstimate:
-    """An identified contact: centre, semi-axes [m], peak pressure [Pa], shape beta, total
-    force pi a b p_max / (beta + 1) [N], area pi a b [m^2], the taxels the fit used and the
-    model's relative RMS residual over them before this frame's step (0: it explains every
-    taxel)."""
+class ContactEstimate(Contact):
+    """An identified contact, with the taxels the fit used and the model's relative RMS
+    residual over them before this frame's step (0: it explains every taxel)."""
 
-    cx: float
-    cy: float
-    a: float
-    b: float
-    p_max: float
-    beta: float
-    force_n: float
-    area_m2: float
-    taxels: int
-    residual: float
+    taxels: int = 0
+    residual: float = 0.0
 
     def as_dict(self) -> dict:
-        return {k: int(v) if k == "taxels" else float(v) for k, v in vars(self).items()}
+        return {**{k: float(v) if k != "taxels" else int(v) for k, v in vars(self).items()},
+                "force_n": self.force_n, "area_m2": self.area_m2}
 
 
 def contact_region(frame_pa: np.ndarray) -> np.ndarray | None:
@@ -222,9 +213,7 @@ class _Layers:
         shape[4:] = theta
         self.shape = shape
         cx, cy, a, b, ln_pmax, beta = shape
-        p_max, a_m, b_m = math.exp(ln_pmax), a / MM, b / MM
-        return ContactEstimate(cx / MM, cy / MM, a_m, b_m, p_max, beta, math.pi * a_m * b_m * p_max / (beta + 1.0),
-                               math.pi * a_m * b_m, len(p), residual)
+        return ContactEstimate(cx / MM, cy / MM, a / MM, b / MM, math.exp(ln_pmax), beta, len(p), residual)
 
     def _solve(self, h: np.ndarray, z: np.ndarray, phi: np.ndarray, p: np.ndarray):
         raise NotImplementedError

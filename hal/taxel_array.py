@@ -10,6 +10,7 @@ raises :class:`ValueError` saying which, so a stream of such frames cannot pass 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,3 +87,30 @@ class TaxelArray:
         """The volts this calibration expects for a frame of pressures (for simulators)."""
         c = self.calibration
         return np.asarray(pressures_pa, dtype=float) / c.gain_pa_per_v + c.offset_v
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A contact on the pad (rig-facts §3): centre, semi-axes along x and y [m], peak pressure
+    [Pa], shape beta; p = p_max (1 - (x - cx)^2/a^2 - (y - cy)^2/b^2)^beta inside, 0 outside.
+    What the simulator presses into the pad and what the estimator identifies."""
+
+    cx: float
+    cy: float
+    a: float
+    b: float
+    p_max: float
+    beta: float
+
+    def pressure(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        phi = 1.0 - ((x - self.cx) / self.a) ** 2 - ((y - self.cy) / self.b) ** 2
+        return np.where(phi > 0, self.p_max * np.clip(phi, 0.0, None) ** self.beta, 0.0)
+
+    @property
+    def force_n(self) -> float:
+        """Total normal force [N]: the integral of p over the ellipse, pi a b p_max / (beta + 1)."""
+        return math.pi * self.a * self.b * self.p_max / (self.beta + 1.0)
+
+    @property
+    def area_m2(self) -> float:
+        return math.pi * self.a * self.b

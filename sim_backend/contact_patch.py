@@ -25,36 +25,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hal.taxel_array import (ACCURACY_PA, FULL_SCALE_PA, TAXELS, TaxelArray, TaxelCalibration, sensing_offsets_m,
-                             taxel_centres_m)
+from hal.taxel_array import (
+    ACCURACY_PA,
+    FULL_SCALE_PA,
+    TAXELS,
+    Contact,
+    TaxelArray,
+    TaxelCalibration,
+    sensing_offsets_m,
+    taxel_centres_m,
+)
 
 ADC_BITS = 16
 ADC_SPAN_V = 10.0
-
-
-@dataclass(frozen=True)
-class Contact:
-    """The true contact at one instant: centre, semi-axes [m], peak pressure [Pa], shape beta."""
-
-    cx: float
-    cy: float
-    a: float
-    b: float
-    p_max: float
-    beta: float
-
-    def pressure(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        phi = 1.0 - ((x - self.cx) / self.a) ** 2 - ((y - self.cy) / self.b) ** 2
-        return np.where(phi > 0, self.p_max * np.clip(phi, 0.0, None) ** self.beta, 0.0)
-
-    @property
-    def force_n(self) -> float:
-        """Total normal force [N]: the integral of p over the ellipse, pi a b p_max / (beta + 1)."""
-        return math.pi * self.a * self.b * self.p_max / (self.beta + 1.0)
-
-    @property
-    def area_m2(self) -> float:
-        return math.pi * self.a * self.b
 
 
 @dataclass(frozen=True)

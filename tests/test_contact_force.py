@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 
 from controllers.contact_force import ContactEstimator, PlainWLS, contact_region
-from hal.taxel_array import ACCURACY_PA, PAD_M, TAXELS, TaxelArray, TaxelCalibration
-from sim_backend.contact_patch import Contact, Impact, SimTaxelPad, spread_calibration
+from hal.taxel_array import (
+    ACCURACY_PA,
+    PAD_M,
+    TAXELS,
+    Contact,
+    TaxelArray,
+    TaxelCalibration,
+)
+from sim_backend.contact_patch import Impact, SimTaxelPad, spread_calibration
 
 FRAME_HZ = 4000.0
 PITCH_M = PAD_M / TAXELS
