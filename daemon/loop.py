@@ -36,7 +36,8 @@ START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
 
 class ControlLoop:
     def __init__(self, io: RigIO, clock, period: float = 0.001, controller: str = "pid",
-                 telemetry=None, server=None, controller_plugins: dict[str, str] | None = None):
+                 telemetry=None, server=None, controller_plugins: dict[str, str] | None = None,
+                 contact_sensor=None):
         self.io = io
         self.rig = io.config
         self.clock = clock
@@ -62,6 +63,7 @@ class ControlLoop:
                 raise ConfigError(f"safety.fallback_controller: {exc}") from None
         self.telemetry = telemetry
         self.server = server
+        self.contact_sensor = contact_sensor  # daemon.contact_sensor: the latest contact estimate, or None
         self.stats = LoopStats()
         self.cycle = 0
         self.stop_requested = False
@@ -158,6 +160,8 @@ class ControlLoop:
         self._write_safe()
         self._drain_events()
         self.io.transport.close()
+        if self.contact_sensor is not None:
+            self.contact_sensor.close()
 
     # -- one cycle ------------------------------------------------------------------------
     def _cycle(self, wake: float) -> None:

@@ -13,6 +13,7 @@ import time
 
 from daemon import keys_cli, realtime
 from daemon.clock import MonotonicClock
+from daemon.contact_sensor import ContactSensor
 from daemon.loop import ControlLoop
 from daemon.messenger import MessengerError
 from daemon.notify import Notifier
@@ -43,8 +44,16 @@ def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
     transport.open()
     io = RigIO(rig, transport)
     telemetry = Telemetry(telemetry_send) if telemetry_send is not None else None
+    contact = None
+    if rig.contact_sensor is not None:
+        contact = ContactSensor(rig.contact_sensor, clock.now)
+        try:
+            contact.open()
+        except Exception:
+            transport.close()
+            raise
     return ControlLoop(io, clock, args.period, controller=args.controller, telemetry=telemetry,
-                       controller_plugins=controller_plugins(args.controller_plugin))
+                       controller_plugins=controller_plugins(args.controller_plugin), contact_sensor=contact)
 
 
 def controller_plugins(items: list[str]) -> dict[str, str]:

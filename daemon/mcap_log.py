@@ -1,7 +1,7 @@
 """Recordings as MCAP, the container Foxglove, PlotJuggler and the ROS 2 bag tools open.
 
 One channel per telemetry topic (``/pneumad/state``, ``/pneumad/stats``, ``/pneumad/event``,
-``/pneumad/internals``), each message JSON-encoded against a JSON Schema (encoding
+``/pneumad/internals``, ``/pneumad/contact``), each message JSON-encoded against a JSON Schema (encoding
 ``jsonschema``, which both viewers read natively). ``state`` is written one message per
 loop cycle, not per batch: its log time is the sample's time on the daemon's monotonic
 clock [ns] and its sequence number the cycle, and each joint's numbers sit under the joint's
@@ -30,7 +30,7 @@ PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
 PER_JOINT = ("angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts", "p_head_pa", "p_rod_pa")
 STATE_SCALARS = {"cycle": "integer", "t": "number", "force_n": "number", "mode": "string"}
-TOPICS = ("state", "stats", "event", "internals", "gap")
+TOPICS = ("state", "stats", "event", "internals", "contact", "gap")
 
 
 def channel(topic: str) -> str:
@@ -52,6 +52,9 @@ OTHER_SCHEMAS = {
               "properties": {"kind": {"type": "string"}, "cause": {"type": "string"}}},
     "internals": {"title": "the active controller's internal signals, per joint", "type": "object",
                   "properties": {"controller": {"type": "string"}, "signals": {"type": "object"}}},
+    "contact": {"title": "the array pressure sensor's latest contact estimate (docs/protocol.md)", "type": "object",
+                "properties": {"frame": {"type": "integer"}, "frame_t": {"type": "number"}, "age_s": {"type": "number"},
+                               "contact": {"type": ["object", "null"]}}},
     "gap": {"title": "telemetry lost between two messages of a topic", "type": "object",
             "properties": {"topic": {"type": "string"}, "missing": {"type": "integer"}, "after_seq": {"type": "integer"}}},
 }
@@ -135,7 +138,7 @@ def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int,
     OSError (a full disk) propagates, the file readable up to its last complete chunk.
     ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second."""
     describe, controller = client.describe(), client.controller()
-    sub = client.subscribe()
+    sub = client.subscribe((b"state", b"stats", b"event", b"internals", b"contact"))
     time.sleep(0.2)  # let the subscription reach the publisher
     try:
         with open(path, "wb") as f:

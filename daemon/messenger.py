@@ -53,7 +53,7 @@ from daemon.keys import KeyFileError
 from daemon.ring import Ring
 from hal.offloop import die_with_parent
 
-TOPICS = (b"", b"state", b"stats", b"event", b"internals")  # telemetry ring tags; 0 ends the stream
+TOPICS = (b"", b"state", b"stats", b"event", b"internals", b"contact")  # telemetry ring tags; 0 ends the stream
 END = 0
 RING_BYTES = {"telemetry": 1 << 20, "control": 1 << 20, "command": 1 << 20, "replies": 1 << 20}
 TELEMETRY_HWM = 1000  # messages queued per subscriber before ZeroMQ drops (100 ms of state batches)
@@ -227,7 +227,9 @@ def main(argv=None) -> int:
     except zmq.ZMQError as exc:
         print(f"cannot bind the {name} endpoint {getattr(args, name)}: {exc}", flush=True)
         return 1
-    from daemon.recorder_link import Recorder  # the process's own work: the daemon's side never needs them
+    from daemon.recorder_link import (
+        Recorder,  # the process's own work: the daemon's side never needs them
+    )
     from daemon.relay import Relay
     rings = {name: Ring(os.path.join(args.rings, name)) for name in RING_BYTES}
     recorder = Recorder(ctx, args.rings) if args.recorder else None

@@ -15,6 +15,7 @@ import msgpack
 import numpy as np
 
 from daemon import mcap_log
+from daemon.contact_sensor import FIELDS as CONTACT_FIELDS
 
 FORMAT = "pneumad-recording/1"
 MCAP_MAGIC = b"\x89MCAP"
@@ -90,7 +91,8 @@ def export_csv(path, out) -> int:
 def load(path) -> dict[str, np.ndarray]:
     """The state stream as numpy columns named with their units (``t``, ``cycle``,
     ``middle.angle_rad`` ...), and the controller's internal signals as
-    ``internals.t`` and ``internals.<signal>.<joint>`` where recorded: for a notebook.
+    ``internals.t`` and ``internals.<signal>.<joint>`` where recorded, and the array sensor's
+    estimates as ``contact.frame_t``, ``contact.<field>`` (NaN where nothing touched): for a notebook.
     ``pandas.DataFrame(load(path))`` works for the state columns (same length)."""
     run = open_run(path)
     out = {"t": np.array([s["t"] for s in run.samples], dtype=float),
@@ -106,4 +108,10 @@ def load(path) -> dict[str, np.ndarray]:
             for j, name in enumerate(run.joints):
                 out[f"internals.{signal}.{name}"] = np.array(
                     [m["signals"].get(signal, [np.nan] * len(run.joints))[j] for m in internals], dtype=float)
+    contact = run.messages.get("contact", [])
+    if contact:
+        out["contact.frame_t"] = np.array([m["frame_t"] for m in contact], dtype=float)
+        for key in CONTACT_FIELDS:
+            out[f"contact.{key}"] = np.array([m["contact"][key] if m["contact"] else np.nan for m in contact],
+                                             dtype=float)
     return out

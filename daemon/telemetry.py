@@ -5,7 +5,9 @@
 - ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns);
 - ``event``: state changes, trips, controller switches, at once;
 - ``internals``: the active controller's internal signals (its ``describe`` names them, e.g.
-  SMC's sigma, the DOB's d_hat), one sample per ``state`` batch while the arm is enabled.
+  SMC's sigma, the DOB's d_hat), one sample per ``state`` batch while the arm is enabled;
+- ``contact``: with an array pressure sensor (the rig file's ``[contact_sensor]``), its
+  latest contact estimate, its frame's time and age, once per ``state`` batch.
 Every message carries a per-topic ``seq`` so a subscriber can count what it missed.
 
 The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's numbers into a
@@ -45,7 +47,7 @@ class Telemetry:
         """``send(topic: bytes, body: bytes)`` must not block."""
         self._send = send
         self.batch = batch
-        self.seq = {b"state": 0, b"stats": 0, b"event": 0, b"internals": 0}
+        self.seq = {b"state": 0, b"stats": 0, b"event": 0, b"internals": 0, b"contact": 0}
         self._shape: tuple[int, int] | None = None
         self._rows = 0
         self._buf = bytearray()
@@ -66,6 +68,8 @@ class Telemetry:
             self.flush()
             if loop.supervisor.enabled and loop.controller.internals:
                 self.internals(loop)
+            if loop.contact_sensor is not None:
+                self.contact(loop)
 
     def internals(self, loop) -> None:
         """One sample of the active controller's internal signals (decimated: a few dozen
@@ -77,6 +81,12 @@ class Telemetry:
             return
         self._publish(b"internals", {"cycle": loop.cycle, "t": loop.clock.now(), "controller": controller.name,
                                      "signals": {spec.name: row for spec, row in zip(controller.internals, values)}})
+
+    def contact(self, loop) -> None:
+        """The array sensor's latest estimate (a dozen numbers; nothing before its first frame)."""
+        latest = loop.contact_sensor.latest()
+        if latest is not None:
+            self._publish(b"contact", {"cycle": loop.cycle, "t": loop.clock.now(), **latest})
 
     def _start(self, n: int, m: int) -> None:
         self._shape = (n, m)

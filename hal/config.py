@@ -21,6 +21,7 @@ from hal.identified import IDENTIFIED, JointParams, parse_models
 from hal.potentiometer import PotentiometerConfig
 from hal.regulator import RegulatorConfig
 from hal.schema import build, require
+from hal.taxel_array import ContactSensorConfig
 
 BUILTIN_RIGS = {"sim": "sim_2joint.toml", "sim-3joint": "sim_3joint.toml"}
 
@@ -153,6 +154,7 @@ class RigConfig:
     limits: LimitsConfig = LimitsConfig()
     safety: SafetyConfig = SafetyConfig()
     force_sensor: ForceSensorConfig | None = None
+    contact_sensor: ContactSensorConfig | None = None  # the array pressure sensor, beside the loop
     models: dict[str, Any] = field(default_factory=dict)  # [models.NAME] tables (hal.identified.parse_models)
     joint_models: dict[str, JointParams] = field(default_factory=dict, init=False, compare=False)  # built-in + own
     source: str = field(default="", init=False, compare=False)  # the TOML text it was built from

@@ -29,6 +29,7 @@ import weakref
 from collections.abc import Callable, Sequence
 
 from hal.errors import TransportError, TransportTimeout
+from hal.seqlock import read_locked, try_read, write_locked
 from hal.transport import (
     FULL_SCALE_COUNTS,
     InputSweep,
@@ -39,7 +40,6 @@ from hal.transport import (
 
 COUNTERS = ("exchanges", "timeouts", "exception_replies", "bad_replies", "link_lost", "reconnects")
 _ERROR_BYTES = 240
-_READ_TRIES = 100_000  # a write takes about a microsecond; this is tens of milliseconds
 LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whole sample
 OUTPUTS_PATIENCE_S = 1.0  # the exchange waits this long for the loop to finish writing its outputs [s]
 
@@ -88,41 +88,6 @@ class _Shared:
         self.stop = raw.RawValue(ctypes.c_bool, False)
         self.error = raw.RawArray(ctypes.c_char, _ERROR_BYTES)
         self.counters = raw.RawArray(ctypes.c_uint64, len(COUNTERS))
-
-
-def _write_locked(seq, array, values) -> None:
-    seq.value += 1  # odd: a write is under way
-    array[:] = values
-    seq.value += 1
-
-
-def _try_read(seq, array, extra=None, tries: int = _READ_TRIES):
-    """(sequence number, values, extra.value) read consistently, retrying across a write up to
-    ``tries`` times; None if the writer is still in the middle of one."""
-    for _ in range(tries):
-        before = seq.value
-        if before & 1:
-            continue
-        values = array[:]
-        more = extra.value if extra is not None else None
-        if seq.value == before:
-            return before, values, more
-    return None
-
-
-def _read_locked(seq, array, extra=None, patience_s: float = 0.0):
-    """As :func:`_try_read`, but a TransportError if no consistent read comes (a writer that
-    died halfway through). After spinning, it sleeps and retries for ``patience_s``: a writer
-    descheduled in the middle of its write (a busy machine) is not a dead one, and spinning
-    would only keep it from the CPU."""
-    give_up = time.monotonic() + patience_s
-    while True:
-        found = _try_read(seq, array, extra)
-        if found is not None:
-            return found
-        if time.monotonic() >= give_up:
-            raise TransportError("shared sample stays half-written: its writer stopped in the middle")
-        time.sleep(0.0005)
 
 
 class OffLoopTransport(Transport):
@@ -191,7 +156,7 @@ class OffLoopTransport(Transport):
         shared = self._shared
         if shared is None:
             raise TransportError(f"{self.backend}: not open")
-        found = _try_read(shared.in_seq, shared.inputs, shared.in_t, LOOP_READ_TRIES)
+        found = try_read(shared.in_seq, shared.inputs, shared.in_t, LOOP_READ_TRIES)
         if found is None:  # the exchange is mid-write (descheduled there): the last whole sample,
             return self._sweep  # whose age the supervisor judges; the loop never spins on it
         seq, raw, t_reply = found
@@ -213,7 +178,7 @@ class OffLoopTransport(Transport):
             raise TransportError(f"{self.backend}: not open")
         if not shared.link_up.value:
             self._raise_link_down()
-        _write_locked(shared.out_seq, shared.outputs, volts_to_counts(values, self.outputs, self.full_scale))
+        write_locked(shared.out_seq, shared.outputs, volts_to_counts(values, self.outputs, self.full_scale))
 
     def _raise_link_down(self):
         alive = self._process is not None and self._process.is_alive()
@@ -273,7 +238,7 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
                 _error(shared, str(exc))
                 next_try = time.monotonic() + reopen_every_s
                 continue
-        _, outputs, _ = _read_locked(shared.out_seq, shared.outputs, patience_s=OUTPUTS_PATIENCE_S)
+        _, outputs, _ = read_locked(shared.out_seq, shared.outputs, patience_s=OUTPUTS_PATIENCE_S)
         try:
             inputs = link.exchange(outputs)
         except LinkDown as exc:

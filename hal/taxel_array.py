@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hal.schema import require
+
 TAXELS = 16  # per side
 PAD_M = 0.040  # side of the pad [m]
 FULL_SCALE_PA = 1.025e6
@@ -50,6 +52,47 @@ class TaxelCalibration:
         for row, col in self.dead:
             if not (0 <= row < TAXELS and 0 <= col < TAXELS):
                 raise ValueError(f"taxel calibration: dead taxel ({row}, {col}) is outside the {TAXELS} x {TAXELS} pad")
+
+
+@dataclass(frozen=True)
+class ContactSensorConfig:
+    """The rig file's ``[contact_sensor]``: the array sensor read and its contact estimated in
+    a process beside the loop (daemon.contact_sensor). ``offset_v`` and ``gain_pa_per_v``:
+    one number for every taxel, or 256 row by row; ``dead``: [row, column] pairs. ``source``
+    names where frames come from: ``"sim"`` is the simulated pad, pressed by an impact at
+    ``sim_impact_speed_m_s`` every ``sim_impact_every_s`` (sim_backend.contact_patch)."""
+
+    source: str = "sim"
+    rate_hz: float = 4000.0
+    offset_v: tuple[float, ...] = (0.0,)
+    gain_pa_per_v: tuple[float, ...] = (FULL_SCALE_PA / 10.0,)
+    dead: tuple[tuple[int, ...], ...] = ()
+    forgetting: float = 0.8
+    sim_impact_speed_m_s: float = 0.08
+    sim_impact_every_s: float = 1.0
+    seed: int = 0
+
+    def __post_init__(self):
+        require(self.source == "sim", "source", f"{self.source!r}: only \"sim\" (the simulated pad) is built")
+        require(100.0 <= self.rate_hz <= 10000.0, "rate_hz", f"must be within 100-10000 Hz, got {self.rate_hz}")
+        for name in ("offset_v", "gain_pa_per_v"):
+            require(len(getattr(self, name)) in (1, TAXELS * TAXELS), name,
+                    f"one number, or {TAXELS * TAXELS} (row by row); got {len(getattr(self, name))}")
+        require(all(g != 0 for g in self.gain_pa_per_v), "gain_pa_per_v", "must not be zero")
+        for i, pair in enumerate(self.dead):
+            require(len(pair) == 2 and all(0 <= v < TAXELS for v in pair), f"dead[{i}]",
+                    f"a [row, column] pair within 0-{TAXELS - 1}, got {list(pair)}")
+        require(0.0 < self.forgetting <= 1.0, "forgetting", f"must be within (0, 1], got {self.forgetting}")
+        require(0.0 < self.sim_impact_speed_m_s <= 0.2, "sim_impact_speed_m_s",
+                f"must be within (0, 0.2] m/s, got {self.sim_impact_speed_m_s}")
+        require(0.5 <= self.sim_impact_every_s <= 10.0, "sim_impact_every_s",
+                f"must be within 0.5-10 s (an impact lasts 0.5 s), got {self.sim_impact_every_s}")
+
+    def calibration(self) -> "TaxelCalibration":
+        def per_taxel(values):
+            return np.broadcast_to(np.asarray(values, float), (TAXELS * TAXELS,)).reshape(TAXELS, TAXELS)
+        return TaxelCalibration(per_taxel(self.offset_v), per_taxel(self.gain_pa_per_v),
+                                tuple((int(r), int(c)) for r, c in self.dead))
 
 
 def taxel_centres_m() -> tuple[np.ndarray, np.ndarray]:

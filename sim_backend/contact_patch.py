@@ -104,3 +104,31 @@ class SimTaxelPad:
         lsb = ADC_SPAN_V / 2 ** ADC_BITS
         v = np.round(v / lsb) * lsb
         return np.where(self.device.live, v, 0.0)
+
+
+class ImpactReplay:
+    """The simulated sensor's frames for a sensor process: an impact every ``every_s``, the
+    pad's noise between. The frames are made once, up front (the impact's, and a pool of
+    untouched ones), so the process spends its time on the estimator, as it would behind a
+    real A/D; ``truth(k)`` is the contact frame k shows."""
+
+    NOISE_FRAMES = 64
+
+    def __init__(self, impact: Impact, every_s: float, rate_hz: float, calibration: TaxelCalibration, seed: int):
+        pad = SimTaxelPad(calibration, seed)
+        self.impact, self.rate_hz = impact, rate_hz
+        self.cycle = max(int(round(every_s * rate_hz)), 1)
+        self.touching = int(impact.duration_s * rate_hz)
+        self.impact_frames = [pad.frame_volts(impact.at(self._t(k))) for k in range(self.touching)]
+        self.noise_frames = [pad.frame_volts(None) for _ in range(self.NOISE_FRAMES)]
+
+    def _t(self, k: int) -> float:
+        return (k % self.cycle + 0.5) / self.rate_hz
+
+    def frame(self, k: int) -> np.ndarray:
+        """Frame k's volts (k counts from the first frame, at ``rate_hz``)."""
+        i = k % self.cycle
+        return self.impact_frames[i] if i < self.touching else self.noise_frames[k % self.NOISE_FRAMES]
+
+    def truth(self, k: int) -> Contact | None:
+        return self.impact.at(self._t(k)) if k % self.cycle < self.touching else None

@@ -1,11 +1,20 @@
 """``python -m tests.forbid_planning [pneumad options]``: the real daemon, with the planning
 code made to fail in the daemon's own process. Its worker processes are spawned fresh and
 keep the real code, so a daemon run this way works exactly when every limit and authority
-check, reference profile, design parse and parameter derivation runs beside the loop: a
-structural proof, used by tests/test_every_command.py, with no timing in it."""
+check, reference profile, design parse and parameter derivation runs beside the loop, and
+the array sensor's contact estimator in its own process: a structural proof, used by
+tests/test_every_command.py and tests/test_contact_daemon.py, with no timing in it."""
 import sys
 
-from controllers import feasibility, lti_design, profile, registry, signals, trajectory  # noqa: F401 (signals: subclasses)
+from controllers import (  # noqa: F401 (signals: subclasses)
+    contact_force,
+    feasibility,
+    lti_design,
+    profile,
+    registry,
+    signals,
+    trajectory,
+)
 from daemon import excite_plan, main, planner
 from hal import kinematics
 
@@ -35,6 +44,7 @@ def forbid() -> None:
     kinematics.inverse_2link_array = forbidden
     lti_design.parse = forbidden
     registry.prepare_change = forbidden
+    contact_force._Layers.update = forbidden  # a frame's estimate: the sensor's process alone
 
 
 if __name__ == "__main__":

@@ -1,0 +1,64 @@
+"""The array pressure sensor in a real daemon: enabled by the rig file, its frames read and
+estimated in a process beside the loop, the latest estimate on the ``contact`` topic with its
+frame and age, checked against the simulated pad's truth and the published schema. The
+daemon runs with the estimator made to fail in its own process (tests/forbid_planning.py),
+so the loop's process structurally never runs it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from daemon import mcap_log, recording
+from daemon.client import Client
+from hal import config
+from hal.taxel_array import PAD_M, TAXELS
+from sim_backend.contact_patch import Impact, ImpactReplay
+from tests.daemons import real_daemon, tolerant_rig_text
+from tests.schemas import schema
+
+SENSOR = "\n[contact_sensor]\nrate_hz = 4000.0\nsim_impact_speed_m_s = 0.11\nsim_impact_every_s = 1.0\ndead = [[2, 2]]\n"
+
+
+def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulated_impacts(tmp_path):
+    rig_path = tmp_path / "rig.toml"
+    rig_path.write_text(tolerant_rig_text() + SENSOR)
+    sensor = config.load(rig_path).contact_sensor
+    truth = ImpactReplay(Impact(sensor.sim_impact_speed_m_s), sensor.sim_impact_every_s, sensor.rate_hz,
+                         sensor.calibration(), sensor.seed)
+    daemon, eps = real_daemon(tmp_path, "--config", str(rig_path), module="tests.forbid_planning")
+    validate = schema("telemetry", "contact")
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            client.call("ping", timeout=60.0)
+            subscription = client.subscribe((b"contact",))
+            messages = []
+            while len(messages) < 400:  # 4 s: four impacts
+                got = subscription.receive(timeout=5.0)
+                assert got is not None, "no contact message for 5 s"
+                messages.append(got[1])
+            subscription.close()
+            assert client.status()["state"] == "idle"  # the loop ran on, untripped
+            mcap_log.record(client, tmp_path / "run.mcap", 1.5)
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    for message in messages:
+        validate.validate(message)
+    frames = [m["frame"] for m in messages]
+    assert frames == sorted(frames) and frames[-1] - frames[0] > 3.0 * sensor.rate_hz  # the sensor kept running
+    touching = [m for m in messages if m["contact"] is not None]
+    assert 0.2 * len(messages) < len(touching) < 0.8 * len(messages)  # 0.5 s of every 1 s, give or take the edges
+    checked = 0
+    for m in touching:
+        true = truth.truth(m["frame"])
+        assert true is not None, f"frame {m['frame']}: a contact reported where the pad had none"
+        if true.b >= 2.5 * PAD_M / TAXELS:
+            found = m["contact"]
+            for name in ("a", "b", "p_max"):
+                assert found[name] == pytest.approx(getattr(true, name), rel=0.05), (m["frame"], name)
+            assert found["beta"] == pytest.approx(true.beta, rel=0.088), m["frame"]
+            checked += 1
+    assert checked > 50
+    assert all(m["bad_frames"] == 0 for m in messages)
+    columns = recording.load(tmp_path / "run.mcap")  # recorded, and a notebook's columns
+    assert len(columns["contact.a"]) > 100 and np.nanmax(columns["contact.a"]) > 0.01
