@@ -128,6 +128,11 @@ def parser() -> argparse.ArgumentParser:
         m.add_argument("--record", action="store_true",
                        help="the daemon records it, start to end plus 3 s, in its recording directory")
         m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended")
+    pay = sub.add_parser("payload", help="identify a payload at the tip by torque balance (docs/estimation.md)")
+    pay.add_argument("action", choices=("identify",))
+    pay.add_argument("--unloaded", action="store_true",
+                     help="measure the unloaded arm and store it as the reference (do this once, without a payload)")
+    pay.add_argument("--reference", default="payload-reference.json", help="the unloaded reference's file")
     idp = sub.add_parser("identify", help="identify a joint's model: excite, record, fit, plot, write a rig file")
     idp.add_argument("joint")
     idp.add_argument("--out", default=None, help="directory for the rig file, figures and report "
@@ -308,6 +313,14 @@ def run(client: Client, args):
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "keys":
         return client.call("keys.reload", control=True)
+    if w == "payload":
+        from pathlib import Path
+
+        from daemon import payload_routine
+        try:
+            return payload_routine.run(client, Path(args.reference), args.unloaded)
+        except ValueError as exc:
+            raise SystemExit(f"error: {exc}") from None
     if w == "identify":
         code = identify(client, args)
         if code:

@@ -67,10 +67,15 @@ class ArmConfig:
 
     link_lengths_mm: tuple[float, ...] = (100.0, 100.0)
     elbow: int = -1  # IK branch: sign of the second joint angle
+    # gravity in the arm's plane (x, y) [m/s^2]: what a payload's weight pulls along
+    # (**interpretation**: the source does not say how the arm stands; a vertical plane, y up)
+    gravity_m_s2: tuple[float, ...] = (0.0, -9.81)
 
     def __post_init__(self):
         require(all(l > 0 for l in self.link_lengths_mm), "link_lengths_mm", "every link must be > 0 mm")
         require(self.elbow in (1, -1), "elbow", f"must be +1 or -1, got {self.elbow}")
+        require(len(self.gravity_m_s2) == 2 and math.hypot(*self.gravity_m_s2) <= 20.0, "gravity_m_s2",
+                f"two numbers (x, y) in the arm's plane, at most 20 m/s^2 long; got {list(self.gravity_m_s2)}")
 
     @property
     def link_lengths_m(self) -> tuple[float, ...]:

@@ -62,3 +62,32 @@ def inverse_2link_array(x, y, l1: float, l2: float, elbow: int = -1):
     t2 = elbow * np.arccos(c2)
     t1 = np.arctan2(y, x) - np.arctan2(l2 * np.sin(t2), l1 + l2 * np.cos(t2))
     return t1, t2
+
+
+def joint_points(angles: Sequence[float], lengths: Sequence[float]) -> list[tuple[float, float]]:
+    """Positions [m] of every joint and, last, the tip ([2-7], base joint at the origin)."""
+    points, x, y, phi = [(0.0, 0.0)], 0.0, 0.0, 0.0
+    for q, length in zip(angles, lengths):
+        phi += q
+        x, y = x + length * math.cos(phi), y + length * math.sin(phi)
+        points.append((x, y))
+    return points
+
+
+def moment(r: tuple[float, float], g: Sequence[float]) -> float:
+    """(r x g)_z [m^2/s^2]: the torque of a unit mass at r under g."""
+    return r[0] * g[1] - r[1] * g[0]
+
+
+def payload_torques(angles: Sequence[float], lengths: Sequence[float], mass_kg: float, com_m: Sequence[float],
+                    gravity: Sequence[float]) -> list[float]:
+    """The torque [N m] a payload of ``mass_kg`` at ``com_m`` (last link's frame: along it,
+    across it, from the tip [m]) adds to each joint under ``gravity`` [m/s^2] in the arm's
+    plane: dtau_i = m ((p_c - p_i) x g)_z (rig-facts §4). The simulator's truth and the
+    payload identifier's model."""
+    points = joint_points(angles, lengths)
+    phi = sum(angles)
+    tip = points[-1]
+    c = (tip[0] + com_m[0] * math.cos(phi) - com_m[1] * math.sin(phi),
+         tip[1] + com_m[0] * math.sin(phi) + com_m[1] * math.cos(phi))
+    return [mass_kg * moment((c[0] - p[0], c[1] - p[1]), gravity) for p in points[:-1]]

@@ -37,6 +37,19 @@ class WallOptions:
 
 
 @dataclass(frozen=True)
+class PayloadOptions:
+    """A payload at the tip (rig-facts §4): its mass and centre of mass in the last link's
+    frame (along it, across it, from the tip), under the rig's ``arm.gravity_m_s2``."""
+
+    mass_kg: float = 0.0
+    com_mm: tuple[float, ...] = (0.0, 0.0)
+
+    def __post_init__(self):
+        require(0.0 <= self.mass_kg <= 10.0, "mass_kg", f"must be within 0-10 kg, got {self.mass_kg}")
+        require(len(self.com_mm) == 2, "com_mm", "two numbers: along and across the last link [mm]")
+
+
+@dataclass(frozen=True)
 class SimOptions:
     seed: int = 0
     step_s: float = 0.001  # plant step [s]
@@ -50,6 +63,7 @@ class SimOptions:
     max_catch_up_s: float = 30.0  # real-time mode: the plant catches up a stall this long; a longer one pauses it
     joints: dict[str, SimJointOptions] = field(default_factory=dict)
     wall: WallOptions = WallOptions()
+    payload: PayloadOptions = PayloadOptions()
 
     def __post_init__(self):
         require(0 < self.step_s <= 0.01, "step_s", f"must be within (0, 0.01] s, got {self.step_s}")

@@ -67,6 +67,9 @@ class SimArm:
                       wall.normal[0] / norm, wall.normal[1] / norm, wall.stiffness_n_per_mm * 1e3)
         self.contact_force_n = 0.0
         self._contact_torque = [0.0] * len(self.joints)
+        self._no_load = [0.0] * len(self.joints)
+        self._payload = (options.payload.mass_kg, tuple(c * 1e-3 for c in options.payload.com_mm),
+                         tuple(rig.arm.gravity_m_s2))
 
     def angles_rad(self) -> list[float]:
         return [math.radians(j.th) for j in self.joints]
@@ -77,9 +80,11 @@ class SimArm:
     def step(self, volts: list[float]) -> None:
         """One plant step; ``volts`` holds (head, rod) command volts per joint, flattened."""
         supply = self.supply_pa
+        mass, com, gravity = self._payload
+        load = kinematics.payload_torques(self.angles_rad(), self.lengths, mass, com, gravity) if mass else self._no_load
         for i, joint in enumerate(self.joints):
             joint.step(regulator_output(volts[2 * i], supply), regulator_output(volts[2 * i + 1], supply),
-                       self.disturbance_nm[i] + self._contact_torque[i])
+                       self.disturbance_nm[i] + self._contact_torque[i] + load[i])
         self._update_contact()
 
     def _update_contact(self) -> None:

@@ -1,0 +1,224 @@
+"""``pneumactl payload identify``'s routine (rig-facts §4), beside the loop: postures chosen for
+identifiability, each approached from both sides, the joint torques at rest measured from the
+chamber pressure commands, an unloaded reference stored once, and the payload fitted by
+controllers.payload.
+
+**Torque at rest** [N m]: tau = K_mdl L (A_H P_H - A_L P_L) (rig-facts §1, the model's torque
+scale K_mdl included), with P_H, P_L the pressures the loop commands through the ITV0051s
+(after their lag they are the chambers'), averaged over ``HOLD_S`` at rest.
+
+**Static friction** holds a joint anywhere within +-Fs of its balance, so a torque read at rest
+is ambiguous by up to Fs (on the middle joint as large as the heaviest payload's moment).
+So each joint is **dithered** open loop at each posture: an input-side ``excite`` whose V_MV
+is a sine of ``DITHER_FS`` times the joint's breakaway (Fs over its volts-to-torque, from the
+model; at most ``DITHER_MAX_V``) at ``DITHER_HZ``, which keeps it sliding both ways, about a centring PI that holds it
+at the posture; the mean V_MV over the last ``AVERAGED_S`` is the balance: inertia, damping
+and friction (odd in the velocity of a symmetric motion) average out, and the centring PI
+has settled on what holds the joint there. (Tried first and left behind: approaching each
+posture from both sides and averaging, and a 0.5 deg dither on the set-point under the
+holding PID: the middle joint stuck through them, its torque off by +-0.1 N m.) The
+unloaded reference is measured the same way, so the arm's own gravity, spring and bias
+cancel in loaded minus unloaded.
+"""
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from controllers.payload import PayloadEstimate, Posture, identify
+from hal import config
+from hal.config import RigConfig
+from hal.regulator import ITV0051
+
+DITHER_FS = 2.0  # the dither's V_MV amplitude over the joint's breakaway V_MV (Fs / kt) ...
+DITHER_MAX_V = 2.2  # ... and at most this [V]: the middle joint's range keeps room for its load
+DITHER_HZ = 0.5
+DITHER_S = 30.0  # the dither's length after its settling [s]
+AVERAGED_S = 12.0  # the mean is taken over its last this [s] (whole periods)
+CENTRE_HZ = 0.1  # the centring PI's crossover: settled well within DITHER_S - AVERAGED_S
+MARGIN_DEG = 8.0  # postures this far inside the joint limits
+HOLD_V = 0.75  # postures whose spring needs at most this V_MV (nominal model) [V]
+REFERENCE_FORMAT = "pneumad-payload-reference/1"
+
+
+@dataclass
+class Arm:
+    """What the routine needs of a daemon (a client's, or a loop's in a bench): move to angles
+    [deg] and wait for rest; dither a joint (``excite`` with ``dither_args``) and return its
+    mean V_MV [V] and mean angle [deg] over the dither's last ``seconds``."""
+
+    move: Callable[[list[float]], None]
+    dithered: Callable[[str, float], tuple[float, float]]
+
+
+@dataclass
+class Reading:
+    """One posture's measurement: each joint's mean angle [deg] and balance torque [N m]."""
+
+    angles_deg: list[float]
+    torques_nm: list[float]
+
+
+def dither_args(rig: RigConfig, joint: str) -> dict:
+    """The input-side ``excite`` request that dithers ``joint`` (see the module)."""
+    params = rig.joint_params(next(j for j in rig.joints if j.name == joint))
+    return {"side": "input", "signal": "multisine", "joint": joint,
+            "amplitude_v": round(min(DITHER_FS * params.Fs / params.torque_per_volt, DITHER_MAX_V), 3),
+            "f0_hz": DITHER_HZ,
+            "f1_hz": 2 * DITHER_HZ, "components": 1, "period_s": 1.0 / DITHER_HZ,
+            "periods": int(DITHER_S * DITHER_HZ), "settle_s": 2.0, "band_deg": 5.0, "centre_hz": CENTRE_HZ}
+
+
+def postures(rig: RigConfig) -> list[list[float]]:
+    """Postures [deg] the joints can hold with V_MV to spare (within ``HOLD_V`` of what their
+    springs need at the neutral angle, by the joint's model, and ``MARGIN_DEG`` inside its
+    limits: the rest is for the payload and the dither): the first joint at the low end,
+    middle and high end of that span, each other joint at both ends. That turns the last link
+    as far as the joints allow (the centre of mass needs it turned; the paper's 90 deg steps
+    where the limits allow) and swings the links about gravity's line (the mass needs a
+    moment arm). Ordered so the outer joints, the slow ones, move as seldom as they can."""
+    spans = []
+    for j in rig.joints:
+        params = rig.joint_params(j)
+        reach = HOLD_V * params.torque_per_volt / params.K if params is not None else math.inf  # [deg]
+        spans.append((max(j.min_angle_deg + MARGIN_DEG, j.neutral_deg - reach),
+                      min(j.max_angle_deg - MARGIN_DEG, j.neutral_deg + reach)))
+    levels = [[lo, hi] for lo, hi in spans[1:]] + [[spans[0][0], sum(spans[0]) / 2, spans[0][1]]]
+    grid = [[p[-1], *p[:-1]] for p in itertools.product(*levels)]  # the first joint varies fastest
+    rows = [grid[i:i + 3] for i in range(0, len(grid), 3)]
+    return [q for k, row in enumerate(rows) for q in (row if k % 2 == 0 else row[::-1])]  # back and forth
+
+
+def joint_torques(rig: RigConfig, volts: Sequence[float]) -> list[float]:
+    """Each joint's pneumatic torque [N m] for its V_MV [V] at rest (see the module)."""
+    out = []
+    for jc, u in zip(rig.joints, volts):
+        p = rig.joint_params(jc)
+        head = ITV0051(jc.head).pressure(jc.head.bias_volts + u)
+        rod = ITV0051(jc.rod).pressure(jc.rod.bias_volts)
+        out.append(p.K_mdl * p.L * (p.area_head * head - p.area_rod * rod))
+    return out
+
+
+def measure(arm: Arm, rig: RigConfig, targets: list[list[float]], progress=None) -> list[Reading]:
+    """Per posture, each joint's balance torque [N m], its mean while dithered (see the
+    module), and its mean angle then (a held joint stops short of its set-point by what its
+    friction allows: the estimate corrects for it)."""
+    out = []
+    for k, target in enumerate(targets):
+        arm.move(list(target))
+        volts, angles = zip(*(arm.dithered(j.name, AVERAGED_S) for j in rig.joints))
+        out.append(Reading(list(angles), joint_torques(rig, volts)))
+        if progress is not None:
+            progress(k + 1, len(targets), target, out[-1].torques_nm)
+    return out
+
+
+def save_reference(path: Path, rig: RigConfig, targets: list[list[float]], readings: list[Reading]) -> None:
+    path.write_text(json.dumps({"format": REFERENCE_FORMAT, "arm_hash": arm_hash(rig), "postures_deg": targets,
+                                "angles_deg": [r.angles_deg for r in readings],
+                                "torques_nm": [r.torques_nm for r in readings]}, indent=1))
+
+
+def arm_hash(rig: RigConfig) -> str:
+    """What an unloaded reference depends on: the arm's geometry and its joints with their
+    models (not the transport, nor a simulated payload's options)."""
+    described = repr((rig.arm, rig.joints, [rig.joint_params(j) for j in rig.joints]))
+    return hashlib.sha256(described.encode()).hexdigest()
+
+
+def load_reference(path: Path, rig: RigConfig) -> tuple[list[list[float]], list[Reading]]:
+    """The stored unloaded run; ValueError if it is not one, or was made on another rig file."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable payload reference: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != REFERENCE_FORMAT:
+        raise ValueError(f"{path}: not a payload reference ({REFERENCE_FORMAT})")
+    if data.get("arm_hash") != arm_hash(rig):
+        raise ValueError(f"{path}: measured on another arm (its joints, models or geometry differ: hash "
+                         f"{str(data.get('arm_hash'))[:12]}, the daemon's {arm_hash(rig)[:12]}): measure the "
+                         f"unloaded reference again")
+    columns = [data.get(k) for k in ("postures_deg", "angles_deg", "torques_nm")]
+    n = len(rig.joints)
+    if (not all(isinstance(c, list) and len(c) == len(columns[0]) for c in columns) or
+            any(not isinstance(row, list) or len(row) != n or not all(isinstance(v, (int, float)) for v in row)
+                for c in columns for row in c)):
+        raise ValueError(f"{path}: postures, angles and torques do not match the rig's {n} joints")
+    return columns[0], [Reading(a, t) for a, t in zip(columns[1], columns[2])]
+
+
+def estimate(rig: RigConfig, unloaded: list[Reading], loaded: list[Reading]) -> PayloadEstimate:
+    """The payload from the loaded run against the unloaded reference at the same postures.
+    At rest the cylinders balance the payload's moment, so their torque changes by minus it;
+    where a joint stood a little apart in the two runs, its spring's share (the model's K,
+    N m/deg) is taken out."""
+    springs = [rig.joint_params(j).K for j in rig.joints]
+    rows = []
+    for before, after in zip(unloaded, loaded):
+        moved = [b - a for a, b in zip(before.angles_deg, after.angles_deg)]
+        rows.append(Posture(tuple(math.radians(a) for a in after.angles_deg),
+                            tuple(-(t1 - t0 - k * d) for t0, t1, k, d in
+                                  zip(before.torques_nm, after.torques_nm, springs, moved))))
+    return identify(rows, rig.arm.link_lengths_m, rig.arm.gravity_m_s2)
+
+
+def client_arm(client) -> Arm:
+    """The routine's Arm through a daemon's client (it holds the lease): unhurried moves
+    (refused ones slowed as the daemon says), rest judged joint by joint, V_MV from status
+    (about 50 samples a second: plenty for a mean over whole periods)."""
+    from daemon.identify import _move, _wait_for_rest
+
+    describe = client.describe()
+    names = [j["name"] for j in describe["joints"]]
+    rig = config.parse(describe["rig"]["source"], "<daemon>")
+
+    def move(target: list[float]) -> None:
+        here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
+        reply = _move(client, target, here)
+        time.sleep(reply.get("duration_s", 0.0))
+        for name in names:
+            _wait_for_rest(client, name)
+
+    def dithered(joint: str, seconds: float) -> tuple[float, float]:
+        reply = client.call("excite", dither_args(rig, joint))
+        start = time.monotonic()
+        time.sleep(max(reply["duration_s"] - seconds, 0.0))
+        rows = []
+        while time.monotonic() - start < reply["duration_s"]:
+            j = client.status()["joints"][joint]
+            rows.append((j["u_volts"], j["angle_deg"]))
+            time.sleep(0.02)
+        return tuple(sum(c) / len(c) for c in zip(*rows))
+
+    return Arm(move, dithered)
+
+
+def run(client, reference: Path, unloaded: bool) -> dict:
+    """``pneumactl payload identify``: the unloaded reference (``unloaded``), stored in
+    ``reference``; or the loaded run against it, and the payload."""
+    rig = config.parse(client.describe()["rig"]["source"], "<daemon>")
+    if client.status()["state"] != "enabled":
+        raise SystemExit("the arm is not enabled: `pneumactl enable` first (the routine moves it)")
+    targets = postures(rig) if unloaded else load_reference(reference, rig)[0]
+    client.acquire_lease()
+    client.keep_lease()
+
+    def show(k, n, target, torques):
+        print(f"posture {k} of {n} at {', '.join(f'{a:.1f}' for a in target)} deg: torques "
+              f"{', '.join(f'{t:.3f}' for t in torques)} N m", file=sys.stderr, flush=True)
+
+    readings = measure(client_arm(client), rig, targets, show)
+    if unloaded:
+        save_reference(reference, rig, targets, readings)
+        return {"reference": str(reference), "postures_deg": targets,
+                "torques_nm": [r.torques_nm for r in readings]}
+    _, before = load_reference(reference, rig)
+    return estimate(rig, before, readings).as_dict()

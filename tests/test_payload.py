@@ -1,0 +1,82 @@
+"""Payload identification by torque balance (controllers.payload, daemon.payload_routine):
+the three steps against exact and noisy torques, the identifiability it must refuse, the
+unloaded reference's file, and the whole routine on the simulated arm through the real loop."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bench.payload import measure, rig_text
+from controllers.payload import NOT_IDENTIFIABLE, Posture, identify
+from daemon import payload_routine
+from hal import config
+from hal.kinematics import payload_torques
+
+LENGTHS = (0.1, 0.1)
+G = (0.0, -9.81)
+
+
+def rows(targets_deg, mass, com_m, noise=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for q in targets_deg:
+        q_rad = tuple(math.radians(a) for a in q)
+        exact = payload_torques(q_rad, LENGTHS, mass, com_m, G)
+        out.append(Posture(q_rad, tuple(t * (1.0 + rng.normal(0.0, noise)) for t in exact)))
+    return out
+
+
+def test_the_three_steps_recover_mass_and_centre_and_say_the_third_axis_is_not_identifiable():
+    targets = payload_routine.postures(config.load())
+    found = identify(rows(targets, 0.2, (0.015, -0.008)), LENGTHS, G)
+    assert found.mass_kg == pytest.approx(0.2, rel=1e-9)
+    assert found.com_m == pytest.approx((0.015, -0.008), abs=1e-9)
+    assert found.out_of_plane == NOT_IDENTIFIABLE
+    noisy = identify(rows(targets, 0.2, (0.015, -0.008), noise=0.05, seed=3), LENGTHS, G)
+    assert abs(noisy.mass_kg - 0.2) < 3 * noisy.mass_std_kg + 1e-3  # the stated sigma covers the miss
+    assert abs(noisy.com_m[0] - 0.015) < 3 * noisy.com_std_m[0] + 5e-4
+
+
+def test_postures_that_cannot_tell_the_unknowns_apart_are_refused_with_the_reason():
+    turned_alike = [(90.0 + a, -a) for a in (0.0, 10.0, 20.0)]  # the last link keeps one direction
+    with pytest.raises(ValueError, match="centre of mass is not identifiable"):
+        identify(rows(turned_alike, 0.2, (0.01, 0.0)), LENGTHS, G)
+    upright = [(90.0, b) for b in (-30.0, -60.0, -90.0)]  # the first link along gravity: no moment arm
+    with pytest.raises(ValueError, match="mass is not identifiable"):
+        identify(rows(upright, 0.2, (0.01, 0.0)), LENGTHS, G)
+    with pytest.raises(ValueError, match="two at least"):
+        identify(rows([(120.0, -60.0)], 0.2, (0.01, 0.0)), LENGTHS, G)
+
+
+def test_the_reference_file_belongs_to_its_rig(tmp_path):
+    rig = config.load()
+    path = tmp_path / "ref.json"
+    readings = [payload_routine.Reading([100.1, -60.2], [0.1, 0.2])]
+    payload_routine.save_reference(path, rig, [[100.0, -60.0]], readings)
+    assert payload_routine.load_reference(path, rig) == ([[100.0, -60.0]], readings)
+    with pytest.raises(ValueError, match="another arm"):
+        payload_routine.load_reference(path, config.load("sim-3joint"))
+    with_payload = config.parse(rig_text(0.1, (10.0, 0.0)), "payload")  # the same arm, a payload on it
+    assert payload_routine.load_reference(path, with_payload)[1] == readings
+    path.write_text(path.read_text()[:40])
+    with pytest.raises(ValueError, match="not a readable payload reference"):
+        payload_routine.load_reference(path, rig)
+
+
+@pytest.mark.slow
+def test_the_dithered_balance_torques_carry_the_payloads_moment():
+    """The routine's measurement on the simulated arm (vertical plane, the rig's noise and
+    friction), through the loop: each joint's loaded minus unloaded balance torque against
+    the payload's true moment, friction (0.27 and 0.22 N m of breakaway) dithered out."""
+    rig = config.load()
+    targets = payload_routine.postures(rig)[:2]
+    unloaded = measure(rig_text(0.0, (0.0, 0.0)), targets)
+    loaded = measure(rig_text(0.15, (20.0, -10.0)), targets)
+    for before, after in zip(unloaded, loaded):
+        moment = payload_torques([math.radians(a) for a in after.angles_deg], LENGTHS, 0.15, (0.02, -0.01), G)
+        for j in range(2):
+            measured = after.torques_nm[j] - before.torques_nm[j]
+            assert measured == pytest.approx(-moment[j], abs=0.015), (j, measured, -moment[j])
+            assert abs(moment[j]) > 0.04  # a moment the test can see, beyond its tolerance
