@@ -1,6 +1,6 @@
 """Payload identification on the simulated arm (rig-facts §4), and the paper's noise study.
 
-    python -m bench.payload [--noise-runs 10]
+    python -m bench.payload [--noise-runs 10] [--noise-only] [--plot docs/images/payload-noise.png]
 
 The arm: the built-in rig, in a vertical plane (``arm.gravity_m_s2``), with its sensor noise
 and friction. **Capacity** (this arm's, for scaling the paper's figures): the middle joint decides it. Of
@@ -34,6 +34,8 @@ CAPACITY_KG = 0.2
 PAPER = {"mass_kg": 0.032, "com_mm": 4.14, "capacity_kg": 3.0, "reach_m": 0.5}
 PAYLOADS = [(0.05, (10.0, 0.0)), (0.1, (20.0, -10.0)), (0.15, (-10.0, 15.0)), (0.2, (30.0, 5.0))]
 NOISE_LEVELS = (0.01, 0.05, 0.10, 0.20)
+PAPER_NOISE = {0.01: (2.75, 3.14, 0.013), 0.05: (3.33, 3.54, 0.043), 0.10: (4.45, 4.32, 0.073),
+               0.20: (9.75, 6.58, 0.130)}  # rig-facts §4: x, y [mm], mass [kg] (its z: our out-of-plane)
 
 
 def rig_text(mass_kg: float, com_mm: tuple[float, float]) -> str:
@@ -119,9 +121,37 @@ def noise_study(rig, targets, runs: int) -> list[tuple]:
     return rows
 
 
+def plot(path: str, rows: list[tuple], scale_l: float, scale_m: float) -> None:
+    """The noise study against the paper's, the paper's figures scaled to this arm."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    levels = [r[0] * 100 for r in rows]
+    fig, (ax_c, ax_m) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for k, (name, style) in enumerate((("x (along the link)", "C0"), ("y (across)", "C1"))):
+        ax_c.plot(levels, [r[1 + k] for r in rows], style + "o-", label=f"{name}, this arm")
+        ax_c.plot(levels, [PAPER_NOISE[r[0]][k] * scale_l for r in rows], style + "s--", alpha=0.6,
+                  label=f"{name}, the paper's, scaled x{scale_l:.2f}")
+    ax_m.plot(levels, [r[3] * 1e3 for r in rows], "C2o-", label="this arm")
+    ax_m.plot(levels, [PAPER_NOISE[r[0]][2] * scale_m * 1e3 for r in rows], "C2s--", alpha=0.6,
+              label=f"the paper's, scaled x{scale_m:.3f}")
+    ax_c.set_ylabel("centre of mass RMS error [mm]")
+    ax_m.set_ylabel("mass RMS error [g]")
+    for ax in (ax_c, ax_m):
+        ax.set_xlabel("torque noise [% of each torque]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Payload identification: error against torque noise (bench.payload; z is not identifiable here)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.payload", description=__doc__.splitlines()[0])
     ap.add_argument("--noise-runs", type=int, default=10)
+    ap.add_argument("--noise-only", action="store_true", help="the noise study alone (no runs on the arm)")
+    ap.add_argument("--plot", default=None, help="write the noise study as a PNG")
     args = ap.parse_args(argv)
     header("payload identification by torque balance on the simulated arm")
     rig = config.load()
@@ -131,6 +161,23 @@ def main(argv=None) -> int:
     goal_mass, goal_com = PAPER["mass_kg"] * scale_m, PAPER["com_mm"] * scale_l
     print(f"postures [deg]: {targets}")
     print(f"goal (the paper's, scaled): mass within {goal_mass * 1e3:.1f} g, centre of mass within {goal_com:.2f} mm")
+    if not args.noise_only:
+        arm_table(rig, targets)
+    print(f"\nnoise study ({args.noise_runs} runs a level, payload {PAYLOADS[1][0]} kg at {PAYLOADS[1][1]} mm; "
+          "RMS error; z: out of the arm's plane)\n")
+    print("| torque noise | x (along) mm | y (across) mm | z mm | mass kg |")
+    print("|---|---|---|---|---|")
+    rows = noise_study(rig, targets, args.noise_runs)
+    for level, ex, ey, em in rows:
+        print(f"| {level:.0%} | {ex:.2f} | {ey:.2f} | not identifiable | {em:.4f} |")
+    if args.plot:
+        plot(args.plot, rows, scale_l, scale_m)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def arm_table(rig, targets) -> None:
+    """The routine on the simulated arm, each payload against one unloaded reference."""
     unloaded = measure(rig_text(0.0, (0.0, 0.0)), targets)
     print("\n| payload [kg] | centre of mass (along, across) [mm] | mass found [kg] | mass error [g] | "
           "centre found [mm] | centre error [mm] | out of plane |")
@@ -142,13 +189,6 @@ def main(argv=None) -> int:
         print(f"| {mass:.2f} | {com[0]:.0f}, {com[1]:.0f} | {found.mass_kg:.4f} +- {found.mass_std_kg:.4f} | "
               f"{(found.mass_kg - mass) * 1e3:+.1f} | {found.com_m[0] * 1e3:.1f}, {found.com_m[1] * 1e3:.1f} | "
               f"{miss:.1f} | not identifiable |")
-    print(f"\nnoise study ({args.noise_runs} runs a level, payload {PAYLOADS[1][0]} kg at {PAYLOADS[1][1]} mm; "
-          "RMS error; z: out of the arm's plane)\n")
-    print("| torque noise | x (along) mm | y (across) mm | z mm | mass kg |")
-    print("|---|---|---|---|---|")
-    for level, ex, ey, em in noise_study(rig, targets, args.noise_runs):
-        print(f"| {level:.0%} | {ex:.2f} | {ey:.2f} | not identifiable | {em:.4f} |")
-    return 0
 
 
 if __name__ == "__main__":
