@@ -1,24 +1,23 @@
 """``pneumactl payload identify``'s routine (rig-facts §4), beside the loop: postures chosen for
-identifiability, each approached from both sides, the joint torques at rest measured from the
-chamber pressure commands, an unloaded reference stored once, and the payload fitted by
-controllers.payload.
+identifiability, each joint's balance torque measured there with its friction dithered out,
+an unloaded reference stored once, and the payload fitted by controllers.payload.
 
-**Torque at rest** [N m]: tau = K_mdl L (A_H P_H - A_L P_L) (rig-facts §1, the model's torque
+**Balance torque** [N m]: tau = K_mdl L (A_H P_H - A_L P_L) (rig-facts §1, the model's torque
 scale K_mdl included), with P_H, P_L the pressures the loop commands through the ITV0051s
-(after their lag they are the chambers'), averaged over ``HOLD_S`` at rest.
+for the mean V_MV (after their lag they are the chambers').
 
 **Static friction** holds a joint anywhere within +-Fs of its balance, so a torque read at rest
 is ambiguous by up to Fs (on the middle joint as large as the heaviest payload's moment).
 So each joint is **dithered** open loop at each posture: an input-side ``excite`` whose V_MV
-is a sine of ``DITHER_FS`` times the joint's breakaway (Fs over its volts-to-torque, from the
-model; at most ``DITHER_MAX_V``) at ``DITHER_HZ``, which keeps it sliding both ways, about a centring PI that holds it
-at the posture; the mean V_MV over the last ``AVERAGED_S`` is the balance: inertia, damping
-and friction (odd in the velocity of a symmetric motion) average out, and the centring PI
-has settled on what holds the joint there. (Tried first and left behind: approaching each
-posture from both sides and averaging, and a 0.5 deg dither on the set-point under the
-holding PID: the middle joint stuck through them, its torque off by +-0.1 N m.) The
-unloaded reference is measured the same way, so the arm's own gravity, spring and bias
-cancel in loaded minus unloaded.
+is a sine of ``DITHER_FS`` times the joint's breakaway (Fs over its volts-to-torque, from
+the model; at most ``DITHER_MAX_V``) at ``DITHER_HZ``, which keeps it sliding both ways,
+about a centring PI that holds it at the posture; the mean V_MV over the last ``AVERAGED_S``
+is the balance: inertia, damping and friction (odd in the velocity of a symmetric motion)
+average out, and the centring PI has settled on what holds the joint there. (Tried first and
+left behind: approaching each posture from both sides and averaging, and a 0.5 deg dither on
+the set-point under the holding PID: the middle joint stuck through them, its torque off by
++-0.1 N m.) The unloaded reference is measured the same way, so the arm's own gravity,
+spring and bias cancel in loaded minus unloaded.
 """
 from __future__ import annotations
 
@@ -71,8 +70,7 @@ def dither_args(rig: RigConfig, joint: str) -> dict:
     params = rig.joint_params(next(j for j in rig.joints if j.name == joint))
     return {"side": "input", "signal": "multisine", "joint": joint,
             "amplitude_v": round(min(DITHER_FS * params.Fs / params.torque_per_volt, DITHER_MAX_V), 3),
-            "f0_hz": DITHER_HZ,
-            "f1_hz": 2 * DITHER_HZ, "components": 1, "period_s": 1.0 / DITHER_HZ,
+            "f0_hz": DITHER_HZ, "f1_hz": 2 * DITHER_HZ, "components": 1, "period_s": 1.0 / DITHER_HZ,
             "periods": int(DITHER_S * DITHER_HZ), "settle_s": 2.0, "band_deg": 5.0, "centre_hz": CENTRE_HZ}
 
 
