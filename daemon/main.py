@@ -88,6 +88,12 @@ def check_config(args) -> int:
         print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, model "
               + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
                  if params is not None else "none"))
+    print(f"  arm: links {', '.join(f'{l:g}' for l in rig.arm.link_lengths_mm)} mm, gravity in its plane "
+          f"({', '.join(f'{g:g}' for g in rig.arm.gravity_m_s2)}) m/s^2")
+    if rig.contact_sensor is not None:
+        sensor = rig.contact_sensor
+        print(f"  contact sensor: {sensor.source} pad, {sensor.rate_hz:g} frames/s, {len(sensor.dead)} dead taxel(s), "
+              f"forgetting {sensor.forgetting:g}")
     return 0
 
 
