@@ -60,13 +60,13 @@ class PayloadEstimate:
                 "residual_nm": self.residual_nm, "out_of_plane": self.out_of_plane}
 
 
-def _lstsq(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least squares with each coefficient's 1 sigma from the residuals, and the RMS residual."""
+def _lstsq(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares with each coefficient's 1 sigma from the residuals."""
     x, *_ = np.linalg.lstsq(a, b, rcond=None)
     r = b - a @ x
     dof = max(len(b) - a.shape[1], 1)
     cov = np.linalg.pinv(a.T @ a) * float(r @ r) / dof
-    return x, np.sqrt(np.clip(np.diag(cov), 0.0, None)), float(np.sqrt(np.mean(r * r)))
+    return x, np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
 
 def identify(postures: Sequence[Posture], lengths: Sequence[float], gravity: Sequence[float]) -> PayloadEstimate:
@@ -75,8 +75,8 @@ def identify(postures: Sequence[Posture], lengths: Sequence[float], gravity: Seq
     if len(postures) < 2:
         raise ValueError(f"{len(postures)} posture(s): two at least are needed (the centre of mass has two unknowns)")
     rows_m, y_m, rows_c, y_c = [], [], [], []
-    for p in postures:
-        points = joint_points(p.angles_rad, lengths)
+    arms = [joint_points(p.angles_rad, lengths) for p in postures]  # joints and tip [m], per posture
+    for p, points in zip(postures, arms):
         for i in range(len(points) - 2):  # step 1: neighbouring joints
             rows_m.append(moment((points[i + 1][0] - points[i][0], points[i + 1][1] - points[i][1]), gravity))
             y_m.append(p.dtau_nm[i] - p.dtau_nm[i + 1])
@@ -84,13 +84,12 @@ def identify(postures: Sequence[Posture], lengths: Sequence[float], gravity: Seq
     if len(rows_m) == 0 or np.linalg.norm(a_m) < 1e-3 * math.hypot(*gravity) * max(lengths):
         raise ValueError("the mass is not identifiable from these postures: every link between joints lies "
                          "along gravity (or the arm has one joint)")
-    mass, mass_std, _ = _lstsq(a_m, np.array(y_m))
+    mass, mass_std = _lstsq(a_m, np.array(y_m))
     m = float(mass[0])
     if m <= 0:
         raise ValueError(f"the torque differences give a mass of {m:.3g} kg: no payload, or the unloaded "
                          "reference is not this arm's")
-    for p in postures:  # step 2: the centre of mass in the plane, every joint's row
-        points = joint_points(p.angles_rad, lengths)
+    for p, points in zip(postures, arms):  # step 2: the centre of mass in the plane, every joint's row
         phi = sum(p.angles_rad)
         along, across = (math.cos(phi), math.sin(phi)), (-math.sin(phi), math.cos(phi))
         tip = points[-1]
@@ -101,7 +100,7 @@ def identify(postures: Sequence[Posture], lengths: Sequence[float], gravity: Seq
     if np.linalg.matrix_rank(a_c, tol=1e-3 * float(np.abs(a_c).max() or 1.0)) < 2:
         raise ValueError("the centre of mass is not identifiable from these postures: the last link keeps one "
                          "direction; turn it (the paper's 90 deg steps)")
-    com, com_std, _ = _lstsq(a_c, np.array(y_c))
+    com, com_std = _lstsq(a_c, np.array(y_c))
     model = [payload_torques(p.angles_rad, lengths, m, com, gravity) for p in postures]
     misfit = np.array([t - e for p, row in zip(postures, model) for t, e in zip(p.dtau_nm, row)])
     return PayloadEstimate(m, float(mass_std[0]), (float(com[0]), float(com[1])),

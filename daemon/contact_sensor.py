@@ -23,10 +23,8 @@ from hal.seqlock import try_read, write_locked
 from hal.taxel_array import ContactSensorConfig
 
 FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual")
-UNITS = {"cx": "m", "cy": "m", "a": "m", "b": "m", "p_max": "Pa", "beta": "-", "force_n": "N", "area_m2": "m^2",
-         "taxels": "-", "residual": "-"}
 COUNTERS = ("frames", "late_frames", "bad_frames", "contact_frames")
-_HEAD = ("frame", "t_frame", "valid")  # frame index, its time.monotonic(), an estimate or none
+HEAD = 3  # frame index, its time.monotonic(), whether an estimate follows; then FIELDS
 _ERROR_BYTES = 240
 LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whole estimate
 OPEN_TIMEOUT_S = 10.0
@@ -36,7 +34,7 @@ class _Shared:
     def __init__(self):
         raw = multiprocessing.get_context("spawn")
         self.seq = raw.RawValue(ctypes.c_uint64, 0)
-        self.values = raw.RawArray(ctypes.c_double, len(_HEAD) + len(FIELDS))
+        self.values = raw.RawArray(ctypes.c_double, HEAD + len(FIELDS))
         self.counters = raw.RawArray(ctypes.c_uint64, len(COUNTERS))
         self.stop = raw.RawValue(ctypes.c_bool, False)
         self.error = raw.RawArray(ctypes.c_char, _ERROR_BYTES)
@@ -50,7 +48,8 @@ class ContactSensor:
         self.clock = clock  # the loop's clock (seconds)
         self._shared: _Shared | None = None
         self._process = None
-        self._latest: dict | None = None
+        self._latest: dict | None = None  # the newest estimate, as the topic carries it (its age aside)
+        self._latest_mono = 0.0  # its frame's time.monotonic()
         self._last_seq = 0
 
     def open(self) -> None:
@@ -83,26 +82,22 @@ class ContactSensor:
         found = try_read(shared.seq, shared.values, tries=LOOP_READ_TRIES)
         if found is not None and found[0] != self._last_seq:
             self._last_seq = found[0]
-            values = found[1]
-            frame, t_frame, valid = values[:3]
-            age = max(time.monotonic() - t_frame, 0.0)
-            self._latest = {"frame": int(frame), "frame_t": self.clock() - age, "_mono": t_frame,
+            frame, self._latest_mono, valid = found[1][:HEAD]
+            self._latest = {"frame": int(frame), "frame_t": self.clock() - self._age(),
                             "contact": ({name: (int(v) if name == "taxels" else v)
-                                         for name, v in zip(FIELDS, values[3:])} if valid else None)}
+                                         for name, v in zip(FIELDS, found[1][HEAD:])} if valid else None)}
         if self._latest is None:
             return None
-        age = max(time.monotonic() - self._latest["_mono"], 0.0)
-        return {k: v for k, v in self._latest.items() if k != "_mono"} | {"age_s": age, **self.counters()}
+        return {**self._latest, "age_s": self._age(), **self.counters()}
+
+    def _age(self) -> float:
+        return max(time.monotonic() - self._latest_mono, 0.0)
 
     def counters(self) -> dict:
         return dict(zip(COUNTERS, self._shared.counters[:])) if self._shared is not None else {}
 
     def last_error(self) -> str:
         return self._shared.error.value.decode(errors="replace") if self._shared is not None else ""
-
-    @property
-    def alive(self) -> bool:
-        return self._process is not None and self._process.is_alive()
 
 
 def _stop(shared: _Shared, process) -> None:
@@ -117,9 +112,7 @@ def _stop(shared: _Shared, process) -> None:
 def _work(shared: _Shared, config: ContactSensorConfig) -> None:
     """Frames at the sensor's rate through the device and the estimator, until told to stop
     or the daemon is gone."""
-    from controllers.contact_force import (
-        ContactEstimator,  # the estimator lives in this process alone
-    )
+    from controllers.contact_force import ContactEstimator  # the estimator lives in this process alone
     from hal.offloop import die_with_parent
     from hal.taxel_array import TaxelArray
     from sim_backend.contact_patch import Impact, ImpactReplay

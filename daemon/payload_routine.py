@@ -168,15 +168,13 @@ def estimate(rig: RigConfig, unloaded: list[Reading], loaded: list[Reading]) -> 
     return identify(rows, rig.arm.link_lengths_m, rig.arm.gravity_m_s2)
 
 
-def client_arm(client) -> Arm:
+def client_arm(client, rig: RigConfig) -> Arm:
     """The routine's Arm through a daemon's client (it holds the lease): unhurried moves
     (refused ones slowed as the daemon says), rest judged joint by joint, V_MV from status
     (about 50 samples a second: plenty for a mean over whole periods)."""
     from daemon.identify import _move, _wait_for_rest
 
-    describe = client.describe()
-    names = [j["name"] for j in describe["joints"]]
-    rig = config.parse(describe["rig"]["source"], "<daemon>")
+    names = [j.name for j in rig.joints]
 
     def move(target: list[float]) -> None:
         here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
@@ -205,7 +203,7 @@ def run(client, reference: Path, unloaded: bool) -> dict:
     rig = config.parse(client.describe()["rig"]["source"], "<daemon>")
     if client.status()["state"] != "enabled":
         raise SystemExit("the arm is not enabled: `pneumactl enable` first (the routine moves it)")
-    targets = postures(rig) if unloaded else load_reference(reference, rig)[0]
+    targets, before = (postures(rig), None) if unloaded else load_reference(reference, rig)
     client.acquire_lease()
     client.keep_lease()
 
@@ -213,10 +211,9 @@ def run(client, reference: Path, unloaded: bool) -> dict:
         print(f"posture {k} of {n} at {', '.join(f'{a:.1f}' for a in target)} deg: torques "
               f"{', '.join(f'{t:.3f}' for t in torques)} N m", file=sys.stderr, flush=True)
 
-    readings = measure(client_arm(client), rig, targets, show)
+    readings = measure(client_arm(client, rig), rig, targets, show)
     if unloaded:
         save_reference(reference, rig, targets, readings)
         return {"reference": str(reference), "postures_deg": targets,
                 "torques_nm": [r.torques_nm for r in readings]}
-    _, before = load_reference(reference, rig)
     return estimate(rig, before, readings).as_dict()
