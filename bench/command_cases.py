@@ -23,7 +23,7 @@ class Case:
     cmd: str
     args: dict = field(default_factory=dict)
     expect: str | None = None  # None: a result; else the error code
-    needs: str = "enabled"  # the state prepare() sets up: enabled, idle, shadow
+    needs: str = "enabled"  # the state prepare() sets up: enabled, idle, estop, pid, shadow, loaded
     control: bool = False  # sent on the control socket
 
 
@@ -104,6 +104,10 @@ CASES: list[Case] = [
     Case("controller.commit", "controller.commit", needs="shadow"),
     Case("controller.discard", "controller.discard", needs="shadow"),
     Case("controller.commit, no shadow", "controller.commit", {}, P.BAD_STATE, needs="pid"),
+    Case("load.set, the heaviest the arm carries in every posture", "load.set",
+         {"mass_kg": 0.4, "com_mm": [20.0, 0.0]}),
+    Case("load.set, beyond the arm", "load.set", {"mass_kg": 1000.0, "com_mm": [500.0, 0.0]}, P.BAD_ARGS),
+    Case("load.clear", "load.clear", needs="loaded"),
     Case("record.start, the longest name, 24 h", "record.start", {"name": "r" * 80, "seconds": 86400.0}, needs="any"),
     Case("record.start, a name with a path in it", "record.start", {"name": "../../etc/passwd"}, P.BAD_ARGS,
          needs="any"),
@@ -133,6 +137,10 @@ def prepare(client: Client, case: Case) -> None:
     if state == "idle":
         client.enable()
     client.abort()
+    if case.needs == "loaded":
+        client.call("load.set", {"mass_kg": 0.1})
+    elif client.status()["load"] is not None:  # a load fed forward would change what motion may do
+        client.call("load.clear")
     if case.needs in ("pid", "shadow"):
         if client.controller()["name"] != "pid":
             client.switch_controller("pid")

@@ -2,7 +2,7 @@
 docs/protocol.md, accepted and refused, with its largest allowed arguments) sent in turn to a
 real, real-time ``pneumad`` on the simulated rig, with the loop's own figures.
 
-Usage: python -m bench.command_stall [--repeat 10] [--window 0.2] [--no-rt] [--cpus 1]
+Usage: python -m bench.command_stall [--repeat 10] [--window 0.2] [--no-rt] [--cpus 1] [--only TEXT]
 
 Per case ``--repeat`` rounds of: put the daemon in the state the case needs (unmeasured), send the
 case's request and time its reply. The daemon publishes ``stats`` every ``--window`` s; the
@@ -54,7 +54,9 @@ def main() -> None:
     ap.add_argument("--window", type=float, default=0.2, help="stats window [s]")
     ap.add_argument("--no-rt", action="store_true")
     ap.add_argument("--cpus", default=None, help="the loop's CPU affinity (pneumad --cpus)")
+    ap.add_argument("--only", default=None, metavar="TEXT", help="just the cases whose label contains TEXT")
     args = ap.parse_args()
+    cases = [c for c in CASES if args.only is None or args.only in c.label]
     header("the loop while each command is handled")
     options = ["--stats-period", str(args.window), *(["--no-rt"] if args.no_rt else []),
                *(["--cpus", args.cpus] if args.cpus else [])]
@@ -63,7 +65,7 @@ def main() -> None:
         time.sleep(1.0)
         drain(stats_sub, time.monotonic())  # start-up windows
         rows, busy = [], 0.0
-        for case in CASES:
+        for case in cases:
             replies, windows, codes = [], [], set()
             for _ in range(args.repeat):
                 prepare(client, case)

@@ -133,7 +133,7 @@ def status_key(status: dict) -> tuple:
 
 
 def restore(client: Client) -> dict:
-    """Back to enabled, holding, PID, with the lease (a fuzzed lease.release is a valid
+    """Back to enabled, holding, PID, no load, with the lease (a fuzzed lease.release is a valid
     command): the state rejected frames must not change."""
     status = client.status()
     if not status["lease_held"]:
@@ -144,6 +144,8 @@ def restore(client: Client) -> dict:
     if client.status()["state"] == "idle":
         client.enable()
     client.abort()
+    if status["load"] is not None:
+        client.call("load.clear")
     if client.controller()["name"] != "pid":
         client.switch_controller("pid")
     try:

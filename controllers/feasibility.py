@@ -5,8 +5,8 @@ Rig-facts §1 "Authority that follows": V_MV spans the bias to the 0-10 V edges 
 Coulomb friction leave of that torque. Along the reference's profile
 (:meth:`~controllers.trajectory.Trajectory.profile`), the volts that hold the motion in steady
 state (:meth:`NominalJoint.static_volts`, J th'' + D th' + K (th - th_0) + Fc sgn th' - tau_bias
-= kt V_MV) must stay within the fraction ``limits.authority_fraction`` of the range (below 1
-leaves a margin to feedback). A refusal carries the numbers: needed and available volts,
+= kt V_MV, plus a known payload's holding volts, controllers.known_load) must stay within the
+fraction ``limits.authority_fraction`` of the range (below 1 leaves a margin to feedback). A refusal carries the numbers: needed and available volts,
 head-chamber pressure and speed, where and when.
 
 The shortest feasible duration comes from the shape, not from trying durations. A time-scaled
@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controllers.known_load import KnownLoad
 from controllers.nominal import NominalJoint
 from controllers.profile import Profile
 from controllers.trajectory import Trajectory
@@ -85,6 +86,7 @@ class Authority:
     u_max: Sequence[float]
     bias_volts: Sequence[float]
     fraction: float  # of the V_MV range a reference may ask for in steady state (limits.authority_fraction)
+    load: KnownLoad | None = None  # a known payload: its holding volts count against the range
 
     @classmethod
     def of(cls, rig, context, fraction: float) -> "Authority":
@@ -99,6 +101,8 @@ class Authority:
         m = self.models[j]
         q, w, a = profile.q[:, j], profile.w[:, j], profile.a[:, j]
         c = (m.K * (q - m.neutral) + m.Fc * np.sign(w) - m.bias_torque) / m.kt
+        if self.load is not None:
+            c = c + self.load.volts_along(profile.q)[:, j]
         return m.J * a / m.kt, m.D * w / m.kt, c
 
     def shortfalls(self, trajectory: Trajectory | Profile) -> list[Shortfall]:

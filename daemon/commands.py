@@ -25,13 +25,15 @@ every event a request causes records who asked.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from controllers import registry
 from controllers.base import ParamError
 from daemon import planner
 from daemon import protocol as P
-from daemon.arguments import CommandFailed, number, only
+from controllers.known_load import KnownLoad
+from daemon.arguments import CommandFailed, bad_args, checked_numbers, number, only
 from daemon.keys import ANONYMOUS, Identity
 from daemon.lease import Lease
 from daemon.preparation import Deferred, Preparer
@@ -63,6 +65,8 @@ class Commands:
         "controller.shadow": ("controller_shadow", True, False),
         "controller.commit": ("controller_commit", True, False),
         "controller.discard": ("controller_discard", True, False),
+        "load.set": ("load_set", True, False),
+        "load.clear": ("load_clear", True, False),
         "lease.acquire": ("lease_acquire", False, False),
         "lease.renew": ("lease_renew", True, False),
         "lease.release": ("lease_release", True, False),
@@ -210,6 +214,7 @@ class Commands:
             "security": self.security,
             "trips": loop.supervisor.trips,
             "overruns_total": loop.stats.overruns_total,
+            "load": self._load(),
             "transport": vars(loop.io.transport.health()),
             "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
         }
@@ -316,6 +321,42 @@ class Commands:
         if not self.loop.supervisor.enabled:
             raise CommandFailed(P.BAD_STATE, f"the arm is {self.loop.state.value}: enable it first",
                                 {"reason": "state", "state": self.loop.state.value})
+
+    # -- a known load ---------------------------------------------------------------------
+    def load_set(self, args):
+        """Feed a known payload forward (controllers.known_load) from the next cycle, bumplessly;
+        refused if the rig's joints have no model or cannot carry it in every posture."""
+        only(args, "mass_kg", "com_mm")
+        mass = number(args, "mass_kg", 0.0, 1000.0)
+        com = checked_numbers("com_mm", args.get("com_mm", [0.0, 0.0]), 2)
+        rig = self.loop.rig
+        try:
+            load = KnownLoad.for_rig(mass, [c * 1e-3 for c in com], self.loop.context, rig.arm.link_lengths_m,
+                                     rig.arm.gravity_m_s2)
+        except ValueError as exc:
+            raise bad_args(str(exc), "com_mm" if "centre of mass" in str(exc) else "mass_kg") from None
+        self._known_load(load)
+        return {"load": self._load(), "cycle": self.loop.cycle}
+
+    def load_clear(self, args):
+        """Stop feeding a load forward (bumplessly); says whether one was."""
+        only(args)
+        had = self.loop.feed_forward.load is not None
+        if had:
+            self._known_load(None)
+        return {"cleared": had, "cycle": self.loop.cycle}
+
+    def _known_load(self, load: KnownLoad | None) -> None:
+        """The loop feeds ``load`` forward, and motion is planned with it."""
+        self.loop.set_load(load)
+        ctx = self._plan_context
+        self._plan_context = dataclasses.replace(ctx, authority=dataclasses.replace(ctx.authority, load=load))
+
+    def _load(self) -> dict | None:
+        ff = self.loop.feed_forward
+        if ff.load is None:
+            return None
+        return {**ff.load.describe(), "feedforward_volts": dict(zip(self.loop.io.joint_names, ff.volts))}
 
     # -- controllers ------------------------------------------------------------------------
     def controller_list(self, args):

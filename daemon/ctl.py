@@ -133,6 +133,14 @@ def parser() -> argparse.ArgumentParser:
     pay.add_argument("--unloaded", action="store_true",
                      help="measure the unloaded arm and store it as the reference (do this once, without a payload)")
     pay.add_argument("--reference", default="payload-reference.json", help="the unloaded reference's file")
+    pay.add_argument("--apply", action="store_true",
+                     help="give the identified payload to the controllers as a known load (load.set)")
+    ld = sub.add_parser("load", help="a known payload at the tip, fed forward to every controller (gravity)")
+    ld.add_argument("action", choices=("set", "clear"))
+    ld.add_argument("mass_kg", nargs="?", type=float, help="set: the payload's mass [kg]")
+    ld.add_argument("--com", default="0,0", metavar="ALONG,ACROSS",
+                    help="its centre of mass from the tip, along and across the last link [mm] (default 0,0; "
+                         "--com=-5,3 when the first is negative)")
     idp = sub.add_parser("identify", help="identify a joint's model: excite, record, fit, plot, write a rig file")
     idp.add_argument("joint")
     idp.add_argument("--out", default=None, help="directory for the rig file, figures and report "
@@ -313,12 +321,22 @@ def run(client: Client, args):
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "keys":
         return client.call("keys.reload", control=True)
+    if w == "load":
+        if args.action == "clear":
+            return with_lease(client, lambda: client.call("load.clear"))
+        if args.mass_kg is None:
+            raise SystemExit("load set MASS_KG [--com ALONG,ACROSS]")
+        try:
+            com = [float(v) for v in args.com.split(",")]
+        except ValueError:
+            raise SystemExit(f"--com {args.com!r}: two numbers ALONG,ACROSS [mm]") from None
+        return with_lease(client, lambda: client.call("load.set", {"mass_kg": args.mass_kg, "com_mm": com}))
     if w == "payload":
         from pathlib import Path
 
         from daemon import payload_routine
         try:
-            return payload_routine.run(client, Path(args.reference), args.unloaded)
+            return payload_routine.run(client, Path(args.reference), args.unloaded, args.apply)
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from None
     if w == "identify":

@@ -23,6 +23,7 @@ from controllers.base import (
 from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
+from daemon.feed_forward import LoadFeedForward
 from daemon.open_loop import OpenLoopRun
 from daemon.safety import State, Supervisor
 from daemon.shadow import ShadowRun
@@ -73,7 +74,8 @@ class ControlLoop:
         self.trajectory_generation = 0  # counts every change of reference: a plan made before one is stale
         self._reference_running = False  # a timed reference whose end event is still to come
         self.open_loop: OpenLoopRun | None = None  # an input-side experiment in progress
-        self.u = [0.0] * self.n  # last V_MV [V]
+        self.u = [0.0] * self.n  # last V_MV applied [V]: the controller's, plus the load's feed-forward
+        self.feed_forward = LoadFeedForward(self.context)  # a known payload's V_MV, none at first
         self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
         self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
         self.angles = [0.0] * self.n  # last valid angles [rad]
@@ -227,13 +229,16 @@ class ControlLoop:
         ref = self.trajectory.sample(now - self.trajectory_t0)
         self.reference = ref
         state, reference = JointState(now, self.angles, self.velocities), Reference(*ref)
+        ff = self.feed_forward
+        if ff.load is not None:
+            ff.update(self.controller, ref[0])
         try:
             u = self.controller.step(state, reference)
             check_output(u, self.n)
         except Exception as exc:  # a plugin's failure must never take the loop down
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return
-        self.u = list(u)  # the loop's own copy: a plugin may reuse its buffer
+        self.u = ff.added(u) if ff.load is not None else list(u)  # the loop's own copy: a plugin may reuse its buffer
         judged = ref[0]
         if self.open_loop is not None:
             if self.open_loop.apply(self, now):
@@ -245,7 +250,7 @@ class ControlLoop:
             self.controller_lost(lost)
         if self.shadow is not None:
             try:
-                self.shadow.step(state, reference, self.u)
+                self.shadow.step(state, reference, self.feed_forward.share(self.u))
             except Exception as exc:  # the candidate's failure ends its run, nothing more
                 self.end_shadow("failed", f"{type(exc).__name__}: {exc}")
 
@@ -254,7 +259,7 @@ class ControlLoop:
         failed = self.controller.name
         self.supervisor.trip(cause)
         hold = Hold(self.context)
-        hold.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        hold.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
         self.controller = hold
         self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
                                        "params": hold.get_params()})
@@ -336,7 +341,7 @@ class ControlLoop:
         """Feedback takes the excited joint back, bumplessly from the output in force; an
         experiment that left its band is cut, the arm held where it is."""
         run, self.open_loop = self.open_loop, None
-        self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
         if run.ended and run.ended != "done":
             self.supervisor.events.append({"kind": "experiment", "action": "abort", "joint": run.name,
                                            "cause": run.ended})
@@ -369,9 +374,18 @@ class ControlLoop:
         faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)
         self.supervisor.reset(faults)
 
+    def set_load(self, load) -> None:
+        """Feed ``load`` (controllers.known_load, or None) forward from the next cycle."""
+        self.feed_forward.change(load, self.controller, self.reference[0])
+        if self.supervisor.enabled:  # bumplessly: the applied sum does not jump
+            self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities),
+                                  self.feed_forward.share(self.u))
+        self.supervisor.events.append({"kind": "load", "action": "set" if load else "clear",
+                                       **(load.describe() if load else {})})
+
     def switch_controller(self, new: Controller, cause: str = "switch") -> None:
         """Swap in a controller built and validated beforehand; bumpless via reset()."""
-        new.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        new.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
         old = self.controller.name
         self.controller = new
         self.tracking.clear()
@@ -383,7 +397,7 @@ class ControlLoop:
         shadow run already going); it starts from the present state and output."""
         if self.shadow is not None:
             self.end_shadow("replaced", f"by {candidate.name}")
-        candidate.reset(JointState(self.clock.now(), self.angles, self.velocities), self.u)
+        candidate.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
         self.shadow = ShadowRun(candidate, self.n)
         self.supervisor.events.append({"kind": "shadow", "action": "start", "controller": candidate.name})
 

@@ -197,9 +197,10 @@ def client_arm(client, rig: RigConfig) -> Arm:
     return Arm(move, dithered)
 
 
-def run(client, reference: Path, unloaded: bool) -> dict:
+def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
     """``pneumactl payload identify``: the unloaded reference (``unloaded``), stored in
-    ``reference``; or the loaded run against it, and the payload."""
+    ``reference``; or the loaded run against it, and the payload, given to the controllers
+    as a known load (``load.set``) with ``apply``."""
     rig = config.parse(client.describe()["rig"]["source"], "<daemon>")
     if client.status()["state"] != "enabled":
         raise SystemExit("the arm is not enabled: `pneumactl enable` first (the routine moves it)")
@@ -216,4 +217,7 @@ def run(client, reference: Path, unloaded: bool) -> dict:
         save_reference(reference, rig, targets, readings)
         return {"reference": str(reference), "postures_deg": targets,
                 "torques_nm": [r.torques_nm for r in readings]}
-    return estimate(rig, before, readings).as_dict()
+    found = estimate(rig, before, readings).as_dict()
+    if apply:
+        found["applied"] = client.call("load.set", {"mass_kg": found["mass_kg"], "com_mm": found["com_mm"]})
+    return found
