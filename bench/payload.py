@@ -1,6 +1,6 @@
 """Payload identification on the simulated arm (rig-facts §4), and the paper's noise study.
 
-    python -m bench.payload [--noise-runs 10] [--noise-only] [--plot docs/images/payload-noise.png]
+    python -m bench.payload [--repeats 3] [--noise-runs 10] [--noise-only] [--plot docs/images/payload-noise.png]
 
 The arm: the built-in rig, in a vertical plane (``arm.gravity_m_s2``), with its sensor noise
 and friction. **Capacity** (this arm's, for scaling the paper's figures): the middle joint decides it. Of
@@ -11,8 +11,8 @@ paper's arm carried up to 2.963 kg (say 3 kg) over about 0.5 m of reach; its 0.0
 4.14 mm scale to this arm as mass x (0.2 / 3) and length x (0.2 / 0.5).
 
 Each payload runs the routine of ``pneumactl payload identify`` (daemon.payload_routine)
-through the real loop on a virtual clock: postures, approaches from both sides, torques at
-rest from the pressure commands, against an unloaded reference run first. The noise study
+through the real loop on a virtual clock: postures, each joint dithered there, its balance
+torque from the pressure commands, against an unloaded reference run first. The noise study
 repeats the paper's (rig-facts §4): the torque differences at the same postures, exact, with
 Gaussian noise of 1-20 % of each, ``--noise-runs`` times: the RMS error of each estimate.
 """
@@ -151,6 +151,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.payload", description=__doc__.splitlines()[0])
     ap.add_argument("--noise-runs", type=int, default=10)
     ap.add_argument("--noise-only", action="store_true", help="the noise study alone (no runs on the arm)")
+    ap.add_argument("--repeats", type=int, default=3, help="rounds of the routine on the arm (default 3)")
     ap.add_argument("--plot", default=None, help="write the noise study as a PNG")
     args = ap.parse_args(argv)
     header("payload identification by torque balance on the simulated arm")
@@ -162,7 +163,7 @@ def main(argv=None) -> int:
     print(f"postures [deg]: {targets}")
     print(f"goal (the paper's, scaled): mass within {goal_mass * 1e3:.1f} g, centre of mass within {goal_com:.2f} mm")
     if not args.noise_only:
-        arm_table(rig, targets)
+        arm_table(rig, targets, args.repeats)
     print(f"\nnoise study ({args.noise_runs} runs a level, payload {PAYLOADS[1][0]} kg at {PAYLOADS[1][1]} mm; "
           "RMS error; z: out of the arm's plane)\n")
     print("| torque noise | x (along) mm | y (across) mm | z mm | mass kg |")
@@ -176,19 +177,30 @@ def main(argv=None) -> int:
     return 0
 
 
-def arm_table(rig, targets) -> None:
-    """The routine on the simulated arm, each payload against one unloaded reference."""
-    unloaded = measure(rig_text(0.0, (0.0, 0.0)), targets)
-    print("\n| payload [kg] | centre of mass (along, across) [mm] | mass found [kg] | mass error [g] | "
-          "centre found [mm] | centre error [mm] | out of plane |")
+def arm_table(rig, targets, repeats: int) -> None:
+    """The routine on the simulated arm: ``repeats`` rounds, each an unloaded reference and
+    every payload against it (the loop's virtual time drifts with how long the planner takes,
+    so no two rounds meet friction alike); each payload's mean estimate, and its largest
+    errors over the rounds."""
+    found = {payload: [] for payload in PAYLOADS}
+    for _ in range(repeats):
+        unloaded = measure(rig_text(0.0, (0.0, 0.0)), targets)
+        for mass, com in PAYLOADS:
+            found[(mass, com)].append(payload_routine.estimate(rig, unloaded, measure(rig_text(mass, com), targets)))
+    print(f"\n{repeats} round(s), each an unloaded reference and every payload against it; "
+          "mean estimate, its 1 sigma (the routine's own, mean), and the largest errors over the rounds\n")
+    print("| payload [kg] | centre of mass (along, across) [mm] | mass found [kg] | mass errors [g] | "
+          "centre found [mm] | centre errors [mm] | out of plane |")
     print("|---|---|---|---|---|---|---|")
-    for mass, com in PAYLOADS:
-        loaded = measure(rig_text(mass, com), targets)
-        found = payload_routine.estimate(rig, unloaded, loaded)
-        miss = math.hypot(found.com_m[0] * 1e3 - com[0], found.com_m[1] * 1e3 - com[1])
-        print(f"| {mass:.2f} | {com[0]:.0f}, {com[1]:.0f} | {found.mass_kg:.4f} +- {found.mass_std_kg:.4f} | "
-              f"{(found.mass_kg - mass) * 1e3:+.1f} | {found.com_m[0] * 1e3:.1f}, {found.com_m[1] * 1e3:.1f} | "
-              f"{miss:.1f} | not identifiable |")
+    for (mass, com), runs in found.items():
+        masses = [f.mass_kg for f in runs]
+        mass_errors = [(m - mass) * 1e3 for m in masses]
+        misses = [math.hypot(f.com_m[0] * 1e3 - com[0], f.com_m[1] * 1e3 - com[1]) for f in runs]
+        centre = np.mean([f.com_m for f in runs], axis=0) * 1e3
+        print(f"| {mass:.2f} | {com[0]:.0f}, {com[1]:.0f} | {np.mean(masses):.4f} +- "
+              f"{np.mean([f.mass_std_kg for f in runs]):.4f} | {', '.join(f'{e:+.1f}' for e in mass_errors)} "
+              f"(worst {max(map(abs, mass_errors)):.1f}) | {centre[0]:.1f}, {centre[1]:.1f} | "
+              f"{', '.join(f'{d:.1f}' for d in misses)} (worst {max(misses):.1f}) | not identifiable |")
 
 
 if __name__ == "__main__":

@@ -270,6 +270,14 @@ class Client:
     def set_params(self, **params):
         return self.call("controller.set", {"params": params})
 
+    def set_load(self, mass_kg: float, com_mm=(0.0, 0.0)):
+        """A known payload [kg] at ``com_mm`` (along, across the last link from the tip
+        [mm]), its weight fed forward to every controller."""
+        return self.call("load.set", {"mass_kg": mass_kg, "com_mm": list(com_mm)})
+
+    def clear_load(self):
+        return self.call("load.clear")
+
     # -- lease ----------------------------------------------------------------------------
     def acquire_lease(self, ttl_s: float | None = None):
         result = self.call("lease.acquire", {} if ttl_s is None else {"ttl_s": ttl_s})

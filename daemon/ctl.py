@@ -323,14 +323,14 @@ def run(client: Client, args):
         return client.call("keys.reload", control=True)
     if w == "load":
         if args.action == "clear":
-            return with_lease(client, lambda: client.call("load.clear"))
+            return with_lease(client, client.clear_load)
         if args.mass_kg is None:
             raise SystemExit("load set MASS_KG [--com ALONG,ACROSS]")
         try:
             com = [float(v) for v in args.com.split(",")]
         except ValueError:
             raise SystemExit(f"--com {args.com!r}: two numbers ALONG,ACROSS [mm]") from None
-        return with_lease(client, lambda: client.call("load.set", {"mass_kg": args.mass_kg, "com_mm": com}))
+        return with_lease(client, lambda: client.set_load(args.mass_kg, com))
     if w == "payload":
         from pathlib import Path
 

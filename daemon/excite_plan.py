@@ -118,6 +118,9 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
     peak = float(np.max(np.abs(u))) if len(u) else 0.0
     model = ctx.authority.models[j] if ctx.authority is not None else None
     u_op = model.static_volts(q, 0.0, 0.0) if model is not None else None
+    load = ctx.authority.load if ctx.authority is not None else None
+    if u_op is not None and load is not None:  # a known payload's holding volts are in the operating point
+        u_op += load.volts(setpoint)[j]
     if ctx.authority is not None:
         u_lo, u_hi = ctx.authority.u_min[j], ctx.authority.u_max[j]
         centre = u_op if u_op is not None else 0.0

@@ -39,8 +39,10 @@ from hal.regulator import ITV0051
 DITHER_FS = 2.0  # the dither's V_MV amplitude over the joint's breakaway V_MV (Fs / kt) ...
 DITHER_MAX_V = 2.2  # ... and at most this [V]: the middle joint's range keeps room for its load
 DITHER_HZ = 0.5
-DITHER_S = 30.0  # the dither's length after its settling [s]
-AVERAGED_S = 12.0  # the mean is taken over its last this [s] (whole periods)
+DITHER_S = 42.0  # the dither's length after its settling [s]
+AVERAGED_S = 24.0  # the mean is taken over its last this [s] (whole periods): over 12 s the bottom
+#                    joint's balance torque (0.85 N m per volt) scattered by 2 mN m from run to run,
+#                    over 24 s by 0.5 mN m; the mass hangs on it (1 mN m is about 1 g)
 CENTRE_HZ = 0.1  # the centring PI's crossover: settled well within DITHER_S - AVERAGED_S
 MARGIN_DEG = 8.0  # postures this far inside the joint limits
 HOLD_V = 0.75  # postures whose spring needs at most this V_MV (nominal model) [V]
@@ -219,5 +221,5 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
                 "torques_nm": [r.torques_nm for r in readings]}
     found = estimate(rig, before, readings).as_dict()
     if apply:
-        found["applied"] = client.call("load.set", {"mass_kg": found["mass_kg"], "com_mm": found["com_mm"]})
+        found["applied"] = client.set_load(found["mass_kg"], found["com_mm"])
     return found

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -148,3 +149,22 @@ def test_the_built_in_rigs_all_take_a_load_within_their_capacity():
         sim = make_rig(name=name)
         load = _load(sim, 0.1, (10.0, 0.0))
         assert len(load.volts([math.radians(j.neutral_deg) for j in rig.joints])) == len(rig.joints)
+
+
+def test_an_input_experiment_is_planned_about_the_volts_that_hold_the_known_load():
+    """The payload routine dithers with a load possibly set: the open-loop operating point the
+    planner checks against the V_MV range includes the load's holding volts."""
+    from daemon import planner
+
+    sim = make_rig()
+    plain = planner.PlanContext.of(sim.rig, sim.context())
+    load = _load(sim, 0.3, (20.0, 0.0))
+    loaded = dataclasses.replace(plain, authority=dataclasses.replace(plain.authority, load=load))
+    setpoint = [math.radians(120.0), math.radians(-100.0)]
+    args = {"side": "input", "signal": "multisine", "joint": "middle", "amplitude_v": 0.5, "f0_hz": 0.5,
+            "f1_hz": 1.0, "components": 1, "period_s": 2.0, "periods": 2}
+    request = {"cmd": "excite", "payload": msgpack.packb(args), "args_span": (0, len(msgpack.packb(args))), "id": 1}
+    without = planner.plan(plain, request, setpoint).reply["u_op_estimate_v"]
+    with_load = planner.plan(loaded, request, setpoint).reply["u_op_estimate_v"]
+    assert with_load - without == pytest.approx(load.volts(setpoint)[1], abs=1e-9)
+    assert with_load - without > 2.0
