@@ -18,7 +18,7 @@ from bench.common import header, percentiles
 from controllers.base import ControllerContext, JointState, Reference
 from controllers.pid import PID
 from hal import config
-from hal.actuation import BiasedHeadActuation
+from hal.actuation import RigActuation
 from hal.rig import RigIO
 from hal.transport import create_transport
 
@@ -38,7 +38,7 @@ def main() -> None:
     transport = create_transport(rig, time.monotonic)
     transport.open()
     io = RigIO(rig, transport)
-    act = BiasedHeadActuation(io.head, io.rod)
+    act = RigActuation(rig)
     pid = PID(ControllerContext.for_rig(rig, act, 0.001))
     q0 = list(io.read().angles)
     zeros = [0.0, 0.0]
@@ -55,7 +55,7 @@ def main() -> None:
         previous = wake
         snap = io.read()
         u = pid.step(JointState(snap.t, snap.angles, zeros), Reference(q0, zeros, zeros))
-        io.write_pressures(*act.pressures(u))
+        io.write_pressures(*act.outputs(u))
         compute.append((time.monotonic() - wake) * 1e6)
         if wake > end:
             loop.stop()

@@ -3,8 +3,11 @@
 A controller is built and validated off the loop, then swapped in at a cycle boundary.
 ``reset(state, last_output)`` initialises it from the measured state and the output in
 force, so the switch is bumpless; ``step(state, reference)`` runs once per cycle and returns
-the manipulated variable per joint: V_MV [V], the head-chamber command relative to its bias
-(rig-facts §1 [2-30]). Everything else is SI (rad, rad/s, s).
+the rig's command vector (:mod:`hal.actuation`): on a cylinder rig the manipulated variable per
+joint, V_MV [V], the head-chamber command relative to its bias (rig-facts §1 [2-30]); on the
+muscle rig each joint's two muscle pressures [Pa] (and its brake torque [N m]). A controller
+declares the actuation it drives (``actuation``) and is refused on a rig whose joints declare
+another. Everything else is SI (rad, rad/s, s, N m/rad).
 
 Parameters are described (unit, bounds, doc) and are per joint. A change is validated whole
 and applied whole, or refused with a message naming the parameter, the joint and the bound.
@@ -72,19 +75,34 @@ class ControllerContext:
 
     joint_names: tuple[str, ...]
     dt: float  # loop period [s]
-    u_min: tuple[float, ...]  # V_MV range per joint, from the bias and the 0-10 V span [V]
-    u_max: tuple[float, ...]
+    u_min: tuple[float, ...]  # each command's range (hal.actuation): V_MV per cylinder joint, from
+    u_max: tuple[float, ...]  # the bias and the 0-10 V span [V]; a muscle pair's pressures [Pa] ...
     models: tuple[NominalJoint | None, ...] = ()  # nominal plant per joint, None where none is identified
+    actuations: tuple[str, ...] = ()  # per joint: "cylinder" or "muscle_pair" (default: all cylinder)
+    commands: tuple = ()  # hal.actuation.CommandInterface per command (default: one V_MV per joint)
+    muscles: tuple = ()  # hal.muscle.MuscleJoint per joint, None for a cylinder joint
 
     @classmethod
     def for_rig(cls, rig, actuation, dt: float) -> "ControllerContext":
-        """The context of a configured rig: its joints, its V_MV range, its nominal models."""
+        """The context of a configured rig: its joints, its command ranges, its nominal models."""
+        from hal.muscle import MuscleJoint
         return cls(tuple(j.name for j in rig.joints), dt, actuation.u_min, actuation.u_max,
-                   tuple(NominalJoint.from_rig(j, rig.joint_params(j)) for j in rig.joints))
+                   tuple(NominalJoint.from_rig(j, rig.joint_params(j)) if j.head is not None else None
+                         for j in rig.joints),
+                   tuple(j.actuation for j in rig.joints), actuation.commands,
+                   tuple(MuscleJoint.from_rig(rig, j) if j.muscles is not None else None for j in rig.joints))
 
     @property
     def n(self) -> int:
         return len(self.joint_names)
+
+    @property
+    def width(self) -> int:
+        """How many commands a controller returns each cycle."""
+        return len(self.u_min)
+
+    def actuation_of(self, joint: int) -> str:
+        return self.actuations[joint] if self.actuations else "cylinder"
 
     def require_models(self, who: str) -> tuple[NominalJoint, ...]:
         """The nominal models, or ParamError naming the joints that have none."""
@@ -102,6 +120,7 @@ class JointState:
     t: float  # [s]
     angles: Sequence[float]  # [rad]
     velocities: Sequence[float]  # [rad/s], filtered differences of the angles
+    pressures: Sequence[float] = ()  # measured chamber pair per joint, flattened [Pa] (NaN: no sensor)
 
 
 @dataclass(slots=True)
@@ -111,12 +130,14 @@ class Reference:
     angles: Sequence[float]  # [rad]
     velocities: Sequence[float]  # [rad/s]
     accelerations: Sequence[float]  # [rad/s^2]
+    stiffness: Sequence[float] = ()  # desired joint stiffness [N m/rad] where a joint takes one (NaN: default)
 
 
 class Controller(ABC):
     """Subclasses set ``name`` and ``params`` (and ``options``) and implement ``reset`` and ``step``."""
 
     name: ClassVar[str] = ""
+    actuation: ClassVar[str | None] = "cylinder"  # the joints it drives; None: any (it only holds an output)
     params: ClassVar[tuple[ParamSpec, ...]] = ()
     options: ClassVar[tuple[OptionSpec, ...]] = ()
     internals: ClassVar[tuple[SignalSpec, ...]] = ()
@@ -124,6 +145,7 @@ class Controller(ABC):
     def __init__(self, context: ControllerContext, options: Mapping[str, object] | None = None,
                  **values: Sequence[float] | float):
         self.context = context
+        self._check_actuation(context)
         # the output range step() clamps to and its anti-windup judges saturation by [V]; a
         # wrapper that adds to the output (the disturbance observer) shifts it every cycle
         self.u_lo, self.u_hi = list(context.u_min), list(context.u_max)
@@ -132,6 +154,16 @@ class Controller(ABC):
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
         self._values = defaults
         self.apply_params(self.prepare_params(values))
+
+    def _check_actuation(self, context: ControllerContext) -> None:
+        """ParamError unless every joint of the rig declares the actuation this controller drives."""
+        if self.actuation is None:
+            return
+        for i, joint in enumerate(context.joint_names):
+            kind = context.actuation_of(i)
+            if kind != self.actuation:
+                raise ParamError(f"{self.name} drives {self.actuation} joints; joint {joint!r} is a {kind} "
+                                 f"(controllers for it: {', '.join(_drivers(kind))})")
 
     def derive(self, values: Mapping[str, tuple[float, ...]]) -> object:
         """Constants the controller computes from a parameter set (gains, designs). Pure: it
@@ -227,6 +259,17 @@ class Controller(ABC):
         return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
                 "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options],
                 "internals": [s.describe() for s in cls.internals]}
+
+
+def _drivers(actuation: str) -> list[str]:
+    """The built-in controllers that drive joints of this actuation."""
+    from controllers import registry
+    names = []
+    for name in registry.BUILTIN:
+        cls = registry.load(name)
+        if cls.actuation in (actuation, None):
+            names.append(name)
+    return names
 
 
 def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:

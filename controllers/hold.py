@@ -8,9 +8,10 @@ class Hold(Controller):
     """Holds the last output; the loop's fallback when a controller fails."""
 
     name = "hold"
+    actuation = None  # any rig's: it repeats the output in force
 
     def __init__(self, context, **values):
-        self._u = [0.0] * context.n
+        self._u = [0.0] * context.width
         super().__init__(context, **values)
 
     def reset(self, state: JointState, last_output) -> None:

@@ -18,6 +18,8 @@ BUILTIN = {
     "lti_dob": "controllers.lti:LTIWithDOB",
     "pid": "controllers.pid:PID",
     "hold": "controllers.hold:Hold",
+    "muscle_eq": "controllers.muscle:MuscleEquilibrium",
+    "muscle_pid": "controllers.muscle:MusclePID",
 }
 
 

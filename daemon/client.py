@@ -182,8 +182,13 @@ class Client:
     def reset(self):
         return self.call("reset")
 
-    def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False):
+    def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False,
+            stiffness_nm_deg=None):
+        """Move to joint angles [deg] or a tip point [mm]; ``stiffness_nm_deg`` (one number, or
+        one per joint) where the joints take a stiffness set-point."""
         args = {"duration_s": duration_s, **_record(record)}
+        if stiffness_nm_deg is not None:
+            args["stiffness_nm_deg"] = stiffness_nm_deg
         if angles_deg is not None:
             args["angles_deg"] = list(angles_deg)
         if xy_mm is not None:

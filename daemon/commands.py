@@ -201,10 +201,7 @@ class Commands:
             "shadow": loop.shadow.summary() if loop.shadow is not None else None,
             "reference": loop.trajectory_name if loop.supervisor.enabled else None,
             "reference_remaining_s": loop.reference_remaining() if loop.supervisor.enabled else 0.0,
-            "joints": {name: {"angle_deg": math.degrees(q), "setpoint_deg": math.degrees(r),
-                              "velocity_deg_s": math.degrees(w), "u_volts": u}
-                       for name, q, r, w, u in zip(loop.io.joint_names, loop.angles, loop.reference[0],
-                                                   loop.velocities, loop.u)},
+            "joints": {name: self._joint_status(i) for i, name in enumerate(loop.io.joint_names)},
             "force_n": None if loop.force != loop.force else loop.force,
             "faults": list(snap.faults) if snap is not None else [],
             "lease_held": self.lease.held,
@@ -231,10 +228,8 @@ class Commands:
             "rig": {"name": rig.rig.name, "description": rig.rig.description, "origin": rig.origin, "hash": rig.hash,
                     "source": rig.source},
             "period_s": loop.period,
-            "joints": [{"name": j.name, "min_angle_deg": j.min_angle_deg, "max_angle_deg": j.max_angle_deg,
-                        "max_speed_deg_s": j.max_speed_deg_s, "u_min_volts": lo, "u_max_volts": hi,
-                        "safe_mpa": [j.head.safe_mpa, j.rod.safe_mpa]}
-                       for j, lo, hi in zip(rig.joints, loop.actuation.u_min, loop.actuation.u_max)],
+            "joints": [self._describe_joint(j) for j in rig.joints],
+            "command_interfaces": [c.describe() for c in loop.actuation.commands],
             "arm": {"link_lengths_mm": list(rig.arm.link_lengths_mm), "elbow": rig.arm.elbow},
             "limits": {"max_pressure_mpa": rig.limits.max_pressure_mpa,
                        "max_pressure_rate_mpa_s": rig.limits.max_pressure_rate_mpa_s,
@@ -254,6 +249,39 @@ class Commands:
             "deferred_timeout_s": self.preparer.time_limit_s,
             "security": self.security,
         }
+
+    def _joint_status(self, i: int) -> dict:
+        """One joint in ``status``: angle, set-point, speed, and its commands in force (V_MV as
+        ``u_volts``; a muscle pair's pressures [Pa] and brake [N m], its stiffness set-point
+        and measured pressures)."""
+        loop = self.loop
+        name = loop.io.joint_names[i]
+        out = {"angle_deg": math.degrees(loop.angles[i]), "setpoint_deg": math.degrees(loop.reference[0][i]),
+               "velocity_deg_s": math.degrees(loop.velocities[i])}
+        commands = {c.name: loop.u[k] for k, c in enumerate(loop.actuation.commands) if c.joint == name}
+        if "v_mv" in commands:
+            out["u_volts"] = commands["v_mv"]
+        else:
+            k = loop.stiffness[i]
+            out["commands"] = commands
+            out["stiffness_nm_deg"] = None if k != k else math.radians(k)
+            pressures = loop.pressures[2 * i:2 * i + 2]
+            out["pressures_pa"] = [None if p != p else p for p in pressures]
+        return out
+
+    def _describe_joint(self, j) -> dict:
+        """A joint as ``describe`` gives it: limits, actuation, its commands' ranges, safe state."""
+        commands = [c for c in self.loop.actuation.commands if c.joint == j.name]
+        joint = {"name": j.name, "min_angle_deg": j.min_angle_deg, "max_angle_deg": j.max_angle_deg,
+                 "max_speed_deg_s": j.max_speed_deg_s, "actuation": j.actuation, "chambers": list(j.chambers),
+                 "commands": [c.name for c in commands],
+                 "setpoints": ["angle", "stiffness"] if j.muscles is not None else ["angle"],
+                 "safe_mpa": [d.safe_mpa for d in j.pressure_outputs]}
+        if j.muscles is None:
+            joint["u_min_volts"], joint["u_max_volts"] = commands[0].low, commands[0].high
+        if j.brake is not None:
+            joint["safe_brake_nm"] = j.brake.safe_nm
+        return joint
 
     # -- state ------------------------------------------------------------------------------
     def estop(self, args):
@@ -312,7 +340,7 @@ class Commands:
                 raise CommandFailed(P.BAD_STATE, "the reference changed while this was planned (an abort, a reset, "
                                                  "another command): nothing was started", {"reason": "overtaken"})
             self._require_enabled()
-            loop.set_trajectory(plan.trajectory, plan.name, plan.record)
+            loop.set_trajectory(plan.trajectory, plan.name, plan.record, plan.stiffness)
             return {**plan.reply, "cycle": loop.cycle, **({"recording": plan.record} if plan.record else {})}
 
         return self._off_loop(finish, planner.plan, self._plan_context, request, setpoint)

@@ -43,7 +43,8 @@ def motion(client: Client, args):
     w, record = args.what, args.record
     if w == "set":
         kw = {"xy_mm": args.values} if args.xy else {"angles_deg": args.values}
-        send = lambda: client.set(duration_s=args.duration, record=record, **kw)  # noqa: E731
+        send = lambda: client.set(duration_s=args.duration, record=record, stiffness_nm_deg=args.stiffness,  # noqa: E731
+                                  **kw)
     elif w == "path":
         send = lambda: client.path(args.name, args.duration, args.approach, record=record)  # noqa: E731
     elif w == "waypoints":
@@ -93,6 +94,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("values", type=float, nargs="+")
     s.add_argument("--xy", action="store_true", help="values are x y in mm")
     s.add_argument("--duration", type=float, default=0.0)
+    s.add_argument("--stiffness", type=float, default=None, metavar="NM_PER_DEG",
+                   help="joint stiffness [N m/deg], where the joints take one (the muscle rig)")
     pa = sub.add_parser("path", help="run a reference path")
     motion.append(pa)
     pa.add_argument("name", choices=["translation", "circle"])

@@ -28,6 +28,8 @@ class LoadFeedForward:
     def share(self, applied: Sequence[float]) -> list[float]:
         """The controller's part of the V_MV ``applied``: what a controller reset on it
         continues from, so the applied sum does not jump."""
+        if self.load is None:  # (on a muscle rig, always: its commands are not one V_MV a joint)
+            return list(applied)
         return [u - f for u, f in zip(applied, self.volts)]
 
     def change(self, load: KnownLoad | None, controller, angles: Sequence[float]) -> None:

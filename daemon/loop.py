@@ -29,7 +29,7 @@ from daemon.safety import State, Supervisor
 from daemon.shadow import ShadowRun
 from daemon.stats import LoopStats
 from daemon.tracking import TrackingGuard
-from hal.actuation import BiasedHeadActuation
+from hal.actuation import RigActuation
 from hal.errors import CommandError, ConfigError, TransportError
 from hal.rig import RigIO, Snapshot
 
@@ -44,7 +44,7 @@ class ControlLoop:
         self.clock = clock
         self.period = period
         self.n = len(io.joint_names)
-        self.actuation = BiasedHeadActuation(io.head, io.rod)
+        self.actuation = RigActuation(self.rig)  # the joints' command interfaces
         self.context = ControllerContext.for_rig(self.rig, self.actuation, period)
         self.supervisor = Supervisor(self.rig, period)
         self.controller_plugins = dict(controller_plugins or {})  # name -> module:Class, from the daemon's configuration
@@ -74,10 +74,13 @@ class ControlLoop:
         self.trajectory_generation = 0  # counts every change of reference: a plan made before one is stale
         self._reference_running = False  # a timed reference whose end event is still to come
         self.open_loop: OpenLoopRun | None = None  # an input-side experiment in progress
-        self.u = [0.0] * self.n  # last V_MV applied [V]: the controller's, plus the load's feed-forward
+        self.u = list(self.actuation.neutral)  # last commands applied (V_MV [V] per cylinder joint: the
+        #                                        controller's plus a known load's feed-forward; a muscle pair's [Pa])
         self.feed_forward = LoadFeedForward(self.context)  # a known payload's V_MV, none at first
         self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
         self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
+        self.stiffness = [math.nan] * self.n  # stiffness set-point per joint [N m/rad]; NaN: the controller's own
+        self.pressures: tuple[float, ...] = ()  # measured chamber pairs [Pa] (joints with sensors)
         self.angles = [0.0] * self.n  # last valid angles [rad]
         self.velocities = [0.0] * self.n  # filtered [rad/s]
         self.force = math.nan
@@ -222,19 +225,21 @@ class ControlLoop:
                     self.velocities[i] += a * (raw - self.velocities[i])
                     self.angles[i] = q
         self.force = snap.force
+        self.pressures = snap.pressures
 
     def _control(self, now: float) -> None:
         if self._reference_running and now - self.trajectory_t0 >= self.trajectory.duration:
             self._end_reference()
         ref = self.trajectory.sample(now - self.trajectory_t0)
         self.reference = ref
-        state, reference = JointState(now, self.angles, self.velocities), Reference(*ref)
+        state = JointState(now, self.angles, self.velocities, self.pressures)
+        reference = Reference(*ref, self.stiffness)
         ff = self.feed_forward
         if ff.load is not None:
             ff.update(self.controller, ref[0])
         try:
             u = self.controller.step(state, reference)
-            check_output(u, self.n)
+            check_output(u, self.actuation.width)
         except Exception as exc:  # a plugin's failure must never take the loop down
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
             return
@@ -259,7 +264,7 @@ class ControlLoop:
         failed = self.controller.name
         self.supervisor.trip(cause)
         hold = Hold(self.context)
-        hold.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
+        hold.reset(self._state(), self.feed_forward.share(self.u))
         self.controller = hold
         self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
                                        "params": hold.get_params()})
@@ -278,11 +283,11 @@ class ControlLoop:
         self.supervisor.trip(f"controller {lost}: {cause}")
 
     def _write_command(self) -> None:
-        p_head, p_rod = self.actuation.pressures(self.u)
+        p_head, p_rod, brakes = self.actuation.outputs(self.u)
         clamp = self.supervisor.clamp
         p_head, p_rod = clamp(p_head, self.p_head), clamp(p_rod, self.p_rod)
         try:
-            self.io.write_pressures(p_head, p_rod)
+            self.io.write_pressures(p_head, p_rod, brakes)
         except (TransportError, CommandError) as exc:
             self.supervisor.trip(f"output write failed: {exc}")
             self._write_safe()
@@ -314,10 +319,14 @@ class ControlLoop:
             return 0.0
         return max(self.trajectory.duration - (self.clock.now() - self.trajectory_t0), 0.0)
 
-    def set_trajectory(self, trajectory: Trajectory, name: str, record: str | None = None) -> None:
-        """Install a reference from the next cycle on. One that runs for a time has ``reference``
-        events at its start and end (a recording bound to it, ``record``, follows them); one
-        replaced before its end ends ``cut``."""
+    def set_trajectory(self, trajectory: Trajectory, name: str, record: str | None = None,
+                       stiffness: list[float] | None = None) -> None:
+        """Install a reference from the next cycle on (with a new stiffness set-point [N m/rad]
+        per joint, NaN: the controller's own, where ``stiffness`` is given). One that runs for a
+        time has ``reference`` events at its start and end (a recording bound to it, ``record``,
+        follows them); one replaced before its end ends ``cut``."""
+        if stiffness is not None:
+            self.stiffness = list(stiffness)
         if self._reference_running:
             self._end_reference(cut=f"replaced by {name}")
         if self.open_loop is not None:
@@ -341,7 +350,7 @@ class ControlLoop:
         """Feedback takes the excited joint back, bumplessly from the output in force; an
         experiment that left its band is cut, the arm held where it is."""
         run, self.open_loop = self.open_loop, None
-        self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
+        self.controller.reset(self._state(), self.feed_forward.share(self.u))
         if run.ended and run.ended != "done":
             self.supervisor.events.append({"kind": "experiment", "action": "abort", "joint": run.name,
                                            "cause": run.ended})
@@ -354,8 +363,8 @@ class ControlLoop:
 
     def enable(self) -> None:
         self.supervisor.enable()
-        self.u = [0.0] * self.n
-        state = JointState(self.clock.now(), self.angles, self.velocities)
+        self.u = list(self.actuation.neutral)
+        state = self._state()
         self.controller.reset(state, self.u)
         if self.shadow is not None:
             self.shadow.controller.reset(state, self.u)
@@ -378,14 +387,14 @@ class ControlLoop:
         """Feed ``load`` (controllers.known_load, or None) forward from the next cycle."""
         self.feed_forward.change(load, self.controller, self.reference[0])
         if self.supervisor.enabled:  # bumplessly: the applied sum does not jump
-            self.controller.reset(JointState(self.clock.now(), self.angles, self.velocities),
+            self.controller.reset(self._state(),
                                   self.feed_forward.share(self.u))
         self.supervisor.events.append({"kind": "load", "action": "set" if load else "clear",
                                        **(load.describe() if load else {})})
 
     def switch_controller(self, new: Controller, cause: str = "switch") -> None:
         """Swap in a controller built and validated beforehand; bumpless via reset()."""
-        new.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
+        new.reset(self._state(), self.feed_forward.share(self.u))
         old = self.controller.name
         self.controller = new
         self.tracking.clear()
@@ -397,8 +406,8 @@ class ControlLoop:
         shadow run already going); it starts from the present state and output."""
         if self.shadow is not None:
             self.end_shadow("replaced", f"by {candidate.name}")
-        candidate.reset(JointState(self.clock.now(), self.angles, self.velocities), self.feed_forward.share(self.u))
-        self.shadow = ShadowRun(candidate, self.n)
+        candidate.reset(self._state(), self.feed_forward.share(self.u))
+        self.shadow = ShadowRun(candidate, self.actuation.width)
         self.supervisor.events.append({"kind": "shadow", "action": "start", "controller": candidate.name})
 
     def end_shadow(self, action: str, cause: str = "") -> dict:
@@ -415,6 +424,10 @@ class ControlLoop:
         summary = self.end_shadow("commit")
         self.switch_controller(candidate, "shadow commit")
         return summary
+
+    def _state(self) -> JointState:
+        """The measured state now, for a controller's reset."""
+        return JointState(self.clock.now(), self.angles, self.velocities, self.pressures)
 
     @property
     def state(self) -> State:

@@ -52,7 +52,7 @@ def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
         except Exception:
             transport.close()
             raise
-    return ControlLoop(io, clock, args.period, controller=args.controller, telemetry=telemetry,
+    return ControlLoop(io, clock, args.period, controller=starting_controller(args, rig), telemetry=telemetry,
                        controller_plugins=controller_plugins(args.controller_plugin), contact_sensor=contact)
 
 
@@ -67,24 +67,34 @@ def controller_plugins(items: list[str]) -> dict[str, str]:
     return plugins
 
 
+def starting_controller(args, rig) -> str:
+    """``--controller``, else the one the rig file names (``[rig] controller``), else pid."""
+    return args.controller or rig.rig.controller or "pid"
+
+
 def check_config(args) -> int:
     """``pneumad --check``: the rig file read and validated, the starting controller built on
     it (with the joints' models), a summary printed; nothing opened, nothing moved."""
     rig = load_rig(args)
     from controllers import registry
     from controllers.base import ControllerContext
-    from hal.actuation import BiasedHeadActuation
-    from hal.regulator import ITV0051
-    actuation = BiasedHeadActuation([ITV0051(j.head) for j in rig.joints], [ITV0051(j.rod) for j in rig.joints])
+    from hal.actuation import RigActuation
+    actuation = RigActuation(rig)
     context = ControllerContext.for_rig(rig, actuation, args.period)
     try:
-        registry.build(args.controller, context, plugins=controller_plugins(args.controller_plugin))
+        registry.build(starting_controller(args, rig), context, plugins=controller_plugins(args.controller_plugin))
     except (LookupError, ValueError) as exc:
         raise ConfigError(f"--controller: {exc}") from None
     print(f"{rig.origin}: rig {rig.rig.name!r} ({rig.hash[:12]}), transport {rig.transport.backend}, "
-          f"controller {args.controller}")
+          f"controller {starting_controller(args, rig)}")
     for j in rig.joints:
         params = rig.joint_params(j)
+        if j.muscles is not None:
+            m = j.muscles
+            print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, muscle pair ({m.per_side} a side, "
+                  f"L0 {m.rest_length_mm:g} mm, pulley {m.pulley_radius_mm:g} mm), link {j.link.mass_kg:g} kg"
+                  + (f", MR brake {j.brake.max_nm:g} N m" if j.brake is not None else ""))
+            continue
         print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, model "
               + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
                  if params is not None else "none"))
@@ -225,8 +235,8 @@ def parser() -> argparse.ArgumentParser:
                         help="hold /dev/cpu_dma_latency at this [us] while running, keeping idle CPUs out of "
                              "deep sleep (default 0: poll, as cyclictest does; -1 leaves the system's setting)")
         sp.add_argument("--spin-us", type=float, default=200.0, help="spin this long before each deadline [us]")
-        sp.add_argument("--controller", default="pid", help="controller active at start (default pid; a registered "
-                                                              "name, or module:Class)")
+        sp.add_argument("--controller", default=None, help="controller active at start (default: the rig file's "
+                                                             "[rig] controller, else pid; a registered name, or module:Class)")
         sp.add_argument("--controller-plugin", action="append", default=[], metavar="NAME=module:Class",
                         help="make a third-party controller available to requests under NAME, repeatable (requests "
                              "name registered controllers only: never a module to import)")

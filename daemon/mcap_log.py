@@ -60,18 +60,39 @@ OTHER_SCHEMAS = {
 }
 
 
-def state_samples(m: dict, joints: list[str], outputs: list[str]) -> Iterator[dict]:
+def command_fields(describe: dict) -> tuple[list[int], list[tuple[str, int]]]:
+    """Where each joint's V_MV sits in a state message's ``u_volts`` (-1: the joint takes none),
+    and the other commands (a muscle pair's pressures and brake) as ("joint.name", index):
+    from ``describe``'s ``command_interfaces`` (a recording older than it: one V_MV a joint)."""
+    interfaces = describe.get("command_interfaces")
+    joints = [j["name"] for j in describe["joints"]]
+    if interfaces is None:
+        return list(range(len(joints))), []
+    v_mv = {c["joint"]: k for k, c in enumerate(interfaces) if c["name"] == "v_mv"}
+    others = [(f"{c['joint']}.{c['name']}", k) for k, c in enumerate(interfaces) if c["name"] != "v_mv"]
+    return [v_mv.get(name, -1) for name in joints], others
+
+
+def state_samples(m: dict, joints: list[str], outputs: list[str], fields=None) -> Iterator[dict]:
     """A ``state`` batch (columns, as published) as one sample per cycle, each joint's numbers
-    under its name: what a recording holds and what its readers return."""
+    under its name (``fields``: :func:`command_fields`; default one V_MV a joint), and commands
+    other than V_MV under ``commands``: what a recording holds and what its readers return."""
+    u_index, others = fields if fields is not None else (list(range(len(joints))), [])
+    nan = float("nan")
     for i, cycle in enumerate(m["cycle"]):
-        shadow = m["shadow_u_volts"][i]
+        shadow, u = m["shadow_u_volts"][i], m["u_volts"][i]
         per_joint = {}
         for j, name in enumerate(joints):
-            per_joint[name] = {k: m[k][i][j] for k in PER_JOINT}
+            per_joint[name] = {k: m[k][i][j] for k in PER_JOINT if k != "u_volts"}
+            k = u_index[j]
+            per_joint[name]["u_volts"] = u[k] if k >= 0 else nan
             if shadow is not None:
-                per_joint[name]["shadow_u_volts"] = shadow[j]
-        yield {"cycle": cycle, "t": m["t"][i], "joints": per_joint, "out_volts": dict(zip(outputs, m["out_volts"][i])),
-               "force_n": m["force_n"][i], "mode": m["mode"][i]}
+                per_joint[name]["shadow_u_volts"] = shadow[k] if k >= 0 else nan
+        sample = {"cycle": cycle, "t": m["t"][i], "joints": per_joint, "out_volts": dict(zip(outputs, m["out_volts"][i])),
+                  "force_n": m["force_n"][i], "mode": m["mode"][i]}
+        if others:
+            sample["commands"] = {key: u[k] for key, k in others}
+        yield sample
 
 
 def _ns(t: float) -> int:
@@ -87,6 +108,7 @@ class McapRecording:
         self._writer.start(PROFILE, f"pneumad {describe.get('version', '?')}")
         self._joints = [j["name"] for j in describe["joints"]]
         self._outputs = [o[0] for o in describe["transport"]["outputs"]]
+        self._fields = command_fields(describe)
         self._channels = {}
         for topic in TOPICS:
             schema = state_schema(self._joints) if topic == "state" else OTHER_SCHEMAS[topic]
@@ -116,7 +138,7 @@ class McapRecording:
         if seq is not None:
             self._last_seq[topic] = seq
         if topic == "state":
-            for row in state_samples(message, self._joints, self._outputs):
+            for row in state_samples(message, self._joints, self._outputs, self._fields):
                 self._add("state", row["t"], row, sequence=row["cycle"])
             return
         self._add(topic, message.get("t", self._last_t), message)

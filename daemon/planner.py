@@ -54,12 +54,14 @@ class PlanContext:
     link_lengths_m: tuple[float, ...]
     elbow: int
     authority: Authority | None  # None when a joint has no identified model: no authority check
+    muscles: tuple = ()  # hal.muscle.MuscleJoint per joint (None: a cylinder joint, it takes no stiffness)
 
     @classmethod
     def of(cls, rig, context) -> "PlanContext":
         models_known = all(m is not None for m in context.models)
         return cls(tuple(context.joint_names), tuple(j.limits_rad for j in rig.joints), tuple(rig.arm.link_lengths_m),
-                   rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None)
+                   rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None,
+                   tuple(context.muscles))
 
     @property
     def n(self) -> int:
@@ -75,6 +77,7 @@ class Plan:
     reply: dict
     start: tuple[float, ...]  # the set-point it was planned from [rad]
     record: str | None = None  # the name of the daemon's recording of it (``record: true``)
+    stiffness: tuple[float, ...] | None = None  # a new stiffness set-point per joint [N m/rad] (``set``)
 
 
 def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
@@ -117,8 +120,9 @@ def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:
 
 def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """Move to joint angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
-    ``duration_s`` with cubic time scaling (0: a step)."""
-    only(args, "angles_deg", "angles_rad", "xy_mm", "duration_s")
+    ``duration_s`` with cubic time scaling (0: a step); where the joints take one, with a new
+    stiffness set-point (``stiffness_nm_deg``, one number or one per joint)."""
+    only(args, "angles_deg", "angles_rad", "xy_mm", "duration_s", "stiffness_nm_deg")
     given = [k for k in ("angles_deg", "angles_rad", "xy_mm") if k in args]
     if len(given) != 1:
         raise bad_args("give exactly one of angles_deg, angles_rad, xy_mm", "angles_deg")
@@ -130,10 +134,39 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     else:
         target = tip_angles(ctx, numbers(args, "xy_mm", 2)) + setpoint[2:]
     check_limits(ctx, target)
+    stiffness = stiffness_setpoint(ctx, args, target) if "stiffness_nm_deg" in args else None
     move = trajectory.JointMove(setpoint, target, duration)
     check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that angle")
-    return Plan(move, "set", {"target_deg": [math.degrees(q) for q in target], "duration_s": duration},
-                tuple(setpoint))
+    reply = {"target_deg": [math.degrees(q) for q in target], "duration_s": duration}
+    if stiffness is not None:
+        reply["stiffness_nm_deg"] = [k / DEG_PER_RAD for k in stiffness]
+    return Plan(move, "set", reply, tuple(setpoint), stiffness=stiffness)
+
+
+DEG_PER_RAD = 180.0 / math.pi
+STIFFNESS_MAX_NM_DEG = 10.0
+
+
+def stiffness_setpoint(ctx: PlanContext, args: dict, target: Sequence[float]) -> tuple[float, ...]:
+    """``stiffness_nm_deg`` [N m/deg] as a stiffness per joint [N m/rad], refused for a joint
+    that takes none (a cylinder joint) and where the muscles cannot hold the target with it
+    (both pressures within their range, gravity on the link): the reply names the range they can."""
+    raw = args["stiffness_nm_deg"]
+    values = checked_numbers("stiffness_nm_deg", raw, ctx.n) if isinstance(raw, list) else [
+        checked_number("stiffness_nm_deg", raw, 0.0, STIFFNESS_MAX_NM_DEG)] * ctx.n
+    out = []
+    for name, muscle, q, k in zip(ctx.joint_names, ctx.muscles or [None] * ctx.n, target, values):
+        if muscle is None:
+            raise bad_args(f"joint {name} takes no stiffness set-point (a cylinder joint)", "stiffness_nm_deg")
+        lo, hi = muscle.stiffness_range(q)
+        if not (0.0 < k <= STIFFNESS_MAX_NM_DEG and lo <= k * DEG_PER_RAD <= hi):
+            span = (f"{lo / DEG_PER_RAD:.3f}..{hi / DEG_PER_RAD:.3f} N m/deg" if lo <= hi else "none")
+            raise CommandFailed(P.REFUSED, f"joint {name}: the muscles cannot hold {math.degrees(q):.1f} deg with a "
+                                           f"stiffness of {k:g} N m/deg (they can: {span})",
+                                {"reason": "stiffness", "joint": name, "stiffness_nm_deg": k,
+                                 "range_nm_deg": [lo / DEG_PER_RAD, hi / DEG_PER_RAD] if lo <= hi else None})
+        out.append(k * DEG_PER_RAD)
+    return tuple(out)
 
 
 def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:

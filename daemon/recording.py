@@ -65,7 +65,7 @@ def _read_pnrec(path) -> Run:
         try:
             for topic, message in unpacker:
                 if topic == "state":
-                    run.samples.extend(mcap_log.state_samples(message, run.joints, outputs))
+                    run.samples.extend(mcap_log.state_samples(message, run.joints, outputs, mcap_log.command_fields(run.describe)))
                 else:
                     run.messages.setdefault(topic, []).append(message)
         except (ValueError, msgpack.UnpackException) as exc:

@@ -30,16 +30,17 @@ STATE_FIELDS = ("cycle", "t", "angle_rad", "velocity_rad_s", "setpoint_rad", "er
                 "p_head_pa", "p_rod_pa", "out_volts", "force_n", "mode", "shadow_u_volts")
 MODES = tuple(s.value for s in State)
 _MODE_INDEX = {s: i for i, s in enumerate(State)}
-# A state batch: seq, joints n, outputs m, rows; then the rows (see _row_format).
-_HEADER = struct.Struct("<QHHH")
+# A state batch: seq, joints n, outputs m, commands k, rows; then the rows (see _row_format).
+_HEADER = struct.Struct("<QHHHH")
 
 
 @functools.lru_cache(maxsize=8)
-def _row_format(n: int, m: int) -> struct.Struct:
-    """One cycle: cycle, t [s]; angle, velocity, set-point [rad, rad/s, rad], u [V],
-    p_head, p_rod [Pa] per joint; out volts per output [V]; force [N]; mode index;
-    shadow flag; shadow u per joint [V] (NaN without a shadow run)."""
-    return struct.Struct(f"<qd{6 * n + m + 1}dBB{n}d")
+def _row_format(n: int, m: int, k: int) -> struct.Struct:
+    """One cycle: cycle, t [s]; angle, velocity, set-point [rad, rad/s, rad] per joint; the k
+    commands u (V_MV [V] per cylinder joint; a muscle pair's pressures [Pa] and brake [N m]);
+    p_head, p_rod [Pa] per joint (the pressure pair: a muscle pair's a and b); out volts per
+    output [V]; force [N]; mode index; shadow flag; shadow u per command (NaN without a shadow run)."""
+    return struct.Struct(f"<qd{5 * n + k + m + 1}dBB{k}d")
 
 
 class Telemetry:
@@ -55,7 +56,7 @@ class Telemetry:
     def record(self, loop) -> None:
         """Pack this cycle's row into the batch; send the batch when it is full."""
         if self._shape is None:
-            self._start(loop.n, len(loop.io.last_volts))
+            self._start(loop.n, len(loop.io.last_volts), len(loop.u))
         snap = loop.snapshot
         shadow_u = loop.shadow.u if loop.shadow is not None else None
         self._row.pack_into(self._buf, _HEADER.size + self._rows * self._row.size, loop.cycle,
@@ -88,10 +89,10 @@ class Telemetry:
         if latest is not None:
             self._publish(b"contact", {"cycle": loop.cycle, "t": loop.clock.now(), **latest})
 
-    def _start(self, n: int, m: int) -> None:
-        self._shape = (n, m)
-        self._row = _row_format(n, m)
-        self._no_shadow = (math.nan,) * n
+    def _start(self, n: int, m: int, k: int) -> None:
+        self._shape = (n, m, k)
+        self._row = _row_format(n, m, k)
+        self._no_shadow = (math.nan,) * k
         self._buf = bytearray(_HEADER.size + self.batch * self._row.size)
 
     def flush(self) -> None:
@@ -117,12 +118,14 @@ class Telemetry:
 
 def state_message(body: bytes) -> dict:
     """The ``state`` message (columns, as subscribers see it) of a batch from :class:`Telemetry`."""
-    seq, n, m, count = _HEADER.unpack_from(body)
-    row = _row_format(n, m)
+    seq, n, m, k, count = _HEADER.unpack_from(body)
+    row = _row_format(n, m, k)
     columns: dict[str, list] = {name: [] for name in STATE_FIELDS}
     for r in row.iter_unpack(body[_HEADER.size:_HEADER.size + count * row.size]):
-        q, w, ref, u, ph, pr = (list(r[2 + k * n:2 + (k + 1) * n]) for k in range(6))
-        rest = r[2 + 6 * n:]
+        q, w, ref = (list(r[2 + i * n:2 + (i + 1) * n]) for i in range(3))
+        u = list(r[2 + 3 * n:2 + 3 * n + k])
+        ph, pr = list(r[2 + 3 * n + k:2 + 4 * n + k]), list(r[2 + 4 * n + k:2 + 5 * n + k])
+        rest = r[2 + 5 * n + k:]
         columns["cycle"].append(r[0])
         columns["t"].append(r[1])
         columns["angle_rad"].append(q)

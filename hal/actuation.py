@@ -1,26 +1,84 @@
-"""The actuation scheme of rig-facts §1 [2-30..2-35]: one manipulated variable per joint.
+"""Command interfaces: what a controller commands each joint with, and how that becomes the
+joint's pressure pair (after ros2_control's command interfaces).
 
-The head chamber is commanded ``V_H = V_INI,H + V_MV``, the rod chamber held at ``V_L = V_INI,L``;
-the regulator line [2-29] turns those volts into chamber pressure commands [Pa]. The
-constant force due to the biases is an offset the controller's integral absorbs.
+A joint declares its actuation by the devices its rig file names (:class:`hal.config.JointConfig`):
+
+- a **cylinder** joint takes one command, ``v_mv`` [V]: the manipulated variable of rig-facts §1
+  [2-30..2-35]. The head chamber is commanded ``V_H = V_INI,H + V_MV``, the rod chamber held
+  at ``V_L = V_INI,L``; the regulator line [2-29] turns those volts into chamber pressures [Pa].
+  The constant force due to the biases is an offset the controller's integral absorbs.
+- a **muscle pair** joint (rig-facts §2) takes its two muscle pressures, ``pressure_a`` and
+  ``pressure_b`` [Pa, gauge], and, where it has an MR brake, ``brake`` [N m].
+
+A controller's output is the flat vector of every joint's commands in joint order
+(:attr:`RigActuation.commands`); on the cylinder rig that is one V_MV per joint.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
+from hal.config import CYLINDER, RigConfig
+from hal.mr_brake import MRBrake
 from hal.regulator import ITV0051, V_MAX, V_MIN
+from hal.valve import ProportionalValve
 
 
-class BiasedHeadActuation:
-    """V_MV per joint [V] -> (head, rod) chamber pressure commands [Pa]."""
+@dataclass(frozen=True)
+class CommandInterface:
+    """One value a controller commands: its joint, name, unit and range."""
 
-    def __init__(self, head: Sequence[ITV0051], rod: Sequence[ITV0051]):
-        self._head = list(head)
-        self._bias_v = [r.config.bias_volts for r in head]
-        self._rod_pa = tuple(r.bias_pa for r in rod)
-        self.u_min = tuple(V_MIN - b for b in self._bias_v)  # V_MV range that stays within 0-10 V
-        self.u_max = tuple(V_MAX - b for b in self._bias_v)
+    joint: str
+    name: str
+    unit: str
+    low: float
+    high: float
 
-    def pressures(self, v_mv: Sequence[float]) -> tuple[list[float], tuple[float, ...]]:
-        head = [reg.pressure(b + u) for reg, b, u in zip(self._head, self._bias_v, v_mv)]
-        return head, self._rod_pa
+    def describe(self) -> dict:
+        return {"joint": self.joint, "name": self.name, "unit": self.unit, "low": self.low, "high": self.high}
+
+
+class RigActuation:
+    """The flat command vector of a rig -> each joint's (first, second) chamber pressure
+    commands [Pa] and its brake torques [N m]. Runs every cycle: plain lists, no allocation
+    beyond the three it returns."""
+
+    def __init__(self, rig: RigConfig):
+        commands: list[CommandInterface] = []
+        self._cylinders = []  # (command index, joint index, head regulator, bias [V], rod pressure [Pa])
+        self._muscles = []  # (command index, joint index, low, high [Pa])
+        self._brakes = []  # command index of each brake, in joint order
+        for i, j in enumerate(rig.joints):
+            k = len(commands)
+            if j.actuation == CYLINDER:
+                head, rod = ITV0051(j.head), ITV0051(j.rod)
+                bias = j.head.bias_volts
+                commands.append(CommandInterface(j.name, "v_mv", "V", V_MIN - bias, V_MAX - bias))
+                self._cylinders.append((k, i, head, bias, rod.bias_pa))
+                continue
+            p_max = min(rig.limits.max_pressure_mpa, j.valve_a.max_mpa, j.valve_b.max_mpa) * 1e6
+            for side, valve in (("a", j.valve_a), ("b", j.valve_b)):
+                commands.append(CommandInterface(j.name, f"pressure_{side}", "Pa",
+                                                 ProportionalValve(valve).pressure(V_MIN), p_max))
+            self._muscles.append((k, i, 0.0, p_max))
+            if j.brake is not None:
+                self._brakes.append(len(commands))
+                commands.append(CommandInterface(j.name, "brake", "N m", 0.0, MRBrake(j.brake).config.max_nm))
+        self.commands = tuple(commands)
+        self.width = len(commands)
+        self.n = len(rig.joints)
+        self.u_min = tuple(c.low for c in commands)
+        self.u_max = tuple(c.high for c in commands)
+        self.neutral = tuple(0.0 for _ in commands)  # the output a controller starts from when enabled
+
+    def outputs(self, u: Sequence[float]) -> tuple[list[float], list[float], list[float]]:
+        """(first chamber per joint, second chamber per joint) [Pa] and brake torques [N m]."""
+        first, second = [0.0] * self.n, [0.0] * self.n
+        for k, i, head, bias, rod_pa in self._cylinders:
+            first[i], second[i] = head.pressure(bias + u[k]), rod_pa
+        for k, i, _, _ in self._muscles:
+            first[i], second[i] = u[k], u[k + 1]
+        return first, second, [u[k] for k in self._brakes]
+
+    def interfaces_of(self, joint: str) -> list[str]:
+        return [c.name for c in self.commands if c.joint == joint]

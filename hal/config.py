@@ -18,33 +18,95 @@ from typing import Any
 from hal.errors import ConfigError
 from hal.force_sensor import ForceSensorConfig
 from hal.identified import IDENTIFIED, JointParams, parse_models
+from hal.mr_brake import BrakeConfig
+from hal.muscle import MuscleConfig
 from hal.potentiometer import PotentiometerConfig
+from hal.pressure_sensor import PressureSensorConfig
 from hal.regulator import RegulatorConfig
 from hal.schema import build, require
 from hal.taxel_array import ContactSensorConfig
+from hal.valve import ValveConfig
 
-BUILTIN_RIGS = {"sim": "sim_2joint.toml", "sim-3joint": "sim_3joint.toml"}
+BUILTIN_RIGS = {"sim": "sim_2joint.toml", "sim-3joint": "sim_3joint.toml", "sim-muscle": "sim_muscle.toml"}
+CYLINDER, MUSCLE_PAIR = "cylinder", "muscle_pair"  # the actuations a joint can declare
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """The link a joint carries, for its gravity and inertia (rig-facts §2 gives the muscle
+    joint's: 0.168 kg, centre of gravity 240 mm, 4.80e-3 kg m^2 about the joint)."""
+
+    mass_kg: float
+    com_mm: float
+    inertia_kg_m2: float
+
+    def __post_init__(self):
+        require(0 < self.mass_kg <= 100, "mass_kg", "must be within (0, 100] kg")
+        require(0 <= self.com_mm <= 5000, "com_mm", "must be within 0-5000 mm")
+        require(0 < self.inertia_kg_m2 <= 100, "inertia_kg_m2", "must be within (0, 100] kg m^2")
 
 
 @dataclass(frozen=True)
 class JointConfig:
-    """One cylinder-driven joint: its angle sensor, its two chamber regulators and its limits."""
+    """One joint: its angle sensor, its limits, and its actuation, which the devices it names
+    declare: a cylinder's two chamber regulators (``head``, ``rod``), or an antagonistic
+    muscle pair (``muscles``, ``valve_a``, ``valve_b``, their ``pressure_a``, ``pressure_b``
+    sensors, the ``link`` it carries, and optionally an MR ``brake``)."""
 
     name: str
     min_angle_deg: float  # software limits the supervisor enforces [deg]
     max_angle_deg: float
     sensor: PotentiometerConfig
-    head: RegulatorConfig  # head-side chamber, commanded V_INI + V_MV [2-30]
-    rod: RegulatorConfig  # rod-side chamber, held at V_INI [2-31]
+    head: RegulatorConfig | None = None  # head-side chamber, commanded V_INI + V_MV [2-30]
+    rod: RegulatorConfig | None = None  # rod-side chamber, held at V_INI [2-31]
     max_speed_deg_s: float = 60.0  # faster than this is a trip [deg/s]
     model: str = ""  # the joint's model: a [models.NAME] table or a built-in set (hal/models.toml); default: name
     neutral_angle_deg: float | None = None  # th_0 of the joint's spring; default: mid-range [deg]
+    muscles: MuscleConfig | None = None  # muscle a pulls the angle up, muscle b down
+    valve_a: ValveConfig | None = None
+    valve_b: ValveConfig | None = None
+    pressure_a: PressureSensorConfig | None = None
+    pressure_b: PressureSensorConfig | None = None
+    link: LinkConfig | None = None
+    brake: BrakeConfig | None = None
 
     def __post_init__(self):
         require(bool(self.name), "name", "must not be empty")
         require(self.min_angle_deg < self.max_angle_deg, "max_angle_deg",
                 f"limits inverted: min {self.min_angle_deg} >= max {self.max_angle_deg}")
         require(self.max_speed_deg_s > 0, "max_speed_deg_s", "must be > 0")
+        cylinder = [k for k in ("head", "rod") if getattr(self, k) is not None]
+        muscle = [k for k in ("muscles", "valve_a", "valve_b", "pressure_a", "pressure_b", "link", "brake")
+                  if getattr(self, k) is not None]
+        require(not (cylinder and muscle), muscle[0] if muscle else "head",
+                f"a joint is a cylinder (head, rod) or a muscle pair ({', '.join(muscle)}), not both")
+        needed = ("head", "rod") if not muscle else ("muscles", "valve_a", "valve_b", "pressure_a", "pressure_b", "link")
+        missing = [k for k in needed if getattr(self, k) is None]
+        require(not missing, missing[0] if missing else "",
+                f"missing: a {'cylinder' if not muscle else 'muscle-pair'} joint names {', '.join(needed)}")
+
+    @property
+    def actuation(self) -> str:
+        return MUSCLE_PAIR if self.muscles is not None else CYLINDER
+
+    @property
+    def pressure_outputs(self) -> tuple:
+        """The two pressure-commanding devices' configs: (head, rod) or (valve_a, valve_b)."""
+        return (self.head, self.rod) if self.muscles is None else (self.valve_a, self.valve_b)
+
+    @property
+    def chambers(self) -> tuple[str, str]:
+        return ("head", "rod") if self.muscles is None else ("muscle_a", "muscle_b")
+
+    def output_channels(self) -> list[tuple[str, str]]:
+        """(where, channel) of every output the joint drives, in sweep order."""
+        keys = ("head", "rod") if self.muscles is None else ("valve_a", "valve_b", "brake")
+        return [(f"joints.{self.name}.{k}", getattr(self, k).channel) for k in keys if getattr(self, k) is not None]
+
+    def pressure_inputs(self) -> list[tuple[str, str]]:
+        """(where, channel) of the joint's chamber pressure sensors (none on a cylinder joint)."""
+        return [(f"joints.{self.name}.{k}", getattr(self, k).channel) for k in ("pressure_a", "pressure_b")
+                if getattr(self, k) is not None]
 
     @property
     def limits_rad(self) -> tuple[float, float]:
@@ -148,6 +210,7 @@ class TransportConfig:
 class RigInfo:
     name: str
     description: str = ""
+    controller: str = ""  # the controller the daemon starts with unless told otherwise (default: pid)
 
 
 @dataclass(frozen=True)
@@ -180,8 +243,9 @@ class RigConfig:
         require(dup is None, "joints", f"joint name {dup!r} is used twice")
         require(len(self.arm.link_lengths_mm) == len(self.joints), "arm.link_lengths_mm",
                 f"{len(self.arm.link_lengths_mm)} links given for {len(self.joints)} joints")
-        outputs = [(f"joints.{j.name}.{side}", getattr(j, side).channel) for j in self.joints for side in ("head", "rod")]
+        outputs = [o for j in self.joints for o in j.output_channels()]
         signals = [(f"joints.{j.name}.sensor", j.sensor.channel) for j in self.joints]
+        signals += [s for j in self.joints for s in j.pressure_inputs()]
         if self.force_sensor is not None:
             signals.append(("force_sensor", self.force_sensor.channel))
         for group in (outputs, signals):
@@ -194,10 +258,9 @@ class RigConfig:
         clash = supplies & {c for _, c in signals}
         require(not clash, "joints", f"channel {sorted(clash)} is both a supply and a signal channel")
         for j in self.joints:
-            for side in ("head", "rod"):
-                reg = getattr(j, side)
-                require(reg.safe_mpa <= self.limits.max_pressure_mpa, f"joints.{j.name}.{side}.safe_mpa",
-                        f"{reg.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
+            for device, (where, _) in zip(j.pressure_outputs, j.output_channels()):
+                require(device.safe_mpa <= self.limits.max_pressure_mpa, f"{where}.safe_mpa",
+                        f"{device.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
 
     def joint_params(self, joint: JointConfig) -> JointParams | None:
         """The model a joint names (``model``, else its own name), or None when there is none."""
@@ -252,7 +315,7 @@ def _require_stated(data: dict, origin: str) -> None:
 
 
 def load(path: str | Path | None = None) -> RigConfig:
-    """Load a rig file, a built-in rig by name (``sim``, ``sim-3joint``), or the default."""
+    """Load a rig file, a built-in rig by name (``sim``, ``sim-3joint``, ``sim-muscle``), or the default."""
     if path is None or str(path) in BUILTIN_RIGS:
         name = "sim" if path is None else str(path)
         text = resources.files("hal").joinpath(BUILTIN_RIGS[name]).read_text()

@@ -42,25 +42,37 @@ class RegulatorConfig:
                 f"must be within the set range {self.min_mpa}-{self.max_mpa} MPa, got {self.safe_mpa}")
 
 
-class ITV0051:
-    """Pure conversions for one regulator; ``volts`` is on the 1 ms path, so it is lean."""
+class LinearPressureCommand:
+    """A device that regulates to a set pressure linear in its 0-10 V command (this regulator,
+    the muscle rig's proportional valve): pure conversions; ``volts`` is on the 1 ms path, so
+    it is lean. The config names ``channel``, ``mpa_per_volt``, ``offset_mpa``, ``min_mpa``,
+    ``max_mpa`` and ``safe_mpa``."""
 
-    def __init__(self, config: RegulatorConfig):
+    kind = "regulator"
+
+    def __init__(self, config):
         self.config = config
         self._slope = config.mpa_per_volt * PA_PER_MPA  # [Pa/V]
         self._offset = config.offset_mpa * PA_PER_MPA  # [Pa]
         self._p_min = config.min_mpa * PA_PER_MPA
         self._p_max = config.max_mpa * PA_PER_MPA
         self.safe_volts = self.volts(config.safe_mpa * PA_PER_MPA)
-        self.bias_pa = self.pressure(config.bias_volts)
 
     def volts(self, pressure_pa: float) -> float:
         """Command volts for a chamber pressure [Pa], clamped to the set range and 0-10 V."""
         if not math.isfinite(pressure_pa):
-            raise CommandError(f"regulator {self.config.channel}: non-finite pressure command {pressure_pa!r}")
+            raise CommandError(f"{self.kind} {self.config.channel}: non-finite pressure command {pressure_pa!r}")
         p = clip(pressure_pa, self._p_min, self._p_max)
         return clip((p - self._offset) / self._slope, V_MIN, V_MAX)
 
     def pressure(self, volts: float) -> float:
         """Set pressure [Pa] that a command of ``volts`` asks for (the inverse of :meth:`volts`)."""
         return clip(self._slope * clip(volts, V_MIN, V_MAX) + self._offset, self._p_min, self._p_max)
+
+
+class ITV0051(LinearPressureCommand):
+    """One cylinder chamber's regulator, with the bias it is held at [2-30, 2-31]."""
+
+    def __init__(self, config: RegulatorConfig):
+        super().__init__(config)
+        self.bias_pa = self.pressure(config.bias_volts)

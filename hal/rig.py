@@ -1,8 +1,9 @@
 """Rig I/O: a transport plus the device drivers the rig file names, in SI units.
 
-:meth:`RigIO.read` turns one raw input sweep into a :class:`Snapshot` (angles in rad, force
-in N); :meth:`RigIO.write_pressures` turns chamber pressure commands [Pa] into regulator
-volts and writes them in one sweep. The mapping is checked against the channels the
+:meth:`RigIO.read` turns one raw input sweep into a :class:`Snapshot` (angles in rad, chamber
+pressures in Pa where a joint has sensors, force in N); :meth:`RigIO.write_pressures` turns
+each joint's pressure pair [Pa] (a cylinder's head and rod chambers through its regulators, a
+muscle pair's through its valves) and any brake torques [N m] into volts, one sweep. The mapping is checked against the channels the
 transport declares when the object is built, before anything moves.
 """
 from __future__ import annotations
@@ -14,9 +15,12 @@ from dataclasses import dataclass
 from hal.config import RigConfig
 from hal.errors import ConfigError
 from hal.force_sensor import ASFS
+from hal.mr_brake import MRBrake
 from hal.potentiometer import RDC506
+from hal.pressure_sensor import PressureSensor
 from hal.regulator import ITV0051
 from hal.transport import Transport
+from hal.valve import ProportionalValve, ValveConfig
 
 
 @dataclass(slots=True)
@@ -30,6 +34,7 @@ class Snapshot:
     force: float  # tip force [N], NaN when the rig has no force sensor or it is implausible
     faults: tuple[str, ...]
     volts: tuple[float, ...]  # the raw sweep, in the transport's input order [V]
+    pressures: tuple[float, ...] = ()  # measured (a, b) per joint with sensors, flattened [Pa]; NaN: none or implausible
 
 
 class RigIO:
@@ -44,18 +49,27 @@ class RigIO:
         self._angle_idx = [transport.index(j.sensor.channel, output=False) for j in config.joints]
         self._supply_idx = [transport.index(j.sensor.supply_channel, output=False) if j.sensor.supply_channel else -1
                             for j in config.joints]
-        self.head = [ITV0051(j.head) for j in config.joints]
-        self.rod = [ITV0051(j.rod) for j in config.joints]
-        self._head_idx = [transport.index(j.head.channel, output=True) for j in config.joints]
-        self._rod_idx = [transport.index(j.rod.channel, output=True) for j in config.joints]
+        # each joint's pressure pair: a cylinder's head and rod regulators, a muscle pair's valves
+        self.head = [_pressure_device(j.pressure_outputs[0]) for j in config.joints]
+        self.rod = [_pressure_device(j.pressure_outputs[1]) for j in config.joints]
+        self._head_idx = [transport.index(j.pressure_outputs[0].channel, output=True) for j in config.joints]
+        self._rod_idx = [transport.index(j.pressure_outputs[1].channel, output=True) for j in config.joints]
+        self.brakes = [(MRBrake(j.brake), transport.index(j.brake.channel, output=True))
+                       for j in config.joints if j.brake is not None]
+        self._sensed = [(2 * i + side, PressureSensor(sensor), transport.index(sensor.channel, output=False),
+                         f"{j.name} {'ab'[side]}") for i, j in enumerate(config.joints)
+                        for side, sensor in enumerate((j.pressure_a, j.pressure_b)) if sensor is not None]
+        self._no_pressures = (math.nan,) * (2 * len(config.joints))
         self.force_sensor = ASFS(config.force_sensor) if config.force_sensor else None
         self._force_idx = transport.index(config.force_sensor.channel, output=False) if config.force_sensor else -1
         self._p_max = config.limits.max_pressure_mpa * 1e6
         # Outputs no device claims are held at 0 V.
         self.safe_pressures = (tuple(r.config.safe_mpa * 1e6 for r in self.head),
                                tuple(r.config.safe_mpa * 1e6 for r in self.rod))
-        self.safe_volts = tuple(self.volts_for(*self.safe_pressures))
-        self.bias_pressures = (tuple(r.bias_pa for r in self.head), tuple(r.bias_pa for r in self.rod))
+        self.safe_brakes = tuple(b.config.safe_nm for b, _ in self.brakes)
+        self.safe_volts = tuple(self.volts_for(*self.safe_pressures, self.safe_brakes))
+        self.bias_pressures = (tuple(getattr(r, "bias_pa", 0.0) for r in self.head),
+                               tuple(getattr(r, "bias_pa", 0.0) for r in self.rod))
         self.last_volts = self.safe_volts
 
     def read(self) -> Snapshot:
@@ -78,22 +92,34 @@ class RigIO:
                 force = self.force_sensor.force(vf)
             else:
                 faults = [*faults, f"force sensor: {reason}"]
-        return Snapshot(sweep.seq, sweep.t, tuple(angles), force, tuple(faults), v)
+        pressures = self._no_pressures
+        if self._sensed:
+            pressures = list(pressures)
+            for slot, sensor, idx, where in self._sensed:
+                p = sensor.pressure(v[idx])
+                if p != p:
+                    faults = [*faults, f"joint {where} pressure sensor: {sensor.diagnose(v[idx])}"]
+                pressures[slot] = p
+            pressures = tuple(pressures)
+        return Snapshot(sweep.seq, sweep.t, tuple(angles), force, tuple(faults), v, pressures)
 
-    def volts_for(self, p_head: Sequence[float], p_rod: Sequence[float]) -> list[float]:
-        """The output sweep for chamber pressures [Pa], each limited to the rig's maximum.
-        A non-finite pressure raises :class:`hal.errors.CommandError` naming the channel."""
+    def volts_for(self, p_head: Sequence[float], p_rod: Sequence[float], brakes: Sequence[float] = ()) -> list[float]:
+        """The output sweep for each joint's pressure pair [Pa], each limited to the rig's
+        maximum, and the brakes' torques [N m] (in joint order; none: 0 N m). A non-finite
+        command raises :class:`hal.errors.CommandError` naming the channel."""
         out = [0.0] * len(self.transport.outputs)
         p_max = self._p_max
         for reg, ih, p in zip(self.head, self._head_idx, p_head):
             out[ih] = reg.volts(p_max if p > p_max else p)  # NaN goes on, to be refused
         for reg, ir, p in zip(self.rod, self._rod_idx, p_rod):
             out[ir] = reg.volts(p_max if p > p_max else p)
+        for (brake, ib), t in zip(self.brakes, brakes):
+            out[ib] = brake.volts(t)
         return out
 
-    def write_pressures(self, p_head: Sequence[float], p_rod: Sequence[float]) -> list[float]:
-        """Command the chamber pressures [Pa]: all outputs are written, or none."""
-        volts = self.volts_for(p_head, p_rod)
+    def write_pressures(self, p_head: Sequence[float], p_rod: Sequence[float], brakes: Sequence[float] = ()) -> list[float]:
+        """Command the pressure pairs [Pa] (and brake torques [N m]): all outputs are written, or none."""
+        volts = self.volts_for(p_head, p_rod, brakes)
         self.transport.write(volts)
         self.last_volts = volts
         return volts
@@ -110,3 +136,8 @@ class RigIO:
         if volts is None:
             volts = self.transport.read().values[self._force_idx]
         self.force_sensor.tare(volts)
+
+
+def _pressure_device(config):
+    """The driver of one pressure output: an ITV0051 regulator or a proportional valve."""
+    return ProportionalValve(config) if isinstance(config, ValveConfig) else ITV0051(config)

@@ -143,20 +143,25 @@ def counts_to_volts(counts: Sequence[int], channels: Sequence[Channel],
 
 def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple[tuple[str, int], ...]]:
     """The channels a rig file names, in the order every built-in transport carries them:
-    inputs are each joint's angle sensor, each distinct supply monitor, the force sensor;
-    outputs are head then rod per joint. Also what each input measures, as (what, joint)."""
+    inputs are each joint's angle sensor, each muscle-pair joint's two pressure sensors, each
+    distinct supply monitor, the force sensor; outputs are each joint's in its own order (head,
+    rod; or valve a, valve b, brake). Also what each input measures, as (what, joint)."""
     inputs, sources = [], []
     for i, j in enumerate(rig.joints):
         inputs.append(Channel(j.sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
         sources.append(("angle", i))
+    for i, j in enumerate(rig.joints):
+        for where, channel in j.pressure_inputs():
+            inputs.append(Channel(channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
+            sources.append((where.rpartition(".")[2], i))  # pressure_a, pressure_b
     for supply in dict.fromkeys(j.sensor.supply_channel for j in rig.joints if j.sensor.supply_channel):
         inputs.append(Channel(supply, ChannelKind.ANALOG_IN, 0.0, 10.0))
         sources.append(("supply", 0))
     if rig.force_sensor is not None:
         inputs.append(Channel(rig.force_sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
         sources.append(("force", 0))
-    outputs = tuple(Channel(getattr(j, side).channel, ChannelKind.ANALOG_OUT, 0.0, 10.0)
-                    for j in rig.joints for side in ("head", "rod"))
+    outputs = tuple(Channel(channel, ChannelKind.ANALOG_OUT, 0.0, 10.0)
+                    for j in rig.joints for _, channel in j.output_channels())
     return tuple(inputs), outputs, tuple(sources)
 
 

@@ -5,6 +5,7 @@ import math
 from dataclasses import dataclass, field
 
 from hal.schema import require
+from sim_backend.muscle_plant import MusclePlantOptions
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,7 @@ class SimOptions:
     joints: dict[str, SimJointOptions] = field(default_factory=dict)
     wall: WallOptions = WallOptions()
     payload: PayloadOptions = PayloadOptions()
+    muscle: MusclePlantOptions = MusclePlantOptions()  # the muscle rig's dynamics (rig-facts §2)
 
     def __post_init__(self):
         require(0 < self.step_s <= 0.01, "step_s", f"must be within (0, 0.01] s, got {self.step_s}")

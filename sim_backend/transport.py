@@ -20,8 +20,10 @@ from hal.config import RigConfig
 from hal.errors import ConfigError, TransportTimeout
 from hal.force_sensor import ASFS
 from hal.potentiometer import RDC506
+from hal.pressure_sensor import PressureSensor
 from hal.schema import build
 from hal.transport import InputSweep, Transport, rig_channels
+from sim_backend.muscle_plant import SimMuscleRig
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
 
@@ -42,17 +44,21 @@ class SimTransport(Transport):
         super().__init__()
         self.options = options
         self.clock = clock
-        self.arm = SimArm(rig, options)
+        muscle_rig = any(j.muscles is not None for j in rig.joints)
+        self.arm = SimMuscleRig(rig, options) if muscle_rig else SimArm(rig, options)
         self._rng = random.Random(options.seed)
         vsup = options.supply_volts
         self.inputs, self.outputs, self._sources = rig_channels(rig)
         # The "true" sensors: the rig file's calibrations, read backwards.
         self._pots = [RDC506(j.sensor, *j.limits_rad) for j in rig.joints]
         self._force = ASFS(rig.force_sensor) if rig.force_sensor else None
+        self._pressure_sensors = {(f"pressure_{side}", i): PressureSensor(sensor) for i, j in enumerate(rig.joints)
+                                  for side, sensor in (("a", j.pressure_a), ("b", j.pressure_b)) if sensor is not None}
         self._vsup = vsup
-        self._out = [0.0] * len(self.outputs)
-        for i, j in enumerate(rig.joints):
-            self._out[2 * i], self._out[2 * i + 1] = j.head.bias_volts, j.rod.bias_volts
+        self._out = [0.0] * len(self.outputs)  # the muscle rig's valves at 0 V: vented
+        if not muscle_rig:
+            for i, j in enumerate(rig.joints):
+                self._out[2 * i], self._out[2 * i + 1] = j.head.bias_volts, j.rod.bias_volts
         self._faults: dict[tuple[str, str], dict] = {}
         self._last = [0.0] * len(self.inputs)
         self._seq = 0
@@ -109,6 +115,8 @@ class SimTransport(Transport):
                 v = self._vsup * self._pots[i].ratio_for(math.radians(arm.joints[i].th))
             elif what == "supply":
                 v = self._vsup
+            elif what in ("pressure_a", "pressure_b"):
+                v = self._pressure_sensors[(what, i)].volts_for(arm.chamber_gauge(i, what == "pressure_b"))
             else:
                 v = self._force.volts_for(arm.contact_force_n)
             s = sigma

@@ -8,7 +8,7 @@ from bench import scenarios
 from controllers.base import Controller, ControllerContext, JointState, Reference
 from daemon.clock import VirtualClock
 from hal import config
-from hal.actuation import BiasedHeadActuation
+from hal.actuation import RigActuation
 from hal.rig import RigIO
 from hal.transport import create_transport
 
@@ -20,7 +20,7 @@ class SimRig:
     clock: VirtualClock
     rig: config.RigConfig
     io: RigIO
-    actuation: BiasedHeadActuation
+    actuation: RigActuation
 
     @property
     def transport(self):
@@ -47,7 +47,7 @@ def make_rig(options: str = "", name: str = "sim", replace: dict[str, str] | Non
     transport = create_transport(rig, clock.now)
     transport.open()
     io = RigIO(rig, transport)
-    return SimRig(clock, rig, io, BiasedHeadActuation(io.head, io.rod))
+    return SimRig(clock, rig, io, RigActuation(rig))
 
 
 def closed_loop(sim: SimRig, controller: Controller, reference, seconds: float):
@@ -59,7 +59,7 @@ def closed_loop(sim: SimRig, controller: Controller, reference, seconds: float):
     zeros = [0.0] * len(snap.angles)
     for _ in range(int(round(seconds / DT))):
         u = controller.step(JointState(snap.t, snap.angles, zeros), Reference(reference(snap.t), zeros, zeros))
-        sim.io.write_pressures(*sim.actuation.pressures(u))
+        sim.io.write_pressures(*sim.actuation.outputs(u))
         sim.clock.sleep_until(sim.clock.now() + DT)
         snap = sim.io.read()
         times.append(snap.t)

@@ -13,10 +13,9 @@ from controllers.identification import frf, rigfile
 from controllers.identification.fit import Experiment, fit_joint, fit_percent
 from controllers.signals import PRBS, LogChirp, Multisine
 from hal import config
-from hal.actuation import BiasedHeadActuation
+from hal.actuation import RigActuation
 from hal.errors import ConfigError
 from hal.identified import IDENTIFIED, K_EP, P_OFFSET
-from hal.regulator import ITV0051
 from sim_backend.joint_model import JointModel
 
 DT = 0.001
@@ -164,8 +163,7 @@ def test_the_identified_model_written_to_a_rig_file_is_what_the_controllers_desi
     assert new.transport.options["joints"]["bottom"]["model"] == "bottom"  # the simulator's plant stays
 
     def nominal(r):
-        return ControllerContext.for_rig(r, BiasedHeadActuation([ITV0051(j.head) for j in r.joints],
-                                                                [ITV0051(j.rod) for j in r.joints]), 0.001).models[0]
+        return ControllerContext.for_rig(r, RigActuation(r), 0.001).models[0]
     before, after = nominal(rig), nominal(new)
     assert after.D == pytest.approx(0.25 * 180 / math.pi) and after.T_dly == 0.06
     assert before.D == pytest.approx(IDENTIFIED["bottom"].D * 180 / math.pi)

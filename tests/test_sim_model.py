@@ -144,7 +144,7 @@ def test_full_stack_matches_the_model_within_converter_resolution():
     q0 = sim.io.read().angles[0]
     angles = []
     for _ in range(3000):
-        sim.io.write_pressures(*sim.actuation.pressures([1.0, 0.0]))
+        sim.io.write_pressures(*sim.actuation.outputs([1.0, 0.0]))
         sim.clock.sleep_until(sim.clock.now() + H)
         angles.append(math.degrees(sim.io.read().angles[0] - q0))
     t = np.arange(1, 3001) * H

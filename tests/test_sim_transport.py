@@ -15,7 +15,7 @@ from tests.simrig import DT, make_rig
 def run(sim, seconds, v_mv=(0.0, 0.0)):
     snaps = []
     for _ in range(int(round(seconds / DT))):
-        sim.io.write_pressures(*sim.actuation.pressures(v_mv))
+        sim.io.write_pressures(*sim.actuation.outputs(v_mv))
         sim.clock.sleep_until(sim.clock.now() + DT)
         snaps.append(sim.io.read())
     return snaps
@@ -46,7 +46,7 @@ def test_adc_resolution_is_applied():
 
 def test_dac_resolution_is_applied():
     sim = make_rig("dac_bits = 4")
-    sim.io.write_pressures(*sim.actuation.pressures([0.3, 0.0]))
+    sim.io.write_pressures(*sim.actuation.outputs([0.3, 0.0]))
     lsb = 10.0 / 15
     for v in sim.transport.output_volts:
         assert abs(v / lsb - round(v / lsb)) < 1e-9
