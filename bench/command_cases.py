@@ -65,6 +65,8 @@ CASES: list[Case] = [
     Case("set, 3600 s", "set", {"angles_deg": [130.0, -75.0], "duration_s": MAX_S}),
     Case("set, 0.04 s: too fast", "set", {"angles_deg": [155.0, -100.0], "duration_s": 0.04}, P.REFUSED),
     Case("set, out of reach", "set", {"xy_mm": [500.0, 0.0], "duration_s": 10.0}, P.REFUSED),
+    Case("set, a stiffness for cylinder joints", "set", {"angles_deg": [130.0, -75.0], "stiffness_nm_deg": [0.5, 0.5]},
+         P.BAD_ARGS),
     Case("path circle, 3600 s", "path", {"name": "circle", "duration_s": MAX_S, "approach_s": 600.0}),
     Case("path circle, 20 s: too fast", "path", {"name": "circle", "duration_s": 20.0}, P.REFUSED),
     Case("path translation, 1e-9 s approach", "path", {"name": "translation", "approach_s": 1e-9}, P.REFUSED),

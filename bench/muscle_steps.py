@@ -157,7 +157,6 @@ def main(argv=None) -> int:
     ap.add_argument("--plot", default=None, metavar="DIR", help="write the responses as PNGs into DIR")
     args = ap.parse_args(argv)
     header(f"muscle rig: step responses against the chapter's settling times ({args.controller})")
-    print(f"command: python -m bench.muscle_steps{' ' + ' '.join(argv or sys.argv[1:])}\n")
     print("| case | settling [s] | chapter: simulation / experiment [s] | goal [s] | met |")
     print("|---|---|---|---|---|")
     traces, misses = {}, 0

@@ -89,12 +89,12 @@ class MuscleEquilibrium(MuscleController):
     params = (
         _stiffness_param(0.3),
         ParamSpec("tip_load", "N", 0.0, 200.0, (0.0,), "the known weight at the tip the model holds"),
-        ParamSpec("feedback", "-", 0.0, 5.0, (0.5,), "feedback stiffness Kp on the angle error, as a fraction of "
+        ParamSpec("feedback", "-", 0.0, 5.0, (0.3,), "feedback stiffness Kp on the angle error, as a fraction of "
                   "the commanded stiffness (the loop's gain then follows it: the valves' 40 ms dead time "
                   "bounds it)"),
         ParamSpec("Td", "s", 0.0, 1.0, (0.0,), "derivative time on the speed error"),
-        ParamSpec("Ti", "s", 0.0, 100.0, (0.5,), "integral time; 0: off"),
-        ParamSpec("response", "s", 0.001, 10.0, (0.3,), "the lag the integral expects the angle to follow a "
+        ParamSpec("Ti", "s", 0.0, 100.0, (0.35,), "integral time; 0: off"),
+        ParamSpec("response", "s", 0.001, 10.0, (0.22,), "the lag the integral expects the angle to follow a "
                   "set-point with"),
         ParamSpec("compliant", "-", 0.0, 1.0, (1.0,), "1: the integral acts on the compliant error, so the "
                   "joint at rest is as stiff as commanded; 0: on the angle error, so it returns to its "
@@ -173,7 +173,7 @@ class MusclePID(MuscleController):
     params = (
         _stiffness_param(0.3),
         ParamSpec("Kp", "Pa/rad", 0.0, 1.0e7, (2.0e5,), "pressure difference per rad of error"),
-        ParamSpec("Ti", "s", 0.0, 100.0, (0.5,), "integral time; 0: off"),
+        ParamSpec("Ti", "s", 0.0, 100.0, (0.3,), "integral time; 0: off"),
         ParamSpec("Td", "s", 0.0, 10.0, (0.03,), "derivative time"),
         *BRAKE_PARAMS,
     )

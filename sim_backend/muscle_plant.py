@@ -43,12 +43,13 @@ class MusclePlantOptions:
 
     valve_lag_s: tuple[float, ...] = (0.025, 0.025)  # T1, T2 [4.29]
     valve_dead_time_s: float = 0.040  # L [4.29]
-    conductance_m3_s_pa: float = 1.0e-9  # C, valve + line into one side's muscles (calibrated)
+    conductance_m3_s_pa: float = 3.1e-9  # C, valve + line into one side's muscles (calibrated)
     critical_ratio: float = 0.3  # b_cr
     polytropic: float = 1.2  # kappa
     damping_nm_s: float = 0.005  # D0, the bearing's viscous damping [N m s/rad]
-    stiffness_damping_s: float = 0.012  # eta: the muscles' damping per unit of their stiffness [s]
+    stiffness_damping_s: float = 0.025  # eta: the muscles' damping per unit of their stiffness [s]
     tip_load_n: float = 0.0  # a weight hanging at the tip [N] (rig-facts §2: 0, 8.33, 16.66 N)
+    force_scale: float = 1.0  # the true muscles' force over the rig file's model: a plant off the nominal
 
     def __post_init__(self):
         require(len(self.valve_lag_s) == 2 and all(0 < t <= 1 for t in self.valve_lag_s), "valve_lag_s",
@@ -59,6 +60,7 @@ class MusclePlantOptions:
         require(1.0 <= self.polytropic <= 1.4, "polytropic", "must be within 1.0-1.4")
         require(self.damping_nm_s >= 0 and self.stiffness_damping_s >= 0, "damping_nm_s", "must be >= 0")
         require(0 <= self.tip_load_n <= 200, "tip_load_n", "must be within 0-200 N")
+        require(0.5 <= self.force_scale <= 1.5, "force_scale", "must be within 0.5-1.5")
 
 
 class _Side:
@@ -124,8 +126,8 @@ class MuscleJointSim:
                 side.p = max(side.p + h * o.polytropic / v_new * (flow - side.p * dv), 1000.0)
                 side.volume = v_new
             pa, pb = self.sides[0].p - P_ATM, self.sides[1].p - P_ATM
-            self.torque_nm = m.pair.torque(pa, pb, self.theta)
-            k_m = m.pair.stiffness(pa, pb, self.theta)
+            self.torque_nm = o.force_scale * m.pair.torque(pa, pb, self.theta)
+            k_m = o.force_scale * m.pair.stiffness(pa, pb, self.theta)
             drive = self.torque_nm + m.gravity_torque(self.theta, self.tip_load_n) + external_nm
             damping = o.damping_nm_s + o.stiffness_damping_s * k_m
             w = (self.omega + h * drive / inertia) / (1.0 + h * damping / inertia)  # implicit damping

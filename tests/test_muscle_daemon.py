@@ -1,0 +1,72 @@
+"""The muscle rig in a real daemon behind a real wire: the simulated joint as a serial bridge
+on a pseudo-terminal (python -m sim_backend.serial_peer), ``pneumad`` reaching it, and the
+README's "The muscle rig" commands run as written against it (its daemon line is the one
+thing changed: this daemon reaches the rig over the wire)."""
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from daemon.client import Client, RemoteError
+from hal import config
+from tests.test_readme_tour import BIN, ROOT, wait_for_daemon
+from tests.wirehelpers import start_peer, stop_peer
+
+
+def readme_lines() -> list[str]:
+    text = (ROOT / "README.md").read_text()
+    section = text.split("## The muscle rig", 1)[1].split("\n## ", 1)[0]
+    return [line.strip() for line in section.splitlines() if line.strip().startswith(".venv/bin/pneumactl")]
+
+
+def relaxed_rig(tmp_path):
+    """sim-muscle with this shared machine's stalls tolerated (tests.daemons says why) and a
+    wire's sample age (tests.wirehelpers.RELAXED)."""
+    text = config.load("sim-muscle").source
+    text = text.replace("stall_after_s = 0.05", "stall_after_s = 0.5").replace("stale_after_s = 0.005",
+                                                                                  "stale_after_s = 0.15")
+    path = tmp_path / "muscle.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.slow
+def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(tmp_path):
+    lines = readme_lines()
+    assert any("--stiffness" in line for line in lines)
+    rig, link = relaxed_rig(tmp_path), tmp_path / "bridge"
+    peer = start_peer("sim_backend.serial_peer", "--config", str(rig), "--link", str(link),
+                      ready=lambda: os.path.exists(link))
+    daemon = subprocess.Popen([BIN + "pneumad", "--no-rt", "--config", str(rig), "--transport", "serial",
+                               "--transport-option", f"port={link}", "--record-dir", str(tmp_path / "rec")], cwd=ROOT)
+    try:
+        with Client(timeout=5.0) as client:
+            wait_for_daemon(client, daemon)
+            describe = client.call("describe")
+            joint, = describe["joints"]
+            assert joint["actuation"] == "muscle_pair" and joint["setpoints"] == ["angle", "stiffness"]
+            assert [c["name"] for c in describe["command_interfaces"]] == ["pressure_a", "pressure_b", "brake"]
+            for line in lines:
+                done = subprocess.run(["bash", "-c", line.replace(".venv/bin/", BIN, 1)], cwd=ROOT,
+                                      capture_output=True, text=True, timeout=60)
+                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}"
+                status = client.status()
+                assert status["state"] == "enabled", (line, status["cause"])
+                if line.split()[1] == "set":  # a step: give it the chapter's slowest settling and more
+                    time.sleep(2.5)
+                    target = float(line.split()[2])
+                    elbow = client.status()["joints"]["elbow"]
+                    assert abs(elbow["angle_deg"] - target) < 0.05 * 45, (line, elbow)
+                    assert elbow["stiffness_nm_deg"] == pytest.approx(float(line.split("--stiffness")[1].split()[0]))
+            # a stiffness the muscles cannot give is refused with the range they can
+            client.acquire_lease()
+            with pytest.raises(RemoteError) as refused:
+                client.set(angles_deg=[90], stiffness_nm_deg=2.0)
+            assert refused.value.data["reason"] == "stiffness" and refused.value.data["range_nm_deg"][1] < 2.0
+            assert client.status()["trips"] == 0
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        daemon.wait(timeout=10)
+        stop_peer(peer)
