@@ -150,3 +150,22 @@ def test_the_mr_brake_damps_the_swing_a_hung_load_starts():
 
     free, braked = overshoot({}), overshoot({"brake_linear": [1.0]})
     assert free > 1.0 and braked < 0.5 * free
+
+
+def test_telemetry_and_recordings_carry_the_muscle_commands_by_name():
+    from daemon import mcap_log
+    from daemon.telemetry import Telemetry
+    from tests.loophelpers import Captured
+
+    loop = make_loop("muscle_eq", rig="sim-muscle")
+    captured = Captured()
+    loop.telemetry = Telemetry(captured)
+    loop.set_trajectory(JointMove(list(loop.reference[0]), [30 * DEG], 0.5), "move")
+    loop.run(1500)
+    columns = captured.of("state")[-1]
+    assert len(columns["u_volts"][-1]) == 3 and len(columns["p_head_pa"][-1]) == 1
+    assert columns["p_head_pa"][-1][0] == pytest.approx(columns["u_volts"][-1][0], rel=0.05)  # muscle a's command
+    describe = {"joints": [{"name": "elbow"}], "command_interfaces": [c.describe() for c in loop.actuation.commands]}
+    sample = next(mcap_log.state_samples(columns, ["elbow"], ["ao0", "ao1", "ao2"], mcap_log.command_fields(describe)))
+    assert math.isnan(sample["joints"]["elbow"]["u_volts"])  # no V_MV on a muscle joint
+    assert set(sample["commands"]) == {"elbow.pressure_a", "elbow.pressure_b", "elbow.brake"}
