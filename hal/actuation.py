@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from hal.config import CYLINDER, RigConfig
-from hal.mr_brake import MRBrake
 from hal.regulator import ITV0051, V_MAX, V_MIN
 from hal.valve import ProportionalValve
 
@@ -46,7 +45,7 @@ class RigActuation:
     def __init__(self, rig: RigConfig):
         commands: list[CommandInterface] = []
         self._cylinders = []  # (command index, joint index, head regulator, bias [V], rod pressure [Pa])
-        self._muscles = []  # (command index, joint index, low, high [Pa])
+        self._muscles = []  # (command index, joint index)
         self._brakes = []  # command index of each brake, in joint order
         for i, j in enumerate(rig.joints):
             k = len(commands)
@@ -60,10 +59,10 @@ class RigActuation:
             for side, valve in (("a", j.valve_a), ("b", j.valve_b)):
                 commands.append(CommandInterface(j.name, f"pressure_{side}", "Pa",
                                                  ProportionalValve(valve).pressure(V_MIN), p_max))
-            self._muscles.append((k, i, 0.0, p_max))
+            self._muscles.append((k, i))
             if j.brake is not None:
                 self._brakes.append(len(commands))
-                commands.append(CommandInterface(j.name, "brake", "N m", 0.0, MRBrake(j.brake).config.max_nm))
+                commands.append(CommandInterface(j.name, "brake", "N m", 0.0, j.brake.max_nm))
         self.commands = tuple(commands)
         self.width = len(commands)
         self.n = len(rig.joints)
@@ -76,9 +75,7 @@ class RigActuation:
         first, second = [0.0] * self.n, [0.0] * self.n
         for k, i, head, bias, rod_pa in self._cylinders:
             first[i], second[i] = head.pressure(bias + u[k]), rod_pa
-        for k, i, _, _ in self._muscles:
+        for k, i in self._muscles:
             first[i], second[i] = u[k], u[k + 1]
         return first, second, [u[k] for k in self._brakes]
 
-    def interfaces_of(self, joint: str) -> list[str]:
-        return [c.name for c in self.commands if c.joint == joint]

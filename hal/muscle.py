@@ -175,18 +175,6 @@ class MuscleJoint:
         moment = self.link_mass_kg * self.link_com_m + (tip_load_n / g if g > 0 else 0.0) * self.length_m
         return moment * (math.cos(theta) * gy - math.sin(theta) * gx)
 
-    def gravity_stiffness(self, theta: float, tip_load_n: float = 0.0) -> float:
-        """-d(gravity torque)/d theta [N m/rad]: positive where gravity pulls the joint back."""
-        gx, gy = self.gravity_m_s2
-        g = math.hypot(gx, gy)
-        moment = self.link_mass_kg * self.link_com_m + (tip_load_n / g if g > 0 else 0.0) * self.length_m
-        return moment * (math.sin(theta) * gy + math.cos(theta) * gx)
-
-    def holding_pressures(self, theta: float, stiffness: float, tip_load_n: float = 0.0) -> tuple[float, float]:
-        """[4.17, 4.18]: the pressures [Pa] that hold ``theta`` against gravity and the load
-        with joint stiffness ``stiffness`` [N m/rad] from the muscles."""
-        return self.pair.equilibrium(theta, stiffness, -self.gravity_torque(theta, tip_load_n))
-
     def stiffness_range(self, theta: float, tip_load_n: float = 0.0) -> tuple[float, float]:
         """The stiffness [N m/rad] the muscles can hold ``theta`` with (lo > hi: none)."""
         return self.pair.stiffness_range(theta, -self.gravity_torque(theta, tip_load_n), self.p_max_pa)

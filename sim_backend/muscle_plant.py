@@ -97,7 +97,6 @@ class MuscleJointSim:
         self.sides = [_Side(v, options, h, vol) for v, vol in zip(valves, volumes)]
         self.tip_load_n = options.tip_load_n
         self.brake_nm = 0.0
-        self.torque_nm = 0.0  # the muscles' torque in the last step [N m]
 
     @property
     def th(self) -> float:
@@ -126,9 +125,9 @@ class MuscleJointSim:
                 side.p = max(side.p + h * o.polytropic / v_new * (flow - side.p * dv), 1000.0)
                 side.volume = v_new
             pa, pb = self.sides[0].p - P_ATM, self.sides[1].p - P_ATM
-            self.torque_nm = o.force_scale * m.pair.torque(pa, pb, self.theta)
+            muscles = o.force_scale * m.pair.torque(pa, pb, self.theta)
             k_m = o.force_scale * m.pair.stiffness(pa, pb, self.theta)
-            drive = self.torque_nm + m.gravity_torque(self.theta, self.tip_load_n) + external_nm
+            drive = muscles + m.gravity_torque(self.theta, self.tip_load_n) + external_nm
             damping = o.damping_nm_s + o.stiffness_damping_s * k_m
             w = (self.omega + h * drive / inertia) / (1.0 + h * damping / inertia)  # implicit damping
             hold = h * self.brake_nm / inertia  # implicit Coulomb: the brake stops what it can
@@ -175,16 +174,9 @@ class SimMuscleRig:
         self.has_brake = jc.brake is not None
         self.disturbance_nm = [0.0]
         self.contact_force_n = 0.0
-        self.lengths = rig.arm.link_lengths_m
-
-    def angles_rad(self) -> list[float]:
-        return [self.joint.theta]
 
     def chamber_gauge(self, joint: int, side: int) -> float:
         return self.joint.gauge(side)
-
-    def initial_outputs(self, safe_volts) -> list[float]:
-        return list(safe_volts)
 
     def step(self, volts) -> None:
         """One plant step; ``volts`` is (valve a, valve b[, brake]) [V]."""
