@@ -48,8 +48,7 @@ def goal_of(label: str) -> tuple[float, float]:
 
 
 def loaded_loop(controller: str, load_n: float, params: dict):
-    loop = make_loop(controller, params, rig="sim-muscle", plant={"muscle": {"tip_load_n": load_n}})
-    return loop
+    return make_loop(controller, params, rig="sim-muscle", plant={"muscle": {"tip_load_n": load_n}})
 
 
 def hold_at(loop, angle_deg: float, stiffness_nm_deg: float, seconds: float) -> None:

@@ -25,6 +25,7 @@ from typing import ClassVar
 import numpy as np
 
 from controllers.nominal import NominalJoint
+from hal.muscle import MuscleJoint
 from hal.bounds import clip as clamp  # noqa: F401  (part of the controller contract)
 
 
@@ -85,7 +86,6 @@ class ControllerContext:
     @classmethod
     def for_rig(cls, rig, actuation, dt: float) -> "ControllerContext":
         """The context of a configured rig: its joints, its command ranges, its nominal models."""
-        from hal.muscle import MuscleJoint
         return cls(tuple(j.name for j in rig.joints), dt, actuation.u_min, actuation.u_max,
                    tuple(NominalJoint.from_rig(j, rig.joint_params(j)) if j.head is not None else None
                          for j in rig.joints),

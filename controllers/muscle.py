@@ -115,6 +115,11 @@ class MuscleEquilibrium(MuscleController):
         self._a_ext = -math.expm1(-2 * math.pi * EXTERNAL_FILTER_HZ * context.dt)
         super().__init__(context, **values)
 
+    def derive(self, values):
+        """Per joint, the update gain of the set-point's ``response`` lag at the loop period."""
+        super().derive(values)
+        return tuple(-math.expm1(-self.context.dt / r) for r in values["response"])
+
     def reset(self, state: JointState, last_output) -> None:
         """Bumpless in torque: the integral takes up what the output in force gives beyond the
         model's holding torque (none when the muscles were vented, as on enable)."""
@@ -132,7 +137,7 @@ class MuscleEquilibrium(MuscleController):
         out, h = self._out, self.context.dt
         ratio, td, ti, load, compliant = (self.p("feedback"), self.p("Td"), self.p("Ti"), self.p("tip_load"),
                                           self.p("compliant"))
-        response = self.p("response")
+        lag = self.k
         for j, (i, k, model, has_brake) in enumerate(self._joints):
             q, w = state.angles[i], state.velocities[i]
             q_r, w_r = reference.angles[i], reference.velocities[i]
@@ -145,7 +150,7 @@ class MuscleEquilibrium(MuscleController):
                 self._ext[j] += self._a_ext * (external - self._ext[j])
                 self._k_meas[j] = pair.stiffness(pa_m, pb_m, q)
             kp = ratio[j] * k_d
-            self._q_m[j] += (1.0 - math.exp(-h / response[j])) * (q_r - self._q_m[j])
+            self._q_m[j] += lag[j] * (q_r - self._q_m[j])
             tau_fb = kp * (q_r - q + td[j] * (w_r - w)) + self._i[j]
             pa, pb = pair.equilibrium(q_r, k_d, tau_fb - model.gravity_torque(q_r, load[j]))
             lo, hi = self.u_lo[k], self.u_hi[k]
@@ -186,6 +191,9 @@ class MusclePID(MuscleController):
         self._dp = [0.0] * context.n
         self._mean = [0.0] * context.n
         super().__init__(context, **values)
+        # the pair's stiffness per Pa of P_a + P_b at mid-stroke [N m/rad/Pa]
+        self._per_pa = [m.pair.n * m.pair.radius ** 2 / m.pair.length * m.pair.slope(m.pair.eps_c)
+                        for _, _, m, _ in self._joints]
 
     def reset(self, state: JointState, last_output) -> None:
         self._out[:] = [float(u) for u in last_output]
@@ -195,11 +203,9 @@ class MusclePID(MuscleController):
     def step(self, state: JointState, reference: Reference) -> list[float]:
         out, h = self._out, self.context.dt
         kp, ti, td = self.p("Kp"), self.p("Ti"), self.p("Td")
-        for j, (i, k, model, has_brake) in enumerate(self._joints):
+        for j, (i, k, _, has_brake) in enumerate(self._joints):
             e = reference.angles[i] - state.angles[i]
-            pair = model.pair
-            per_pa = pair.n * pair.radius ** 2 / pair.length * pair.slope(pair.eps_c)  # K per Pa of P_a + P_b
-            mean = 0.5 * self.stiffness_setpoint(reference, j) / per_pa
+            mean = 0.5 * self.stiffness_setpoint(reference, j) / self._per_pa[j]
             dp = kp[j] * e + kp[j] * td[j] * (reference.velocities[i] - state.velocities[i]) + self._i[j]
             lo, hi = self.u_lo[k], self.u_hi[k]
             pa, pb = mean + 0.5 * dp, mean - 0.5 * dp

@@ -167,12 +167,16 @@ class MuscleJoint:
                    rig.arm.link_lengths_m[i], tuple(rig.arm.gravity_m_s2), p_max,
                    joint.brake.max_nm if joint.brake is not None else 0.0)
 
+    def tip_mass_kg(self, tip_load_n: float) -> float:
+        """The mass [kg] whose weight under the rig's gravity is a tip load [N] (none without gravity)."""
+        g = math.hypot(*self.gravity_m_s2)
+        return tip_load_n / g if g > 0 else 0.0
+
     def gravity_torque(self, theta: float, tip_load_n: float = 0.0) -> float:
         """Gravity's torque on the joint [N m] from the link and a tip load's weight [N]
         (a single joint: the link points along (cos theta, sin theta) of the arm's plane)."""
         gx, gy = self.gravity_m_s2
-        g = math.hypot(gx, gy)
-        moment = self.link_mass_kg * self.link_com_m + (tip_load_n / g if g > 0 else 0.0) * self.length_m
+        moment = self.link_mass_kg * self.link_com_m + self.tip_mass_kg(tip_load_n) * self.length_m
         return moment * (math.cos(theta) * gy - math.sin(theta) * gx)
 
     def stiffness_range(self, theta: float, tip_load_n: float = 0.0) -> tuple[float, float]:

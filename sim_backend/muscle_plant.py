@@ -115,7 +115,7 @@ class MuscleJointSim:
         o, m = self.options, self.model
         lines = (self.sides[0].line_pressure(volts_a, supply_pa), self.sides[1].line_pressure(volts_b, supply_pa))
         self.brake_nm = self.brake.torque(brake_volts) if self.brake is not None else 0.0
-        inertia = m.inertia_kg_m2 + (self.tip_load_n / 9.81) * m.length_m ** 2
+        inertia = m.inertia_kg_m2 + m.tip_mass_kg(self.tip_load_n) * m.length_m ** 2
         h = self.h
         for _ in range(SUBSTEPS):
             volumes = self._volumes(self.theta)
