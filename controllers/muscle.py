@@ -7,13 +7,21 @@ angle with the desired stiffness K_d against gravity and the known tip load; fee
 the angle adds a torque ``tau_fb`` that the same model turns into pressures at the same
 stiffness::
 
-    tau_fb = Kp (th_r - th) + Kp Td (w_r - w) + I,    dI/dt = (Kp / Ti) e_c,    Kp = feedback K_d
+    tau_fb = Kp (th_m - th) + Kp Td (w_m - w) + I,    dI/dt = (Kp / Ti) e_c,    Kp = feedback K_d
     e_c    = th_m + tau_ext / K_d - th      (``compliant`` = 1, the default)
     e_c    = th_m - th                      (``compliant`` = 0: position control)
 
-where th_m is the set-point through a first-order lag of ``response`` seconds, the way the
-valves and chambers let the arm follow: the integral sees the model's error, not the lag of
-a step it has not yet made (which would wind it up and overshoot).
+where th_m, w_m is the reference model: the set-point through two first-order lags of
+``response`` seconds, each fed the reference's own speed w_r as well,
+
+    th_1' = (th_r - th_1) / response + w_r,    th_m' = (th_1 - th_m) / response + w_r,
+
+a critically damped response to a step that the valves' dead time and the chambers' filling
+let the arm follow (a 2-DOF design: the model is fed forward through the equilibrium model at
+th_m, the feedback only corrects the arm's deviation from it). A step then asks the arm for a
+move it can make, whatever its size, so the feedback and the integral do not wind up on the
+lag of a step the arm has not made yet (which would overshoot a long step and leave a slow
+tail); a planned trajectory, whose speed is fed through, passes without the lag.
 
 ``tau_ext`` is the external torque the measured muscle pressures show beyond gravity and the
 known load (low-passed). Integrating ``e_c`` rather than the plain error corrects the model's
@@ -92,10 +100,10 @@ class MuscleEquilibrium(MuscleController):
         ParamSpec("feedback", "-", 0.0, 5.0, (0.3,), "feedback stiffness Kp on the angle error, as a fraction of "
                   "the commanded stiffness (the loop's gain then follows it: the valves' 40 ms dead time "
                   "bounds it)"),
-        ParamSpec("Td", "s", 0.0, 1.0, (0.0,), "derivative time on the speed error"),
-        ParamSpec("Ti", "s", 0.0, 100.0, (0.35,), "integral time; 0: off"),
-        ParamSpec("response", "s", 0.001, 10.0, (0.22,), "the lag the integral expects the angle to follow a "
-                  "set-point with"),
+        ParamSpec("Td", "s", 0.0, 1.0, (0.02,), "derivative time on the speed error"),
+        ParamSpec("Ti", "s", 0.0, 100.0, (0.375,), "integral time; 0: off"),
+        ParamSpec("response", "s", 0.001, 10.0, (0.27,), "time constant of the reference model: the set-point "
+                  "reaches the feed-forward and the feedback through two lags of this"),
         ParamSpec("compliant", "-", 0.0, 1.0, (1.0,), "1: the integral acts on the compliant error, so the "
                   "joint at rest is as stiff as commanded; 0: on the angle error, so it returns to its "
                   "set-point under any static load (position control)"),
@@ -111,12 +119,13 @@ class MuscleEquilibrium(MuscleController):
         self._i = [0.0] * context.n  # integral torque [N m]
         self._ext = [0.0] * context.n  # filtered external torque [N m]
         self._k_meas = [0.0] * context.n
-        self._q_m = [0.0] * context.n  # the set-point as the arm is expected to follow it [rad]
+        self._q_m = [0.0] * context.n  # the reference model's angle [rad]
+        self._q_1 = [0.0] * context.n  # its first lag's output [rad]
         self._a_ext = -math.expm1(-2 * math.pi * EXTERNAL_FILTER_HZ * context.dt)
         super().__init__(context, **values)
 
     def derive(self, values):
-        """Per joint, the update gain of the set-point's ``response`` lag at the loop period."""
+        """Per joint, the update gain of the reference model's lags at the loop period."""
         super().derive(values)
         return tuple(-math.expm1(-self.context.dt / r) for r in values["response"])
 
@@ -127,7 +136,7 @@ class MuscleEquilibrium(MuscleController):
         for j, (i, k, model, _) in enumerate(self._joints):
             q = state.angles[i]
             pa, pb = last_output[k], last_output[k + 1]
-            self._ext[j], self._q_m[j] = 0.0, q
+            self._ext[j], self._q_m[j], self._q_1[j] = 0.0, q, q
             if pa > 1e3 or pb > 1e3:
                 self._i[j] = model.pair.torque(pa, pb, q) + model.gravity_torque(q, self.p("tip_load")[j])
             else:
@@ -137,10 +146,10 @@ class MuscleEquilibrium(MuscleController):
         out, h = self._out, self.context.dt
         ratio, td, ti, load, compliant = (self.p("feedback"), self.p("Td"), self.p("Ti"), self.p("tip_load"),
                                           self.p("compliant"))
-        lag = self.k
+        lag, response = self.k, self.p("response")
         for j, (i, k, model, has_brake) in enumerate(self._joints):
             q, w = state.angles[i], state.velocities[i]
-            q_r, w_r = reference.angles[i], reference.velocities[i]
+            q_r = reference.angles[i]
             k_d = self.stiffness_setpoint(reference, j)
             self._k_set[j] = k_d
             pair = model.pair
@@ -150,13 +159,17 @@ class MuscleEquilibrium(MuscleController):
                 self._ext[j] += self._a_ext * (external - self._ext[j])
                 self._k_meas[j] = pair.stiffness(pa_m, pb_m, q)
             kp = ratio[j] * k_d
-            self._q_m[j] += lag[j] * (q_r - self._q_m[j])
-            tau_fb = kp * (q_r - q + td[j] * (w_r - w)) + self._i[j]
-            pa, pb = pair.equilibrium(q_r, k_d, tau_fb - model.gravity_torque(q_r, load[j]))
+            w_r = reference.velocities[i]
+            self._q_1[j] += lag[j] * (q_r - self._q_1[j]) + h * w_r
+            self._q_m[j] += lag[j] * (self._q_1[j] - self._q_m[j]) + h * w_r
+            q_m = self._q_m[j]
+            w_m = (self._q_1[j] - q_m) / response[j] + w_r
+            tau_fb = kp * (q_m - q + td[j] * (w_m - w)) + self._i[j]
+            pa, pb = pair.equilibrium(q_m, k_d, tau_fb - model.gravity_torque(q_m, load[j]))
             lo, hi = self.u_lo[k], self.u_hi[k]
             saturated = not (lo < pa < hi and lo < pb < hi)
             if ti[j] > 0.0:
-                e_c = self._q_m[j] - q + (self._ext[j] / k_d if compliant[j] >= 0.5 else 0.0)
+                e_c = q_m - q + (self._ext[j] / k_d if compliant[j] >= 0.5 else 0.0)
                 # conditional integration: never further into a pressure limit
                 if not saturated or (e_c > 0) != (pa >= hi or pb <= lo):
                     self._i[j] += kp * h / ti[j] * e_c

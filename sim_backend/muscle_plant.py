@@ -43,11 +43,11 @@ class MusclePlantOptions:
 
     valve_lag_s: tuple[float, ...] = (0.025, 0.025)  # T1, T2 [4.29]
     valve_dead_time_s: float = 0.040  # L [4.29]
-    conductance_m3_s_pa: float = 3.1e-9  # C, valve + line into one side's muscles (calibrated)
+    conductance_m3_s_pa: float = 8e-9  # C, valve + line into one side's muscles (calibrated)
     critical_ratio: float = 0.3  # b_cr
     polytropic: float = 1.2  # kappa
     damping_nm_s: float = 0.005  # D0, the bearing's viscous damping [N m s/rad]
-    stiffness_damping_s: float = 0.025  # eta: the muscles' damping per unit of their stiffness [s]
+    stiffness_damping_s: float = 0.045  # eta: the muscles' damping per unit of their stiffness [s]
     tip_load_n: float = 0.0  # a weight hanging at the tip [N] (rig-facts §2: 0, 8.33, 16.66 N)
     force_scale: float = 1.0  # the true muscles' force over the rig file's model: a plant off the nominal
 

@@ -97,12 +97,25 @@ def test_controllers_are_refused_on_joints_they_do_not_drive():
             'safe_nm = 2.0': ""}).context(), {"brake_linear": [0.5]})
 
 
-@pytest.mark.parametrize("controller", ["muscle_eq", "muscle_pid"])
-def test_a_step_settles_within_the_chapters_times_and_holds(controller):
-    (t, q, pa, pb), settling = muscle_steps.step_case(controller, 0.0, 45.0, 0.3, 0.0)
-    assert settling <= 1.614  # the chapter's slowest measured step
-    assert abs(sum(q[-500:]) / 500 - 45.0) < 0.5
+@pytest.mark.parametrize("controller, start, end", [("muscle_eq", 0.0, 45.0), ("muscle_eq", 0.0, 90.0),
+                                                    ("muscle_eq", 90.0, 45.0), ("muscle_pid", 0.0, 45.0)])
+def test_a_step_settles_within_the_chapters_times_and_holds(controller, start, end):
+    (t, q, pa, pb), settling = muscle_steps.step_case(controller, start, end, 0.3, 0.0)
+    assert 0.708 <= settling <= 1.614  # between the chapter's fastest simulated and slowest measured step
+    assert max(abs(v - start) for v in q) <= 1.05 * abs(end - start)  # no more than the band's overshoot
+    assert abs(sum(q[-500:]) / 500 - end) < 1.0  # and creeping in: within 1 deg 5 s on
     assert all(0.0 <= p <= 0.6 for p in pa + pb)
+
+
+def test_a_planned_move_is_tracked_without_the_reference_models_lag():
+    loop = make_loop("muscle_eq", None, rig="sim-muscle")
+    muscle_steps.hold_at(loop, 10.0, 0.3, 1.0)
+    loop.set_trajectory(JointMove([10 * DEG], [70 * DEG], 2.0), "move")  # peak 45 deg/s
+    worst = 0.0
+    for _ in range(2500):
+        loop.run(1)
+        worst = max(worst, abs(loop.reference[0][0] - loop.angles[0]) / DEG)
+    assert worst < 8.0  # the model's 2 x 0.27 s lag alone would be 20 deg behind at the peak speed
 
 
 @pytest.mark.parametrize("stiffness, load", [(0.2, 4.0), (0.5, 8.33)])
