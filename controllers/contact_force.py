@@ -30,7 +30,7 @@ taxels across: the model is evaluated at 3 x 3 points over each taxel's area and
 
 **Outer, temporal layer**: recursive least squares on theta = [ln p_max, beta] in
 information form with forgetting factor lambda per frame, each taxel's row entering with its
-sigmoid weight: R <- lambda R + sum w h h^T, r <- lambda r + sum w h z, theta = R^-1 r;
+sigmoid weight times (p / p_peak)^2, the inverse of ln p's variance (the per-sample weight): R <- lambda R + sum w h h^T, r <- lambda r + sum w h z, theta = R^-1 r;
 p_max = exp(theta_1), beta = theta_2, fed back to the next frame's geometry. A frame with no
 contact resets it.
 
@@ -170,8 +170,11 @@ def log_rows(shape: np.ndarray, px: np.ndarray, py: np.ndarray, p: np.ndarray):
     return np.column_stack([np.ones_like(g), g]), z, mean ** (1.0 / beta), p
 
 
-def sigmoid_weight(phi: np.ndarray, centre: float = 0.2, width: float = 0.06) -> np.ndarray:
-    """The S-WLS weight: near 0 at the contact's edge (phi -> 0), near 1 inside."""
+def sigmoid_weight(phi: np.ndarray, centre: float = 0.5, width: float = 0.06) -> np.ndarray:
+    """The S-WLS weight: near 0 over the contact's outer half in phi (where ln phi amplifies the
+    geometry's error and the noise), near 1 inside. The centre was chosen on simulated impacts
+    (0.2 to 0.7 tried: beta's largest error fell from 6.3 to 5.0 % going from 0.2 to 0.5, and
+    rose again beyond)."""
     return 1.0 / (1.0 + np.exp(-(phi - centre) / width))
 
 
@@ -234,7 +237,10 @@ class ContactEstimator(_Layers):
         self.moment = np.zeros(2)
 
     def _solve(self, h, z, phi, p):
-        hw = h * sigmoid_weight(phi)[:, None]
+        """Each row's weight: the sigmoid in phi, times (p / p_peak)^2, the inverse of ln p's
+        variance under the sensor's even noise (var ln p = (sigma / p)^2): the paper's per-sample
+        weight, read so."""
+        hw = h * (sigmoid_weight(phi) * (p / p.max()) ** 2)[:, None]
         self.info = self.forgetting * self.info + hw.T @ h
         self.moment = self.forgetting * self.moment + hw.T @ z
         (r11, r12), (_, r22) = self.info
