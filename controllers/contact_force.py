@@ -30,8 +30,9 @@ taxels across: the model is evaluated at 3 x 3 points over each taxel's area and
 
 **Outer, temporal layer**: recursive least squares on theta = [ln p_max, beta] in
 information form with forgetting factor lambda per frame, each taxel's row entering with its
-sigmoid weight times (p / p_peak)^2, the inverse of ln p's variance (the per-sample weight): R <- lambda R + sum w h h^T, r <- lambda r + sum w h z, theta = R^-1 r;
-p_max = exp(theta_1), beta = theta_2, fed back to the next frame's geometry. A frame with no
+sigmoid weight times (p / p_peak)^2, the inverse of ln p's variance (the per-sample weight):
+R <- lambda R + sum w h h^T, r <- lambda r + sum w h z, theta = R^-1 r; p_max = exp(theta_1),
+beta = theta_2, fed back to the next frame's geometry. A frame with no
 contact resets it.
 
 The baseline (:class:`PlainWLS`): the same region and geometry, [ln p_max, beta] by plain

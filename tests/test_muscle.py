@@ -115,7 +115,7 @@ def test_a_planned_move_is_tracked_without_the_reference_models_lag():
     for _ in range(2500):
         loop.run(1)
         worst = max(worst, abs(loop.reference[0][0] - loop.angles[0]) / DEG)
-    assert worst < 8.0  # the model's 2 x 0.27 s lag alone would be 20 deg behind at the peak speed
+    assert worst < 8.0  # the model's 2 x 0.27 s lag alone: about 20 deg behind at the peak speed
 
 
 @pytest.mark.parametrize("stiffness, load", [(0.2, 4.0), (0.5, 8.33)])
