@@ -16,12 +16,15 @@ taxels across: the model is evaluated at 3 x 3 points over each taxel's area and
    taxels above ``THRESHOLD_PA`` (twice the sensor's +-0.5 % FS, so noise alone never
    qualifies) are active; the region is the 8-connected group of active taxels grown from
    the frame's peak (other groups, a second touch or a hot taxel, are left out);
-2. its geometry (cx, cy, a, b): one damped Gauss-Newton step of the pressure-domain model
-   over the region and its ring of untouched neighbours (whose zeros pin the edge),
-   warm-started from the last frame; at first touch a quadric fit starts it: with beta = 0.5,
-   p^(1/beta) is a quadric in x and y, linear in its coefficients (**interpretation**: the
-   paper's geometry step is not legible; the taxels' coarse outline alone gives a, b only to
-   a taxel, 2.5 mm, 20-40 % of a small contact);
+2. its geometry (cx, cy, a, b), tracked from frame to frame by recursive Gauss-Newton on the
+   pressure-domain model over the region and its ring of untouched neighbours (whose zeros
+   pin the edge), [ln p_max, beta] taken as the last frame's: each frame's normal equations
+   join the last ones' with forgetting 0.6 (:class:`GeometryTracker`), so a small contact's
+   geometry is not one frame's noise (beta inherits two to three times a geometry error);
+   at first touch a quadric fit starts it: with beta = 0.5, p^(1/beta) is a quadric in x and
+   y, linear in its coefficients (**interpretation**: the paper's geometry step is not
+   legible; the taxels' coarse outline alone gives a, b only to a taxel, 2.5 mm, 20-40 % of a
+   small contact, and the geometry's memory is ours);
 3. the log transform, ln p = ln p_max + beta ln phi, over the touched taxels, for
    [ln p_max, beta], each taxel weighted by a sigmoid in phi that lets taxels near the
    contact's edge (where ln phi amplifies the noise without bound) count little (S-WLS).
@@ -35,9 +38,9 @@ R <- lambda R + sum w h h^T, r <- lambda r + sum w h z, theta = R^-1 r; p_max = 
 beta = theta_2, fed back to the next frame's geometry. A frame with no
 contact resets it.
 
-The baseline (:class:`PlainWLS`): the same region and geometry, [ln p_max, beta] by plain
-weighted least squares in each frame alone (weights the taxel pressures; no sigmoid, no
-memory).
+The baseline (:class:`PlainWLS`): the same region; in each frame alone the geometry (one
+Gauss-Newton step of all six parameters) and [ln p_max, beta] by plain weighted least squares
+(weights the taxel pressures; no sigmoid, no memory).
 """
 from __future__ import annotations
 
@@ -53,6 +56,7 @@ THRESHOLD_PA = 2.0 * ACCURACY_PA
 MIN_TAXELS = 8  # the quadric has 5 coefficients: fewer active taxels give no estimate
 EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
 MM = 1e3  # the fits run in mm, so their columns are of like size
+GEOMETRY_FORGETTING = 0.6  # the geometry's memory per frame (0: each frame alone); chosen on simulated impacts
 
 
 @dataclass(frozen=True)
@@ -120,11 +124,10 @@ def quadric_geometry(x: np.ndarray, y: np.ndarray, p: np.ndarray, beta: float = 
     return cx, cy, math.sqrt(q0 / -k[3]), math.sqrt(q0 / -k[4])
 
 
-def refine(shape: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, damping: float = 1e-3):
-    """One damped Gauss-Newton step of (cx, cy, a, b [mm], ln p_max, beta) on the pressures p
-    [Pa] of taxels whose sensing points are at (x, y) [mm] (shape (taxels, points); a taxel
-    reports the mean over its points). Returns the new state and the model's relative RMS
-    residual before the step; None if the step leaves the model's domain."""
+def geometry_jacobian(shape: np.ndarray, x: np.ndarray, y: np.ndarray):
+    """The pressure model [Pa] at taxels whose sensing points are at (x, y) [mm] (shape
+    (taxels, points); a taxel reports the mean over its points) for the state (cx, cy, a, b
+    [mm], ln p_max, beta), and its derivatives in each (taxels x 6)."""
     cx, cy, a, b, ln_pm, beta = shape
     u, v = (x - cx) / a, (y - cy) / b
     phi = 1.0 - u * u - v * v
@@ -133,21 +136,46 @@ def refine(shape: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, dampi
     p_pt = np.exp(beta * log_phi + ln_pm) * inside
     slope = beta * p_pt * np.exp(-log_phi)  # dp/dphi at each point
     su, sv = slope * u, slope * v
-    jac = np.empty((len(p), 6))
-    jac[:, 0] = su.sum(axis=1) * (2 / a)
-    jac[:, 1] = sv.sum(axis=1) * (2 / b)
-    jac[:, 2] = (su * u).sum(axis=1) * (2 / a)
-    jac[:, 3] = (sv * v).sum(axis=1) * (2 / b)
-    jac[:, 4] = p_pt.sum(axis=1)  # the ln p_max column is the model's pressure itself
-    jac[:, 5] = (p_pt * log_phi).sum(axis=1)
-    jac *= 1.0 / x.shape[1]
-    error = p - jac[:, 4]
-    normal = jac.T @ jac
-    normal[np.diag_indices(6)] *= 1.0 + damping
-    new = shape + np.linalg.solve(normal, jac.T @ error)
-    if not np.all(np.isfinite(new)) or new[2] <= 0.1 or new[3] <= 0.1 or not 0.05 <= new[5] <= 5.0:
-        return None
-    return new, math.sqrt(float(error @ error) / float(p @ p))
+    model = p_pt.sum(axis=1)  # also the ln p_max column
+    jac = np.column_stack([su.sum(axis=1) * (2 / a), sv.sum(axis=1) * (2 / b),
+                           (su * u).sum(axis=1) * (2 / a), (sv * v).sum(axis=1) * (2 / b),
+                           model, (p_pt * log_phi).sum(axis=1)]) / x.shape[1]
+    return jac[:, 4], jac
+
+
+class GeometryTracker:
+    """The contact's geometry (cx, cy, a, b [mm]) tracked from frame to frame by recursive
+    Gauss-Newton on the pressure model, [ln p_max, beta] taken as the last frame's: each
+    frame's normal equations J^T J join the last ones' with forgetting ``forgetting`` (a memory
+    of about 1 / (1 - forgetting) frames), and one step is taken on this frame's residual.
+    A frame alone gives a and b to 1-5 % on a contact 2 taxels across (sensor noise), and beta
+    inherits two to three times a geometry error through ln phi; the memory averages it.
+
+    ``per_frame``: the baseline's geometry instead, each frame alone with ln p_max and beta
+    stepped jointly (no memory; plain WLS's per-frame beta fed to a geometry memory runs away)."""
+
+    def __init__(self, forgetting: float, per_frame: bool = False):
+        self.forgetting = 0.0 if per_frame else forgetting
+        self.columns = 6 if per_frame else 4
+        self.reset()
+
+    def reset(self) -> None:
+        self.normal = np.zeros((self.columns, self.columns))
+
+    def step(self, shape: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, damping: float = 1e-3):
+        """The new geometry for the state ``shape`` and the pressures p [Pa] at sensing points
+        (x, y) [mm], and the model's relative RMS residual before the step; None if the step
+        leaves the model's domain."""
+        model, jac = geometry_jacobian(shape, x, y)
+        jac = jac[:, :self.columns]
+        error = p - model
+        self.normal = self.forgetting * self.normal + jac.T @ jac
+        damped = self.normal.copy()
+        damped[np.diag_indices(self.columns)] *= 1.0 + damping
+        new = shape[:self.columns] + np.linalg.solve(damped, jac.T @ error)
+        if not np.all(np.isfinite(new)) or new[2] <= 0.1 or new[3] <= 0.1:
+            return None
+        return new[:4], math.sqrt(float(error @ error) / float(p @ p))
 
 
 def log_rows(shape: np.ndarray, px: np.ndarray, py: np.ndarray, p: np.ndarray):
@@ -175,7 +203,8 @@ def sigmoid_weight(phi: np.ndarray, centre: float = 0.5, width: float = 0.06) ->
     """The S-WLS weight: near 0 over the contact's outer half in phi (where ln phi amplifies the
     geometry's error and the noise), near 1 inside. The centre was chosen on simulated impacts
     (0.2 to 0.7 tried: beta's largest error fell from 6.3 to 5.0 % going from 0.2 to 0.5, and
-    rose again beyond)."""
+    rose again beyond; tried again, 0.3-0.7 and widths 0.03-0.1, with the geometry's memory:
+    0.5 and 0.06 kept)."""
     return 1.0 / (1.0 + np.exp(-(phi - centre) / width))
 
 
@@ -183,7 +212,8 @@ class _Layers:
     """What both estimators share: frame -> region -> geometry (tracked from frame to frame)
     -> the log layer's rows for [ln p_max, beta]; a subclass solves those rows."""
 
-    def __init__(self):
+    def __init__(self, geometry: GeometryTracker):
+        self.geometry = geometry
         xs, ys = taxel_centres_m()
         self.x, self.y = xs * MM, ys * MM
         dx, dy = sensing_offsets_m()
@@ -192,6 +222,7 @@ class _Layers:
 
     def reset(self) -> None:
         self.shape = None  # (cx, cy, a, b) [mm], ln p_max, beta: the state from frame to frame
+        self.geometry.reset()
 
     def update(self, frame_pa: np.ndarray) -> ContactEstimate | None:
         """One frame [Pa] (16 x 16, NaN where dead) -> the contact, or None (no contact)."""
@@ -207,15 +238,15 @@ class _Layers:
                 return None
             self.shape = np.array([*first, math.log(float(frame_pa[region].max())), 0.5])
         px, py = self.px[ring], self.py[ring]
-        refined = refine(self.shape, px, py, p)
-        rows = log_rows(refined[0], px, py, p) if refined is not None else None
+        stepped = self.geometry.step(self.shape, px, py, p)
+        shape = np.concatenate([stepped[0], self.shape[4:]]) if stepped is not None else None
+        rows = log_rows(shape, px, py, p) if shape is not None else None
         theta = self._solve(*rows) if rows is not None else None
         if theta is None or not np.all(np.isfinite(theta)) or not 0.05 <= theta[1] <= 5.0:
             self.reset()  # no cap shape: the model does not hold this frame
             return None
-        shape, residual = refined
         shape[4:] = theta
-        self.shape = shape
+        self.shape, residual = shape, stepped[1]
         cx, cy, a, b, ln_pmax, beta = shape
         return ContactEstimate(cx / MM, cy / MM, a / MM, b / MM, math.exp(ln_pmax), beta, len(p), residual)
 
@@ -226,11 +257,13 @@ class _Layers:
 class ContactEstimator(_Layers):
     """The paper's method: S-WLS rows in a frame, recursive least squares across frames."""
 
-    def __init__(self, forgetting: float = 0.8):
+    def __init__(self, forgetting: float = 0.8, geometry_forgetting: float = GEOMETRY_FORGETTING):
         if not 0.0 < forgetting <= 1.0:
             raise ValueError(f"forgetting factor {forgetting}: 0 < lambda <= 1")
+        if not 0.0 <= geometry_forgetting < 1.0:
+            raise ValueError(f"geometry forgetting factor {geometry_forgetting}: 0 <= lambda < 1")
         self.forgetting = forgetting
-        super().__init__()
+        super().__init__(GeometryTracker(geometry_forgetting))
 
     def reset(self) -> None:
         super().reset()
@@ -253,8 +286,12 @@ class ContactEstimator(_Layers):
 
 
 class PlainWLS(_Layers):
-    """The baseline: the same region and geometry, [ln p_max, beta] by weighted least squares
-    in each frame alone, the taxel pressures as weights."""
+    """The baseline: the same region, and in each frame alone its geometry (stepped jointly with
+    ln p_max and beta) and [ln p_max, beta] by weighted least squares, the taxel pressures as
+    weights."""
+
+    def __init__(self):
+        super().__init__(GeometryTracker(0.0, per_frame=True))
 
     def _solve(self, h, z, phi, p):
         sw = np.sqrt(p)

@@ -122,7 +122,7 @@ def _work(shared: _Shared, config: ContactSensorConfig) -> None:
     calibration = config.calibration()
     source = ImpactReplay(Impact(config.sim_impact_speed_m_s), config.sim_impact_every_s, config.rate_hz,
                           calibration, config.seed)
-    device, estimator = TaxelArray(calibration), ContactEstimator(config.forgetting)
+    device, estimator = TaxelArray(calibration), ContactEstimator(config.forgetting, config.geometry_forgetting)
     counters = shared.counters
     period = 1.0 / config.rate_hz
     start = time.monotonic()

@@ -103,7 +103,7 @@ def check_config(args) -> int:
     if rig.contact_sensor is not None:
         sensor = rig.contact_sensor
         print(f"  contact sensor: {sensor.source} pad, {sensor.rate_hz:g} frames/s, {len(sensor.dead)} dead taxel(s), "
-              f"forgetting {sensor.forgetting:g}")
+              f"forgetting {sensor.forgetting:g} (geometry {sensor.geometry_forgetting:g})")
     return 0
 
 

@@ -68,6 +68,7 @@ class ContactSensorConfig:
     gain_pa_per_v: tuple[float, ...] = (FULL_SCALE_PA / 10.0,)
     dead: tuple[tuple[int, ...], ...] = ()
     forgetting: float = 0.8
+    geometry_forgetting: float = 0.6
     sim_impact_speed_m_s: float = 0.08
     sim_impact_every_s: float = 1.0
     seed: int = 0
@@ -83,6 +84,8 @@ class ContactSensorConfig:
             require(len(pair) == 2 and all(0 <= v < TAXELS for v in pair), f"dead[{i}]",
                     f"a [row, column] pair within 0-{TAXELS - 1}, got {list(pair)}")
         require(0.0 < self.forgetting <= 1.0, "forgetting", f"must be within (0, 1], got {self.forgetting}")
+        require(0.0 <= self.geometry_forgetting < 1.0, "geometry_forgetting",
+                f"must be within [0, 1), got {self.geometry_forgetting}")
         require(0.0 < self.sim_impact_speed_m_s <= 0.2, "sim_impact_speed_m_s",
                 f"must be within (0, 0.2] m/s, got {self.sim_impact_speed_m_s}")
         require(0.5 <= self.sim_impact_every_s <= 10.0, "sim_impact_every_s",
