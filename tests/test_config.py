@@ -54,6 +54,17 @@ def test_bad_config_names_the_key(old, new, message):
         parse_with(old, new)
 
 
+@pytest.mark.parametrize("line, message", [
+    ("forgetting = 0.0", r"contact_sensor\.forgetting: must be within \(0, 1\]"),
+    ("geometry_forgetting = 1.0", r"contact_sensor\.geometry_forgetting: must be within \[0, 1\)"),
+    ("rate_hz = 40000.0", r"contact_sensor\.rate_hz: must be within 100-10000 Hz"),
+])
+def test_bad_contact_sensor_settings_name_the_key(line, message):
+    assert config.parse(BASE + "\n[contact_sensor]\n").contact_sensor is not None
+    with pytest.raises(ConfigError, match=message):
+        config.parse(BASE + f"\n[contact_sensor]\n{line}\n")
+
+
 def test_duplicate_joint_name():
     with pytest.raises(ConfigError, match="joint name 'bottom' is used twice"):
         parse_with('name = "middle"', 'name = "bottom"')
