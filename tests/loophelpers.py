@@ -71,11 +71,14 @@ def dealer(srv: ZmqServer, which: str = "command") -> zmq.Socket:
     return sock
 
 
-def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, max_cycles: int = 5000):
-    """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None)."""
+def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, max_cycles: int = 5000, each_cycle=None):
+    """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None).
+    ``each_cycle``, if given, is called after every cycle the exchange runs."""
     sock.send(payload)
     for _ in range(max_cycles):
         loop.run(1)
+        if each_cycle is not None:
+            each_cycle()
         if sock.poll(0):
             return msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
         if _ > 50:
