@@ -151,12 +151,13 @@ class GeometryTracker:
     A frame alone gives a and b to 1-5 % on a contact 2 taxels across (sensor noise), and beta
     inherits two to three times a geometry error through ln phi; the memory averages it.
 
-    ``per_frame``: the baseline's geometry instead, each frame alone with ln p_max and beta
-    stepped jointly (no memory; plain WLS's per-frame beta fed to a geometry memory runs away)."""
+    ``joint``: ln p_max and beta stepped with the geometry (the baseline's geometry, with
+    forgetting 0: each frame alone; plain WLS's per-frame beta fed to a geometry memory runs
+    away)."""
 
-    def __init__(self, forgetting: float, per_frame: bool = False):
-        self.forgetting = 0.0 if per_frame else forgetting
-        self.columns = 6 if per_frame else 4
+    def __init__(self, forgetting: float, joint: bool = False):
+        self.forgetting = forgetting
+        self.columns = 6 if joint else 4
         self.reset()
 
     def reset(self) -> None:
@@ -291,7 +292,7 @@ class PlainWLS(_Layers):
     weights."""
 
     def __init__(self):
-        super().__init__(GeometryTracker(0.0, per_frame=True))
+        super().__init__(GeometryTracker(0.0, joint=True))
 
     def _solve(self, h, z, phi, p):
         sw = np.sqrt(p)
