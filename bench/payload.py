@@ -74,14 +74,14 @@ def loop_arm(loop, sock, lease, run_seconds, ok, call):
     def dithered(joint: str, seconds: float) -> tuple[float, float]:
         j = [jc.name for jc in loop.rig.joints].index(joint)
         reply = ok(loop, sock, "excite", payload_routine.dither_args(loop.rig, joint), lease)
-        advance(reply["duration_s"] - seconds)  # settling included
+        advance(reply["duration_s"] - seconds - payload_routine.END_GUARD_S - 1.0)  # to just before the window
         rows = []
-        for _ in range(int(seconds / 0.01)):
+        while not rows or rows[-1][0] > payload_routine.END_GUARD_S:  # by the dither's clock, as a client
             run_seconds(loop, 0.01)
-            rows.append((loop.u[j], math.degrees(loop.angles[j])))
+            rows.append((loop.reference_remaining(), loop.u[j], math.degrees(loop.angles[j])))
         ok(loop, sock, "lease.renew", lease=lease)
-        run_seconds(loop, 0.1)  # the reference's end
-        return tuple(float(v) for v in np.mean(rows, axis=0))
+        run_seconds(loop, payload_routine.END_GUARD_S + 0.1)  # the dither's end
+        return tuple(float(v) for v in payload_routine.window_mean(rows, seconds, joint))
 
     return payload_routine.Arm(move, dithered)
 

@@ -11,9 +11,14 @@ is ambiguous by up to Fs (on the middle joint as large as the heaviest payload's
 So each joint is **dithered** open loop at each posture: an input-side ``excite`` whose V_MV
 is a sine of ``DITHER_FS`` times the joint's breakaway (Fs over its volts-to-torque, from
 the model; at most ``DITHER_MAX_V``) at ``DITHER_HZ``, which keeps it sliding both ways,
-about a centring PI that holds it at the posture; the mean V_MV over the last ``AVERAGED_S``
-is the balance: inertia, damping and friction (odd in the velocity of a symmetric motion)
-average out, and the centring PI has settled on what holds the joint there. (Tried first and
+about a centring PI that holds it at the posture; the mean V_MV over ``AVERAGED_S`` that end
+a period before the dither does is the balance: inertia, damping and friction (odd in the
+velocity of a symmetric motion) average out, and the centring PI has settled on what holds
+the joint there. The window is placed on the dither's own clock (the daemon's
+``reference_remaining_s``), never on the client's: a client's clock starts late by the
+request's round trip, and a window ending on it took in the holding controller's V_MV after
+the dither's end (up to 50 ms of samples a volt off: 5 mN m on the bottom joint, 5 g of mass,
+which was the rounds' scatter; see :func:`window_mean`). (Tried first and
 left behind: approaching each posture from both sides and averaging, and a 0.5 deg dither on
 the set-point under the holding PID: the middle joint stuck through them, its torque off by
 +-0.1 N m.) The unloaded reference is measured the same way, so the arm's own gravity,
@@ -40,10 +45,12 @@ DITHER_FS = 2.0  # the dither's V_MV amplitude over the joint's breakaway V_MV (
 DITHER_MAX_V = 2.2  # ... and at most this [V]: the middle joint's range keeps room for its load
 DITHER_HZ = 0.5
 DITHER_S = 42.0  # the dither's length after its settling [s]
-AVERAGED_S = 24.0  # the mean is taken over its last this [s] (whole periods): over 12 s the bottom
-#                    joint's balance torque (0.85 N m per volt) scattered by 2 mN m from run to run,
-#                    over 24 s by 0.5 mN m; the mass hangs on it (1 mN m is about 1 g)
-CENTRE_HZ = 0.1  # the centring PI's crossover: settled well within DITHER_S - AVERAGED_S
+AVERAGED_S = 24.0  # the mean is taken over this [s] (whole periods) ending END_GUARD_S before the
+#                    dither does; the bottom joint's balance (0.85 N m per volt) then matches the
+#                    payload's moment to about 0.2 mN m (the mass hangs on it: 1 mN m is about 1 g)
+END_GUARD_S = 1.0 / DITHER_HZ  # the window ends this long (a period) before the dither does [s]
+SAMPLE_GAP_S = 0.25  # a window is whole when samples reach within this of both its ends [s]
+CENTRE_HZ = 0.1  # the centring PI's crossover: settled well within DITHER_S - AVERAGED_S - END_GUARD_S
 MARGIN_DEG = 8.0  # postures this far inside the joint limits
 HOLD_V = 0.75  # postures whose spring needs at most this V_MV (nominal model) [V]
 REFERENCE_FORMAT = "pneumad-payload-reference/1"
@@ -57,6 +64,21 @@ class Arm:
 
     move: Callable[[list[float]], None]
     dithered: Callable[[str, float], tuple[float, float]]
+
+
+def window_mean(samples: Sequence[tuple[float, float, float]], seconds: float, joint: str) -> tuple[float, float]:
+    """The mean V_MV [V] and angle [deg] over the dither's window from samples
+    ``(remaining_s, u_volts, angle_deg)`` taken while it ran (``remaining_s``: how long the
+    dither runs on, by the daemon's clock): those with ``END_GUARD_S < remaining_s <=
+    END_GUARD_S + seconds``. RuntimeError unless samples reach both ends of the window (within
+    ``SAMPLE_GAP_S``): a dither cut short (the joint left its band, the arm tripped) jumps to
+    0 s remaining and leaves its window's end unseen."""
+    inside = [(left, u, a) for left, u, a in samples if END_GUARD_S < left <= END_GUARD_S + seconds]
+    if (not inside or max(r[0] for r in inside) < END_GUARD_S + seconds - SAMPLE_GAP_S
+            or min(r[0] for r in inside) > END_GUARD_S + SAMPLE_GAP_S):
+        raise RuntimeError(f"the dither on joint {joint} did not run through its averaging window (cut by the "
+                           f"daemon? see its events); nothing was measured")
+    return tuple(sum(c) / len(c) for c in zip(*inside))[1:]
 
 
 @dataclass
@@ -187,14 +209,14 @@ def client_arm(client, rig: RigConfig) -> Arm:
 
     def dithered(joint: str, seconds: float) -> tuple[float, float]:
         reply = client.call("excite", dither_args(rig, joint))
-        start = time.monotonic()
-        time.sleep(max(reply["duration_s"] - seconds, 0.0))
+        time.sleep(max(reply["duration_s"] - seconds - END_GUARD_S - 1.0, 0.0))  # to just before the window
         rows = []
-        while time.monotonic() - start < reply["duration_s"]:
-            j = client.status()["joints"][joint]
-            rows.append((j["u_volts"], j["angle_deg"]))
+        while not rows or rows[-1][0] > END_GUARD_S:  # to the window's end, by the dither's clock
+            s = client.status()
+            rows.append((s["reference_remaining_s"], s["joints"][joint]["u_volts"], s["joints"][joint]["angle_deg"]))
             time.sleep(0.02)
-        return tuple(sum(c) / len(c) for c in zip(*rows))
+        time.sleep(END_GUARD_S)  # the dither's end
+        return window_mean(rows, seconds, joint)
 
     return Arm(move, dithered)
 
