@@ -74,7 +74,7 @@ def loop_arm(loop, sock, lease, run_seconds, ok, call):
     def dithered(joint: str, seconds: float) -> tuple[float, float]:
         j = [jc.name for jc in loop.rig.joints].index(joint)
         reply = ok(loop, sock, "excite", payload_routine.dither_args(loop.rig, joint), lease)
-        advance(reply["duration_s"] - seconds - payload_routine.END_GUARD_S - 1.0)  # to just before the window
+        advance(payload_routine.sampling_starts_s(reply["duration_s"], seconds))
         rows = []
         while not rows or rows[-1][0] > payload_routine.END_GUARD_S:  # by the dither's clock, as a client
             run_seconds(loop, 0.01)

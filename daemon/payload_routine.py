@@ -50,6 +50,7 @@ AVERAGED_S = 24.0  # the mean is taken over this [s] (whole periods) ending END_
 #                    payload's moment to about 0.2 mN m (the mass hangs on it: 1 mN m is about 1 g)
 END_GUARD_S = 1.0 / DITHER_HZ  # the window ends this long (a period) before the dither does [s]
 SAMPLE_GAP_S = 0.25  # a window is whole when samples reach within this of both its ends [s]
+LEAD_S = 1.0  # sampling starts this long before the window opens, whatever the client's lag [s]
 CENTRE_HZ = 0.1  # the centring PI's crossover: settled well within DITHER_S - AVERAGED_S - END_GUARD_S
 MARGIN_DEG = 8.0  # postures this far inside the joint limits
 HOLD_V = 0.75  # postures whose spring needs at most this V_MV (nominal model) [V]
@@ -73,12 +74,19 @@ def window_mean(samples: Sequence[tuple[float, float, float]], seconds: float, j
     END_GUARD_S + seconds``. RuntimeError unless samples reach both ends of the window (within
     ``SAMPLE_GAP_S``): a dither cut short (the joint left its band, the arm tripped) jumps to
     0 s remaining and leaves its window's end unseen."""
-    inside = [(left, u, a) for left, u, a in samples if END_GUARD_S < left <= END_GUARD_S + seconds]
-    if (not inside or max(r[0] for r in inside) < END_GUARD_S + seconds - SAMPLE_GAP_S
-            or min(r[0] for r in inside) > END_GUARD_S + SAMPLE_GAP_S):
+    inside = [row for row in samples if END_GUARD_S < row[0] <= END_GUARD_S + seconds]
+    if (not inside or max(row[0] for row in inside) < END_GUARD_S + seconds - SAMPLE_GAP_S
+            or min(row[0] for row in inside) > END_GUARD_S + SAMPLE_GAP_S):
         raise RuntimeError(f"the dither on joint {joint} did not run through its averaging window (cut by the "
                            f"daemon? see its events); nothing was measured")
-    return tuple(sum(c) / len(c) for c in zip(*inside))[1:]
+    _, volts, angles = zip(*inside)
+    return sum(volts) / len(volts), sum(angles) / len(angles)
+
+
+def sampling_starts_s(duration_s: float, seconds: float) -> float:
+    """How long after the ``excite`` reply (the dither lasting ``duration_s``) a client starts
+    sampling for a window of ``seconds``: ``LEAD_S`` before it opens."""
+    return max(duration_s - seconds - END_GUARD_S - LEAD_S, 0.0)
 
 
 @dataclass
@@ -209,7 +217,7 @@ def client_arm(client, rig: RigConfig) -> Arm:
 
     def dithered(joint: str, seconds: float) -> tuple[float, float]:
         reply = client.call("excite", dither_args(rig, joint))
-        time.sleep(max(reply["duration_s"] - seconds - END_GUARD_S - 1.0, 0.0))  # to just before the window
+        time.sleep(sampling_starts_s(reply["duration_s"], seconds))
         rows = []
         while not rows or rows[-1][0] > END_GUARD_S:  # to the window's end, by the dither's clock
             s = client.status()
