@@ -1,299 +1,237 @@
 """Distributed-force identification from the array pressure sensor (rig-facts §3): the
-contact region and the pressure on it, a frame at a time, with the paper's nested layers.
+estimator the daemon runs, a frame at a time, with the contact's 1-sigma uncertainty.
 
-Contact model: an ellipse with centre (cx, cy) and semi-axes a, b [m] along the pad's x and
-y (**interpretation**: the paper names no orientation; the pad's axes are taken), and
+The paper nests a spatial fit in each frame inside a temporal recursive least squares with
+forgetting. Read literally (controllers.contact_paper), its layers hold constant parameters,
+so they lag a contact that grows or shrinks, and they estimate the geometry and
+[ln p_max, beta] apart, so beta takes on two to three times any geometry error (more on a
+contact a few taxels across, where a larger contact with a larger beta reads nearly alike).
+This estimator keeps the nesting and changes what the outer layer carries
+(**interpretation**, chosen on simulated impacts; docs/estimation.md has the comparison):
 
-    p = p_max phi^beta,   phi = 1 - (x - cx)^2/a^2 - (y - cy)^2/b^2   (0 outside)      [Pa]
+- **inner, spatial** (each frame): the neighbouring-response region and its ring of
+  untouched neighbours (controllers.contact_model); the pressure model over them, linearised
+  at the prediction: one Gauss-Newton row per taxel, weighted by the sensor's noise (its
+  +-0.5 % FS read as even noise, sigma = FS / 200 / sqrt 3);
+- **outer, temporal**: recursive least squares in information form with forgetting on all
+  six parameters *and their rates*, so a moving, growing or shrinking contact is followed
+  without lag. The parameters are s = [cx, cy, a^2, b^2, (p_max / 1e5 Pa)^2, beta] [mm, mm^2,
+  -]: by Hertz's scaling the contact's area and its peak pressure squared grow with the
+  indentation, so in these a contact's course is nearly a straight line over the memory.
+  Each frame (dk frame periods after the last):
 
-A taxel reports the mean pressure over its sensing area (about 1.9 mm^2, 1.38 mm square;
-:func:`hal.taxel_array.sensing_offsets_m`), which matters at the edge of a contact a few
-taxels across: the model is evaluated at 3 x 3 points over each taxel's area and averaged.
+      predict   s <- s + dk s',   N <- L (F^-T N F^-1) L      (F: s += dk s'; L: forgetting)
+      correct   (s, s') <- (s, s') + (N + J^T J / sigma^2 + P)^-1 (J^T e / sigma^2 - P_beta (beta - 0.5))
+                N <- N + J^T J / sigma^2
 
-**Inner, spatial layer** (each frame):
+  with e the frame's residual at the prediction and J its Jacobian in s. The forgetting
+  L = exp(-T / memory) per frame period T keeps a memory of ``memory_s`` for the geometry and
+  p_max (4 ms: 16 frames at 4 kHz) and ``beta_memory_s`` for beta (8 ms), whose course is
+  slower, whatever the frame rate. P holds what is
+  known before the data: beta near Hertz's 0.5 (1 sigma 0.3), which matters only while the
+  contact is too small to say, and how fast the rates may change from frame to frame (a
+  random walk: relative growth 120 /s, beta 4 /s, at 4 kHz), which keeps a rate from running
+  along the few-taxel ambiguity.
 
-1. the neighbouring-response region: dead taxels (NaN) take their live neighbours' mean;
-   taxels above ``THRESHOLD_PA`` (twice the sensor's +-0.5 % FS, so noise alone never
-   qualifies) are active; the region is the 8-connected group of active taxels grown from
-   the frame's peak (other groups, a second touch or a hot taxel, are left out);
-2. its geometry (cx, cy, a, b), tracked from frame to frame by recursive Gauss-Newton on the
-   pressure-domain model over the region and its ring of untouched neighbours (whose zeros
-   pin the edge), [ln p_max, beta] taken as the last frame's: each frame's normal equations
-   join the last ones' with forgetting 0.6 (:class:`GeometryTracker`), so a small contact's
-   geometry is not one frame's noise (beta inherits two to three times a geometry error);
-   at first touch a quadric fit starts it: with beta = 0.5, p^(1/beta) is a quadric in x and
-   y, linear in its coefficients (**interpretation**: the paper's geometry step is not
-   legible; the taxels' coarse outline alone gives a, b only to a taxel, 2.5 mm, 20-40 % of a
-   small contact, and the geometry's memory is ours);
-3. the log transform, ln p = ln p_max + beta ln phi, over the touched taxels, for
-   [ln p_max, beta], each taxel weighted by a sigmoid in phi that lets taxels near the
-   contact's edge (where ln phi amplifies the noise without bound) count little (S-WLS).
-   Over a sensing area ln phi becomes g = d ln mean(phi^beta) / d beta at the last beta,
-   exact at the fixed point (:func:`log_rows`).
-
-**Outer, temporal layer**: recursive least squares on theta = [ln p_max, beta] in
-information form with forgetting factor lambda per frame, each taxel's row entering with its
-sigmoid weight times (p / p_peak)^2, the inverse of ln p's variance (the per-sample weight):
-R <- lambda R + sum w h h^T, r <- lambda r + sum w h z, theta = R^-1 r; p_max = exp(theta_1),
-beta = theta_2, fed back to the next frame's geometry. A frame with no
-contact resets it.
-
-The baseline (:class:`PlainWLS`): the same region; in each frame alone the geometry (one
-Gauss-Newton step of all six parameters) and [ln p_max, beta] by plain weighted least squares
-(weights the taxel pressures; no sigmoid, no memory).
+At first touch (8 taxels active) a quadric fit of the taxels gives the geometry and a few
+Gauss-Newton steps of the pressure model refine it with beta held at 0.5; the rates start at
+0. A track whose model no longer explains the frames (the residual more than ``LOST_CHI2``
+times the noise's for ``LOST_FRAMES`` frames in a row: a second impact, a slip) starts again
+from the frame. The inverse of the information gives each parameter's 1 sigma.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
-from hal.taxel_array import ACCURACY_PA, Contact, sensing_offsets_m, taxel_centres_m
+from controllers.contact_model import (
+    MM,
+    ContactEstimate,
+    SensingGrid,
+    contact_region,
+    dilate,
+    model_jacobian,
+    quadric_geometry,
+)
+from hal.taxel_array import ACCURACY_PA
 
-THRESHOLD_PA = 2.0 * ACCURACY_PA
-MIN_TAXELS = 8  # the quadric has 5 coefficients: fewer active taxels give no estimate
-EIGHT_CONNECTED = np.ones((3, 3), dtype=bool)
-MM = 1e3  # the fits run in mm, so their columns are of like size
-GEOMETRY_FORGETTING = 0.6  # the geometry's memory per frame (0: each frame alone); chosen on simulated impacts
-
-
-@dataclass(frozen=True)
-class ContactEstimate(Contact):
-    """An identified contact, with the taxels the fit used and the model's relative RMS
-    residual over them before this frame's step (0: it explains every taxel)."""
-
-    taxels: int = 0
-    residual: float = 0.0
-
-    def as_dict(self) -> dict:
-        return {**{k: float(v) if k != "taxels" else int(v) for k, v in vars(self).items()},
-                "force_n": self.force_n, "area_m2": self.area_m2}
-
-
-def contact_region(frame_pa: np.ndarray) -> np.ndarray | None:
-    """The neighbouring-response region (a boolean mask), or None when nothing is touching."""
-    dead = np.isnan(frame_pa)
-    p = _fill_dead(frame_pa, dead) if dead.any() else frame_pa
-    active = p > THRESHOLD_PA
-    if np.count_nonzero(active) < MIN_TAXELS:
-        return None
-    labels, _ = ndimage.label(active, structure=EIGHT_CONNECTED)
-    region = labels == labels.flat[np.argmax(np.where(active, p, -np.inf))]
-    region &= ~dead  # a dead taxel joins the region's outline, never its data
-    return region if np.count_nonzero(region) >= MIN_TAXELS else None
+NOISE_PA = ACCURACY_PA / math.sqrt(3.0)  # the sensor's +-0.5 % FS as even noise: its standard deviation
+NOISE_MEMORY_FRAMES = 1000.0  # the noise's estimate from the residuals: a slow average over tracked frames
+PRESSURE_SCALE_PA = 1e5
+MEMORY_S = 0.004  # centre, a, b, p_max and their rates; chosen on simulated impacts
+BETA_MEMORY_S = 0.008  # beta and its rate
+BETA_PRIOR = (0.5, 0.3)  # Hertz's beta, and 1 sigma of how far a contact may be from it
+GROWTH_STEP_PER_S = 120.0  # 1 sigma of a frame's change in a relative rate (a^2, b^2, p_max^2, centre / b) at 4 kHz [1/s]
+BETA_RATE_STEP_PER_S = 4.0  # likewise for beta's rate [1/s]
+NOMINAL_FRAME_HZ = 4000.0  # the sensor's rate, where the steps above were chosen
+LOST_CHI2, LOST_FRAMES = 9.0, 3
+START_STEPS = 6  # Gauss-Newton steps on the first frame
+LEVELS = 6  # s; the rates s' follow
+BETA = 5
 
 
-def _fill_dead(frame_pa: np.ndarray, dead: np.ndarray) -> np.ndarray:
-    """Each dead taxel as the mean of its live 4-neighbours (0 if it has none)."""
-    p = frame_pa.copy()
-    rows, cols = frame_pa.shape
-    for r, c in zip(*np.nonzero(dead)):
-        around = [frame_pa[i, j] for i, j in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
-                  if 0 <= i < rows and 0 <= j < cols and not dead[i, j]]
-        p[r, c] = sum(around) / len(around) if around else 0.0
-    return p
-
-
-def dilate(mask: np.ndarray) -> np.ndarray:
-    """The mask grown by one taxel in the 8 directions (its ring of neighbours added)."""
-    grown = mask.copy()
-    grown[1:, :] |= mask[:-1, :]
-    grown[:-1, :] |= mask[1:, :]
-    rows = grown.copy()
-    grown[:, 1:] |= rows[:, :-1]
-    grown[:, :-1] |= rows[:, 1:]
-    return grown
-
-
-def quadric_geometry(x: np.ndarray, y: np.ndarray, p: np.ndarray, beta: float = 0.5):
-    """(cx, cy, a, b) [mm] from taxels at (x, y) [mm] with pressures p [Pa] for a given beta:
-    q = p^(1/beta) = k0 + k1 x + k2 y + k3 x^2 + k4 y^2, weighted so equal pressure noise
-    counts equally; None when the quadric is not a cap (no ellipse fits)."""
-    q = (p / 1e5) ** (1.0 / beta)
-    w = (p / 1e5) ** (1.0 - 1.0 / beta)  # 1 / (dq/dp)
-    cols = np.column_stack([np.ones_like(x), x, y, x * x, y * y])
-    k = np.linalg.lstsq(cols * w[:, None], q * w, rcond=None)[0]
-    if k[3] >= 0 or k[4] >= 0:
-        return None
-    cx, cy = -k[1] / (2 * k[3]), -k[2] / (2 * k[4])
-    q0 = k[0] - k[3] * cx * cx - k[4] * cy * cy
-    if q0 <= 0:
-        return None
-    return cx, cy, math.sqrt(q0 / -k[3]), math.sqrt(q0 / -k[4])
-
-
-def geometry_jacobian(shape: np.ndarray, x: np.ndarray, y: np.ndarray):
-    """The pressure model [Pa] at taxels whose sensing points are at (x, y) [mm] (shape
-    (taxels, points); a taxel reports the mean over its points) for the state (cx, cy, a, b
-    [mm], ln p_max, beta), and its derivatives in each (taxels x 6)."""
+def to_levels(shape: np.ndarray) -> np.ndarray:
+    """(cx, cy, a, b [mm], ln p_max, beta) -> s = (cx, cy, a^2, b^2, (p_max / 1e5 Pa)^2, beta)."""
     cx, cy, a, b, ln_pm, beta = shape
-    u, v = (x - cx) / a, (y - cy) / b
-    phi = 1.0 - u * u - v * v
-    inside = phi > 0
-    log_phi = np.log(np.where(inside, np.maximum(phi, 0.02), 1.0))  # the slope's singular edge, tamed
-    p_pt = np.exp(beta * log_phi + ln_pm) * inside
-    slope = beta * p_pt * np.exp(-log_phi)  # dp/dphi at each point
-    su, sv = slope * u, slope * v
-    model = p_pt.sum(axis=1)  # also the ln p_max column
-    jac = np.column_stack([su.sum(axis=1) * (2 / a), sv.sum(axis=1) * (2 / b),
-                           (su * u).sum(axis=1) * (2 / a), (sv * v).sum(axis=1) * (2 / b),
-                           model, (p_pt * log_phi).sum(axis=1)]) / x.shape[1]
-    return jac[:, 4], jac
+    return np.array([cx, cy, a * a, b * b, math.exp(2.0 * ln_pm) / PRESSURE_SCALE_PA ** 2, beta])
 
 
-class GeometryTracker:
-    """The contact's geometry (cx, cy, a, b [mm]) tracked from frame to frame by recursive
-    Gauss-Newton on the pressure model, [ln p_max, beta] taken as the last frame's: each
-    frame's normal equations J^T J join the last ones' with forgetting ``forgetting`` (a memory
-    of about 1 / (1 - forgetting) frames), and one step is taken on this frame's residual.
-    A frame alone gives a and b to 1-5 % on a contact 2 taxels across (sensor noise), and beta
-    inherits two to three times a geometry error through ln phi; the memory averages it.
+def to_shape(levels: np.ndarray) -> np.ndarray:
+    cx, cy, area_a, area_b, pressure, beta = levels
+    return np.array([cx, cy, math.sqrt(area_a), math.sqrt(area_b),
+                     0.5 * math.log(pressure) + math.log(PRESSURE_SCALE_PA), beta])
 
-    ``joint``: ln p_max and beta stepped with the geometry (the baseline's geometry, with
-    forgetting 0: each frame alone; plain WLS's per-frame beta fed to a geometry memory runs
-    away)."""
 
-    def __init__(self, forgetting: float, joint: bool = False):
-        self.forgetting = forgetting
-        self.columns = 6 if joint else 4
+def levels_model(levels: np.ndarray, px: np.ndarray, py: np.ndarray):
+    """The model [Pa] at sensing points (px, py) [mm] and its Jacobian in s (chain rule on
+    controllers.contact_model.model_jacobian)."""
+    shape = to_shape(levels)
+    model, jac = model_jacobian(shape, px, py)
+    jac[:, 2] /= 2.0 * shape[2]
+    jac[:, 3] /= 2.0 * shape[3]
+    jac[:, 4] /= 2.0 * levels[4]
+    return model, jac
+
+
+def _in_domain(levels: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(levels)) and levels[2] > 0.01 and levels[3] > 0.01 and levels[4] > 1e-8
+                and 0.05 <= levels[BETA] <= 5.0)
+
+
+class ContactEstimator:
+    """Frames [Pa] in, :class:`ContactEstimate` out (see the module). ``memory_s`` and
+    ``beta_memory_s``: the memories [s]; ``frame_hz``: the sensor's frame rate, which turns
+    them and the rates' steps into per-frame terms; ``update``'s ``frames`` says how many frame
+    periods passed since the last call (a reader that fell behind skips frames)."""
+
+    def __init__(self, memory_s: float = MEMORY_S, beta_memory_s: float = BETA_MEMORY_S,
+                 frame_hz: float = NOMINAL_FRAME_HZ):
+        if not frame_hz > 0:
+            raise ValueError(f"frame rate {frame_hz} Hz: must be positive")
+        for name, value in (("memory_s", memory_s), ("beta_memory_s", beta_memory_s)):
+            if not 0.0 < value <= 1.0:
+                raise ValueError(f"{name} {value}: must be within (0, 1] s")
+        self.forgetting = np.exp(-1.0 / (frame_hz * np.array([memory_s] * (LEVELS - 1) + [beta_memory_s])))
+        self.frame_hz = frame_hz
+        self.grid = SensingGrid()
+        self.noise_var = NOISE_PA ** 2  # [Pa^2]: the sensor's, or more when its residuals say so
         self.reset()
 
     def reset(self) -> None:
-        self.normal = np.zeros((self.columns, self.columns))
+        self.state = None  # (s, s') [mm, mm^2, -; per frame], or None: no contact tracked
+        self.info = None  # N, 12 x 12, in 1 / (s, s')^2
+        self.lost = 0
 
-    def step(self, shape: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, damping: float = 1e-3):
-        """The new geometry for the state ``shape`` and the pressures p [Pa] at sensing points
-        (x, y) [mm], and the model's relative RMS residual before the step; None if the step
-        leaves the model's domain."""
-        model, jac = geometry_jacobian(shape, x, y)
-        jac = jac[:, :self.columns]
-        error = p - model
-        self.normal = self.forgetting * self.normal + jac.T @ jac
-        damped = self.normal.copy()
-        damped[np.diag_indices(self.columns)] *= 1.0 + damping
-        new = shape[:self.columns] + np.linalg.solve(damped, jac.T @ error)
-        if not np.all(np.isfinite(new)) or new[2] <= 0.1 or new[3] <= 0.1:
-            return None
-        return new[:4], math.sqrt(float(error @ error) / float(p @ p))
-
-
-def log_rows(shape: np.ndarray, px: np.ndarray, py: np.ndarray, p: np.ndarray):
-    """The log transform's rows for the taxels the contact touches: z = ln p against
-    h = [1, g]. For a taxel sensing at one point g = ln phi and z = ln p (rig-facts §3); over
-    a sensing area g = d ln mean(phi^beta) / d beta at the last beta and z carries the rest
-    of ln mean(phi^beta). Also each taxel's effective phi (mean(phi^beta)^(1/beta)) for the
-    sigmoid weight, and its pressure; None when fewer than 3 taxels are touched."""
-    cx, cy, a, b, _, beta = shape
-    phi = 1.0 - ((px - cx) / a) ** 2 - ((py - cy) / b) ** 2
-    touched = (p > THRESHOLD_PA) & (phi.max(axis=1) > 0)
-    if np.count_nonzero(touched) < 3:
-        return None
-    phi, p = phi[touched], p[touched]
-    inside = phi > 1e-9
-    phi = np.where(inside, phi, 1.0)
-    powered = np.where(inside, phi ** beta, 0.0)
-    mean = powered.sum(axis=1) / phi.shape[1]
-    g = (powered * np.log(phi)).sum(axis=1) / (phi.shape[1] * mean)
-    z = np.log(p) - (np.log(mean) - beta * g)
-    return np.column_stack([np.ones_like(g), g]), z, mean ** (1.0 / beta), p
-
-
-def sigmoid_weight(phi: np.ndarray, centre: float = 0.5, width: float = 0.06) -> np.ndarray:
-    """The S-WLS weight: near 0 over the contact's outer half in phi (where ln phi amplifies the
-    geometry's error and the noise), near 1 inside. The centre was chosen on simulated impacts
-    (0.2 to 0.7 tried: beta's largest error fell from 6.3 to 5.0 % going from 0.2 to 0.5, and
-    rose again beyond; tried again, 0.3-0.7 and widths 0.03-0.1, with the geometry's memory:
-    0.5 and 0.06 kept)."""
-    return 1.0 / (1.0 + np.exp(-(phi - centre) / width))
-
-
-class _Layers:
-    """What both estimators share: frame -> region -> geometry (tracked from frame to frame)
-    -> the log layer's rows for [ln p_max, beta]; a subclass solves those rows."""
-
-    def __init__(self, geometry: GeometryTracker):
-        self.geometry = geometry
-        xs, ys = taxel_centres_m()
-        self.x, self.y = xs * MM, ys * MM
-        dx, dy = sensing_offsets_m()
-        self.px, self.py = self.x[..., None] + dx * MM, self.y[..., None] + dy * MM  # sensing points
-        self.reset()
-
-    def reset(self) -> None:
-        self.shape = None  # (cx, cy, a, b) [mm], ln p_max, beta: the state from frame to frame
-        self.geometry.reset()
-
-    def update(self, frame_pa: np.ndarray) -> ContactEstimate | None:
+    def update(self, frame_pa: np.ndarray, frames: int = 1) -> ContactEstimate | None:
         """One frame [Pa] (16 x 16, NaN where dead) -> the contact, or None (no contact)."""
+        if frames < 1:
+            raise ValueError(f"frames {frames}: at least one frame period since the last update")
         region = contact_region(frame_pa)
         if region is None:
             self.reset()
             return None
         ring = dilate(region) & ~np.isnan(frame_pa)
-        p = frame_pa[ring]
-        if self.shape is None:
-            first = quadric_geometry(self.x[region], self.y[region], frame_pa[region])
-            if first is None:
+        p, px, py = frame_pa[ring], self.grid.px[ring], self.grid.py[ring]
+        if self.state is None:
+            if not self._start(region, frame_pa, px, py, p):
                 return None
-            self.shape = np.array([*first, math.log(float(frame_pa[region].max())), 0.5])
-        px, py = self.px[ring], self.py[ring]
-        stepped = self.geometry.step(self.shape, px, py, p)
-        shape = np.concatenate([stepped[0], self.shape[4:]]) if stepped is not None else None
-        rows = log_rows(shape, px, py, p) if shape is not None else None
-        theta = self._solve(*rows) if rows is not None else None
-        if theta is None or not np.all(np.isfinite(theta)) or not 0.05 <= theta[1] <= 5.0:
+            frames = 0
+        stepped = self._step(px, py, p, frames)
+        if stepped is None:
             self.reset()  # no cap shape: the model does not hold this frame
             return None
-        shape[4:] = theta
-        self.shape, residual = shape, stepped[1]
-        cx, cy, a, b, ln_pmax, beta = shape
-        return ContactEstimate(cx / MM, cy / MM, a / MM, b / MM, math.exp(ln_pmax), beta, len(p), residual)
+        chi2, residual = stepped
+        self.lost = self.lost + 1 if chi2 > LOST_CHI2 else 0
+        if self.lost >= LOST_FRAMES:  # the track no longer explains the frames: start again from this one
+            self.reset()
+            return self.update(frame_pa)
+        return self._estimate(len(p), residual)
 
-    def _solve(self, h: np.ndarray, z: np.ndarray, phi: np.ndarray, p: np.ndarray):
-        raise NotImplementedError
+    def _start(self, region, frame_pa, px, py, p) -> bool:
+        """The first frame's geometry: the quadric, then Gauss-Newton steps with beta at 0.5."""
+        first = quadric_geometry(self.grid.x[region], self.grid.y[region], frame_pa[region])
+        if first is None:
+            return False
+        levels = to_levels(np.array([*first, math.log(float(frame_pa[region].max())), BETA_PRIOR[0]]))
+        cost = None
+        for _ in range(START_STEPS):
+            model, jac = levels_model(levels, px, py)
+            error = p - model
+            if cost is not None and float(error @ error) >= cost:
+                levels = previous  # the last step made it worse: keep the one before
+                break
+            cost, previous = float(error @ error), levels
+            jac = jac[:, :BETA]
+            normal = jac.T @ jac
+            normal[np.diag_indices(BETA)] *= 1.0 + 1e-2
+            candidate = levels.copy()
+            candidate[:BETA] += np.linalg.solve(normal, jac.T @ error)
+            if not _in_domain(candidate):
+                break
+            levels = candidate
+        self.state = np.concatenate([levels, np.zeros(LEVELS)])
+        self.info = np.zeros((2 * LEVELS, 2 * LEVELS))
+        scale = np.array([math.sqrt(levels[3]), math.sqrt(levels[3]), levels[2], levels[3], levels[4], 1.0])
+        steps = np.append(GROWTH_STEP_PER_S * scale[:BETA], BETA_RATE_STEP_PER_S)
+        steps *= math.sqrt(NOMINAL_FRAME_HZ / self.frame_hz) / self.frame_hz  # per frame, a random walk's
+        self.rate_step_info = 1.0 / steps ** 2
+        return True
 
+    def _prior(self, frames: int) -> np.ndarray:
+        """What is known before this frame's data, as information on (s, s'): beta's level
+        near Hertz's, and each rate's change over ``frames`` frame periods (a random walk)."""
+        prior = np.zeros(2 * LEVELS)
+        prior[BETA] = 1.0 / BETA_PRIOR[1] ** 2
+        prior[LEVELS:] = self.rate_step_info / max(frames, 1)
+        return prior
 
-class ContactEstimator(_Layers):
-    """The paper's method: S-WLS rows in a frame, recursive least squares across frames."""
-
-    def __init__(self, forgetting: float = 0.8, geometry_forgetting: float = GEOMETRY_FORGETTING):
-        if not 0.0 < forgetting <= 1.0:
-            raise ValueError(f"forgetting factor {forgetting}: 0 < lambda <= 1")
-        if not 0.0 <= geometry_forgetting < 1.0:
-            raise ValueError(f"geometry forgetting factor {geometry_forgetting}: 0 <= lambda < 1")
-        self.forgetting = forgetting
-        super().__init__(GeometryTracker(geometry_forgetting))
-
-    def reset(self) -> None:
-        super().reset()
-        self.info = np.zeros((2, 2))
-        self.moment = np.zeros(2)
-
-    def _solve(self, h, z, phi, p):
-        """Each row's weight: the sigmoid in phi, times (p / p_peak)^2, the inverse of ln p's
-        variance under the sensor's even noise (var ln p = (sigma / p)^2): the paper's per-sample
-        weight, read so."""
-        hw = h * (sigmoid_weight(phi) * (p / p.max()) ** 2)[:, None]
-        self.info = self.forgetting * self.info + hw.T @ h
-        self.moment = self.forgetting * self.moment + hw.T @ z
-        (r11, r12), (_, r22) = self.info
-        det = r11 * r22 - r12 * r12
-        if not det > 1e-12 * r11 * r22:
+    def _step(self, px, py, p, frames: int) -> tuple[float, float] | None:
+        """Predict ``frames`` frame periods on and correct with this frame: the residual at
+        the prediction as chi^2 per taxel (1: as the noise alone) and relative to the
+        pressures (its RMS); None when the step leaves the model's domain."""
+        inverse_move = np.eye(2 * LEVELS)
+        inverse_move[:LEVELS, LEVELS:] = -frames * np.eye(LEVELS)
+        kept = np.sqrt(np.tile(self.forgetting, 2) ** frames)
+        predicted = self.state.copy()
+        predicted[:LEVELS] += frames * self.state[LEVELS:]
+        if not _in_domain(predicted[:LEVELS]):
             return None
-        m1, m2 = self.moment
-        return np.array([(r22 * m1 - r12 * m2) / det, (r11 * m2 - r12 * m1) / det])
+        info = (inverse_move.T @ self.info @ inverse_move) * kept[:, None] * kept[None, :]
+        model, jac = levels_model(predicted[:LEVELS], px, py)
+        error = p - model
+        info[:LEVELS, :LEVELS] += jac.T @ jac / self.noise_var
+        prior = self._prior(frames)
+        system = info.copy()
+        system[np.diag_indices(2 * LEVELS)] += prior
+        system[np.diag_indices(LEVELS)] *= 1.0 + 1e-3  # a touch of Levenberg damping along the few-taxel ambiguity
+        rhs = np.zeros(2 * LEVELS)
+        rhs[:LEVELS] = jac.T @ error / self.noise_var
+        rhs[BETA] -= prior[BETA] * (predicted[BETA] - BETA_PRIOR[0])
+        covariance = np.linalg.inv(system)  # of (s, s') after this frame: the step, and the sigmas
+        corrected = predicted + covariance @ rhs
+        if not _in_domain(corrected[:LEVELS]):
+            return None
+        self.state, self.info, self.covariance = corrected, info, covariance
+        squares = float(error @ error)
+        chi2 = squares / (len(p) * self.noise_var)
+        if chi2 < LOST_CHI2:  # a noisier sensor than its data sheet's: its sigmas widen to match
+            mean_square = squares / len(p)
+            self.noise_var = max(self.noise_var + (mean_square - self.noise_var) / NOISE_MEMORY_FRAMES, NOISE_PA ** 2)
+        return chi2, math.sqrt(squares / float(p @ p))
 
-
-class PlainWLS(_Layers):
-    """The baseline: the same region, and in each frame alone its geometry (stepped jointly with
-    ln p_max and beta) and [ln p_max, beta] by weighted least squares, the taxel pressures as
-    weights."""
-
-    def __init__(self):
-        super().__init__(GeometryTracker(0.0, joint=True))
-
-    def _solve(self, h, z, phi, p):
-        sw = np.sqrt(p)
-        return np.linalg.lstsq(h * sw[:, None], z * sw, rcond=None)[0]
+    def _estimate(self, taxels: int, residual: float) -> ContactEstimate:
+        """The state as a contact [m, Pa], each parameter's 1 sigma from the step's covariance
+        (the rates marginalised), the force's through its gradient."""
+        levels = self.state[:LEVELS]
+        cx, cy, a, b, ln_pm, beta = to_shape(levels)
+        p_max = math.exp(ln_pm)
+        # s -> (cx, cy, a, b, p_max, beta): a = sqrt(a^2), p_max = 1e5 sqrt(s_4)
+        to_params = np.array([1.0, 1.0, 0.5 / a, 0.5 / b, 0.5 * p_max / levels[4], 1.0])
+        params_cov = self.covariance[:LEVELS, :LEVELS] * to_params[:, None] * to_params[None, :]
+        sd = np.sqrt(np.maximum(np.diag(params_cov), 0.0))
+        force = math.pi * a * b * p_max / (beta + 1.0)  # [mm^2 Pa]; its gradient in the parameters:
+        grad = np.array([0.0, 0.0, force / a, force / b, force / p_max, -force / (beta + 1.0)])
+        force_sd = math.sqrt(max(float(grad @ params_cov @ grad), 0.0)) / MM ** 2
+        return ContactEstimate(cx / MM, cy / MM, a / MM, b / MM, p_max, beta, taxels, residual,
+                               sd[0] / MM, sd[1] / MM, sd[2] / MM, sd[3] / MM, sd[4], sd[5], force_sd)

@@ -22,7 +22,8 @@ from hal.errors import TransportTimeout
 from hal.seqlock import try_read, write_locked
 from hal.taxel_array import ContactSensorConfig
 
-FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual")
+FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual",
+          "cx_sd", "cy_sd", "a_sd", "b_sd", "p_max_sd", "beta_sd", "force_sd_n")
 COUNTERS = ("frames", "late_frames", "bad_frames", "contact_frames")
 HEAD = 3  # frame index, its time.monotonic(), whether an estimate follows; then FIELDS
 _ERROR_BYTES = 240
@@ -75,7 +76,7 @@ class ContactSensor:
 
     def latest(self) -> dict | None:
         """The newest estimate as the ``contact`` topic carries it (its frame's time on the
-        loop's clock, and age); None before the first. Constant cost: a copy of 13 numbers."""
+        loop's clock, and age); None before the first. Constant cost: a copy of 20 numbers."""
         shared = self._shared
         if shared is None:
             return None
@@ -122,7 +123,8 @@ def _work(shared: _Shared, config: ContactSensorConfig) -> None:
     calibration = config.calibration()
     source = ImpactReplay(Impact(config.sim_impact_speed_m_s), config.sim_impact_every_s, config.rate_hz,
                           calibration, config.seed)
-    device, estimator = TaxelArray(calibration), ContactEstimator(config.forgetting, config.geometry_forgetting)
+    device = TaxelArray(calibration)
+    estimator = ContactEstimator(config.memory_ms / 1e3, config.beta_memory_ms / 1e3, frame_hz=config.rate_hz)
     counters = shared.counters
     period = 1.0 / config.rate_hz
     start = time.monotonic()
@@ -133,9 +135,9 @@ def _work(shared: _Shared, config: ContactSensorConfig) -> None:
             time.sleep(max(start + (last + 1) * period - time.monotonic(), 0.0))
             continue
         counters[1] += max(due - last - 1, 0)  # passed over: the estimator fell behind
-        last = due
+        elapsed, last = due - last, due
         try:
-            found = estimator.update(device.pressures(source.frame(due)))
+            found = estimator.update(device.pressures(source.frame(due)), frames=elapsed)
         except ValueError as exc:
             counters[2] += 1
             shared.error.value = str(exc).encode()[:_ERROR_BYTES - 1]

@@ -103,7 +103,7 @@ def check_config(args) -> int:
     if rig.contact_sensor is not None:
         sensor = rig.contact_sensor
         print(f"  contact sensor: {sensor.source} pad, {sensor.rate_hz:g} frames/s, {len(sensor.dead)} dead taxel(s), "
-              f"forgetting {sensor.forgetting:g} (geometry {sensor.geometry_forgetting:g})")
+              f"estimator memory {sensor.memory_ms:g} ms (beta {sensor.beta_memory_ms:g} ms)")
     return 0
 
 

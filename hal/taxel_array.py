@@ -58,8 +58,9 @@ class TaxelCalibration:
 class ContactSensorConfig:
     """The rig file's ``[contact_sensor]``: the array sensor read and its contact estimated in
     a process beside the loop (daemon.contact_sensor). ``offset_v`` and ``gain_pa_per_v``:
-    one number for every taxel, or 256 row by row; ``dead``: [row, column] pairs. ``source``
-    names where frames come from: ``"sim"`` is the simulated pad, pressed by an impact at
+    one number for every taxel, or 256 row by row; ``dead``: [row, column] pairs;
+    ``memory_ms`` and ``beta_memory_ms``: the estimator's memories (controllers.contact_force).
+    ``source`` names where frames come from: ``"sim"`` is the simulated pad, pressed by an impact at
     ``sim_impact_speed_m_s`` every ``sim_impact_every_s`` (sim_backend.contact_patch)."""
 
     source: str = "sim"
@@ -67,8 +68,8 @@ class ContactSensorConfig:
     offset_v: tuple[float, ...] = (0.0,)
     gain_pa_per_v: tuple[float, ...] = (FULL_SCALE_PA / 10.0,)
     dead: tuple[tuple[int, ...], ...] = ()
-    forgetting: float = 0.8
-    geometry_forgetting: float = 0.6
+    memory_ms: float = 4.0
+    beta_memory_ms: float = 8.0
     sim_impact_speed_m_s: float = 0.08
     sim_impact_every_s: float = 1.0
     seed: int = 0
@@ -83,9 +84,8 @@ class ContactSensorConfig:
         for i, pair in enumerate(self.dead):
             require(len(pair) == 2 and all(0 <= v < TAXELS for v in pair), f"dead[{i}]",
                     f"a [row, column] pair within 0-{TAXELS - 1}, got {list(pair)}")
-        require(0.0 < self.forgetting <= 1.0, "forgetting", f"must be within (0, 1], got {self.forgetting}")
-        require(0.0 <= self.geometry_forgetting < 1.0, "geometry_forgetting",
-                f"must be within [0, 1), got {self.geometry_forgetting}")
+        for name in ("memory_ms", "beta_memory_ms"):
+            require(0.0 < getattr(self, name) <= 1000.0, name, f"must be within (0, 1000] ms, got {getattr(self, name)}")
         require(0.0 < self.sim_impact_speed_m_s <= 0.2, "sim_impact_speed_m_s",
                 f"must be within (0, 0.2] m/s, got {self.sim_impact_speed_m_s}")
         require(0.5 <= self.sim_impact_every_s <= 10.0, "sim_impact_every_s",

@@ -13,6 +13,12 @@ as s^0.5 (a = a_peak s^0.5, p_max = p_peak s^0.5); beta rises from 0.5 (Hertz) t
 slides at ``slide_m_s``. At 0.11 m/s the peak is 14 x 11 mm and 600 kPa, at 0.03 m/s 8.3 x
 6.7 mm and 360 kPa (b / a = 0.8): within the pad and its range.
 
+Impacts away from that shape, for trying an estimator on what it was not tuned on: the peak
+at ``loading_fraction`` of the impact (0.5: the half sine; less: a fast load and a slow
+release, s(t) a quarter sine up and another down), an aspect b / a that moves from
+``aspect`` to ``aspect_end`` over the impact, and a pad whose noise is ``noise_scale`` times
+the sensor's accuracy.
+
 The sensor: each taxel reports the mean pressure over its sensing area (1.9 mm^2, a square
 of 1.38 mm, sampled 3 x 3), plus noise uniform within its +-0.5 % FS accuracy, clipped to
 0..FS, quantised by its 16-bit A/D; through a per-taxel calibration (a spread of gains and
@@ -50,10 +56,14 @@ class Impact:
     slide_m_s: tuple[float, float] = (0.008, -0.004)
     aspect: float = 0.8  # b / a
     beta_peak: float = 0.8
+    loading_fraction: float = 0.5  # of the impact, to the peak
+    aspect_end: float | None = None  # b / a at the end (None: ``aspect`` throughout)
 
     def __post_init__(self):
         if not 0.0 < self.speed_m_s <= 0.2:
             raise ValueError(f"impact speed {self.speed_m_s} m/s: 0 < v <= 0.2")
+        if not 0.05 <= self.loading_fraction <= 0.95:
+            raise ValueError(f"loading fraction {self.loading_fraction}: 0.05-0.95")
 
     @property
     def a_peak_m(self) -> float:
@@ -67,10 +77,16 @@ class Impact:
         """The contact at time t [s] from first touch, or None when there is none."""
         if not 0.0 < t < self.duration_s:
             return None
-        s = math.sin(math.pi * t / self.duration_s)
+        peak = self.loading_fraction * self.duration_s
+        if t <= peak:
+            s = math.sin(0.5 * math.pi * t / peak)
+        else:
+            s = math.cos(0.5 * math.pi * (t - peak) / (self.duration_s - peak))
         a = self.a_peak_m * math.sqrt(s)
+        end = self.aspect if self.aspect_end is None else self.aspect_end
+        aspect = self.aspect + (end - self.aspect) * t / self.duration_s
         return Contact(self.centre_m[0] + self.slide_m_s[0] * t, self.centre_m[1] + self.slide_m_s[1] * t,
-                       a, self.aspect * a, self.p_peak_pa * math.sqrt(s), 0.5 + (self.beta_peak - 0.5) * s)
+                       a, aspect * a, self.p_peak_pa * math.sqrt(s), 0.5 + (self.beta_peak - 0.5) * s)
 
 
 def spread_calibration(seed: int, dead: tuple[tuple[int, int], ...] = ((5, 9), (11, 3))) -> TaxelCalibration:
@@ -83,9 +99,10 @@ def spread_calibration(seed: int, dead: tuple[tuple[int, int], ...] = ((5, 9), (
 class SimTaxelPad:
     """Frames of volts from a contact, as the sensor's A/D delivers them."""
 
-    def __init__(self, calibration: TaxelCalibration, seed: int = 0):
+    def __init__(self, calibration: TaxelCalibration, seed: int = 0, noise_scale: float = 1.0):
         self.device = TaxelArray(calibration)
         self.rng = np.random.default_rng(seed)
+        self.noise_pa = noise_scale * ACCURACY_PA
         x, y = taxel_centres_m()
         dx, dy = sensing_offsets_m()
         self.x = x[..., None] + dx  # (16, 16, 9): the sensing area's sample points
@@ -99,7 +116,7 @@ class SimTaxelPad:
 
     def frame_volts(self, contact: Contact | None) -> np.ndarray:
         """One frame [V]: noise, clipping to the range, calibration, quantisation, dead taxels."""
-        p = self.pressures(contact) + self.rng.uniform(-ACCURACY_PA, ACCURACY_PA, (TAXELS, TAXELS))
+        p = self.pressures(contact) + self.rng.uniform(-self.noise_pa, self.noise_pa, (TAXELS, TAXELS))
         v = self.device.volts_for(np.clip(p, 0.0, FULL_SCALE_PA))
         lsb = ADC_SPAN_V / 2 ** ADC_BITS
         v = np.round(v / lsb) * lsb

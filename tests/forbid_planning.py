@@ -44,7 +44,7 @@ def forbid() -> None:
     kinematics.inverse_2link_array = forbidden
     lti_design.parse = forbidden
     registry.prepare_change = forbidden
-    contact_force._Layers.update = forbidden  # a frame's estimate: the sensor's process alone
+    contact_force.ContactEstimator.update = forbidden  # a frame's estimate: the sensor's process alone
 
 
 if __name__ == "__main__":

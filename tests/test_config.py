@@ -55,8 +55,8 @@ def test_bad_config_names_the_key(old, new, message):
 
 
 @pytest.mark.parametrize("line, message", [
-    ("forgetting = 0.0", r"contact_sensor\.forgetting: must be within \(0, 1\]"),
-    ("geometry_forgetting = 1.0", r"contact_sensor\.geometry_forgetting: must be within \[0, 1\)"),
+    ("memory_ms = 0.0", r"contact_sensor\.memory_ms: must be within \(0, 1000\] ms"),
+    ("beta_memory_ms = 2000.0", r"contact_sensor\.beta_memory_ms: must be within \(0, 1000\] ms"),
     ("rate_hz = 40000.0", r"contact_sensor\.rate_hz: must be within 100-10000 Hz"),
 ])
 def test_bad_contact_sensor_settings_name_the_key(line, message):

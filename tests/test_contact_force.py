@@ -1,12 +1,15 @@
-"""The array pressure sensor's contact estimator (controllers.contact_force) against the
-simulated pad's truth (sim_backend.contact_patch): impacts like the paper's, read through the
-sensor's noise, quantisation, per-taxel calibration and dead taxels."""
+"""The array pressure sensor's contact estimators (controllers.contact_force, the daemon's;
+controllers.contact_paper, the paper's as read and plain WLS) against the simulated pad's
+truth (sim_backend.contact_patch): impacts like the paper's, read through the sensor's noise,
+quantisation, per-taxel calibration and dead taxels."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from controllers.contact_force import ContactEstimator, PlainWLS, contact_region
+from controllers.contact_force import ContactEstimator
+from controllers.contact_model import contact_region
+from controllers.contact_paper import PaperSWLS, PlainWLS
 from hal.taxel_array import (
     ACCURACY_PA,
     PAD_M,
@@ -20,62 +23,122 @@ from sim_backend.contact_patch import Impact, SimTaxelPad, spread_calibration
 FRAME_HZ = 4000.0
 PITCH_M = PAD_M / TAXELS
 PARAMS = ("a", "b", "p_max", "beta", "force_n")
+SIGMAS = ("a_sd", "b_sd", "p_max_sd", "beta_sd", "force_sd_n")
 
 
-def errors(impact: Impact, calibration: TaxelCalibration, seed: int, **estimators) -> dict[str, np.ndarray]:
-    """Per estimator (by default the paper's and plain WLS), the relative error of each
-    parameter (and the centre's miss over b) on every frame where the true contact is at least
-    two taxels across in b."""
-    pad, device = SimTaxelPad(calibration, seed), TaxelArray(calibration)
-    estimators = estimators or {"s-wls": ContactEstimator(), "wls": PlainWLS()}
+def frames_of(impact: Impact, calibration: TaxelCalibration, seed: int, frame_hz: float = FRAME_HZ,
+              noise_scale: float = 1.0):
+    """(truth, frame [Pa]) at ``frame_hz`` over the impact and 10 ms after it."""
+    pad, device = SimTaxelPad(calibration, seed, noise_scale), TaxelArray(calibration)
+    for k in range(int((impact.duration_s + 0.01) * frame_hz)):
+        truth = impact.at((k + 0.5) / frame_hz)
+        yield truth, device.pressures(pad.frame_volts(truth))
+
+
+def errors(frames, every: int = 1, **estimators) -> dict[str, np.ndarray]:
+    """Per estimator (by default the daemon's, the paper's and plain WLS), the relative error of
+    each parameter, the centre's miss over b, and z = error / the estimator's own sigma, on
+    every frame where the true contact is at least two taxels in b; each estimator sees every
+    ``every``-th frame and is told so."""
+    estimators = estimators or {"ours": ContactEstimator(), "paper": PaperSWLS(), "wls": PlainWLS()}
     out = {name: [] for name in estimators}
-    for k in range(int(impact.duration_s * FRAME_HZ) + 40):
-        truth = impact.at((k + 0.5) / FRAME_HZ)
-        frame = device.pressures(pad.frame_volts(truth))
+    for k, (truth, frame) in enumerate(frames):
+        if k % every:
+            continue
         for name, estimator in estimators.items():
-            found = estimator.update(frame)
+            found = estimator.update(frame, frames=every)
             if truth is None:
                 assert found is None, f"{name} reports a contact where there is none"
             elif truth.b >= 2 * PITCH_M:
-                assert found is not None, f"{name} lost the contact at {k / FRAME_HZ:.3f} s"
+                assert found is not None, f"{name} lost the contact at frame {k}"
                 out[name].append([getattr(found, p) / getattr(truth, p) - 1.0 for p in PARAMS]
-                                 + [np.hypot(found.cx - truth.cx, found.cy - truth.cy) / truth.b])
-    return {name: np.abs(np.array(rows)) for name, rows in out.items()}
+                                 + [np.hypot(found.cx - truth.cx, found.cy - truth.cy) / truth.b]
+                                 + [(getattr(found, p) - getattr(truth, p)) / getattr(found, s)
+                                    for p, s in zip(PARAMS, SIGMAS)])
+    return {name: np.array(rows) for name, rows in out.items()}
 
 
 @pytest.mark.parametrize("speed", [0.03, 0.11])
-def test_every_parameter_within_5_percent_and_beta_better_than_plain_wls(speed):
-    found = errors(Impact(speed), spread_calibration(seed=1), seed=2)
-    worst = found["s-wls"].max(axis=0)
-    assert np.all(worst[:5] < 0.05), dict(zip(PARAMS, worst))
-    assert worst[5] < 0.05  # the centre, within 5 % of the semi-axis
-    assert worst[3] < 0.5 * found["wls"][:, 3].max()  # beta: the sigmoid weight and the memory pay
-    assert len(found["s-wls"]) > 0.5 * Impact(speed).duration_s * FRAME_HZ
+def test_every_parameter_within_5_percent_and_better_than_the_papers_and_plain_wls(speed):
+    """Every frame within 5 %; on the RMS over the impact, every parameter better than the
+    paper's S-WLS + RLS as read (a single frame's worst is the noise's draw), and beta's worst
+    frame less than half plain WLS's."""
+    found = errors(frames_of(Impact(speed), spread_calibration(seed=1), seed=2))
+    worst = {name: np.abs(e[:, :6]).max(axis=0) for name, e in found.items()}
+    rms = {name: np.sqrt(np.mean(e[:, :6] ** 2, axis=0)) for name, e in found.items()}
+    assert np.all(worst["ours"][:5] < 0.05), dict(zip(PARAMS, worst["ours"]))
+    assert worst["ours"][5] < 0.05  # the centre, within 5 % of the semi-axis
+    assert np.all(rms["ours"] < rms["paper"]), (rms["ours"], rms["paper"])
+    assert worst["ours"][3] < 0.5 * worst["wls"][3]
+    assert len(found["ours"]) > 0.5 * Impact(speed).duration_s * FRAME_HZ
 
 
 def test_a_dead_taxel_at_the_contact_peak_and_a_slide_elsewhere_on_the_pad():
     """(The default pad already has a dead taxel inside the larger contacts.) With the peak's
-    own taxel dead, beta loses its best-informed row: within the paper's 8.8 %, the rest 5 %."""
+    own taxel dead, beta loses its best-informed row and still stays within 5 %."""
     centre = (-0.004, 0.003)
     col, row = (int((c + PAD_M / 2) / PITCH_M) for c in centre)
-    found = errors(Impact(0.08, centre_m=centre, slide_m_s=(-0.004, 0.006)),
-                   spread_calibration(seed=3, dead=((row, col), (row + 1, col - 2))), seed=4)
-    assert found["s-wls"][:, [0, 1, 2, 4, 5]].max() < 0.05
-    assert found["s-wls"][:, 3].max() < 0.088
+    impact = Impact(0.08, centre_m=centre, slide_m_s=(-0.004, 0.006))
+    found = errors(frames_of(impact, spread_calibration(seed=3, dead=((row, col), (row + 1, col - 2))), seed=4),
+                   ours=ContactEstimator())
+    assert np.abs(found["ours"][:, :6]).max() < 0.05
 
 
-def test_the_geometry_memory_averages_a_small_contacts_noise():
-    """On the smallest contacts (0.03 m/s, 2-2.7 taxels across in b) a frame alone gives a and
-    b to a percent or two; the geometry's memory (forgetting 0.6 per frame, about 2.5 frames)
-    cuts their RMS error by about 40 % and their worst by about half, without lagging the
-    growing and shrinking contact."""
-    found = errors(Impact(0.03, centre_m=(0.002, -0.003)), spread_calibration(seed=7), seed=8,
-                   memory=ContactEstimator(), frame_alone=ContactEstimator(geometry_forgetting=0.0))
-    memory, alone = found["memory"][:, :2], found["frame_alone"][:, :2]
-    rms = [np.sqrt(np.mean(e ** 2, axis=0)) for e in (memory, alone)]
-    assert np.all(rms[0] < 0.75 * rms[1]), rms
-    assert np.all(memory.max(axis=0) < 0.6 * alone.max(axis=0)), (memory.max(axis=0), alone.max(axis=0))
-    assert memory.max() < 0.01
+def test_the_rates_follow_a_growing_and_shrinking_contact_without_lag():
+    """Noise-free frames of the fastest impact: the contact's size changes by up to 1 % a frame
+    at its start and end. The daemon's estimator, which carries each parameter's rate, stays
+    within 0.3 % of the truth; the paper's memories, which hold constant parameters, lag
+    p_max and the force by over 1 %. (beta, noise-free, within 2 %: what is left is the
+    parameters' curvature over the memory, which the few-taxel ambiguity multiplies.)"""
+    found = errors(frames_of(Impact(0.11), spread_calibration(seed=5), seed=6, noise_scale=0.0),
+                   ours=ContactEstimator(), paper=PaperSWLS())
+    ours, paper = np.abs(found["ours"][:, :5]).max(axis=0), np.abs(found["paper"][:, :5]).max(axis=0)
+    assert np.all(ours[[0, 1, 2, 4]] < 0.003), dict(zip(PARAMS, ours))
+    assert ours[3] < 0.02
+    assert paper[2] > 0.01 and paper[4] > 0.01  # p_max and the force: the lag a constant memory has
+
+
+def test_its_own_sigma_tells_the_truth():
+    """Over a slow and a fast impact, the errors divided by the estimator's own 1 sigma have an
+    RMS near 1 and never reach 5: the sigma on the telemetry can be believed."""
+    z = np.concatenate([errors(frames_of(Impact(speed, centre_m=(0.002, -0.001)), spread_calibration(seed=7), seed=8),
+                               ours=ContactEstimator())["ours"][:, 6:] for speed in (0.03, 0.11)])
+    rms = np.sqrt(np.mean(z ** 2, axis=0))
+    assert np.all((rms > 0.5) & (rms < 1.5)), dict(zip(PARAMS, rms))
+    assert np.abs(z).max() < 5.0
+
+
+def test_a_track_that_no_longer_fits_starts_again_from_the_frame():
+    """A contact that jumps to another place on the pad (a second impact as the first lifts):
+    the track's residual is far beyond the noise's, and within three frames the estimator has
+    started again on the new contact."""
+    calibration = spread_calibration(seed=9)
+    pad, device = SimTaxelPad(calibration, seed=10), TaxelArray(calibration)
+    first, second = Contact(-0.006, 0.004, 0.009, 0.007, 4e5, 0.7), Contact(0.007, -0.005, 0.007, 0.006, 3e5, 0.6)
+    estimator = ContactEstimator()
+    for _ in range(200):
+        assert estimator.update(device.pressures(pad.frame_volts(first))) is not None
+    found = [estimator.update(device.pressures(pad.frame_volts(second))) for _ in range(40)]
+    for name in ("cx", "cy"):
+        assert getattr(found[3], name) == pytest.approx(getattr(second, name), abs=0.2 * PITCH_M)
+    for name in ("a", "b", "p_max"):
+        assert getattr(found[-1], name) == pytest.approx(getattr(second, name), rel=0.02)
+    assert found[-1].beta == pytest.approx(second.beta, rel=0.05)
+
+
+@pytest.mark.parametrize("frame_hz, every", [(FRAME_HZ, 4), (1000.0, 1)])
+def test_a_reader_that_skips_frames_or_a_slower_sensor_is_followed_at_its_own_pace(frame_hz, every):
+    """Every 4th frame of a 4 kHz pad, each update told 4 periods passed (as the daemon's
+    sensor process does when it falls behind), or a 1 kHz sensor: the rates are per frame
+    period, so the contact is followed without lag; with a quarter of the frames, beta's
+    noise doubles."""
+    estimator = ContactEstimator(frame_hz=frame_hz)
+    found = errors(frames_of(Impact(0.08), spread_calibration(seed=11), seed=12, frame_hz=frame_hz), every=every,
+                   ours=estimator)["ours"]
+    worst = np.abs(found[:, :6]).max(axis=0)
+    assert np.all(worst[[0, 1, 2, 4, 5]] < 0.02), dict(zip(PARAMS, worst))
+    assert worst[3] < 0.08
+    assert abs(np.mean(found[:, 2])) < 0.003  # no lag in p_max on average: the prediction spans the gap
 
 
 def test_noise_alone_is_no_contact_and_a_second_touch_is_left_out():
@@ -90,7 +153,18 @@ def test_noise_alone_is_no_contact_and_a_second_touch_is_left_out():
     assert region is not None and not region[np.abs(xs + 0.014) < PITCH_M][:, np.abs(xs + 0.014) < PITCH_M].any()
     for _ in range(100):
         found = estimator.update(two)
-    assert abs(found.a / main.a - 1) < 0.02 and abs(found.p_max / main.p_max - 1) < 0.02
+    assert abs(found.a / main.a - 1) < 0.01 and abs(found.p_max / main.p_max - 1) < 0.01
+
+
+def test_bad_settings_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match=r"memory_s 0.0: must be within \(0, 1\] s"):
+        ContactEstimator(memory_s=0.0)
+    with pytest.raises(ValueError, match="beta_memory_s 5"):
+        ContactEstimator(beta_memory_s=5)
+    with pytest.raises(ValueError, match="frame rate 0"):
+        ContactEstimator(frame_hz=0.0)
+    with pytest.raises(ValueError, match="frames 0: at least one frame period"):
+        ContactEstimator().update(np.zeros((TAXELS, TAXELS)), frames=0)
 
 
 def test_the_device_masks_dead_taxels_and_refuses_frames_that_cannot_be_readings():
