@@ -27,17 +27,18 @@ This estimator keeps the nesting and changes what the outer layer carries
   with e the frame's residual at the prediction and J its Jacobian in s. The forgetting
   L = exp(-T / memory) per frame period T keeps a memory of ``memory_s`` for the geometry and
   p_max (4 ms: 16 frames at 4 kHz) and ``beta_memory_s`` for beta (8 ms), whose course is
-  slower, whatever the frame rate. P holds what is
-  known before the data: beta near Hertz's 0.5 (1 sigma 0.3), which matters only while the
-  contact is too small to say, and how fast the rates may change from frame to frame (a
-  random walk: relative growth 120 /s, beta 4 /s, at 4 kHz), which keeps a rate from running
-  along the few-taxel ambiguity.
+  slower, whatever the frame rate. P holds what is known before the data: beta near Hertz's
+  0.5 (1 sigma 0.3), which matters only while the contact is too small to say, and how fast
+  the rates may change from frame to frame (a random walk: relative growth 120 /s, beta 4 /s,
+  at 4 kHz), which keeps a rate from running along the few-taxel ambiguity.
 
 At first touch (8 taxels active) a quadric fit of the taxels gives the geometry and a few
 Gauss-Newton steps of the pressure model refine it with beta held at 0.5; the rates start at
-0. A track whose model no longer explains the frames (the residual more than ``LOST_CHI2``
-times the noise's for ``LOST_FRAMES`` frames in a row: a second impact, a slip) starts again
-from the frame. The inverse of the information gives each parameter's 1 sigma.
+0. A track whose model no longer explains the frames (the residual's mean square over
+``LOST_CHI2`` times the noise's, its RMS over 3 times, for ``LOST_FRAMES`` frames in a row: a
+second impact, a slip) starts again from the frame. The inverse of the information gives each
+parameter's 1 sigma; sigma is the data sheet's noise, or more when the residuals of tracked
+frames say so (a slow average), so a noisier pad widens the sigmas instead of making them lie.
 """
 from __future__ import annotations
 
