@@ -118,7 +118,8 @@ def first_counted_bound(impact: Impact, calibration, seed: int) -> tuple[float, 
                                    math.log(truth.p_max), truth.beta]))
         rows.append((k, levels_model(true, grid.px[ring], grid.py[ring])[1] / NOISE_PA))
         if truth.b >= COUNTED_B_M:
-            info = sum(np.hstack([jac, jac * (k0 - k)]).T @ np.hstack([jac, jac * (k0 - k)]) for k0, jac in rows)
+            rows_now = [np.hstack([jac, jac * (k0 - k)]) for k0, jac in rows]  # levels and rates now
+            info = sum(h.T @ h for h in rows_now)
             own = found.beta_sd / truth.beta if found is not None else math.nan
             return math.sqrt(np.linalg.pinv(info)[5, 5]) / truth.beta, own
     return math.nan, math.nan
