@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from daemon import protocol as P
-from daemon.client import Client, RemoteError
+from daemon.wire import protocol as P
+from daemon.client.client import Client, RemoteError
 
 MAX_POINTS = 1000  # waypoints and step levels (docs/protocol.md)
 MAX_S = 3600.0  # the longest duration, hold or segment [s]

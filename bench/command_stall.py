@@ -21,7 +21,7 @@ import msgpack
 
 from bench.command_cases import CASES, prepare, send
 from bench.common import header, leased_daemon, percentiles
-from daemon.client import RemoteError
+from daemon.client.client import RemoteError
 
 
 def drain(stats_sub, until: float) -> list[dict]:

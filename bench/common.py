@@ -12,8 +12,8 @@ from contextlib import contextmanager
 
 import zmq
 
-from daemon import keys
-from daemon.client import Client
+from daemon.wire import keys
+from daemon.client.client import Client
 
 
 def header(title: str) -> None:
@@ -100,7 +100,7 @@ def stats_subscriber(eps: dict[str, str]) -> zmq.Socket:
 
 def child_process(parent: int, marker: str) -> int | None:
     """The pid of a child of ``parent`` whose command line holds ``marker`` (e.g. the daemon's
-    messenger, ``daemon.messenger``), or None."""
+    messenger, ``daemon.messenger.process``), or None."""
     for pid in map(int, filter(str.isdigit, os.listdir("/proc"))):
         try:
             with open(f"/proc/{pid}/stat") as f:

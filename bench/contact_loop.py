@@ -21,7 +21,7 @@ import msgpack
 import zmq
 
 from bench.common import header, secure, spawn_daemon, stats_subscriber
-from daemon.client import Client
+from daemon.client.client import Client
 
 
 def run(rig_text: str, seconds: float) -> tuple[dict, dict | None]:

@@ -18,9 +18,9 @@ from bench.common import header
 from controllers.base import JointState, Reference
 from controllers.experiment import InputExperiment
 from controllers.signals import Multisine
-from daemon.clock import VirtualClock
+from daemon.loop.clock import VirtualClock
 from daemon.main import build_loop, parser
-from daemon.server import ZmqServer
+from daemon.loop.port import ZmqServer
 
 
 def per_call_us(fn, n: int) -> float:

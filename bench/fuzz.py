@@ -30,8 +30,8 @@ import zmq
 
 from bench.command_cases import CASES
 from bench.common import header, spawn_daemon, stats_subscriber
-from daemon import protocol as P
-from daemon.client import Client, RemoteError
+from daemon.wire import protocol as P
+from daemon.client.client import Client, RemoteError
 
 HOSTILE_VALUES = [math.nan, math.inf, -math.inf, 1e308, -1e308, 2 ** 63 - 1, -(2 ** 63), 0, -1, True, False, None,
                   "", "x" * 5000, "\u202e\ud7ff\U0001f600", b"\x00\xff" * 100, [], [1] * 4000, {}, {"a": {"b": {}}},

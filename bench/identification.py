@@ -5,7 +5,7 @@
 Each case perturbs the simulated plant of one joint (its ``transport.options`` overrides: the
 rig file's ``[[joints]] model``, the identifier's prior, stays the nominal one), runs the
 ``pneumactl identify`` workflow through the real loop on a virtual clock (the planner, the
-open-loop experiments, the telemetry, an MCAP recording, :func:`daemon.identify.analyse`), and
+open-loop experiments, the telemetry, an MCAP recording, :func:`daemon.client.identify.analyse`), and
 compares the identified parameters with the perturbed truth. Then it runs the translation path
 with a model-based controller on the perturbed plant twice: designed on the stale nominal
 model, and on the identified one.
@@ -28,8 +28,9 @@ from pathlib import Path
 
 from bench import scenarios
 from controllers.identification.simulate import FITTED
-from daemon import identify, mcap_log
-from daemon.client import RemoteError
+from daemon.client import identify
+from daemon.recordings import mcap_log
+from daemon.client.client import RemoteError
 from hal.identified import IDENTIFIED, JointParams
 
 CONTROLLERS = ("smc", "smc_dob")  # model-based: SMC's design (and the DOB's observer) use the nominal model
@@ -122,7 +123,7 @@ def _result(reply: dict) -> dict:
 
 
 def _rest(loop, j: int, run_seconds, timeout_s: float = 30.0) -> None:
-    """As :func:`daemon.identify._wait_for_rest`, on the loop's own angles."""
+    """As :func:`daemon.client.identify._wait_for_rest`, on the loop's own angles."""
     window = []
     for _ in range(int(timeout_s / 0.05)):
         run_seconds(loop, 0.05)

@@ -29,7 +29,7 @@ import zmq
 
 from bench import cyclictest
 from bench.common import header, percentiles, secure, spawn_daemon, stats_subscriber, with_keys
-from daemon.client import Client
+from daemon.client.client import Client
 
 
 def main() -> None:

@@ -10,7 +10,7 @@ spring and the dither takes 2.2 V; what remains on the side the payload pulls, a
 paper's arm carried up to 2.963 kg (say 3 kg) over about 0.5 m of reach; its 0.032 kg and
 4.14 mm scale to this arm as mass x (0.2 / 3) and length x (0.2 / 0.5).
 
-Each payload runs the routine of ``pneumactl payload identify`` (daemon.payload_routine)
+Each payload runs the routine of ``pneumactl payload identify`` (daemon.client.payload_routine)
 through the real loop on a virtual clock: postures, each joint dithered there, its balance
 torque from the pressure commands, against an unloaded reference run first. The noise study
 repeats the paper's (rig-facts §4): the torque differences at the same postures, exact, with
@@ -26,7 +26,7 @@ import numpy as np
 
 from bench.common import header
 from controllers.payload import Posture, identify
-from daemon import payload_routine
+from daemon.client import payload_routine
 from hal import config
 from hal.kinematics import payload_torques
 

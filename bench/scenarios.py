@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 from controllers import lti_design, registry, trajectory
 from controllers.feasibility import Authority
-from daemon.clock import VirtualClock
-from daemon.loop import ControlLoop
+from daemon.loop.clock import VirtualClock
+from daemon.loop.cycle import ControlLoop
 from hal import config, kinematics
 from hal.rig import RigIO
 from hal.transport import create_transport

@@ -8,7 +8,7 @@ drivers' conversion of one input sweep and one output sweep, all channels.
 from __future__ import annotations
 
 from bench.common import header, per_call_us
-from daemon.clock import VirtualClock
+from daemon.loop.clock import VirtualClock
 from hal import config
 from hal.rig import RigIO
 from hal.transport import Transport, create_transport

@@ -25,7 +25,7 @@ import msgpack
 import zmq
 
 from bench.common import child_process, header, spawn_daemon
-from daemon.client import Client, RemoteError
+from daemon.client.client import Client, RemoteError
 
 KILL_SHADOW_S = 5.0  # a gap this soon after a messenger kill is the kill's
 
@@ -118,7 +118,7 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
             except RemoteError:
                 done["refused"] += 1
             if now >= next_kill:
-                pid = child_process(daemon_pid, "daemon.messenger")
+                pid = child_process(daemon_pid, "daemon.messenger.process")
                 if pid is not None:
                     os.kill(pid, signal.SIGKILL)
                     kills.append(now)

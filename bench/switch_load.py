@@ -1,5 +1,5 @@
 """What building controllers beside the loop costs it, now that the building is done in a
-separate worker process (daemon/preparation.py) and only its courier thread shares the GIL.
+separate worker process (daemon/planner/process.py) and only its courier thread shares the GIL.
 
 Usage: python -m bench.switch_load [--seconds 20] [--every 0.1] [--priority 80] [--cpus 1]
 

@@ -26,7 +26,7 @@ import msgpack
 
 from bench import wires
 from bench.common import header, leased_daemon, percentiles
-from daemon.client import RemoteError
+from daemon.client.client import RemoteError
 from hal import serial_frames as F
 
 

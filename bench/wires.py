@@ -10,8 +10,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from daemon.clock import MonotonicClock, VirtualClock
-from daemon.loop import ControlLoop
+from daemon.loop.clock import MonotonicClock, VirtualClock
+from daemon.loop.cycle import ControlLoop
 from hal import config
 from hal.rig import RigIO
 from hal.transport import create_transport

@@ -12,7 +12,7 @@ operating point: it is the signal that makes the joint slide, so friction does n
 centring. Its output is part of the V_MV the recording holds, so the time-domain fit is
 unaffected, and the frequency response is taken from the known signal (the joint
 input-output method, :mod:`controllers.identification.frf`), which the centring does not bias.
-The loop's side of it is :mod:`daemon.open_loop`; :mod:`daemon.excite_plan` builds and checks it.
+The loop's side of it is :mod:`daemon.loop.open_loop`; :mod:`daemon.planner.excitation` builds and checks it.
 """
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 
-from daemon import keys
+from daemon.wire import keys
 
 DEFAULT_DIR = "/etc/pneumad/keys"
 RELOAD = "it takes effect once the daemon reloads its keys: `sudo systemctl reload pneumad` or `pneumactl keys reload`"

@@ -9,8 +9,8 @@ from __future__ import annotations
 import gc
 import math
 
-from daemon import realtime
-from daemon.clock import MonotonicClock
+from daemon.service import realtime
+from daemon.loop.clock import MonotonicClock
 
 # Verdict bounds, as fractions of the period.
 GOOD_P999, GOOD_MAX = 0.10, 0.50  # p99.9 within 10 %, worst within 50 % of the period

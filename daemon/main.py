@@ -11,15 +11,17 @@ import signal
 import sys
 import time
 
-from daemon import keys_cli, realtime
-from daemon.clock import MonotonicClock
-from daemon.contact_sensor import ContactSensor
-from daemon.loop import ControlLoop
-from daemon.messenger import MessengerError
-from daemon.notify import Notifier
-from daemon.preparation import Preparer
-from daemon.server import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
-from daemon.telemetry import Telemetry
+from daemon import keys_cli
+
+from daemon.service import realtime
+from daemon.loop.clock import MonotonicClock
+from daemon.contact.process import ContactSensor
+from daemon.loop.cycle import ControlLoop
+from daemon.messenger.process import MessengerError
+from daemon.service.notify import Notifier
+from daemon.planner.process import Preparer
+from daemon.loop.port import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
+from daemon.loop.telemetry import Telemetry
 from hal import config
 from hal.errors import ConfigError, TransportError
 from hal.rig import RigIO

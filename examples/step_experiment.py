@@ -13,9 +13,11 @@ import math
 import threading
 from pathlib import Path
 
-from daemon import mcap_log, plots, recording
+from daemon.recordings import mcap_log, reading as recording
+
+from daemon.client import plots
 from daemon.client import Client
-from daemon.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
 def main() -> int:

@@ -57,7 +57,7 @@ class TaxelCalibration:
 @dataclass(frozen=True)
 class ContactSensorConfig:
     """The rig file's ``[contact_sensor]``: the array sensor read and its contact estimated in
-    a process beside the loop (daemon.contact_sensor). ``offset_v`` and ``gain_pa_per_v``:
+    a process beside the loop (daemon.contact.process). ``offset_v`` and ``gain_pa_per_v``:
     one number for every taxel, or 256 row by row; ``dead``: [row, column] pairs;
     ``memory_ms`` and ``beta_memory_ms``: the estimator's memories (controllers.contact_force).
     ``source`` names where frames come from: ``"sim"`` is the simulated pad, pressed by an impact at

@@ -15,7 +15,8 @@ from controllers import (  # noqa: F401 (signals: subclasses)
     signals,
     trajectory,
 )
-from daemon import excite_plan, main, planner
+from daemon.planner import excitation as excite_plan, commands as planner
+from daemon import main
 from hal import kinematics
 
 

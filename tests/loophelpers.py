@@ -6,12 +6,13 @@ import math
 import msgpack
 import zmq
 
-from daemon import protocol
-from daemon.clock import VirtualClock
-from daemon.loop import ControlLoop
-from daemon.preparation import Preparer
-from daemon.server import ZmqServer
-from daemon.telemetry import Telemetry, to_payload
+from daemon.wire import protocol
+from daemon.loop.clock import VirtualClock
+from daemon.loop.cycle import ControlLoop
+from daemon.planner.process import Preparer
+from daemon.loop.port import ZmqServer
+from daemon.loop.telemetry import Telemetry
+from daemon.wire.telemetry_rows import to_payload
 from hal import config
 from hal.rig import RigIO
 from hal.transport import create_transport

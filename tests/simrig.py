@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from bench import scenarios
 from controllers.base import Controller, ControllerContext, JointState, Reference
-from daemon.clock import VirtualClock
+from daemon.loop.clock import VirtualClock
 from hal import config
 from hal.actuation import RigActuation
 from hal.rig import RigIO

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daemon import mcap_log, recording
-from daemon.client import Client
+from daemon.recordings import mcap_log, reading as recording
+from daemon.client.client import Client
 from hal import config
 from hal.taxel_array import PAD_M, TAXELS
 from sim_backend.contact_patch import Impact, ImpactReplay

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from daemon import recording
-from daemon.client import Client
-from daemon.notify import Notifier
+from daemon.recordings import reading as recording
+from daemon.client.client import Client
+from daemon.service.notify import Notifier
 from hal import config
 from tests.daemons import tolerant_rig_text
 from tests.schemas import schema

@@ -12,8 +12,8 @@ import pytest
 import zmq
 
 from bench.command_cases import CASES, prepare
-from daemon import protocol as P
-from daemon.client import Client
+from daemon.wire import protocol as P
+from daemon.client.client import Client
 from tests.schemas import schema
 from tests.daemons import real_daemon
 

@@ -8,7 +8,7 @@ import math
 import pytest
 from importlib import resources
 
-from daemon import protocol as P
+from daemon.wire import protocol as P
 from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
 from tests.schemas import schema
 

@@ -4,7 +4,7 @@ a change of the arm's state by a frame that was rejected, and the daemon lives o
 import pytest
 
 from bench.fuzz import fuzz
-from daemon.client import Client
+from daemon.client.client import Client
 from tests.daemons import real_daemon
 
 

@@ -7,7 +7,7 @@ import msgpack
 import pytest
 
 from controllers import lti_design
-from daemon import protocol as P
+from daemon.wire import protocol as P
 from tests import plugins
 from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
 

@@ -13,7 +13,7 @@ from importlib import resources
 import pytest
 
 from bench.wires import free_port, listening
-from daemon.client import Client
+from daemon.client.client import Client
 from hal import config
 from hal.identified import IDENTIFIED
 from tests.daemons import tolerant_rig_text, real_daemon
@@ -26,7 +26,7 @@ TRUTH = {"D": 0.8, "T_dly": 1.25}  # the plant's bottom joint: factors on the bu
 
 def pneumactl(eps, *args, timeout=600):
     endpoints = sum(([f"--{k}", v] for k, v in eps.items()), [])
-    return subprocess.run([sys.executable, "-m", "daemon.ctl", *endpoints, *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "daemon.client.ctl", *endpoints, *args], capture_output=True, text=True,
                           timeout=timeout)
 
 

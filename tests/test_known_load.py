@@ -1,4 +1,4 @@
-"""A known payload fed forward (controllers.known_load, daemon.feed_forward, ``load.set``):
+"""A known payload fed forward (controllers.known_load, daemon.loop.feed_forward, ``load.set``):
 its volts balance the payload's moment, the loaded arm holds closer with it, setting and
 clearing it does not bump the output, the planner counts it against the joints' range, and
 loads the arm cannot carry are refused with the reason."""
@@ -13,7 +13,7 @@ import pytest
 
 from bench.payload import rig_text
 from controllers.known_load import KnownLoad
-from daemon import protocol as P
+from daemon.wire import protocol as P
 from hal import config
 from hal.kinematics import payload_torques
 from tests.loophelpers import call, dealer, exchange, make_loop, ok, run_seconds
@@ -166,7 +166,7 @@ def test_the_built_in_rigs_all_take_a_load_within_their_capacity():
 def test_an_input_experiment_is_planned_about_the_volts_that_hold_the_known_load():
     """The payload routine dithers with a load possibly set: the open-loop operating point the
     planner checks against the V_MV range includes the load's holding volts."""
-    from daemon import planner
+    from daemon.planner import commands as planner
 
     sim = make_rig()
     plain = planner.PlanContext.of(sim.rig, sim.context())

@@ -4,8 +4,8 @@ import math
 import pytest
 
 from controllers import registry, trajectory
-from daemon.safety import State
-from daemon.stats import LoopStats
+from daemon.loop.safety import State
+from daemon.loop.stats import LoopStats
 from tests.daemons import tolerant_rig_text
 from tests.loophelpers import make_loop, run_seconds, tracking
 from tests.plugins import Slow

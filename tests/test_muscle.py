@@ -166,8 +166,8 @@ def test_the_mr_brake_damps_the_swing_a_hung_load_starts():
 
 
 def test_telemetry_and_recordings_carry_the_muscle_commands_by_name():
-    from daemon import mcap_log
-    from daemon.telemetry import Telemetry
+    from daemon.recordings import mcap_log
+    from daemon.loop.telemetry import Telemetry
     from tests.loophelpers import Captured
 
     loop = make_loop("muscle_eq", rig="sim-muscle")

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from daemon.client import Client, RemoteError
+from daemon.client.client import Client, RemoteError
 from hal import config
 from tests.test_readme_tour import BIN, ROOT, wait_for_daemon
 from tests.wirehelpers import start_peer, stop_peer

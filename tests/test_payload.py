@@ -1,4 +1,4 @@
-"""Payload identification by torque balance (controllers.payload, daemon.payload_routine):
+"""Payload identification by torque balance (controllers.payload, daemon.client.payload_routine):
 the three steps against exact and noisy torques, the identifiability it must refuse, the
 unloaded reference's file, and the whole routine on the simulated arm through the real loop."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 from bench.payload import measure, rig_text
 from controllers.payload import NOT_IDENTIFIABLE, Posture, identify
-from daemon import payload_routine
+from daemon.client import payload_routine
 from hal import config
 from hal.kinematics import payload_torques
 

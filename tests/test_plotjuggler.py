@@ -1,4 +1,4 @@
-"""``pneumad run --plotjuggler EP`` (daemon/plotjuggler.py): single-frame msgpack rows, one per
+"""``pneumad run --plotjuggler EP`` (daemon/messenger/plotjuggler.py): single-frame msgpack rows, one per
 loop cycle, each with its own time field, as PlotJuggler's ZMQ source and msgpack parser take
 them; and an endpoint PlotJuggler could reach without keys is refused unless --insecure."""
 import math
@@ -8,8 +8,8 @@ import msgpack
 import pytest
 import zmq
 
-from daemon.client import Client
-from daemon.server import ZmqServer
+from daemon.client.client import Client
+from daemon.loop.port import ZmqServer
 from hal.errors import ConfigError
 from tests.daemons import real_daemon
 

@@ -7,8 +7,8 @@ import msgpack
 import pytest
 import zmq
 
-from daemon import protocol as P
-from daemon.safety import State
+from daemon.wire import protocol as P
+from daemon.loop.safety import State
 from tests.loophelpers import call, dealer, exchange, make_loop, ok, run_seconds
 
 
@@ -279,7 +279,7 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     import re
     from pathlib import Path
 
-    from daemon.commands import Commands
+    from daemon.loop.commands import Commands
 
     docs = Path(__file__).resolve().parents[1] / "docs"
     text = (docs / "protocol.md").read_text()

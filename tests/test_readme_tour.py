@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon import mcap_log
-from daemon.client import Client
+from daemon.recordings import mcap_log
+from daemon.client.client import Client
 from tests.daemons import tolerant_rig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -102,7 +102,7 @@ def test_the_readme_tour_runs_as_written(tmp_path):
             # the notebook lines, on the recording the tour made
             text = (ROOT / "README.md").read_text()
             snippet = "\n".join(line.strip() for line in text.splitlines()
-                                 if "from daemon import recording" in line or "recording.load(" in line)
+                                 if "from daemon import recordings" in line or "recordings.load(" in line)
             done = subprocess.run([sys.executable, "-c", snippet + "\nassert len(data['middle.angle_rad']) > 1000"],
                                   cwd=ROOT, capture_output=True, text=True, timeout=60)
             assert done.returncode == 0, (snippet, done.stderr)

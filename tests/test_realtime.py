@@ -5,7 +5,7 @@ import struct
 
 import pytest
 
-from daemon import realtime
+from daemon.service import realtime
 
 
 def _release_held():

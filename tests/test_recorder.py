@@ -1,4 +1,4 @@
-"""The daemon's own recordings (daemon/recorder.py, daemon/archive.py), against a real daemon:
+"""The daemon's own recordings (daemon/recorder/process.py, daemon/recorder/archive.py), against a real daemon:
 a recorded path loses nothing while a client is stalled, record.start/stop/list answer as
 documented, and a write error, a full disk or a killed recorder end a recording with an event,
 the file readable, the loop untouched."""
@@ -13,8 +13,8 @@ import zmq
 from mcap.reader import make_reader
 
 from bench.common import child_process
-from daemon import mcap_log
-from daemon.client import Client, RemoteError
+from daemon.recordings import mcap_log
+from daemon.client.client import Client, RemoteError
 from tests.daemons import real_daemon
 from tests.schemas import schema
 
@@ -37,7 +37,7 @@ def stop(daemon, client):
 
 def recorder_pid(daemon) -> int:
     """The daemon's recorder process."""
-    pid = child_process(daemon.pid, "daemon.recorder")
+    pid = child_process(daemon.pid, "daemon.recorder.process")
     assert pid is not None, "no recorder process"
     return pid
 

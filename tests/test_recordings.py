@@ -13,7 +13,7 @@ import pytest
 from mcap.reader import make_reader
 
 from controllers.trajectory import JointMove
-from daemon import mcap_log, recording
+from daemon.recordings import mcap_log, reading as recording
 from tests.loophelpers import dealer, make_loop, ok
 
 
@@ -135,7 +135,7 @@ def test_load_gives_numpy_columns_named_with_units(tmp_path, session):
 
 
 def test_plot_writes_the_figures_of_one_run_and_of_an_overlay(tmp_path, session):
-    from daemon import plots
+    from daemon.client import plots
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
     write(a, session)
     write(b, session)

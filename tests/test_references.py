@@ -8,8 +8,8 @@ import pytest
 from scipy.signal import chirp, max_len_seq
 
 from controllers import signals, trajectory
-from daemon import protocol as P
-from daemon.client import read_waypoints
+from daemon.wire import protocol as P
+from daemon.client.client import read_waypoints
 from hal import config, kinematics
 from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
 

@@ -4,7 +4,7 @@ import multiprocessing
 
 import pytest
 
-from daemon.ring import Ring, RingError
+from daemon.wire.ring import Ring, RingError
 
 
 def test_messages_come_out_in_order_with_their_tags(tmp_path):

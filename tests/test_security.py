@@ -13,9 +13,9 @@ import msgpack
 import pytest
 import zmq
 
-from daemon import keys
-from daemon import protocol as P
-from daemon.client import Client, KeyRefused, RemoteError
+from daemon.wire import keys
+from daemon.wire import protocol as P
+from daemon.client.client import Client, KeyRefused, RemoteError
 from tests.daemons import real_daemon
 
 pytestmark = pytest.mark.slow
@@ -180,7 +180,7 @@ def test_sighup_reloads_the_allow_list(lab, tmp_path):
 def test_pneumactl_takes_a_key_file_and_reports_a_refusal(lab):
     _, eps, files = lab
     endpoints = sum(([f"--{k}", v] for k, v in eps.items()), [])
-    ctl = [sys.executable, "-m", "daemon.ctl", *endpoints]
+    ctl = [sys.executable, "-m", "daemon.client.ctl", *endpoints]
     done = subprocess.run([*ctl, "--key", files["alice"], "status"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and '"name": "alice"' in done.stdout, done.stderr
     refused = subprocess.run([*ctl, "--timeout", "1", "status"], capture_output=True, text=True, timeout=60)

@@ -9,10 +9,10 @@ import msgpack
 import zmq
 
 from controllers.pid import PID
-from daemon import protocol as P
-from daemon.clock import MonotonicClock
-from daemon.loop import ControlLoop
-from daemon.safety import State
+from daemon.wire import protocol as P
+from daemon.loop.clock import MonotonicClock
+from daemon.loop.cycle import ControlLoop
+from daemon.loop.safety import State
 from hal import config
 from hal.rig import RigIO
 from hal.transport import create_transport

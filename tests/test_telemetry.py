@@ -12,8 +12,8 @@ import pytest
 import zmq
 
 from bench.common import child_process
-from daemon.messenger import MessengerError
-from daemon.server import ZmqServer
+from daemon.messenger.process import MessengerError
+from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
 from tests.loophelpers import dealer, make_loop, ok
 
@@ -106,7 +106,7 @@ def test_the_messenger_dies_with_the_daemon(tmp_path):
     """SIGKILL to the daemon (no chance to stop its children): the messenger goes too."""
     daemon, _ = real_daemon(tmp_path)
     try:
-        messenger = _wait_for_child(daemon.pid, "daemon.messenger")
+        messenger = _wait_for_child(daemon.pid, "daemon.messenger.process")
         daemon.send_signal(signal.SIGKILL)
         daemon.wait(10)
         end = time.monotonic() + 5.0
@@ -174,7 +174,7 @@ def test_a_corrupt_request_ring_stops_the_arm_and_the_loop_serves_on(served):
 def test_rings_a_killed_daemon_left_behind_are_reclaimed_by_the_next_one(tmp_path):
     """SIGKILL leaves a daemon no time to remove its shared-memory rings (4 MiB in /dev/shm);
     the next daemon removes every rings directory whose process is gone, and no other."""
-    from daemon.server import RINGS_PREFIX, reclaim_stale_rings
+    from daemon.loop.port import RINGS_PREFIX, reclaim_stale_rings
 
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait()

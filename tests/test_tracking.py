@@ -8,7 +8,7 @@ import pytest
 from bench import scenarios as S
 from controllers import registry
 from controllers.trajectory import JointMove
-from daemon.tracking import TrackingGuard
+from daemon.loop.tracking import TrackingGuard
 from hal import config
 from hal.errors import ConfigError
 from tests.loophelpers import make_loop

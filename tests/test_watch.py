@@ -5,7 +5,7 @@ import math
 from rich.console import Console
 
 from controllers.trajectory import JointMove
-from daemon.watch import View, _bar
+from daemon.client.watch import View, _bar
 from tests.loophelpers import dealer, make_loop, ok
 
 

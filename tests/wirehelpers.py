@@ -10,8 +10,8 @@ import sys
 from bench import wires
 from bench.wires import stop_peer  # noqa: F401  (the tests stop peers through here too)
 from controllers import trajectory
-from daemon.loop import ControlLoop
-from daemon.telemetry import Telemetry
+from daemon.loop.cycle import ControlLoop
+from daemon.loop.telemetry import Telemetry
 from tests.loophelpers import Captured
 
 # A shared, noisy test machine runs this loop without real-time priority, and stalls of tens

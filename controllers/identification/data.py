@@ -1,4 +1,4 @@
-"""One joint's experiments, read back from a recording (MCAP or .pnrec; :mod:`daemon.recording`).
+"""One joint's experiments, read back from a recording (MCAP or .pnrec; :mod:`daemon.recordings.reading`).
 
 An experiment is found by its ``reference`` start event, which carries the signal's settings
 (``excite``'s ``signal``: side, joint, amplitude, operating point). An input-side one starts
@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from controllers.identification.fit import Experiment
-from daemon import recording
+from daemon.recordings import reading as recording
 from hal import config
 from hal.identified import JointParams
 from hal.regulator import ITV0051
@@ -70,7 +70,7 @@ def experiments(path, joint: str | None = None) -> list[Experiment]:
 def _input_signal(definition: dict, samples: int, dt: float) -> np.ndarray:
     """The input-side signal [V] from its settings, as the planner built it, on the samples
     from the open-loop phase's first cycle."""
-    from daemon.excite_plan import MAX_INPUT_DURATION_S, signal_of
+    from daemon.planner.excitation import MAX_INPUT_DURATION_S, signal_of
     settings = {k: v for k, v in definition.items() if k not in ("side", "signal", "joint", "amplitude_v")}
     signal = signal_of(settings, definition["signal"], [0.0], 0, definition["amplitude_v"], MAX_INPUT_DURATION_S)
     return signal.series(np.arange(samples) * dt)

@@ -86,7 +86,7 @@ def estimate(data: Experiment, rate_hz: float = 50.0, segment_s: float | None = 
 
 def period_of(signal: dict) -> float | None:
     """The period [s] of an experiment's signal (its ``signal`` settings), if it is periodic."""
-    from daemon.excite_plan import MAX_INPUT_DURATION_S, signal_of  # the planner's own signals
+    from daemon.planner.excitation import MAX_INPUT_DURATION_S, signal_of  # the planner's own signals
     if signal.get("signal") not in ("multisine", "prbs"):
         return None
     settings = {k: v for k, v in signal.items() if k not in ("side", "signal", "joint", "amplitude_v",

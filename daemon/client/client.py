@@ -1,0 +1,375 @@
+"""A Python client for pneumad, over the documented protocol (docs/protocol.md).
+
+    from daemon.client.client import Client
+    with Client() as c:
+        c.acquire_lease()
+        c.enable()
+        c.path("circle", duration_s=40)
+
+Replies are matched to requests by id; a reply that never comes raises TimeoutError
+instead of hanging. A command whose reply is deferred (planned or built beside the loop:
+``protocol.DEFERRED_COMMANDS``) is waited for as long as the daemon's ``describe`` says such
+work may take. ``keep_lease()`` renews the lease from a background thread.
+
+A daemon with keys (docs/protocol.md, "Keys") needs ``key_file``: the client's
+``NAME.key_secret``, which names the daemon's public key itself, or with ``server_key_file``
+(the daemon's ``server.key``); ``PNEUMAD_KEY`` and ``PNEUMAD_SERVER_KEY`` in the environment
+give them too. A daemon that refuses the key (unknown, revoked, or none given) is reported as
+:class:`KeyRefused`, not as a silent time-out.
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import os
+import threading
+import time
+
+import msgpack
+import zmq
+from zmq.utils.monitor import recv_monitor_message
+
+from daemon.wire import protocol
+from daemon.wire.keys import secure_client
+from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+
+
+class RemoteError(RuntimeError):
+    """The daemon answered with an error."""
+
+    def __init__(self, code: str, message: str, data: dict | None = None):
+        super().__init__(f"{code}: {message}")
+        self.code, self.message, self.data = code, message, data
+
+
+class KeyRefused(ConnectionError):
+    """The daemon would not complete the CURVE handshake with this client."""
+
+
+_HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
+                     | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL | zmq.EVENT_HANDSHAKE_SUCCEEDED)
+
+
+class Client:
+    def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
+                 telemetry: str = DEFAULT_TELEMETRY, timeout: float = 2.0, context: zmq.Context | None = None,
+                 key_file: str | None = None, server_key_file: str | None = None):
+        self.context = context or zmq.Context.instance()
+        self.endpoints = {"command": command, "control": control, "telemetry": telemetry}
+        self.timeout = timeout
+        self.key_file = key_file or os.environ.get("PNEUMAD_KEY") or None
+        self.server_key_file = server_key_file or os.environ.get("PNEUMAD_SERVER_KEY") or None
+        self._monitors: dict[str, zmq.Socket] = {}
+        self._ids = itertools.count(1)
+        self._sockets = {name: self._dealer(ep) for name, ep in (("command", command), ("control", control))}
+        self._lock = threading.Lock()
+        self.lease: str | None = None
+        self._keeper: threading.Thread | None = None
+        self._keeping = threading.Event()
+        self._deferred_timeout: float | None = None  # from describe, on the first deferred command
+
+    def _dealer(self, endpoint: str) -> zmq.Socket:
+        sock = self.context.socket(zmq.DEALER)
+        sock.setsockopt(zmq.LINGER, 0)
+        self._secure(sock)
+        self._monitors[endpoint] = sock.get_monitor_socket(_HANDSHAKE_EVENTS)
+        sock.connect(endpoint)
+        return sock
+
+    def _secure(self, sock: zmq.Socket) -> None:
+        if self.key_file:
+            secure_client(sock, self.key_file, self.server_key_file)
+
+    def _refused(self, endpoint: str) -> KeyRefused | None:
+        """What the handshakes with ``endpoint`` said so far: a refusal, if the last was one."""
+        monitor, last = self._monitors[endpoint], None
+        while monitor.poll(0):
+            last = recv_monitor_message(monitor)["event"]
+        if last in (None, zmq.EVENT_HANDSHAKE_SUCCEEDED):
+            return None
+        if not self.key_file:
+            return KeyRefused(f"{endpoint} wants a key (the daemon runs with CURVE keys): give --key FILE or set "
+                              f"PNEUMAD_KEY (docs/protocol.md, Keys)")
+        return KeyRefused(f"{endpoint} refused the key in {self.key_file}: it is not allowed there (unknown or "
+                          f"revoked), or the daemon's public key given is not that daemon's")
+
+    def close(self) -> None:
+        self._keeping.clear()
+        if self._keeper is not None:
+            self._keeper.join()
+        for sock in self._sockets.values():
+            sock.disable_monitor()
+            sock.close(linger=0)
+        for monitor in self._monitors.values():
+            monitor.close(linger=0)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.lease is not None:
+            try:
+                self.release_lease()
+            except (RemoteError, TimeoutError):
+                pass
+        self.close()
+
+    # -- requests -------------------------------------------------------------------------
+    def call(self, cmd: str, args: dict | None = None, control: bool = False, timeout: float | None = None):
+        """Send one request and wait for its reply; raise RemoteError or TimeoutError."""
+        if timeout is None and cmd in protocol.DEFERRED_COMMANDS:
+            timeout = max(self.timeout, self.deferred_timeout())
+        with self._lock:
+            sock = self._sockets["control" if control else "command"]
+            request_id = next(self._ids)
+            endpoint = self.endpoints["control" if control else "command"]
+            limit = self.timeout if timeout is None else timeout
+            deadline = time.monotonic() + limit
+            # A DEALER with no live connection (its handshake refused) would block in send.
+            if not sock.poll(limit * 1e3, zmq.POLLOUT):
+                self._unanswered(cmd, endpoint, limit)
+            try:
+                sock.send(protocol.encode_request(request_id, cmd, args, self.lease), zmq.NOBLOCK)
+            except zmq.Again:  # the connection went between the poll and the send: a refused handshake
+                self._unanswered(cmd, endpoint, limit)
+            while True:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not sock.poll(remaining * 1e3):
+                    self._unanswered(cmd, endpoint, limit)
+                reply = msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+                if reply.get("id") == request_id:
+                    break  # earlier replies that arrived after their timeout are dropped
+        if not reply.get("ok"):
+            error = reply.get("error", {})
+            raise RemoteError(error.get("code", "?"), error.get("message", ""), error.get("data"))
+        return reply.get("result")
+
+    def _unanswered(self, cmd: str, endpoint: str, limit: float):
+        """Raise why there is no reply: the daemon refused this client's key, or silence."""
+        refused = self._refused(endpoint)
+        if refused is not None:
+            raise refused
+        raise TimeoutError(f"no reply to {cmd!r} within {limit} s from {endpoint}")
+
+    def deferred_timeout(self) -> float:
+        """How long a deferred reply may take [s]: the daemon's own limit, and a margin."""
+        if self._deferred_timeout is None:
+            self._deferred_timeout = float(self.describe()["deferred_timeout_s"]) + 2.0
+        return self._deferred_timeout
+
+    def ping(self):
+        return self.call("ping")
+
+    def status(self):
+        return self.call("status")
+
+    def describe(self):
+        return self.call("describe")
+
+    def estop(self, who: str = "client"):
+        """On the control socket: never queued behind other requests."""
+        return self.call("estop", {"who": who}, control=True)
+
+    def abort(self):
+        return self.call("abort", control=True)
+
+    def enable(self):
+        return self.call("enable")
+
+    def disable(self):
+        return self.call("disable")
+
+    def reset(self):
+        return self.call("reset")
+
+    def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False,
+            stiffness_nm_deg=None):
+        """Move to joint angles [deg] or a tip point [mm]; ``stiffness_nm_deg`` (one number, or
+        one per joint) where the joints take a stiffness set-point."""
+        args = {"duration_s": duration_s, **_record(record)}
+        if stiffness_nm_deg is not None:
+            args["stiffness_nm_deg"] = stiffness_nm_deg
+        if angles_deg is not None:
+            args["angles_deg"] = list(angles_deg)
+        if xy_mm is not None:
+            args["xy_mm"] = list(xy_mm)
+        return self.call("set", args)
+
+    def path(self, name: str, duration_s: float | None = None, approach_s: float | None = None, record: bool = False):
+        """A reference path; ``record``: the daemon records it, start to end (the reply's ``recording``)."""
+        args = {"name": name, **_record(record)}
+        if duration_s is not None:
+            args["duration_s"] = duration_s
+        if approach_s is not None:
+            args["approach_s"] = approach_s
+        return self.call("path", args)
+
+    def controllers(self):
+        return self.call("controller.list")
+
+    def controller(self):
+        return self.call("controller.get")
+
+    def waypoints(self, angles_deg=None, xy_mm=None, durations_s=(), approach_s: float | None = None,
+                  record: bool = False):
+        """A path through joint (``angles_deg``) or tip (``xy_mm``) waypoints; see read_waypoints."""
+        args = {"durations_s": list(durations_s), **_record(record)}
+        if angles_deg is not None:
+            args["angles_deg"] = [list(p) for p in angles_deg]
+        if xy_mm is not None:
+            args["xy_mm"] = [list(p) for p in xy_mm]
+        if approach_s is not None:
+            args["approach_s"] = approach_s
+        return self.call("waypoints", args)
+
+    def steps(self, angles_deg, hold_s, record: bool = False):
+        """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds."""
+        return self.call("steps", {"angles_deg": [list(p) for p in angles_deg], "hold_s": list(hold_s),
+                                   **_record(record)})
+
+    def excite(self, signal: str, joint: str, amplitude_deg: float, record: bool = False, **settings):
+        """An identification signal (chirp: f0_hz, f1_hz, duration_s; prbs: order, bit_s, periods)."""
+        return self.call("excite", {"signal": signal, "joint": joint, "amplitude_deg": amplitude_deg, **settings,
+                                    **_record(record)})
+
+    def excite_input(self, signal: str, joint: str, amplitude_v: float, record: bool = False, **settings):
+        """An open-loop experiment: the signal on the joint's V_MV about the present set-point
+        (chirp, prbs, multisine, steps; settle_s, band_deg and the signal's settings)."""
+        return self.call("excite", {"side": "input", "signal": signal, "joint": joint, "amplitude_v": amplitude_v,
+                                    **settings, **_record(record)})
+
+    def record_start(self, name: str | None = None, seconds: float | None = None):
+        """The daemon records its telemetry (MCAP, in its recording directory) until
+        :meth:`record_stop` or for ``seconds``; nothing a slow network loses is lost to it."""
+        args = {k: v for k, v in (("name", name), ("seconds", seconds)) if v is not None}
+        return self.call("record.start", args)
+
+    def record_stop(self, name: str | None = None):
+        return self.call("record.stop", {"name": name} if name else {})
+
+    def record_list(self):
+        return self.call("record.list")
+
+    @staticmethod
+    def _candidate(name: str, params: dict | None, design: str | None) -> dict:
+        args = {"name": name, "params": params or {}}
+        if design is not None:
+            from controllers import lti_design  # here: it imports scipy (0.6 s), which pneumactl mostly needs not
+            args["options"] = {"design": lti_design.read_file(design)}
+        return args
+
+    def switch_controller(self, name: str, params: dict | None = None, design: str | None = None):
+        """Switch controllers (bumpless); ``design`` is an LTI design file (.toml or .npz)."""
+        return self.call("controller.switch", self._candidate(name, params, design))
+
+    def shadow(self, name: str, params: dict | None = None, design: str | None = None):
+        """Run a candidate controller beside the active one, published but not applied."""
+        return self.call("controller.shadow", self._candidate(name, params, design))
+
+    def commit(self):
+        return self.call("controller.commit")
+
+    def discard(self):
+        return self.call("controller.discard")
+
+    def set_params(self, **params):
+        return self.call("controller.set", {"params": params})
+
+    def set_load(self, mass_kg: float, com_mm=(0.0, 0.0)):
+        """A known payload [kg] at ``com_mm`` (along, across the last link from the tip
+        [mm]), its weight fed forward to every controller."""
+        return self.call("load.set", {"mass_kg": mass_kg, "com_mm": list(com_mm)})
+
+    def clear_load(self):
+        return self.call("load.clear")
+
+    # -- lease ----------------------------------------------------------------------------
+    def acquire_lease(self, ttl_s: float | None = None):
+        result = self.call("lease.acquire", {} if ttl_s is None else {"ttl_s": ttl_s})
+        self.lease = result["lease"]
+        return result
+
+    def renew_lease(self):
+        return self.call("lease.renew")
+
+    def release_lease(self):
+        try:
+            return self.call("lease.release")
+        finally:
+            self.lease = None
+
+    def keep_lease(self, every_s: float = 0.5) -> None:
+        """Renew the lease from a background thread until close()."""
+        self._keeping.set()
+
+        def renew():
+            while self._keeping.is_set() and self.lease is not None:
+                try:
+                    self.renew_lease()
+                except (RemoteError, TimeoutError):
+                    pass
+                time.sleep(every_s)
+
+        self._keeper = threading.Thread(target=renew, name="pneumad-lease", daemon=True)
+        self._keeper.start()
+
+    # -- telemetry ------------------------------------------------------------------------
+    def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> "Subscription":
+        return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
+
+
+def _record(record: bool) -> dict:
+    return {"record": True} if record else {}
+
+
+def read_waypoints(path) -> dict:
+    """A waypoint CSV file as ``waypoints()`` arguments. The header names the columns:
+    ``duration_s`` (time from the previous point; ignored on the first row), then either
+    ``x_mm,y_mm`` (Cartesian) or one ``<joint>_deg`` column per joint, in the rig's order."""
+    with open(path, newline="") as f:
+        rows = [r for r in csv.reader(line for line in f if line.strip() and not line.startswith("#"))]
+    if len(rows) < 3 or rows[0][0].strip() != "duration_s":
+        raise ValueError(f"{path}: expected a header starting with duration_s and at least two points")
+    columns = [c.strip() for c in rows[0][1:]]
+    try:
+        values = [[float(v) for v in r] for r in rows[1:]]
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    points, durations = [v[1:] for v in values], [v[0] for v in values[1:]]
+    if columns == ["x_mm", "y_mm"]:
+        return {"xy_mm": points, "durations_s": durations}
+    if columns and all(c.endswith("_deg") for c in columns):
+        return {"angles_deg": points, "durations_s": durations}
+    raise ValueError(f"{path}: columns after duration_s must be x_mm,y_mm or <joint>_deg, got {','.join(columns)}")
+
+
+class Subscription:
+    """Telemetry messages as (topic, dict), with a count of messages lost (by sequence)."""
+
+    def __init__(self, context: zmq.Context, endpoint: str, topics, secure=None):
+        self.sock = context.socket(zmq.SUB)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        if secure is not None:
+            secure(self.sock)
+        self.sock.setsockopt(zmq.RCVHWM, 100000)
+        for topic in topics:
+            self.sock.setsockopt(zmq.SUBSCRIBE, topic)
+        self.sock.connect(endpoint)
+        self.last_seq: dict[bytes, int] = {}
+        self.lost = 0
+
+    def receive(self, timeout: float = 1.0):
+        """The next (topic, message), or None after ``timeout`` seconds."""
+        if not self.sock.poll(timeout * 1e3):
+            return None
+        topic, payload = self.sock.recv_multipart()
+        message = msgpack.unpackb(payload, raw=False)
+        seq = message.get("seq")
+        last = self.last_seq.get(topic)
+        if last is not None and seq is not None and seq > last + 1:
+            self.lost += seq - last - 1
+        self.last_seq[topic] = seq
+        return topic.decode(), message
+
+    def close(self) -> None:
+        self.sock.close(linger=0)

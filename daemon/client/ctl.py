@@ -1,0 +1,361 @@
+"""``pneumactl``: drive pneumad from a terminal (a thin layer over daemon.client.client)."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+from daemon.wire import keys
+
+from daemon.recordings import mcap_log, reading as recording
+from daemon.client.client import Client, KeyRefused, RemoteError, read_waypoints
+from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+
+
+def with_lease(client: Client, fn):
+    """One-shot commands take the lease, act, and hand it back (the arm keeps its state; if
+    it stays enabled, the daemon's note on what becomes of it is printed)."""
+    client.acquire_lease()
+    try:
+        return fn()
+    finally:
+        released = client.release_lease()
+        if released and "unleased" in released:
+            print(f"note: {released['unleased']['note']}", file=sys.stderr)
+
+
+def record(client: Client, path: str, seconds: float) -> int:
+    """Record the telemetry to ``path`` as MCAP (:mod:`daemon.recordings.mcap_log`); a disk that fills or
+    fails ends it with a clear error (exit 1), the file readable up to its last complete chunk."""
+    from daemon.client.progress import recording_bar  # rich: only for the progress display
+    try:
+        with recording_bar(path, seconds) as progress:
+            written, lost = mcap_log.record(client, path, seconds, progress)
+    except OSError as exc:
+        print(f"error: recording to {path} stopped: {exc.strerror or exc} (the file is readable up to its last "
+              f"complete chunk)", file=sys.stderr)
+        return 1
+    print(f"recorded {written} messages to {path} (lost {lost}, marked in the file)")
+    return 0
+
+
+def motion(client: Client, args):
+    """A motion command (with the lease); ``--wait`` follows it to its end (and its recording)."""
+    w, record = args.what, args.record
+    if w == "set":
+        kw = {"xy_mm": args.values} if args.xy else {"angles_deg": args.values}
+        send = lambda: client.set(duration_s=args.duration, record=record, stiffness_nm_deg=args.stiffness,  # noqa: E731
+                                  **kw)
+    elif w == "path":
+        send = lambda: client.path(args.name, args.duration, args.approach, record=record)  # noqa: E731
+    elif w == "waypoints":
+        try:
+            spec = read_waypoints(args.file)
+        except (OSError, ValueError) as exc:
+            raise SystemExit(str(exc)) from None
+        send = lambda: client.waypoints(**spec, approach_s=args.approach, record=record)  # noqa: E731
+    elif w == "steps":
+        levels = [[float(v) for v in level.split(",")] for level in args.levels]
+        holds = [float(v) for v in args.hold.split(",")]
+        holds = holds * len(levels) if len(holds) == 1 else holds
+        send = lambda: client.steps(levels, holds, record=record)  # noqa: E731
+    else:
+        settings = {"chirp": {"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration},
+                    "prbs": {"order": args.order, "bit_s": args.bit, "periods": args.periods},
+                    "multisine": {"f0_hz": args.f0, "f1_hz": args.f1, "components": args.components,
+                                  "period_s": args.period, "periods": args.periods}}[args.signal]
+        if args.input:
+            settings.update(settle_s=args.settle, band_deg=args.band)
+        excite = client.excite_input if args.input else client.excite
+        send = lambda: excite(args.signal, args.joint, args.amplitude, record=record, **settings)  # noqa: E731
+    result = with_lease(client, send)
+    if not args.wait:
+        return result
+    from daemon.client.progress import follow  # rich: only for the progress display
+    return {**result, **follow(client, result.get("total_s", result.get("duration_s", 0.0)), result.get("recording"))}
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
+    p.add_argument("--command", default=DEFAULT_COMMAND)
+    p.add_argument("--control", default=DEFAULT_CONTROL)
+    p.add_argument("--telemetry", default=DEFAULT_TELEMETRY)
+    p.add_argument("--timeout", type=float, default=2.0)
+    p.add_argument("--key", default=None, metavar="FILE",
+                   help="your key (NAME.key_secret) for a daemon with keys (or PNEUMAD_KEY)")
+    p.add_argument("--server-key", default=None, metavar="FILE",
+                   help="the daemon's public key (server.key), if your key file does not hold it (or PNEUMAD_SERVER_KEY)")
+    sub = p.add_subparsers(dest="what", required=True)
+    for name in ("status", "describe", "enable", "disable", "estop", "reset", "abort"):
+        sub.add_parser(name)
+    w = sub.add_parser("watch", help="live text view")
+    w.add_argument("--seconds", type=float, default=None)
+    s = sub.add_parser("set", help="move to joint angles [deg] or a tip point [mm]")
+    motion = [s]
+    s.add_argument("values", type=float, nargs="+")
+    s.add_argument("--xy", action="store_true", help="values are x y in mm")
+    s.add_argument("--duration", type=float, default=0.0)
+    s.add_argument("--stiffness", type=float, default=None, metavar="NM_PER_DEG",
+                   help="joint stiffness [N m/deg], where the joints take one (the muscle rig)")
+    pa = sub.add_parser("path", help="run a reference path")
+    motion.append(pa)
+    pa.add_argument("name", choices=["translation", "circle"])
+    pa.add_argument("--duration", type=float, default=None)
+    pa.add_argument("--approach", type=float, default=None)
+    wp = sub.add_parser("waypoints", help="run a path through waypoints from a CSV file")
+    motion.append(wp)
+    wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
+    wp.add_argument("--approach", type=float, default=None)
+    st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint angles [deg]")
+    motion.append(st)
+    st.add_argument("levels", nargs="+")
+    st.add_argument("--hold", default="5", help="hold time per level [s], one value or one per level (comma list)")
+    ex = sub.add_parser("excite", help="identification signal on one joint's reference (or, --input, its V_MV)")
+    motion.append(ex)
+    ex.add_argument("signal", choices=["chirp", "prbs", "multisine"])
+    ex.add_argument("joint")
+    ex.add_argument("--amplitude", type=float, default=1.0, help="[deg], or [V] with --input (default 1)")
+    ex.add_argument("--input", action="store_true",
+                    help="open loop: the signal on the joint's V_MV about the present set-point, the others held")
+    ex.add_argument("--settle", type=float, default=2.0, help="--input: feedback holds this long first [s] (default 2)")
+    ex.add_argument("--band", type=float, default=10.0,
+                    help="--input: the joint is stopped and held if it leaves +- this [deg] (default 10)")
+    ex.add_argument("--components", type=int, default=16, help="multisine: sines (default 16)")
+    ex.add_argument("--period", type=float, default=20.0, help="multisine: period [s] (default 20)")
+    ex.add_argument("--f0", type=float, default=0.1, help="chirp start frequency [Hz] (default 0.1)")
+    ex.add_argument("--f1", type=float, default=1.0, help="chirp end frequency [Hz] (default 1)")
+    ex.add_argument("--duration", type=float, default=60.0, help="chirp duration [s] (default 60)")
+    ex.add_argument("--order", type=int, default=8, help="PRBS register length (default 8: 255 bits)")
+    ex.add_argument("--bit", type=float, default=0.2, help="PRBS bit time [s] (default 0.2)")
+    ex.add_argument("--periods", type=int, default=1, help="PRBS or multisine repetitions (default 1)")
+    for m in motion:
+        m.add_argument("--record", action="store_true",
+                       help="the daemon records it, start to end plus 3 s, in its recording directory")
+        m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended")
+    pay = sub.add_parser("payload", help="identify a payload at the tip by torque balance (docs/estimation.md)")
+    pay.add_argument("action", choices=("identify",))
+    pay.add_argument("--unloaded", action="store_true",
+                     help="measure the unloaded arm and store it as the reference (do this once, without a payload)")
+    pay.add_argument("--reference", default="payload-reference.json", help="the unloaded reference's file")
+    pay.add_argument("--apply", action="store_true",
+                     help="give the identified payload to the controllers as a known load (load.set)")
+    ld = sub.add_parser("load", help="a known payload at the tip, fed forward to every controller (gravity)")
+    ld.add_argument("action", choices=("set", "clear"))
+    ld.add_argument("mass_kg", nargs="?", type=float, help="set: the payload's mass [kg]")
+    ld.add_argument("--com", default="0,0", metavar="ALONG,ACROSS",
+                    help="its centre of mass from the tip, along and across the last link [mm] (default 0,0; "
+                         "--com=-5,3 when the first is negative)")
+    idp = sub.add_parser("identify", help="identify a joint's model: excite, record, fit, plot, write a rig file")
+    idp.add_argument("joint")
+    idp.add_argument("--out", default=None, help="directory for the rig file, figures and report "
+                                                 "(default identify-JOINT-DATE-TIME)")
+    idp.add_argument("--from", dest="source", default=None, metavar="RECORDING",
+                     help="analyse this recording's experiments instead of running them (no daemon needed)")
+    idp.add_argument("--amplitude", type=float, default=None, help="V_MV amplitude [V] (default: from the model)")
+    idp.add_argument("--at", type=float, nargs="+", default=None, metavar="DEG",
+                     help="move to these joint angles first [deg] (default: the experiments run where the arm is)")
+    idp.add_argument("--band", type=float, default=10.0, help="stop if the joint leaves +- this [deg] (default 10)")
+    idp.add_argument("--quick", action="store_true", help="experiments half as long (a first look)")
+    idp.add_argument("--population", type=int, default=40, help="differential evolution (default 40, the thesis's)")
+    idp.add_argument("--generations", type=int, default=1500, help="at most (default 1500, the thesis's)")
+    c = sub.add_parser("controller", help="list, get, switch, set, shadow, commit, discard")
+    c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
+    c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
+    c.add_argument("--design", default=None, help="LTI design file (.toml or .npz) for lti and lti_dob")
+    r = sub.add_parser("record", help="record telemetry to an MCAP file (Foxglove, PlotJuggler open it)")
+    r.add_argument("file")
+    r.add_argument("--seconds", type=float, default=10.0)
+    rs = sub.add_parser("record.start", help="the daemon records telemetry (MCAP, in its recording directory)")
+    rs.add_argument("--name", default=None, help="the file's name without .mcap (default: the time and 'record')")
+    rs.add_argument("--seconds", type=float, default=None, help="end after this long (default: at record.stop)")
+    rt = sub.add_parser("record.stop", help="end a recording the daemon is making")
+    rt.add_argument("--name", default=None, help="which (needed when several run)")
+    sub.add_parser("record.list", help="the daemon's recordings: those running, and its files")
+    e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
+    e.add_argument("file")
+    e.add_argument("csv")
+    pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs")
+    pl.add_argument("files", nargs="+")
+    pl.add_argument("--out", default=".", help="directory for the PNGs (default: here)")
+    k = sub.add_parser("keys", help="new: make your own key pair; reload: have the daemon read its allow-list again")
+    k.add_argument("action", choices=["new", "reload"])
+    k.add_argument("name", nargs="?", help="new: your key's name (e.g. your login)")
+    k.add_argument("--dir", default=os.path.expanduser("~/.config/pneumad"), help="new: where (default ~/.config/pneumad)")
+    return p
+
+
+def key_values(items) -> dict:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
+        out[key] = json.loads(value)  # a number, or a JSON list with one value per joint
+    return out
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    if args.what == "identify" and args.source:
+        return identify(None, args)
+    if args.what in ("export", "plot"):
+        try:
+            if args.what == "plot":
+                from daemon.client import plots  # matplotlib: only when asked for pictures
+                for written in plots.plot_runs(args.files, args.out):
+                    print(written)
+                return 0
+            rows = recording.export_csv(args.file, args.csv)
+        except (OSError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        print(f"wrote {rows} rows to {args.csv}")
+        return 0
+    try:
+        if args.what == "keys" and args.action == "new":
+            return new_key(args)
+        client = Client(args.command, args.control, args.telemetry, timeout=args.timeout, key_file=args.key,
+                        server_key_file=args.server_key)
+    except keys.KeyFileError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        result = run(client, args)
+    except KeyRefused as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except RemoteError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        if exc.data:
+            print(json.dumps(exc.data, indent=2), file=sys.stderr)
+        return 1
+    except TimeoutError as exc:
+        print(f"error: {exc}{timeout_hint(client)}", file=sys.stderr)
+        return 2
+    finally:
+        client.close()
+    if isinstance(result, dict) and result.get("approach_chosen"):
+        print(f"approach: {result['approach_s']:g} s to the start (the shortest feasible, with a margin; "
+              f"--approach S to choose)", file=sys.stderr)
+    if result is not None:
+        print(json.dumps(result, indent=2))
+    return 0
+
+
+def identify(client: Client | None, args) -> int:
+    """``pneumactl identify``: the experiments (unless ``--from``), then the fit and its files."""
+    import time
+    from pathlib import Path
+
+    from daemon.client import identify as ident  # scipy and matplotlib: only when identifying
+    out = Path(args.out or f"identify-{args.joint}-{time.strftime('%Y%m%d-%H%M%S')}")
+    try:
+        source = Path(args.source) if args.source else out / "experiments.mcap"
+        if client is not None:
+            out.mkdir(parents=True, exist_ok=True)
+            ident.run_experiments(client, args.joint, source, ident.Plan.of(args.quick), args.amplitude, args.at,
+                                  args.band)
+        report = ident.analyse(source, args.joint, out, args.population, args.generations)
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps({k: report[k] for k in ("joint", "model", "rig_file", "figures", "fit_percent",
+                                             "heldout_fit_percent", "wall_s")}, indent=2))
+    return 0
+
+
+def new_key(args) -> int:
+    """Your own key pair, made here: the secret stays with you, the public file goes to the lab."""
+    if not args.name:
+        raise SystemExit("pneumactl keys new NAME")
+    public, secret = keys.new_client_pair(args.dir, args.name, args.server_key)
+    print(f"your key: {secret} (mode 0600: keep it to yourself)\n"
+          f"send {public} to the lab, who allow it with `pneumad keys allow {os.path.basename(public)}`"
+          + ("" if args.server_key else "; use it with --server-key server.key (the daemon's public key)"))
+    return 0
+
+
+def timeout_hint(client: Client) -> str:
+    """Whether the daemon is there at all: a quick ping on the control socket."""
+    try:
+        client.call("ping", control=True, timeout=0.5)
+    except RemoteError:
+        return " (pneumad answers, but not this request: see `pneumactl status`)"
+    except KeyRefused as exc:
+        return f" ({exc})"
+    except TimeoutError:
+        return " (is pneumad running?)"
+    return " (pneumad is running: the request may still be in progress, see `pneumactl status`)"
+
+
+def run(client: Client, args):
+    w = args.what
+    if w in ("status", "describe"):
+        return getattr(client, w)()
+    if w == "estop":
+        return client.estop("pneumactl")
+    if w == "abort":
+        return client.abort()
+    if w in ("enable", "disable", "reset"):
+        return with_lease(client, getattr(client, w))
+    if w == "watch":
+        from daemon.client.watch import watch  # rich: only for the live view
+        watch(client, args.seconds)
+        return None
+    if w in ("set", "path", "waypoints", "steps", "excite"):
+        return motion(client, args)
+    if w == "record.start":
+        return client.record_start(args.name, args.seconds)
+    if w == "record.stop":
+        return client.record_stop(args.name)
+    if w == "record.list":
+        return client.record_list()
+    if w == "controller":
+        if args.action == "list":
+            return client.controllers()
+        if args.action == "get":
+            return client.controller()
+        if args.action in ("commit", "discard"):
+            return with_lease(client, getattr(client, args.action))
+        if args.action in ("switch", "shadow"):
+            if not args.args:
+                raise SystemExit(f"controller {args.action} NAME [KEY=VALUE ...] [--design FILE]")
+            act = client.switch_controller if args.action == "switch" else client.shadow
+            return with_lease(client, lambda: act(args.args[0], key_values(args.args[1:]), args.design))
+        return with_lease(client, lambda: client.set_params(**key_values(args.args)))
+    if w == "keys":
+        return client.call("keys.reload", control=True)
+    if w == "load":
+        if args.action == "clear":
+            return with_lease(client, client.clear_load)
+        if args.mass_kg is None:
+            raise SystemExit("load set MASS_KG [--com ALONG,ACROSS]")
+        try:
+            com = [float(v) for v in args.com.split(",")]
+        except ValueError:
+            raise SystemExit(f"--com {args.com!r}: two numbers ALONG,ACROSS [mm]") from None
+        return with_lease(client, lambda: client.set_load(args.mass_kg, com))
+    if w == "payload":
+        from pathlib import Path
+
+        from daemon.client import payload_routine
+        try:
+            return payload_routine.run(client, Path(args.reference), args.unloaded, args.apply)
+        except ValueError as exc:
+            raise SystemExit(f"error: {exc}") from None
+    if w == "identify":
+        code = identify(client, args)
+        if code:
+            raise SystemExit(code)
+        return None
+    if w == "record":
+        code = record(client, args.file, args.seconds)
+        if code:
+            raise SystemExit(code)
+        return None
+    raise SystemExit(f"unknown command {w}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

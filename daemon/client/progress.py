@@ -1,0 +1,91 @@
+"""Progress of a long command: a reference running on the daemon and the daemon's recording
+of it, followed until both have ended (``pneumactl ... --wait``), and a recording made here
+(``pneumactl record``).
+
+In a terminal a rich progress bar (the reference's name, elapsed / total, time left, the
+arm's state); piped, a line every ``LINE_EVERY_S``. It follows ``status`` on the control
+socket, so it works for any client that may read, and stops early with the cause when the
+arm leaves ``enabled`` (a trip, an e-stop).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from contextlib import contextmanager
+
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from daemon.client.client import Client
+
+POLL_S = 0.2
+LINE_EVERY_S = 5.0
+RECORDING_WAIT_S = 15.0  # a recording ends a few seconds after its reference (the settling)
+
+
+def follow(client: Client, total_s: float, recording: str | None = None) -> dict:
+    """Until the reference ends (or the arm stops being enabled), then until ``recording``
+    has been written; what happened: ``{ended, state, cause, recording_file}``."""
+    status = _track(client, max(total_s, 1e-3))
+    outcome = {"ended": status["state"] == "enabled", "state": status["state"], "cause": status.get("cause", "")}
+    if recording:
+        outcome["recording_file"] = _recording_file(client, recording)
+    return outcome
+
+
+def _track(client: Client, total_s: float) -> dict:
+    if sys.stderr.isatty():
+        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s"),
+                      TimeRemainingColumn(), TextColumn("{task.fields[state]}"), transient=False) as bar:
+            task = bar.add_task("reference", total=total_s, state="")
+            return _poll(client, lambda name, done, state: bar.update(task, description=name, completed=done,
+                                                                         state=state))
+    last = [0.0]
+
+    def line(name, done, state):
+        if time.monotonic() - last[0] >= LINE_EVERY_S:
+            last[0] = time.monotonic()
+            print(f"{name}: {done:.1f} of {total_s:.1f} s ({state})", file=sys.stderr, flush=True)
+    return _poll(client, line)
+
+
+def _poll(client: Client, show) -> dict:
+    start = time.monotonic()
+    while True:
+        status = client.call("status", control=True)
+        left = status["reference_remaining_s"]
+        show(status["reference"] or "hold", time.monotonic() - start, status["state"])
+        if status["state"] != "enabled" or left <= 0.0:
+            return status
+        time.sleep(min(POLL_S, left))
+
+
+def _recording_file(client: Client, name: str) -> str | None:
+    """The file of the daemon's recording ``name`` once it is finished (None if it never appeared)."""
+    end = time.monotonic() + RECORDING_WAIT_S
+    while time.monotonic() < end:
+        listing = client.record_list()
+        if not any(a["name"] == name for a in listing["active"]) and any(f["name"] == name for f in listing["files"]):
+            return f"{listing['directory']}/{name}.mcap"
+        time.sleep(POLL_S)
+    return None
+
+
+@contextmanager
+def recording_bar(path: str, seconds: float):
+    """A ``progress(elapsed_s, messages, lost)`` for :func:`daemon.recordings.mcap_log.record`: a bar in a
+    terminal, a line every ``LINE_EVERY_S`` when piped."""
+    if sys.stderr.isatty():
+        with Progress(TextColumn(f"recording {path}"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                      TextColumn("{task.fields[counts]}")) as bar:
+            task = bar.add_task("record", total=seconds, counts="")
+            yield lambda elapsed, messages, lost: bar.update(task, completed=elapsed,
+                                                             counts=f"{messages} messages, lost {lost}")
+        return
+    last = [0.0]
+
+    def line(elapsed, messages, lost):
+        if elapsed - last[0] >= LINE_EVERY_S:
+            last[0] = elapsed
+            print(f"recording {path}: {elapsed:.0f} of {seconds:g} s, {messages} messages, lost {lost}",
+                  file=sys.stderr, flush=True)
+    yield line

@@ -1,0 +1,149 @@
+"""The array pressure sensor beside the loop (rig-facts §3; the rig file's
+``[contact_sensor]``): its frames arrive at up to 4 kHz, faster than the loop, so a process
+of their own reads them and runs the contact estimator (controllers.contact_force) on each;
+the loop takes the latest estimate from shared memory with its frame's time and age, and
+never waits on it (a seqlock, as the off-loop transports share their samples).
+
+The worker keeps the sensor's pace by the clock: frame k is due at start + k / rate_hz;
+when the estimator falls behind it takes the newest frame due and counts the ones it passed
+over (``late_frames``), so the estimate is never older than it has to be. A frame that cannot
+be a reading is counted (``bad_frames``) and its reason kept, never estimated on.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+import multiprocessing
+import os
+import time
+import weakref
+
+from hal.errors import TransportTimeout
+from hal.seqlock import try_read, write_locked
+from hal.taxel_array import ContactSensorConfig
+
+from daemon.wire.telemetry_rows import CONTACT_FIELDS as FIELDS
+
+COUNTERS = ("frames", "late_frames", "bad_frames", "contact_frames")
+HEAD = 3  # frame index, its time.monotonic(), whether an estimate follows; then FIELDS
+_ERROR_BYTES = 240
+LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whole estimate
+OPEN_TIMEOUT_S = 10.0
+
+
+class _Shared:
+    def __init__(self):
+        raw = multiprocessing.get_context("spawn")
+        self.seq = raw.RawValue(ctypes.c_uint64, 0)
+        self.values = raw.RawArray(ctypes.c_double, HEAD + len(FIELDS))
+        self.counters = raw.RawArray(ctypes.c_uint64, len(COUNTERS))
+        self.stop = raw.RawValue(ctypes.c_bool, False)
+        self.error = raw.RawArray(ctypes.c_char, _ERROR_BYTES)
+
+
+class ContactSensor:
+    """The loop's side: :meth:`open` starts the worker, :meth:`latest` is the newest estimate."""
+
+    def __init__(self, config: ContactSensorConfig, clock):
+        self.config = config
+        self.clock = clock  # the loop's clock (seconds)
+        self._shared: _Shared | None = None
+        self._process = None
+        self._latest: dict | None = None  # the newest estimate, as the topic carries it (its age aside)
+        self._latest_mono = 0.0  # its frame's time.monotonic()
+        self._last_seq = 0
+
+    def open(self) -> None:
+        """Start the worker and wait for its first frame (the frames are made up front)."""
+        self._shared = shared = _Shared()
+        ctx = multiprocessing.get_context("spawn")
+        self._process = ctx.Process(target=_work, name="pneumad-contact", daemon=True, args=(shared, self.config))
+        self._process.start()
+        self._finalizer = weakref.finalize(self, _stop, shared, self._process)
+        deadline = time.monotonic() + OPEN_TIMEOUT_S
+        while shared.seq.value == 0:
+            if not self._process.is_alive() or time.monotonic() > deadline:
+                reason = self.last_error() or "no frame"
+                self.close()
+                raise TransportTimeout(f"contact_sensor: no frame within {OPEN_TIMEOUT_S:g} s of opening: {reason}")
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        if self._process is not None:
+            self._finalizer.detach()
+            _stop(self._shared, self._process)
+            self._process = None
+
+    def latest(self) -> dict | None:
+        """The newest estimate as the ``contact`` topic carries it (its frame's time on the
+        loop's clock, and age); None before the first. Constant cost: a copy of 20 numbers."""
+        shared = self._shared
+        if shared is None:
+            return None
+        found = try_read(shared.seq, shared.values, tries=LOOP_READ_TRIES)
+        if found is not None and found[0] != self._last_seq:
+            self._last_seq = found[0]
+            frame, self._latest_mono, valid = found[1][:HEAD]
+            self._latest = {"frame": int(frame), "frame_t": self.clock() - self._age(),
+                            "contact": ({name: (int(v) if name == "taxels" else v)
+                                         for name, v in zip(FIELDS, found[1][HEAD:])} if valid else None)}
+        if self._latest is None:
+            return None
+        return {**self._latest, "age_s": self._age(), **self.counters()}
+
+    def _age(self) -> float:
+        return max(time.monotonic() - self._latest_mono, 0.0)
+
+    def counters(self) -> dict:
+        return dict(zip(COUNTERS, self._shared.counters[:])) if self._shared is not None else {}
+
+    def last_error(self) -> str:
+        return self._shared.error.value.decode(errors="replace") if self._shared is not None else ""
+
+
+def _stop(shared: _Shared, process) -> None:
+    shared.stop.value = True
+    process.join(2.0)
+    if process.is_alive():
+        process.kill()
+        process.join(2.0)
+
+
+# -- in the worker process --------------------------------------------------------------------
+def _work(shared: _Shared, config: ContactSensorConfig) -> None:
+    """Frames at the sensor's rate through the device and the estimator, until told to stop
+    or the daemon is gone."""
+    from controllers.contact_force import ContactEstimator  # the estimator lives in this process alone
+    from hal.offloop import die_with_parent
+    from hal.taxel_array import TaxelArray
+    from sim_backend.contact_patch import Impact, ImpactReplay
+
+    parent = os.getppid()
+    die_with_parent()
+    calibration = config.calibration()
+    source = ImpactReplay(Impact(config.sim_impact_speed_m_s), config.sim_impact_every_s, config.rate_hz,
+                          calibration, config.seed)
+    device = TaxelArray(calibration)
+    estimator = ContactEstimator(config.memory_ms / 1e3, config.beta_memory_ms / 1e3, frame_hz=config.rate_hz)
+    counters = shared.counters
+    period = 1.0 / config.rate_hz
+    start = time.monotonic()
+    last = -1
+    while not shared.stop.value and os.getppid() == parent:
+        due = int((time.monotonic() - start) / period)
+        if due <= last:
+            time.sleep(max(start + (last + 1) * period - time.monotonic(), 0.0))
+            continue
+        counters[1] += max(due - last - 1, 0)  # passed over: the estimator fell behind
+        elapsed, last = due - last, due
+        try:
+            found = estimator.update(device.pressures(source.frame(due)), frames=elapsed)
+        except ValueError as exc:
+            counters[2] += 1
+            shared.error.value = str(exc).encode()[:_ERROR_BYTES - 1]
+            continue
+        counters[0] += 1
+        counters[3] += found is not None
+        row = [float(due), start + due * period, float(found is not None)]
+        row += [float(getattr(found, name)) for name in FIELDS] if found is not None else [math.nan] * len(FIELDS)
+        write_locked(shared.seq, shared.values, row)

@@ -1,0 +1,463 @@
+"""Command handling, the loop's side: what each request does to the loop, who may ask, and
+the lease.
+
+Handlers run at the end of a cycle in the loop's thread, so whatever they change takes
+effect at the next cycle boundary, and each does bounded work whatever its arguments: the
+envelope is decoded with ``args`` skipped (:func:`daemon.wire.protocol.decode_request`), a
+command's own small arguments are decoded and checked here, and anything whose cost grows
+with the request or the rig is handed to the worker process beside the loop
+(:class:`~daemon.planner.process.Preparer`) with a deferred reply:
+
+- motion commands (``set``, ``path``, ``waypoints``, ``steps``, ``excite``) are planned and
+  checked there (:mod:`daemon.planner.commands`); the loop installs the finished reference at a cycle
+  boundary, or discards it if the reference or the state changed meanwhile (an ``abort``,
+  ``estop``, ``disable``, a trip), so nothing starts that was overtaken;
+- ``controller.switch``, ``controller.shadow`` and ``controller.set`` build a controller or
+  derive its parameters there.
+
+Status and describe are built from the loop's last cycle record and the static rig
+description; they never wait on anything.
+
+Anyone may read, and anyone may e-stop or abort; commands that move the arm or change what
+moves it need the lease (:mod:`daemon.loop.lease`). Each request comes with who sent it
+(:class:`daemon.wire.keys.Identity`: a CURVE key's name and role, or anonymous without keys), and
+every event a request causes records who asked.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from controllers import registry
+from controllers.base import ParamError
+from daemon.planner import commands as planner
+from daemon.wire import protocol as P
+from controllers.known_load import KnownLoad
+from daemon.wire.arguments import CommandFailed, bad_args, checked_numbers, number, only
+from daemon.wire.keys import ANONYMOUS, Identity
+from daemon.loop.lease import Lease
+from daemon.planner.process import Deferred, Preparer
+from daemon.loop.safety import State, StateError
+
+VERSION = "0.1.0"
+
+
+class Commands:
+    # name -> (method, needs the lease, allowed on the control socket)
+    TABLE = {
+        "ping": ("ping", False, True),
+        "status": ("status", False, True),
+        "describe": ("describe", False, False),
+        "estop": ("estop", False, True),
+        "abort": ("abort", False, True),
+        "enable": ("enable", True, False),
+        "disable": ("disable", True, True),
+        "reset": ("reset", True, False),
+        "set": ("motion", True, False),
+        "path": ("motion", True, False),
+        "waypoints": ("motion", True, False),
+        "steps": ("motion", True, False),
+        "excite": ("motion", True, False),
+        "controller.list": ("controller_list", False, False),
+        "controller.get": ("controller_get", False, False),
+        "controller.switch": ("controller_switch", True, False),
+        "controller.set": ("controller_set", True, False),
+        "controller.shadow": ("controller_shadow", True, False),
+        "controller.commit": ("controller_commit", True, False),
+        "controller.discard": ("controller_discard", True, False),
+        "load.set": ("load_set", True, False),
+        "load.clear": ("load_clear", True, False),
+        "lease.acquire": ("lease_acquire", False, False),
+        "lease.renew": ("lease_renew", True, False),
+        "lease.release": ("lease_release", True, False),
+    }
+
+    BESIDE = frozenset({"motion", "controller_switch", "controller_set", "controller_shadow"})
+    CONTROL = tuple(sorted(name for name, (_, _, on_control) in TABLE.items() if on_control))
+
+    def __init__(self, loop, preparer: Preparer | None = None, security: dict | None = None):
+        self.loop = loop
+        self.security = security or {"mode": "local", "warning": None}
+        self.client = ANONYMOUS  # who sent the request being handled
+        self.lease = Lease(loop)
+        self.requests = 0
+        self.errors = 0
+        # Built once, off the loop: scanning entry points costs milliseconds.
+        self.owns_preparer = preparer is None  # else whoever passed it closes it
+        self.preparer = preparer or Preparer()
+        self._controllers = self._describe_controllers(loop.controller_plugins)
+        self._describe = self._build_describe()
+        self._plan_context = planner.PlanContext.of(loop.rig, loop.context)
+
+    # -- entry points -----------------------------------------------------------------------
+    def handle_payload(self, payload: bytes, control: bool = False, client: Identity = ANONYMOUS,
+                       start: int = 0) -> bytes | Deferred:
+        """Decode, run and encode one request (at ``start`` in ``payload``, from ``client``);
+        every failure becomes an error reply. Work done off the loop comes back as a Deferred:
+        see :meth:`complete`."""
+        self.requests += 1
+        request_id = None
+        self.client = client
+        events = self.loop.supervisor.events
+        first_event = len(events)
+        try:
+            request = P.decode_request(payload, start)
+            request_id = request["id"]
+            result = self.handle(request, control)
+            if isinstance(result, Deferred):
+                result.request_id, result.client = request_id, client
+                return result
+            return P.encode_result(request_id, result)
+        except P.ProtocolError as exc:
+            self.errors += 1
+            return P.encode_error(exc.request_id, exc.code, exc.message)
+        except CommandFailed as exc:
+            self.errors += 1
+            return P.encode_error(request_id, exc.code, exc.message, exc.data)
+        except Exception as exc:  # a bug in a handler must not take the loop down
+            self.errors += 1
+            return P.encode_error(request_id, P.INTERNAL, f"{type(exc).__name__}: {exc}")
+        finally:
+            _signed(events, first_event, client)
+
+    def complete(self, deferred: Deferred) -> bytes:
+        """The reply to a deferred command whose work is done: its result applied now, at
+        this cycle boundary, or the error that stopped it."""
+        request_id = deferred.request_id
+        data = None
+        events = self.loop.supervisor.events
+        first_event = len(events)
+        try:
+            return P.encode_result(request_id, deferred.finish(deferred.future.result()))
+        except CommandFailed as exc:
+            message, code, data = exc.message, exc.code, exc.data
+        except P.ProtocolError as exc:
+            message, code = exc.message, exc.code
+        except (LookupError, ParamError) as exc:
+            message, code = str(exc).strip("'\""), P.BAD_ARGS
+        except Exception as exc:  # a plugin that fails to build is refused, never fatal
+            message, code = f"{type(exc).__name__}: {exc}", P.REFUSED
+        finally:
+            _signed(events, first_event, deferred.client)
+        self.errors += 1
+        return P.encode_error(request_id, code, message, data)
+
+    def _off_loop(self, finish, function, *args) -> Deferred:
+        """Run ``function(*args)`` in the worker process; ``finish(result)`` applies it on
+        the loop thread."""
+        if self.preparer.busy:
+            raise CommandFailed(P.BUSY, "a plan or a controller is being prepared beside the loop; send this again "
+                                        "once its reply is in", {"reason": "busy"})
+        return self.preparer.submit(finish, function, *args)
+
+    def handle(self, request: dict, control: bool = False):
+        entry = self.TABLE.get(request["cmd"])
+        if entry is None:
+            raise CommandFailed(P.UNKNOWN_COMMAND, f"unknown command {request['cmd']!r} "
+                                                   f"(known: {', '.join(sorted(self.TABLE))})")
+        method, needs_lease, on_control = entry
+        if control and not on_control:
+            raise CommandFailed(P.UNKNOWN_COMMAND, f"{request['cmd']!r} is not served on the control socket "
+                                                   f"(it serves {', '.join(self.CONTROL)}; send it on the command "
+                                                   f"socket)")
+        if needs_lease:
+            self.lease.check(request["lease"], self.client)
+        if method in self.BESIDE:  # its arguments are decoded beside the loop, with its work
+            return getattr(self, method)(request)
+        return getattr(self, method)(P.decode_args(request))
+
+    def tick(self) -> None:
+        """Once a cycle: the lease's clock (:meth:`daemon.loop.lease.Lease.tick`)."""
+        self.lease.tick()
+
+    # -- lease ------------------------------------------------------------------------------
+    def lease_acquire(self, args):
+        only(args, "ttl_s")
+        return self.lease.acquire(self.client, number(args, "ttl_s", 0.1, 60.0, self.lease.ttl))
+
+    def lease_renew(self, args):
+        only(args)
+        return self.lease.renew()
+
+    def lease_release(self, args):
+        only(args)
+        return self.lease.release()
+
+    # -- reading ----------------------------------------------------------------------------
+    def ping(self, args):
+        only(args)
+        return {"pong": True, "t": self.loop.clock.now(), "version": VERSION}
+
+    def status(self, args):
+        only(args)
+        loop = self.loop
+        snap = loop.snapshot
+        return {
+            "state": loop.state.value,
+            "cause": loop.supervisor.cause,
+            "cycle": loop.cycle,
+            "t": loop.clock.now(),
+            "controller": loop.controller.name,
+            "shadow": loop.shadow.summary() if loop.shadow is not None else None,
+            "reference": loop.trajectory_name if loop.supervisor.enabled else None,
+            "reference_remaining_s": loop.reference_remaining() if loop.supervisor.enabled else 0.0,
+            "joints": {name: self._joint_status(i) for i, name in enumerate(loop.io.joint_names)},
+            "force_n": None if loop.force != loop.force else loop.force,
+            "faults": list(snap.faults) if snap is not None else [],
+            "lease_held": self.lease.held,
+            "lease_holder": self.lease.holder.name if self.lease.held else None,
+            "unleased_disable_in_s": self.lease.disable_in(),
+            "client": {"name": self.client.name, "role": self.client.role},
+            "security": self.security,
+            "trips": loop.supervisor.trips,
+            "overruns_total": loop.stats.overruns_total,
+            "load": self._load(),
+            "transport": vars(loop.io.transport.health()),
+            "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
+        }
+
+    def describe(self, args):
+        only(args)
+        return self._describe
+
+    def _build_describe(self) -> dict:
+        loop, rig = self.loop, self.loop.rig
+        return {
+            "version": VERSION,
+            "protocol": P.VERSION,
+            "rig": {"name": rig.rig.name, "description": rig.rig.description, "origin": rig.origin, "hash": rig.hash,
+                    "source": rig.source},
+            "period_s": loop.period,
+            "joints": [self._describe_joint(j) for j in rig.joints],
+            "command_interfaces": [c.describe() for c in loop.actuation.commands],
+            "arm": {"link_lengths_mm": list(rig.arm.link_lengths_mm), "elbow": rig.arm.elbow},
+            "limits": {"max_pressure_mpa": rig.limits.max_pressure_mpa,
+                       "max_pressure_rate_mpa_s": rig.limits.max_pressure_rate_mpa_s,
+                       "authority_fraction": rig.limits.authority_fraction},
+            "tracking": {"error_deg": rig.safety.tracking_error_deg, "window_s": rig.safety.tracking_window_s,
+                         "action": rig.safety.tracking_action, "fallback_controller": rig.safety.fallback_controller},
+            "transport": {"backend": loop.io.transport.backend, "rate_hz": loop.io.transport.rate_hz,
+                          "inputs": [[c.name, c.kind.value, c.low, c.high] for c in loop.io.transport.inputs],
+                          "outputs": [[c.name, c.kind.value, c.low, c.high] for c in loop.io.transport.outputs]},
+            "units": {"angle": "rad (deg where a key says _deg)", "u": "V (V_MV, head chamber above its bias)",
+                      "pressure": "Pa", "force": "N", "time": "s"},
+            "controllers": self._controllers,
+            "states": [s.value for s in State],
+            "commands": sorted((*self.TABLE, *P.MESSENGER_COMMANDS)),
+            "control_commands": list(self.CONTROL),
+            "deferred_commands": sorted(P.DEFERRED_COMMANDS),
+            "deferred_timeout_s": self.preparer.time_limit_s,
+            "security": self.security,
+        }
+
+    def _joint_status(self, i: int) -> dict:
+        """One joint in ``status``: angle, set-point, speed, and its commands in force (V_MV as
+        ``u_volts``; a muscle pair's pressures [Pa] and brake [N m], its stiffness set-point
+        and measured pressures)."""
+        loop = self.loop
+        name = loop.io.joint_names[i]
+        out = {"angle_deg": math.degrees(loop.angles[i]), "setpoint_deg": math.degrees(loop.reference[0][i]),
+               "velocity_deg_s": math.degrees(loop.velocities[i])}
+        commands = {c.name: loop.u[k] for k, c in enumerate(loop.actuation.commands) if c.joint == name}
+        if "v_mv" in commands:
+            out["u_volts"] = commands["v_mv"]
+        else:
+            k = loop.stiffness[i]
+            out["commands"] = commands
+            out["stiffness_nm_deg"] = None if k != k else math.radians(k)
+            pressures = loop.pressures[2 * i:2 * i + 2]
+            out["pressures_pa"] = [None if p != p else p for p in pressures]
+        return out
+
+    def _describe_joint(self, j) -> dict:
+        """A joint as ``describe`` gives it: limits, actuation, its commands' ranges, safe state."""
+        commands = [c for c in self.loop.actuation.commands if c.joint == j.name]
+        joint = {"name": j.name, "min_angle_deg": j.min_angle_deg, "max_angle_deg": j.max_angle_deg,
+                 "max_speed_deg_s": j.max_speed_deg_s, "actuation": j.actuation, "chambers": list(j.chambers),
+                 "commands": [c.name for c in commands],
+                 "setpoints": ["angle", "stiffness"] if j.muscles is not None else ["angle"],
+                 "safe_mpa": [d.safe_mpa for d in j.pressure_outputs]}
+        if j.muscles is None:
+            joint["u_min_volts"], joint["u_max_volts"] = commands[0].low, commands[0].high
+        if j.brake is not None:
+            joint["safe_brake_nm"] = j.brake.safe_nm
+        return joint
+
+    # -- state ------------------------------------------------------------------------------
+    def estop(self, args):
+        """Latch the e-stop. Never refused for its arguments: a ``who`` that is not a string is
+        recorded as its repr, anything else is ignored. The key that sent it is recorded first."""
+        said = args.get("who", "")
+        said = (said if isinstance(said, str) else repr(said))[:64]
+        who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
+        self.loop.estop(who)
+        return {"state": self.loop.state.value}
+
+    def abort(self, args):
+        """Stop any path or move and hold the present position; a plan being prepared is
+        discarded when it is done."""
+        only(args)
+        self.loop.hold_position()
+        return {"reference": "hold"}
+
+    def enable(self, args):
+        only(args)
+        try:
+            self.loop.enable()
+        except StateError as exc:
+            raise CommandFailed(P.BAD_STATE, str(exc)) from None
+        return {"state": self.loop.state.value}
+
+    def disable(self, args):
+        only(args)
+        self.loop.disable()
+        return {"state": self.loop.state.value}
+
+    def reset(self, args):
+        only(args)
+        try:
+            self.loop.reset()
+        except StateError as exc:
+            raise CommandFailed(P.BAD_STATE, str(exc)) from None
+        return {"state": self.loop.state.value}
+
+    # -- motion -----------------------------------------------------------------------------
+    def motion(self, request: dict) -> Deferred:
+        """Plan a motion command beside the loop (:mod:`daemon.planner.commands`) from the set-point in
+        force now; install it at the cycle boundary after the plan is done, unless the
+        reference or the state changed meanwhile."""
+        loop = self.loop
+        self._require_enabled()
+        remaining = loop.reference_remaining()
+        if remaining > 0:
+            raise CommandFailed(P.BAD_STATE, f"a reference ({loop.trajectory_name}) is running for {remaining:.1f} s "
+                                             f"more: abort it first, or send this once it ends",
+                                {"reason": "reference_running", "remaining_s": remaining})
+        generation, setpoint = loop.trajectory_generation, list(loop.reference[0])
+
+        def finish(plan: planner.Plan) -> dict:
+            if loop.trajectory_generation != generation or list(loop.reference[0]) != list(plan.start):
+                raise CommandFailed(P.BAD_STATE, "the reference changed while this was planned (an abort, a reset, "
+                                                 "another command): nothing was started", {"reason": "overtaken"})
+            self._require_enabled()
+            loop.set_trajectory(plan.trajectory, plan.name, plan.record, plan.stiffness)
+            return {**plan.reply, "cycle": loop.cycle, **({"recording": plan.record} if plan.record else {})}
+
+        return self._off_loop(finish, planner.plan, self._plan_context, request, setpoint)
+
+    def _require_enabled(self):
+        if not self.loop.supervisor.enabled:
+            raise CommandFailed(P.BAD_STATE, f"the arm is {self.loop.state.value}: enable it first",
+                                {"reason": "state", "state": self.loop.state.value})
+
+    # -- a known load ---------------------------------------------------------------------
+    def load_set(self, args):
+        """Feed a known payload forward (controllers.known_load) from the next cycle, bumplessly;
+        refused if the rig's joints have no model or cannot carry it in every posture."""
+        only(args, "mass_kg", "com_mm")
+        mass = number(args, "mass_kg", 0.0, 1000.0)
+        com = checked_numbers("com_mm", args.get("com_mm", [0.0, 0.0]), 2)
+        rig = self.loop.rig
+        try:
+            load = KnownLoad.for_rig(mass, [c * 1e-3 for c in com], self.loop.context, rig.arm.link_lengths_m,
+                                     rig.arm.gravity_m_s2)
+        except ValueError as exc:
+            raise bad_args(str(exc), "com_mm" if "centre of mass" in str(exc) else "mass_kg") from None
+        self._known_load(load)
+        return {"load": self._load(), "cycle": self.loop.cycle}
+
+    def load_clear(self, args):
+        """Stop feeding a load forward (bumplessly); says whether one was."""
+        only(args)
+        had = self.loop.feed_forward.load is not None
+        if had:
+            self._known_load(None)
+        return {"cleared": had, "cycle": self.loop.cycle}
+
+    def _known_load(self, load: KnownLoad | None) -> None:
+        """The loop feeds ``load`` forward, and motion is planned with it."""
+        self.loop.set_load(load)
+        ctx = self._plan_context
+        self._plan_context = dataclasses.replace(ctx, authority=dataclasses.replace(ctx.authority, load=load))
+
+    def _load(self) -> dict | None:
+        ff = self.loop.feed_forward
+        if ff.load is None:
+            return None
+        return {**ff.load.describe(), "feedforward_volts": dict(zip(self.loop.io.joint_names, ff.volts))}
+
+    # -- controllers ------------------------------------------------------------------------
+    def controller_list(self, args):
+        return {"active": self.loop.controller.name, "available": self._controllers}
+
+    @staticmethod
+    def _describe_controllers(plugins: dict[str, str]) -> list[dict]:
+        available = []
+        for name in registry.available(plugins):
+            try:
+                available.append(registry.load(name, plugins).describe())
+            except LookupError as exc:
+                available.append({"name": name, "error": str(exc)})
+        return available
+
+    def controller_get(self, args):
+        only(args)
+        c = self.loop.controller
+        return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
+
+    def controller_switch(self, request):
+        """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless)."""
+
+        def finish(new):
+            self.loop.switch_controller(new)
+            return {"active": new.name, "params": new.get_params(), "cycle": self.loop.cycle}
+
+        return self._off_loop(finish, planner.build_controller, self.loop.context, self.loop.controller_plugins,
+                              request)
+
+    def controller_set(self, request):
+        """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
+        c = self.loop.controller
+
+        def finish(prepared):
+            if self.loop.controller is not c:
+                raise CommandFailed(P.REFUSED, f"the controller changed to {self.loop.controller.name} while the "
+                                               f"change for {c.name} was prepared; nothing was applied",
+                                    {"reason": "overtaken"})
+            c.apply_params(prepared)
+            params = c.get_params()
+            self.loop.supervisor.events.append({"kind": "params", "controller": c.name, "params": params})
+            return {"name": c.name, "params": params, "cycle": self.loop.cycle}
+
+        return self._off_loop(finish, planner.prepare_change, type(c), c.context, c.given_options, c.get_params(),
+                              request)
+
+    def controller_shadow(self, request):
+        """Build a candidate beside the loop and run it beside the active controller, unapplied."""
+
+        def finish(candidate):
+            self.loop.start_shadow(candidate)
+            return {"shadow": candidate.name, "active": self.loop.controller.name, "cycle": self.loop.cycle}
+
+        return self._off_loop(finish, planner.build_controller, self.loop.context, self.loop.controller_plugins,
+                              request)
+
+    def controller_commit(self, args):
+        """Make the shadow candidate the active controller (bumpless); the run's comparison."""
+        only(args)
+        if self.loop.shadow is None:
+            raise CommandFailed(P.BAD_STATE, "no shadow run to commit: start one with controller.shadow")
+        return {**self.loop.commit_shadow(), "active": self.loop.controller.name, "cycle": self.loop.cycle}
+
+    def controller_discard(self, args):
+        """End the shadow run without applying it; the run's comparison."""
+        only(args)
+        if self.loop.shadow is None:
+            raise CommandFailed(P.BAD_STATE, "no shadow run to discard")
+        return self.loop.end_shadow("discard")
+
+
+def _signed(events: list[dict], first: int, client: Identity) -> None:
+    """Record who asked in the events a request caused (those from ``first`` on)."""
+    for event in events[first:]:
+        event.setdefault("who", str(client))

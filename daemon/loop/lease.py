@@ -1,0 +1,113 @@
+"""The lease: which one client may move the arm, and what becomes of an arm nobody holds.
+
+One controlling client holds the lease (a token) and must renew it within its time to live;
+the lease is bound to the key that took it (:class:`daemon.wire.keys.Identity`), and an observer
+key may not take it. A lease that lapses while the arm is enabled trips it: the client that
+was in charge has gone. An arm left enabled by a client that handed the lease back runs its
+reference to the end and holds; after the rig file's grace time of holding with no lease
+holder it is disabled (``[safety] unleased_action = "disable"``, ``unleased_grace_s``), or
+held until a client comes (``"hold"``). Everything here runs on the loop's thread, once a
+cycle or per request, in constant time.
+"""
+from __future__ import annotations
+
+import secrets
+
+from daemon.wire import protocol as P
+from daemon.wire.arguments import CommandFailed
+from daemon.wire.keys import ANONYMOUS, OBSERVER, Identity
+
+
+class Lease:
+    def __init__(self, loop):
+        self.loop = loop
+        self.safety = loop.rig.safety
+        self.token: str | None = None
+        self.holder = ANONYMOUS
+        self.expires = 0.0
+        self.ttl = self.safety.lease_ttl_s  # the default a client may shorten or lengthen
+        self.ttl_active = self.ttl
+        self.unleased_since: float | None = None  # since when an enabled arm has held with no lease holder
+
+    @property
+    def held(self) -> bool:
+        return self.token is not None
+
+    def acquire(self, client: Identity, ttl: float) -> dict:
+        if client.role == OBSERVER:
+            raise CommandFailed(P.FORBIDDEN, f"key {client} is an observer: it may read, watch and e-stop, never "
+                                             f"take the lease", {"reason": "role", "role": OBSERVER})
+        if self.token is not None:
+            raise CommandFailed(P.LEASE_HELD, f"another client holds the lease for up to "
+                                              f"{self.expires - self.loop.clock.now():.1f} s more",
+                                {"reason": "held", "holder": self.holder.name})
+        self.token, self.holder, self.ttl_active = secrets.token_hex(16), client, ttl
+        self.expires = self.loop.clock.now() + ttl
+        return {"lease": self.token, "ttl_s": ttl}
+
+    def renew(self) -> dict:
+        self.expires = self.loop.clock.now() + self.ttl_active
+        return {"ttl_s": self.ttl_active}
+
+    def release(self) -> dict:
+        """Hand the lease back; a client that leaves the arm enabled is told what will become
+        of it."""
+        self.token, self.unleased_since = None, None
+        if not self.loop.supervisor.enabled:
+            return {}
+        if self.safety.unleased_action == "hold":
+            note = 'the arm stays enabled with no client holding the lease (rig file: unleased_action = "hold")'
+        else:
+            note = (f"the arm stays enabled with no client holding the lease: it is disabled once it has held "
+                    f"{self.safety.unleased_grace_s:g} s with none (rig file [safety] unleased_grace_s)")
+        return {"unleased": {"action": self.safety.unleased_action, "grace_s": self.safety.unleased_grace_s,
+                             "note": note}}
+
+    def check(self, token, client: Identity) -> None:
+        """Refuse a command that needs the lease unless ``client`` holds it with ``token``."""
+        if self.token is None:
+            raise CommandFailed(P.NO_LEASE, "this command needs the lease: send lease.acquire first",
+                                {"reason": "no_lease", "lease_held": False})
+        if token is None:
+            raise CommandFailed(P.NO_LEASE, "this command needs the lease token in the request's 'lease' field (a "
+                                            "client holds the lease: if it is you, send its token)",
+                                {"reason": "no_token", "lease_held": True})
+        if token != self.token:
+            raise CommandFailed(P.NO_LEASE, "the lease token does not match: another client holds the lease",
+                                {"reason": "wrong_token", "lease_held": True})
+        if client.name != self.holder.name:
+            raise CommandFailed(P.FORBIDDEN, f"the lease was taken by key {self.holder}; this request comes from "
+                                             f"key {client}: a lease token is no use to another key",
+                                {"reason": "other_key", "holder": self.holder.name})
+
+    def tick(self) -> None:
+        """Once a cycle: a lapsed lease trips an enabled arm; an unleased one that has held
+        for the grace time gets the rig file's action."""
+        supervisor = self.loop.supervisor
+        if self.token is not None:
+            if self.loop.clock.now() > self.expires:
+                self.token = None
+                if supervisor.enabled:
+                    supervisor.trip(f"lease lost: the controlling client ({self.holder}) stopped renewing it")
+        elif supervisor.enabled:
+            self._unleased()
+
+    def _unleased(self) -> None:
+        if self.safety.unleased_action == "hold" or self.loop.reference_remaining() > 0.0:
+            self.unleased_since = None
+            return
+        now = self.loop.clock.now()
+        if self.unleased_since is None:
+            self.unleased_since = now
+        elif now - self.unleased_since > self.safety.unleased_grace_s:
+            self.unleased_since = None
+            self.loop.supervisor.events.append(
+                {"kind": "unleased", "cause": f"the arm held {self.safety.unleased_grace_s:g} s with no client holding "
+                                              f"the lease: disabled (rig file [safety] unleased_action)"})
+            self.loop.disable()
+
+    def disable_in(self) -> float | None:
+        """Seconds until an unleased, holding arm is disabled (None if that is not under way)."""
+        if self.unleased_since is None or self.token is not None or not self.loop.supervisor.enabled:
+            return None
+        return max(self.safety.unleased_grace_s - (self.loop.clock.now() - self.unleased_since), 0.0)

@@ -1,0 +1,233 @@
+"""The loop's side of the daemon's ZeroMQ endpoints (command, control, telemetry).
+
+The sockets themselves live in the messenger process (:mod:`daemon.messenger.process`); the loop
+reaches them through shared-memory rings, so all it does per message is a memory copy.
+Each cycle, at its end, it serves every pending control-socket request (e-stop, abort,
+disable, status, ping; at most ``MAX_CONTROL_PER_CYCLE``), then at most ``max_per_cycle``
+command-socket requests, and queues each reply; telemetry is queued the same way. A ring
+that is full refuses: the message is dropped and counted (``telemetry_dropped``,
+``reply_failures``), never waited for. Frames over ``protocol.MAX_MESSAGE_BYTES`` are refused
+by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
+
+Each request arrives with who sent it (a few bytes the messenger puts first:
+:func:`daemon.wire.keys.pack_identity`). Which clients may connect at all is the messenger's
+(CURVE, :mod:`daemon.messenger.guard`); :func:`security` says what a daemon's endpoints and keys add up
+to, and refuses to bind past loopback with nobody's key checked unless told ``insecure``.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+
+from daemon.wire import protocol as P
+from daemon.loop.commands import Commands
+from daemon.wire.keys import unpack_identity
+from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
+from daemon.planner.process import Deferred
+from daemon.recorder.process import RecorderProcess, write_metadata
+from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+from daemon.wire.ring import Ring, RingError
+from hal.errors import ConfigError
+
+MAX_CONTROL_PER_CYCLE = 8
+MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
+RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
+log = logging.getLogger("pneumad")
+_TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
+
+
+class ZmqServer:
+    def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
+                 telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
+                 keys: str | None = None, insecure: bool = False, recording: dict | None = None,
+                 plotjuggler: str | None = None):
+        """``recording``: where and how the daemon records (``directory``, ``max_mb``,
+        ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
+        ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`)."""
+        self.max_per_cycle = max_per_cycle
+        self.recording = recording
+        self.recorder: RecorderProcess | None = None
+        self.security = security((command, control, telemetry), keys, insecure)
+        if plotjuggler and not is_local(plotjuggler) and not insecure:
+            raise ConfigError(f"--plotjuggler {plotjuggler}: PlotJuggler cannot use keys, so its endpoint must be "
+                              f"local (tcp://127.0.0.1:PORT or ipc://; from a laptop, ssh -L PORT:127.0.0.1:PORT "
+                              f"LAB-PC), or say --insecure")
+        for name in reclaim_stale_rings(_shm_dir()):
+            log.warning("removed the rings a killed daemon left behind: %s", name)
+        self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
+        self.rings = create_rings(self._rings_dir)
+        self.heartbeat = Heartbeat(self._rings_dir, create=True)
+        self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
+        os.set_blocking(self._doorbell, False)
+        self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
+                                   keys, recorder=recording is not None, plotjuggler=plotjuggler)
+        try:
+            self.endpoints = self.messenger.start()
+        except Exception:
+            self._release_rings()
+            raise
+        self.commands: Commands | None = None
+        self._waiting: list[tuple[int, Deferred]] = []  # (token, work) whose replies are owed
+        self.reply_failures = 0
+        self.telemetry_dropped = 0
+        self._until_check = MESSENGER_CHECK_CYCLES
+        self._replied = False
+
+    def attach(self, loop, preparer=None) -> None:
+        self.commands = Commands(loop, preparer, self.security)
+        loop.server = self
+        write_metadata(self._rings_dir, self.commands.describe({}), self.commands.controller_get({}))
+        if self.recording is not None:
+            self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
+                                            self.recording["min_free_mb"])
+            self.recorder.start()
+
+    def publish(self, topic: bytes, body: bytes) -> None:
+        """Queue a telemetry message for the messenger (dropped and counted if the ring is full)."""
+        if not self.rings["telemetry"].put(_TOPIC_TAG[topic], body):
+            self.telemetry_dropped += 1
+
+    def telemetry_health(self) -> dict:
+        return {"messenger_running": self.messenger.alive, "messenger_restarts": self.messenger.restarts,
+                "dropped": self.telemetry_dropped}
+
+    def poll(self, loop) -> None:
+        """Once a cycle, at its end: the lease clock, then the control requests, then a few
+        commands; once a second, the messenger process. The heartbeat tells the messenger the
+        loop is cycling."""
+        self.heartbeat.beat(loop.cycle)
+        self.commands.tick()
+        if self._waiting:
+            self._complete()
+        self._serve(self.rings["control"], True, MAX_CONTROL_PER_CYCLE)
+        self._serve(self.rings["command"], False, self.max_per_cycle)
+        if self._replied:
+            self._replied = False
+            self._ring_doorbell()
+        self._until_check -= 1
+        if self._until_check <= 0:
+            self._until_check = MESSENGER_CHECK_CYCLES
+            notice = self.messenger.check()
+            if notice is not None:
+                loop.supervisor.events.append({"kind": "messenger", "cause": notice})
+            notice = self.recorder.check() if self.recorder is not None else None
+            if notice is not None:
+                loop.supervisor.events.append({"kind": "recorder", "cause": notice})
+
+    def _complete(self) -> None:
+        """Reply to deferred commands whose work is done (applying it at this boundary)."""
+        for item in [w for w in self._waiting if w[1].future.done()]:
+            self._waiting.remove(item)
+            self._reply(item[0], self.commands.complete(item[1]))
+
+    def _serve(self, ring: Ring, control: bool, limit: int) -> None:
+        for _ in range(limit):
+            try:
+                entry = ring.get()
+            except RingError as exc:  # only a bug or a stranger in the daemon's memory: stop the arm
+                ring.discard()
+                self.commands.loop.supervisor.trip(f"{exc}; the requests queued in it were dropped")
+                return
+            if entry is None:
+                return
+            token, payload = entry
+            try:
+                client, start = unpack_identity(payload)
+            except (IndexError, ValueError):  # only the messenger writes these: a bug, answered as one
+                self._reply(token, P.encode_error(None, P.INTERNAL, "the request reached the loop without who sent it"))
+                continue
+            reply = self.commands.handle_payload(payload, control, client, start)
+            if isinstance(reply, Deferred):
+                self._waiting.append((token, reply))
+            else:
+                self._reply(token, reply)
+
+    def _reply(self, token: int, reply: bytes) -> None:
+        if self.rings["replies"].put(token, reply):
+            self._replied = True
+        else:
+            self.reply_failures += 1  # the messenger is not taking replies: the client's time-out tells it
+
+    def _ring_doorbell(self) -> None:
+        try:
+            os.write(self._doorbell, b"\0")
+        except BlockingIOError:
+            pass  # the pipe is full of rings already: the messenger has plenty to wake it
+
+    def close(self) -> None:
+        """Stop the preparer (one of its own), then the messenger once it has passed on what
+        the loop sent."""
+        if self.commands is not None and self.commands.owns_preparer:
+            self.commands.preparer.close()
+        self.rings["telemetry"].put(END, b"")
+        self.messenger.join()
+        if self.recorder is not None:
+            self.recorder.join()  # the messenger's END reached it: it finishes its files
+        self._release_rings()
+
+    def _release_rings(self) -> None:
+        for ring in self.rings.values():
+            ring.close()
+        self.heartbeat.close()
+        os.close(self._doorbell)
+        os.close(self._doorbell_read)
+        shutil.rmtree(self._rings_dir, ignore_errors=True)
+
+
+def reclaim_stale_rings(directory: str | None) -> list[str]:
+    """Remove the rings a daemon killed outright (SIGKILL, a power cut of its process) left
+    behind: directories named for a process that no longer exists. What was removed."""
+    directory = directory or tempfile.gettempdir()
+    removed = []
+    for name in os.listdir(directory):
+        pid, sep, _ = name[len(RINGS_PREFIX):].partition("-")
+        if name.startswith(RINGS_PREFIX) and sep and pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(os.path.join(directory, name), ignore_errors=True)
+            removed.append(name)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    return True
+
+
+def _shm_dir() -> str | None:
+    """RAM-backed /dev/shm where there is one (the rings never touch a disk), else the default."""
+    return "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+
+
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]", "lo")
+
+
+def is_local(endpoint: str) -> bool:
+    """Whether only this machine can reach ``endpoint``: ipc, inproc, or tcp on loopback."""
+    scheme, _, address = endpoint.partition("://")
+    if scheme in ("ipc", "inproc"):
+        return True
+    host = address.rpartition(":")[0]
+    return scheme == "tcp" and (host in LOCAL_HOSTS or host.startswith("127."))
+
+
+def security(endpoints, keys: str | None, insecure: bool) -> dict:
+    """What the endpoints and keys add up to (``describe`` and ``status`` say it): "curve"
+    (every client's key checked), "local" (no keys, loopback only) or "insecure" (no keys past
+    loopback, only with ``insecure``: refused otherwise, a ConfigError)."""
+    if keys:
+        return {"mode": "curve", "warning": None}
+    exposed = [ep for ep in endpoints if not is_local(ep)]
+    if not exposed:
+        return {"mode": "local", "warning": None}
+    if not insecure:
+        raise ConfigError(f"{exposed[0]} is reachable from the network, and without keys anyone who reaches it can "
+                          f"take the lease and move the arm: give the daemon its keys (--keys DIR; make them with "
+                          f"`pneumad keys init`), or bind loopback, or say --insecure if this network is yours alone")
+    return {"mode": "insecure", "warning": f"no authentication: anyone who can reach {', '.join(exposed)} can take "
+                                           f"the lease and move the arm (started with --insecure)"}

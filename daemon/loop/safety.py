@@ -1,0 +1,129 @@
+"""The safety supervisor: the daemon's states, its trips, and the limits on every command.
+
+States: STARTING -> IDLE <-> ENABLED; any trip -> FAULT, an e-stop -> ESTOP, both latched
+until an explicit reset. Outside ENABLED the loop writes the rig's configured safe state
+every cycle, whatever a controller last asked for. The safe state is a commanded pressure
+pair per joint (default: vent), not "power off": an ITV0051 that loses its 24 V supply
+does not reliably vent.
+
+Trips carry a cause in plain words. Sensor and speed checks trip only after
+``bad_samples_to_trip`` bad samples in a row, so one noisy sample is not a fault.
+"""
+from __future__ import annotations
+
+import math
+
+from hal.bounds import clip
+from hal.config import RigConfig
+
+from daemon.wire.states import State
+
+
+class StateError(RuntimeError):
+    """A state change is not allowed now; the message says why."""
+
+
+class Supervisor:
+    def __init__(self, rig: RigConfig, dt: float):
+        self.rig = rig
+        self.dt = dt
+        self.state = State.STARTING
+        self.cause = ""  # why the last trip happened
+        self.events: list[dict] = []  # state changes and trips, drained by the loop into telemetry
+        cfg = rig.safety
+        self._n_bad = cfg.bad_samples_to_trip
+        self._bad_sensor = 0
+        self._bad_speed = 0
+        self._limits = [j.limits_rad for j in rig.joints]
+        self._max_speed = [math.radians(j.max_speed_deg_s) for j in rig.joints]
+        self._p_max = rig.limits.max_pressure_mpa * 1e6
+        self._dp = rig.limits.max_pressure_rate_mpa_s * 1e6 * dt  # per-cycle step limit [Pa]
+        self.trips = 0
+
+    # -- state changes --------------------------------------------------------------------
+    def _enter(self, state: State, cause: str = "") -> None:
+        previous = self.state
+        self.state = state
+        self.events.append({"kind": "state", "from": previous.value, "to": state.value, "cause": cause})
+
+    def started(self) -> None:
+        if self.state is State.STARTING:
+            self._enter(State.IDLE, "started")
+
+    def trip(self, cause: str) -> bool:
+        """Go to FAULT (unless already latched) with ``cause``; True if this was a new trip."""
+        if self.state in (State.FAULT, State.ESTOP):
+            return False
+        self.cause = cause
+        self.trips += 1
+        self.events.append({"kind": "trip", "cause": cause})
+        self._enter(State.FAULT, cause)
+        return True
+
+    def estop(self, who: str = "") -> None:
+        if self.state is not State.ESTOP:
+            self.cause = f"e-stop{' from ' + who if who else ''}"
+            self.events.append({"kind": "estop", "cause": self.cause})
+            self._enter(State.ESTOP, self.cause)
+
+    def enable(self) -> None:
+        if self.state is not State.IDLE:
+            raise StateError(f"cannot enable from {self.state.value}"
+                             + (f" ({self.cause}); reset first" if self.state in (State.FAULT, State.ESTOP) else ""))
+        self._bad_sensor = self._bad_speed = 0
+        self._enter(State.ENABLED, "enabled")
+
+    def disable(self) -> None:
+        if self.state is State.ENABLED:
+            self._enter(State.IDLE, "disabled")
+
+    def reset(self, current_faults: tuple[str, ...]) -> None:
+        """Leave FAULT/ESTOP for IDLE, refused while a sensor still reads implausibly."""
+        if self.state not in (State.FAULT, State.ESTOP):
+            raise StateError(f"nothing to reset: state is {self.state.value}")
+        if current_faults:
+            raise StateError(f"cannot reset while {current_faults[0]}")
+        self._bad_sensor = self._bad_speed = 0
+        self.cause = ""
+        self._enter(State.IDLE, "reset")
+
+    @property
+    def enabled(self) -> bool:
+        return self.state is State.ENABLED
+
+    # -- per-cycle checks -----------------------------------------------------------------
+    def check(self, angles, velocities, faults: tuple[str, ...], sample_age: float) -> None:
+        """Trip on implausible sensors, stale input, joint limits or speed (checked every cycle)."""
+        if faults:
+            self._bad_sensor += 1
+            if self._bad_sensor >= self._n_bad:
+                self.trip(f"{faults[0]} ({self._bad_sensor} samples in a row)")
+            return
+        self._bad_sensor = 0
+        if sample_age > self.rig.safety.stale_after_s:
+            self.trip(f"transport data is stale: last sample {sample_age * 1e3:.1f} ms old "
+                      f"(limit {self.rig.safety.stale_after_s * 1e3:.1f} ms)")
+            return
+        if self.state is not State.ENABLED:
+            return
+        for joint, q, (lo, hi) in zip(self.rig.joints, angles, self._limits):
+            if not lo <= q <= hi:
+                self.trip(f"joint {joint.name} at {math.degrees(q):.1f} deg is outside its limits "
+                          f"{joint.min_angle_deg:.1f}..{joint.max_angle_deg:.1f} deg")
+                return
+        for fast, (w, limit) in enumerate(zip(velocities, self._max_speed)):
+            if abs(w) > limit:
+                break
+        else:
+            self._bad_speed = 0
+            return
+        self._bad_speed += 1
+        if self._bad_speed >= self._n_bad:
+            joint = self.rig.joints[fast]
+            self.trip(f"joint {joint.name} moving at {math.degrees(velocities[fast]):.1f} deg/s, "
+                      f"over its {joint.max_speed_deg_s:.1f} deg/s limit")
+
+    def clamp(self, pressures: list[float], previous: list[float]) -> list[float]:
+        """Limit each chamber command [Pa] to the rig's maximum and its slew rate."""
+        p_max, dp = self._p_max, self._dp
+        return [clip(p if p < p_max else p_max, last - dp, last + dp) for p, last in zip(pressures, previous)]

@@ -1,0 +1,99 @@
+"""Telemetry: what the loop publishes, as msgpack on ZeroMQ PUB topics.
+
+- ``state``: every cycle, batched (``batch`` cycles a message), columns named with units;
+  ``shadow_u_volts`` is what a shadow-run candidate would have commanded (None without one);
+- ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns);
+- ``event``: state changes, trips, controller switches, at once;
+- ``internals``: the active controller's internal signals (its ``describe`` names them, e.g.
+  SMC's sigma, the DOB's d_hat), one sample per ``state`` batch while the arm is enabled;
+- ``contact``: with an array pressure sensor (the rig file's ``[contact_sensor]``), its
+  latest contact estimate, its frame's time and age, once per ``state`` batch.
+Every message carries a per-topic ``seq`` so a subscriber can count what it missed.
+
+The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's numbers into a
+fixed binary row (one ``struct`` call) and hands a batch of rows to ``send``; the messenger
+process (:mod:`daemon.messenger.process`) turns it into the msgpack message with
+:func:`daemon.wire.telemetry_rows.to_payload`.
+The rare ``event`` and ``stats`` messages are packed by the loop and passed on as they are.
+Sending never blocks: whatever ``send`` cannot take at once is dropped, never waited for.
+"""
+from __future__ import annotations
+
+import math
+
+import msgpack
+
+from daemon.wire.telemetry_rows import HEADER, MODE_INDEX, row_format
+
+
+class Telemetry:
+    def __init__(self, send, batch: int = 10):
+        """``send(topic: bytes, body: bytes)`` must not block."""
+        self._send = send
+        self.batch = batch
+        self.seq = {b"state": 0, b"stats": 0, b"event": 0, b"internals": 0, b"contact": 0}
+        self._shape: tuple[int, int] | None = None
+        self._rows = 0
+        self._buf = bytearray()
+
+    def record(self, loop) -> None:
+        """Pack this cycle's row into the batch; send the batch when it is full."""
+        if self._shape is None:
+            self._start(loop.n, len(loop.io.last_volts), len(loop.u))
+        snap = loop.snapshot
+        shadow_u = loop.shadow.u if loop.shadow is not None else None
+        self._row.pack_into(self._buf, HEADER.size + self._rows * self._row.size, loop.cycle,
+                            snap.t if snap is not None else loop.clock.now(), *loop.angles, *loop.velocities,
+                            *loop.reference[0], *loop.u, *loop.p_head, *loop.p_rod, *loop.io.last_volts,
+                            loop.force, MODE_INDEX[loop.supervisor.state], shadow_u is not None,
+                            *(shadow_u if shadow_u is not None else self._no_shadow))
+        self._rows += 1
+        if self._rows >= self.batch:
+            self.flush()
+            if loop.supervisor.enabled and loop.controller.internals:
+                self.internals(loop)
+            if loop.contact_sensor is not None:
+                self.contact(loop)
+
+    def internals(self, loop) -> None:
+        """One sample of the active controller's internal signals (decimated: a few dozen
+        numbers once a batch). A plugin whose signals cannot be read publishes none."""
+        controller = loop.controller
+        try:
+            values = [[float(v) for v in row] for row in controller.internal_signals()]
+        except Exception:  # a plugin's failure must never take the loop down
+            return
+        self._publish(b"internals", {"cycle": loop.cycle, "t": loop.clock.now(), "controller": controller.name,
+                                     "signals": {spec.name: row for spec, row in zip(controller.internals, values)}})
+
+    def contact(self, loop) -> None:
+        """The array sensor's latest estimate (a dozen numbers; nothing before its first frame)."""
+        latest = loop.contact_sensor.latest()
+        if latest is not None:
+            self._publish(b"contact", {"cycle": loop.cycle, "t": loop.clock.now(), **latest})
+
+    def _start(self, n: int, m: int, k: int) -> None:
+        self._shape = (n, m, k)
+        self._row = row_format(n, m, k)
+        self._no_shadow = (math.nan,) * k
+        self._buf = bytearray(HEADER.size + self.batch * self._row.size)
+
+    def flush(self) -> None:
+        if not self._rows:
+            return
+        self.seq[b"state"] += 1
+        HEADER.pack_into(self._buf, 0, self.seq[b"state"], *self._shape, self._rows)
+        body = bytes(self._buf[:HEADER.size + self._rows * self._row.size])
+        self._rows = 0
+        self._send(b"state", body)
+
+    def event(self, loop, event: dict) -> None:
+        self._publish(b"event", {"cycle": loop.cycle, "t": loop.clock.now(), **event})
+
+    def stats(self, summary: dict) -> None:
+        self._publish(b"stats", summary)
+
+    def _publish(self, topic: bytes, message: dict) -> None:
+        self.seq[topic] += 1
+        message["seq"] = self.seq[topic]
+        self._send(topic, msgpack.packb(message))

@@ -1,0 +1,1 @@
+"""The messenger process: the ZeroMQ sockets, CURVE guard, telemetry fan-out, PlotJuggler stream."""

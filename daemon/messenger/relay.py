@@ -1,0 +1,292 @@
+"""The messenger process's work (:mod:`daemon.messenger.process`): requests from the ROUTER sockets
+into the loop's rings, each with who sent it; replies and telemetry from the loop's rings
+onto the sockets; the loop's heartbeat watched, and answered for while it is stalled; the
+keys' allow-list reloaded (SIGHUP, ``keys.reload``)."""
+from __future__ import annotations
+
+import os
+import struct
+import sys
+import time
+
+import msgpack
+import zmq
+
+from daemon.wire import protocol
+from daemon.messenger.guard import Guard
+from daemon.wire.keys import ANONYMOUS, OPERATOR, pack_identity
+from daemon.messenger.process import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
+from daemon.messenger.recorder_link import Recorder, send_reply
+from daemon.wire.ring import Ring, RingError
+from daemon.messenger.plotjuggler import PlotJugglerFeed
+from daemon.wire.telemetry_rows import state_message
+
+
+class Relay:
+    """Moves requests from the ROUTER sockets into the loop's rings, and replies and
+    telemetry from the loop's rings onto the sockets."""
+
+    def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
+                 stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
+                 plotjuggler: PlotJugglerFeed | None = None):
+        self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
+        self.recorder = recorder
+        self.plotjuggler = plotjuggler
+        self.stall_s = stall_s
+        self.guard = guard
+        self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
+        self._cycle, self._cycle_seen = heartbeat.read(), time.monotonic()  # the loop's count and when it moved
+        self.stalled_since: float | None = None
+        self._event_seq = 0  # the last event seq sent
+        self._injected = 0  # events of this process's own so far: loop events are renumbered after them
+        self._tokens = iter(range(1, 1 << 62))
+        self.poller = zmq.Poller()
+        for name in ("control", "command"):
+            self.poller.register(sockets[name], zmq.POLLIN)
+        self.poller.register(doorbell, zmq.POLLIN)
+        if recorder is not None:
+            self.poller.register(recorder.control, zmq.POLLIN)
+
+    def run(self, parent_alive) -> None:
+        """Until the telemetry ring's END, or until the parent is gone."""
+        last_check = time.monotonic()
+        while True:
+            ready = dict(self.poller.poll(IDLE_POLL_MS))
+            for name in ("control", "command"):  # control first: an e-stop overtakes a flood
+                if self.sockets[name] in ready:
+                    self._take_requests(name)
+            if self.recorder is not None and self.recorder.control in ready:
+                self.recorder.take_answers(self._event)
+            if self.doorbell in ready:
+                os.read(self.doorbell, 4096)  # the rings say what there is; the bytes only woke us
+            self._send_replies()
+            if not self._publish():
+                self._send_replies()  # the loop's last answers, then stop
+                return
+            if reloads:
+                reloads.clear()
+                self._reload_keys()
+            now = time.monotonic()
+            self._watch_loop(now)
+            if now - last_check > 0.5:
+                last_check = now
+                if not parent_alive():
+                    return
+                self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
+                if self.recorder is not None:
+                    self.recorder.expire(now)
+
+    def _take_requests(self, name: str) -> None:
+        """Every waiting request that fits in the loop's ring; the rest stay queued in ZeroMQ.
+        While the loop is stalled, command-socket requests are refused here instead."""
+        sock, ring = self.sockets[name], self.rings[name]
+        while ring.free() >= protocol.MAX_MESSAGE_BYTES + 512:
+            try:
+                frames = sock.recv_multipart(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                return
+            envelope, body = [f.bytes for f in frames[:-1]], frames[-1].bytes
+            identity = self.guard.identify(frames[-1]) if self.guard is not None else ANONYMOUS
+            if identity is None:
+                self._refuse(sock, envelope, body, "your key has been revoked: ask the lab for a new one",
+                             {"reason": "revoked", "key": frames[-1].get("User-Id")})
+                continue
+            if b"keys.reload" in body and _command(body) in protocol.MESSENGER_COMMANDS:
+                self._answer_reload(sock, envelope, body, identity)
+                continue
+            if b"record." in body and _command(body) in protocol.RECORDER_COMMANDS:
+                self._to_recorder(sock, envelope, body, identity)
+                continue
+            if self.stalled_since is not None and name == "command":
+                self._answer_stalled(sock, envelope, protocol.request_id_of(body),
+                                     "refused without reaching the loop: nothing was done")
+                continue
+            token = next(self._tokens)
+            ring.put(token, pack_identity(identity) + body)
+            if self.stalled_since is not None:  # a control request: kept for the loop, answered now
+                self._answer_stalled(sock, envelope, protocol.request_id_of(body), "queued: it takes effect if the loop resumes")
+            else:
+                self.owed[token] = (sock, envelope, time.monotonic(), protocol.request_id_of(body))
+
+    # -- keys ------------------------------------------------------------------------------
+    def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:
+        self._send(sock, envelope, protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, message, data))
+
+    def _answer_reload(self, sock: zmq.Socket, envelope: list, body: bytes, identity) -> None:
+        """``keys.reload``, answered here: the allow-list is this process's."""
+        if self.guard is None:
+            reply = protocol.encode_error(protocol.request_id_of(body), protocol.BAD_STATE, "this daemon runs without keys "
+                                          "(pneumad run --keys DIR): there is no allow-list to reload",
+                                          {"reason": "no_keys"})
+        elif identity.role != OPERATOR:
+            reply = protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, f"key {identity.name!r} is an "
+                                          f"{identity.role}: only an operator may reload the keys",
+                                          {"reason": "role", "role": identity.role})
+        else:
+            reply = protocol.encode_result(protocol.request_id_of(body), self._reload_keys())
+        self._send(sock, envelope, reply)
+
+    def _reload_keys(self) -> dict:
+        """Read the allow-list again; if a key was removed, re-bind the telemetry socket so that
+        its subscribers must be admitted again (a revoked one is not)."""
+        if self.guard is None:
+            return {}
+        changes = self.guard.reload()
+        if changes["removed"]:
+            old = self.sockets["telemetry"]
+            endpoint = old.getsockopt_string(zmq.LAST_ENDPOINT)
+            old.close()
+            self.sockets["telemetry"] = _rebind(old.context, endpoint, self.guard)
+        self._event({"kind": "keys", "cycle": self._cycle, "cause": f"keys reloaded: added {changes['added'] or 'none'}, "
+                                              f"removed {changes['removed'] or 'none'}", **changes})
+        return changes
+
+    _send = staticmethod(send_reply)
+
+    # -- the recorder ----------------------------------------------------------------------
+    def _to_recorder(self, sock: zmq.Socket, envelope: list, body: bytes, identity) -> None:
+        """``record.*``: passed to the recorder process (its answer comes back through
+        :meth:`Recorder.take_answers`), never to the loop; starting and stopping is an operator's."""
+        command = _command(body)
+        if self.recorder is None:
+            self._send(sock, envelope, protocol.encode_error(
+                protocol.request_id_of(body), protocol.BAD_STATE, "this daemon records nothing: start it with --record-dir DIR",
+                {"reason": "no_recorder"}))
+        elif command != "record.list" and identity.role != OPERATOR:
+            self._refuse(sock, envelope, body, f"key {identity.name!r} is an {identity.role}: only an operator may "
+                         f"start or stop the daemon's recordings", {"reason": "role", "role": identity.role})
+        elif not self.recorder.ask(next(self._tokens), sock, envelope, body, str(identity)):
+            self._send(sock, envelope, protocol.encode_error(
+                protocol.request_id_of(body), protocol.BAD_STATE, "the recorder is not taking requests just now (restarting?): "
+                                                       "ask again", {"reason": "recorder_unavailable"}))
+
+    # -- the loop's heartbeat --------------------------------------------------------------
+    def _watch_loop(self, now: float) -> None:
+        cycle = self.heartbeat.read()
+        if cycle != self._cycle:
+            self._cycle, self._cycle_seen = cycle, now
+            if self.stalled_since is not None:
+                self._event({"kind": "loop_resumed", "cycle": cycle, "stalled_s": now - self.stalled_since})
+                self.stalled_since = None
+        elif cycle and self.stalled_since is None and now - self._cycle_seen > self.stall_s:
+            self.stalled_since = self._cycle_seen
+            self._event({"kind": "loop_stalled", "cycle": cycle,
+                         "cause": f"the loop has not cycled for {(now - self._cycle_seen) * 1e3:.0f} ms"})
+            for token, (sock, envelope, _, request_id) in list(self.owed.items()):  # taken before the stall
+                del self.owed[token]
+                self._answer_stalled(sock, envelope, request_id, "taken before the stall: it runs if the loop resumes, "
+                                                           "and its own reply is lost")
+
+    def _answer_stalled(self, sock: zmq.Socket, envelope: list, request_id, what: str) -> None:
+        since = time.monotonic() - self._cycle_seen
+        reply = protocol.encode_error(request_id, protocol.LOOP_STALLED,
+                                      f"the control loop has not cycled for {since:.1f} s (last cycle {self._cycle}); "
+                                      f"this request was {what}",
+                                      {"reason": "loop_stalled", "stalled_s": since, "cycle": self._cycle})
+        self._send(sock, envelope, reply)
+
+    def _event(self, event: dict, source: str = "messenger") -> None:
+        """Publish an event of this process's own (or the recorder's), numbered in the loop's
+        event sequence."""
+        self._injected += 1
+        self._event_seq += 1
+        body = msgpack.packb({"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq,
+                              "source": source})
+        self.sockets["telemetry"].send_multipart((b"event", body))
+        if self.recorder is not None:
+            self.recorder.feed(b"event", body)
+
+    def _send_replies(self) -> None:
+        ring = self.rings["replies"]
+        while (entry := self._get(ring)) is not None:
+            token, reply = entry
+            owed = self.owed.pop(token, None)
+            if owed is not None:
+                send_reply(owed[0], owed[1], reply)
+
+    def _publish(self) -> bool:
+        """Pass the telemetry on; False at the END of the stream."""
+        ring, pub = self.rings["telemetry"], self.sockets["telemetry"]
+        while (entry := self._get(ring)) is not None:
+            tag, body = entry
+            if tag == END:
+                if self.recorder is not None:
+                    self.recorder.feed(b"", b"")  # the recorder finishes its files
+                return False
+            if tag >= len(TOPICS):
+                self._bad(tag, "unknown topic")
+                continue
+            topic = TOPICS[tag]
+            if topic == b"event":
+                body = self._renumber(body)
+            try:
+                columns = state_message(body) if topic == b"state" else None
+            except (struct.error, IndexError) as exc:
+                self._bad(tag, str(exc))
+                continue
+            payload = msgpack.packb(columns) if columns is not None else body
+            pub.send_multipart((topic, payload))  # PUB drops at a subscriber's high-water mark
+            if self.recorder is not None:
+                self.recorder.feed(topic, payload)
+            if self.plotjuggler is not None:
+                self._plot(topic, columns, body)
+        return True
+
+    def _plot(self, topic: bytes, columns: dict | None, body: bytes) -> None:
+        """The rows PlotJuggler plots (:mod:`daemon.messenger.plotjuggler`)."""
+        if columns is not None:
+            self.plotjuggler.state(columns)
+        elif topic in (b"internals", b"stats"):
+            try:
+                message = msgpack.unpackb(body, raw=False)
+                (self.plotjuggler.internals if topic == b"internals" else self.plotjuggler.stats)(message)
+            except Exception as exc:  # only the loop writes these: a bug, said loudly, never fatal
+                print(f"pneumad messenger: no PlotJuggler row for a {topic.decode()} message: {exc}", file=sys.stderr,
+                      flush=True)
+
+    def _renumber(self, body: bytes) -> bytes:
+        """A loop event, its seq moved past the messenger's own events (events are rare)."""
+        try:
+            event = msgpack.unpackb(body, raw=False)
+        except Exception:
+            return body
+        event["seq"] += self._injected
+        self._event_seq = event["seq"]
+        return msgpack.packb(event) if self._injected else body
+
+    @staticmethod
+    def _get(ring: Ring) -> tuple[int, bytes] | None:
+        """The next entry; a ring that cannot be read is emptied (said loudly), not a crash
+        that the next messenger would repeat."""
+        try:
+            return ring.get()
+        except RingError as exc:
+            ring.discard()
+            print(f"pneumad messenger: {exc}; emptied it", file=sys.stderr, flush=True)
+            return None
+
+    @staticmethod
+    def _bad(tag: int, why: str) -> None:
+        """Only the loop writes the telemetry ring: a bad entry is a bug, said loudly, and skipped."""
+        print(f"pneumad messenger: dropped a telemetry entry (tag {tag}): {why}", file=sys.stderr, flush=True)
+
+
+def _rebind(ctx: zmq.Context, endpoint: str, guard: Guard) -> zmq.Socket:
+    """The telemetry socket again on ``endpoint``: ZeroMQ closes the old listener in its own
+    thread, so the port may take a moment to be free."""
+    for _ in range(50):
+        try:
+            return open_socket(ctx, "telemetry", endpoint, guard)
+        except zmq.ZMQError as exc:
+            if exc.errno != zmq.EADDRINUSE:
+                raise
+            time.sleep(0.02)
+    return open_socket(ctx, "telemetry", endpoint, guard)
+
+
+def _command(request: bytes):
+    """A request's command (None if it cannot be read): for the few the messenger answers."""
+    try:
+        return protocol.decode_request(request)["cmd"]
+    except protocol.ProtocolError:
+        return None

@@ -1,0 +1,303 @@
+"""The planner's side of the commands: everything a request asks for whose cost grows with its
+arguments or the rig, beside the loop.
+
+Runs in the preparation worker process (:mod:`daemon.planner.process`), never in the loop's.
+Controller commands: decode the arguments, then build and validate a controller (a design's
+c2d, a Riccati solve) or derive a parameter change (:func:`build_controller`,
+:func:`prepare_change`). Motion commands: decode the arguments (up to a 64 KiB list of
+waypoints), check them, build
+the reference (inverse kinematics over a path, waypoint and step tables), checks it against
+the joint limits, the arm's reach and the rig's authority (:mod:`controllers.feasibility`),
+chooses the approach move's duration when the request does not, and hands back a finished
+:class:`Plan`. The loop only installs it at a cycle boundary (:mod:`daemon.loop.commands`).
+
+Each planner takes the request's arguments and the set-point in force when the request was
+taken [rad], and raises :class:`~daemon.wire.arguments.CommandFailed` with the numbers when it
+refuses. Angles in rad inside, deg at the protocol; durations in s.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from controllers import registry, trajectory
+from controllers.base import Controller, ControllerContext
+from controllers.feasibility import Authority, Infeasible
+from controllers.profile import first_outside_limits
+from daemon.wire import protocol as P
+from daemon.wire.arguments import (
+    CommandFailed,
+    bad_args,
+    checked_number,
+    checked_numbers,
+    choice,
+    number,
+    numbers,
+    only,
+)
+from hal import kinematics
+
+APPROACH_MARGIN = 1.25  # an approach with no approach_s takes this times its shortest feasible duration
+APPROACH_MIN_S = 0.5  # ... and at least this long [s]
+PATHS = {"translation": (trajectory.translation, 15.0), "circle": (trajectory.circle, 20.0)}
+MAX_DURATION_S = 3600.0
+
+
+@dataclass(frozen=True)
+class PlanContext:
+    """What the planner knows of the rig: built once in the daemon, sent with each job (small)."""
+
+    joint_names: tuple[str, ...]
+    limits: tuple[tuple[float, float], ...]  # [rad]
+    link_lengths_m: tuple[float, ...]
+    elbow: int
+    authority: Authority | None  # None when a joint has no identified model: no authority check
+    muscles: tuple = ()  # hal.muscle.MuscleJoint per joint (None: a cylinder joint, it takes no stiffness)
+
+    @classmethod
+    def of(cls, rig, context) -> "PlanContext":
+        models_known = all(m is not None for m in context.models)
+        return cls(tuple(context.joint_names), tuple(j.limits_rad for j in rig.joints), tuple(rig.arm.link_lengths_m),
+                   rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None,
+                   tuple(context.muscles))
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+
+@dataclass
+class Plan:
+    """A checked reference, ready for the loop to install, and what the reply will say."""
+
+    trajectory: trajectory.Trajectory
+    name: str  # what status.reference shows while it runs
+    reply: dict
+    start: tuple[float, ...]  # the set-point it was planned from [rad]
+    record: str | None = None  # the name of the daemon's recording of it (``record: true``)
+    stiffness: tuple[float, ...] | None = None  # a new stiffness set-point per joint [N m/rad] (``set``)
+
+
+def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
+    """``controller.switch`` / ``controller.shadow``: the named controller, built and validated.
+    The name must be registered (a built-in, an entry point, or one of the daemon's
+    configured ``plugins``): a request never names a module to import."""
+    args = P.decode_args(request)
+    only(args, "name", "params", "options")
+    name = args.get("name")
+    if not isinstance(name, str):
+        raise bad_args("'name' must be a controller name", "name")
+    params, options = args.get("params", {}), args.get("options", {})
+    if not isinstance(params, dict) or not isinstance(options, dict):
+        raise bad_args("'params' and 'options' must be maps", "params" if not isinstance(params, dict) else "options")
+    return registry.build(name, context, params, options, plugins=plugins, paths=False)
+
+
+def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,
+                   request: dict):
+    """``controller.set``: the running controller's change, derived whole by a twin."""
+    args = P.decode_args(request)
+    only(args, "params")
+    params = args.get("params")
+    if not isinstance(params, dict) or not params:
+        raise bad_args("'params' must be a non-empty map", "params")
+    return registry.prepare_change(cls, context, options, values, params)
+
+
+def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:
+    """The worker's entry point: decode and plan one motion request."""
+    args = P.decode_args(request)
+    record = args.pop("record", False)
+    if not isinstance(record, bool):
+        raise bad_args("must be true or false: true records the reference, start to end, on the daemon", "record")
+    plan = PLANNERS[request["cmd"]](ctx, args, list(setpoint))
+    if record:
+        plan.record = f"{time.strftime('%Y%m%d-%H%M%S')}-{request['cmd']}-{plan.name}"
+    return plan
+
+
+def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """Move to joint angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
+    ``duration_s`` with cubic time scaling (0: a step); where the joints take one, with a new
+    stiffness set-point (``stiffness_nm_deg``, one number or one per joint)."""
+    only(args, "angles_deg", "angles_rad", "xy_mm", "duration_s", "stiffness_nm_deg")
+    given = [k for k in ("angles_deg", "angles_rad", "xy_mm") if k in args]
+    if len(given) != 1:
+        raise bad_args("give exactly one of angles_deg, angles_rad, xy_mm", "angles_deg")
+    duration = number(args, "duration_s", 0.0, MAX_DURATION_S, 0.0)
+    if given[0] == "angles_deg":
+        target = [math.radians(a) for a in numbers(args, "angles_deg", ctx.n)]
+    elif given[0] == "angles_rad":
+        target = numbers(args, "angles_rad", ctx.n)
+    else:
+        target = tip_angles(ctx, numbers(args, "xy_mm", 2)) + setpoint[2:]
+    check_limits(ctx, target)
+    stiffness = stiffness_setpoint(ctx, args, target) if "stiffness_nm_deg" in args else None
+    move = trajectory.JointMove(setpoint, target, duration)
+    check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that angle")
+    reply = {"target_deg": [math.degrees(q) for q in target], "duration_s": duration}
+    if stiffness is not None:
+        reply["stiffness_nm_deg"] = [k / DEG_PER_RAD for k in stiffness]
+    return Plan(move, "set", reply, tuple(setpoint), stiffness=stiffness)
+
+
+DEG_PER_RAD = 180.0 / math.pi
+STIFFNESS_MAX_NM_DEG = 10.0
+
+
+def stiffness_setpoint(ctx: PlanContext, args: dict, target: Sequence[float]) -> tuple[float, ...]:
+    """``stiffness_nm_deg`` [N m/deg] as a stiffness per joint [N m/rad], refused for a joint
+    that takes none (a cylinder joint) and where the muscles cannot hold the target with it
+    (both pressures within their range, gravity on the link): the reply names the range they can."""
+    raw = args["stiffness_nm_deg"]
+    values = checked_numbers("stiffness_nm_deg", raw, ctx.n) if isinstance(raw, list) else [
+        checked_number("stiffness_nm_deg", raw, 0.0, STIFFNESS_MAX_NM_DEG)] * ctx.n
+    out = []
+    for name, muscle, q, k in zip(ctx.joint_names, ctx.muscles or [None] * ctx.n, target, values):
+        if muscle is None:
+            raise bad_args(f"joint {name} takes no stiffness set-point (a cylinder joint)", "stiffness_nm_deg")
+        lo, hi = muscle.stiffness_range(q)
+        if not (0.0 < k <= STIFFNESS_MAX_NM_DEG and lo <= k * DEG_PER_RAD <= hi):
+            span = (f"{lo / DEG_PER_RAD:.3f}..{hi / DEG_PER_RAD:.3f} N m/deg" if lo <= hi else "none")
+            raise CommandFailed(P.REFUSED, f"joint {name}: the muscles cannot hold {math.degrees(q):.1f} deg with a "
+                                           f"stiffness of {k:g} N m/deg (they can: {span})",
+                                {"reason": "stiffness", "joint": name, "stiffness_nm_deg": k,
+                                 "range_nm_deg": [lo / DEG_PER_RAD, hi / DEG_PER_RAD] if lo <= hi else None})
+        out.append(k * DEG_PER_RAD)
+    return tuple(out)
+
+
+def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """A reference path of rig-facts §1, after an approach move to its start."""
+    only(args, "name", "duration_s", "approach_s")
+    name = choice(args, "name", PATHS)
+    make, default_duration = PATHS[name]
+    duration = number(args, "duration_s", 0.5, MAX_DURATION_S, default_duration)
+    reply = {"path": name, "duration_s": duration}
+    if "duration_s" not in args and ctx.authority is not None:  # no duration asked: the thesis's, or
+        shortest = ctx.authority.shortest(make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration))  # the fastest
+        if shortest is not None and shortest > duration:  # the rig accepts if that is beyond it
+            reply["duration_s"] = duration = math.ceil(shortest * 10.0) / 10.0
+            reply["stretched_from_s"] = default_duration
+    path = make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration)
+    check_authority(ctx, f"the {name} path", path)
+    return after_approach(ctx, args, setpoint, path, name, reply)
+
+
+def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """A path through waypoints, joint (``angles_deg``: one row per point) or Cartesian
+    (``xy_mm``), after an approach to the first; ``durations_s[i]`` is the time from point
+    i to point i + 1, with cubic time scaling on each segment."""
+    only(args, "angles_deg", "xy_mm", "durations_s", "approach_s")
+    given = [k for k in ("angles_deg", "xy_mm") if k in args]
+    if len(given) != 1:
+        raise bad_args("give exactly one of angles_deg (joint waypoints) or xy_mm (Cartesian waypoints)", "angles_deg")
+    key = given[0]
+    rows = args[key]
+    if not isinstance(rows, list) or not 2 <= len(rows) <= 1000:
+        raise bad_args(f"'{key}' must be a list of 2 to 1000 points", key)
+    points = [checked_numbers(f"{key}[{i}]", row, ctx.n if key == "angles_deg" else 2) for i, row in enumerate(rows)]
+    durations = args.get("durations_s")
+    if not isinstance(durations, list) or len(durations) != len(points) - 1:
+        raise bad_args(f"'durations_s' must list {len(points) - 1} segment durations (one fewer than points)",
+                       "durations_s")
+    durations = [checked_number(f"durations_s[{i}]", d, 0.01, MAX_DURATION_S) for i, d in enumerate(durations)]
+    if key == "angles_deg":
+        points = [[math.radians(a) for a in p] for p in points]
+        for p in points:
+            check_limits(ctx, p)
+        path = trajectory.joint_waypoints(points, durations)
+    else:
+        for i, p in enumerate(points):
+            tip_angles(ctx, p, f"waypoint {i} at {p} mm: ")
+        path = trajectory.cartesian_waypoints(ctx.link_lengths_m, ctx.elbow, ctx.n, points, durations)
+    check_authority(ctx, "the waypoint path", path)
+    return after_approach(ctx, args, setpoint, path, "waypoints", {"points": len(points), "duration_s": path.duration})
+
+
+def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """A step sequence: jump to ``angles_deg[i]`` and hold it ``hold_s[i]`` seconds."""
+    only(args, "angles_deg", "hold_s")
+    rows, holds = args.get("angles_deg"), args.get("hold_s")
+    if not isinstance(rows, list) or not 1 <= len(rows) <= 1000:
+        raise bad_args("'angles_deg' must be a list of 1 to 1000 levels, one angle per joint each", "angles_deg")
+    if not isinstance(holds, list) or len(holds) != len(rows):
+        raise bad_args("'hold_s' must give one hold time per level", "hold_s")
+    levels = [[math.radians(a) for a in checked_numbers(f"angles_deg[{i}]", row, ctx.n)] for i, row in enumerate(rows)]
+    holds = [checked_number(f"hold_s[{i}]", h, 0.001, MAX_DURATION_S) for i, h in enumerate(holds)]
+    for level in levels:
+        check_limits(ctx, level)
+    seq = trajectory.Steps(levels, holds)
+    check_authority(ctx, "the step sequence", seq, "a level is beyond what the rig can hold there")
+    return Plan(seq, "steps", {"levels": len(levels), "duration_s": seq.duration}, tuple(setpoint))
+
+
+def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    """An identification experiment (:mod:`daemon.planner.excitation`)."""
+    from daemon.planner import excitation as excite_plan  # it builds on this module's checks
+    return excite_plan.plan_excite(ctx, args, setpoint)
+
+
+PLANNERS = {"set": plan_set, "path": plan_path, "waypoints": plan_waypoints, "steps": plan_steps,
+            "excite": plan_excite}
+
+
+def after_approach(ctx: PlanContext, args: dict, setpoint: list[float], path: trajectory.Trajectory, name: str,
+                   reply: dict) -> Plan:
+    """``path`` after a joint move from the set-point to its start: in ``approach_s`` if the
+    request gives it, else in the shortest feasible duration with a margin (APPROACH_MARGIN)."""
+    start = path.sample(0.0)[0]
+    if "approach_s" in args:
+        approach = number(args, "approach_s", 0.0, 600.0)
+        chosen = False
+    else:
+        approach, chosen = shortest_approach(ctx, setpoint, start), True
+    move = trajectory.JointMove(setpoint, start, approach)
+    check_authority(ctx, "the approach to its start", move, None if approach else "the rig cannot hold the start")
+    chain = trajectory.Chain([move, path])
+    where = first_outside_limits(chain.profile(), ctx.limits, ctx.joint_names)
+    if where is not None:
+        raise CommandFailed(P.REFUSED, where, {"reason": "limits"})
+    return Plan(chain, name, {**reply, "approach_s": approach, "approach_chosen": chosen, "total_s": chain.duration},
+                tuple(setpoint))
+
+
+def shortest_approach(ctx: PlanContext, setpoint: list[float], start: list[float]) -> float:
+    """The approach duration used when none is asked for [s], to 0.1 s (rounded up)."""
+    if ctx.authority is None:
+        return 3.0
+    shortest = ctx.authority.shortest(trajectory.JointMove(setpoint, start, 1.0))
+    if shortest is None:  # the start cannot be held: the check that follows says so
+        return APPROACH_MIN_S
+    return max(math.ceil(shortest * APPROACH_MARGIN * 10.0) / 10.0, APPROACH_MIN_S)
+
+
+def tip_angles(ctx: PlanContext, xy_mm, what: str = "") -> list[float]:
+    """The planar joints' angles [rad] that put the tip at xy_mm, or a refusal (out of reach)."""
+    lengths = ctx.link_lengths_m
+    try:
+        return list(kinematics.inverse_2link(xy_mm[0] * 1e-3, xy_mm[1] * 1e-3, lengths[0], lengths[1], ctx.elbow))
+    except ValueError as exc:
+        raise CommandFailed(P.REFUSED, f"{what}{exc}", {"reason": "reach", "xy_mm": list(xy_mm)}) from None
+
+
+def check_limits(ctx: PlanContext, angles: Sequence[float]) -> None:
+    for name, (lo, hi), q in zip(ctx.joint_names, ctx.limits, angles):
+        if not lo <= q <= hi:
+            raise CommandFailed(P.REFUSED, f"joint {name} set-point {math.degrees(q):.2f} deg is outside its limits "
+                                           f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
+                                {"reason": "limits", "joint": name, "angle_deg": math.degrees(q),
+                                 "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+
+
+def check_authority(ctx: PlanContext, what: str, reference: trajectory.Trajectory, fixed: str | None = None) -> None:
+    """A refusal with the numbers and the shortest duration that would do (rig-facts §1
+    "Authority") unless the rig can deliver ``reference``; see :meth:`Authority.check`."""
+    if ctx.authority is None:
+        return
+    try:
+        ctx.authority.check(reference, fixed)
+    except Infeasible as exc:
+        raise CommandFailed(P.REFUSED, f"{what} in {reference.duration:g} s is {exc}", exc.data()) from None

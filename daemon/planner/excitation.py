@@ -1,0 +1,169 @@
+"""Planning identification experiments (``excite``), beside the loop (rig-facts §1 "Experiments").
+
+``side: "reference"`` (the default) adds the signal to one joint's reference about its
+set-point [deg]: a closed-loop experiment. ``side: "input"`` holds every joint at its
+set-point and, after ``settle_s``, adds the signal to the excited joint's V_MV [V] with its
+feedback set aside (:mod:`controllers.experiment`): an open-loop one. The input side is
+checked before it runs: the band (``band_deg`` about the set-point) inside the joint's limits,
+the operating point's V_MV (from the nominal model) plus the signal's peak inside the V_MV
+range, and the nominal linear model's predicted excursion (friction and the centring aside,
+so an overestimate) inside the band; the centring PI's gains come from the nominal model
+(``centre_hz`` its crossover, 0 for none); the loop stops it (holding the joint where it
+is) if the joint leaves the band all the same. The cost of these checks grows with the signal's duration, so they run
+here, never in the loop.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import cont2discrete, lfilter
+
+from controllers import signals
+from controllers.experiment import InputExperiment
+from daemon.wire import protocol as P
+from daemon.wire.arguments import CommandFailed, bad_args, choice, integer, number, numbers, only
+from daemon.planner.commands import MAX_DURATION_S, Plan, PlanContext, check_authority
+
+SIGNAL_KEYS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", "bit_s", "periods"),
+               "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"), "steps": ("levels", "hold_s")}
+MAX_INPUT_DURATION_S = 600.0  # an open-loop experiment's signal [s]
+PREDICTION_STEP_S = 0.005  # the excursion prediction's grid [s]
+
+
+def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
+    side = choice({"side": args.get("side", "reference")}, "side", ("reference", "input"))
+    args = {k: v for k, v in args.items() if k != "side"}
+    signal = choice(args, "signal", ("chirp", "prbs", "multisine", "steps") if side == "input"
+                    else ("chirp", "prbs", "multisine"))
+    common = ("signal", "joint", "amplitude_v", "settle_s", "band_deg", "centre_hz") if side == "input" else \
+        ("signal", "joint", "amplitude_deg")
+    only(args, *common, *SIGNAL_KEYS[signal])
+    joint = choice(args, "joint", ctx.joint_names)
+    j = ctx.joint_names.index(joint)
+    if side == "input":
+        return _plan_input(ctx, args, setpoint, signal, joint, j)
+    amplitude = math.radians(number(args, "amplitude_deg", 0.01, 45.0))
+    excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
+    lo, hi = ctx.limits[j]
+    if not (lo <= setpoint[j] - excitation.peak and setpoint[j] + excitation.peak <= hi):
+        raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(setpoint[j]):.1f} deg +- "
+                                       f"{math.degrees(excitation.peak):.1f} deg leaves its limits "
+                                       f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
+                            {"reason": "limits", "argument": "amplitude_deg", "joint": joint,
+                             "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+    check_authority(ctx, f"the {signal}", excitation,
+                    "lower the amplitude" + (" or the top frequency" if signal != "prbs" else ""))
+    excitation.definition = {"side": "reference", "signal": signal, "joint": joint,
+                             "amplitude_deg": math.degrees(amplitude), **_settings(args, signal)}
+    return Plan(excitation, signal, {"signal": signal, "joint": joint, "side": "reference",
+                                     "duration_s": excitation.duration}, tuple(setpoint))
+
+
+def signal_of(args: dict, signal: str, base, j: int, amplitude: float, longest: float) -> signals.Excitation:
+    """The signal of the request, about ``base`` on joint j; its duration at most ``longest``.
+    The same settings give the same signal: an analysis rebuilds it from the recording."""
+    if signal == "chirp":
+        f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
+        f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
+        if f1 <= f0:
+            raise bad_args(f"'f1_hz' ({f1}) must be above 'f0_hz' ({f0})", "f1_hz")
+        return signals.LogChirp(base, j, amplitude, f0, f1, number(args, "duration_s", 1.0, longest, 60.0))
+    if signal == "prbs":
+        made = signals.PRBS(base, j, amplitude, integer(args, "order", 2, 16, 8), number(args, "bit_s", 0.001, 60.0, 0.2),
+                            integer(args, "periods", 1, 100, 1))
+    elif signal == "multisine":
+        f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
+        f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
+        if f1 <= f0:
+            raise bad_args(f"'f1_hz' ({f1}) must be above 'f0_hz' ({f0})", "f1_hz")
+        period = number(args, "period_s", 1.0, min(longest, MAX_INPUT_DURATION_S), 20.0)
+        if f0 * period < 1.0:
+            raise bad_args(f"'f0_hz' ({f0}) is below one cycle per period (1 / {period:g} s)", "f0_hz")
+        made = signals.Multisine(base, j, amplitude, f0, f1,
+                                 integer(args, "components", 1, signals.Multisine.MAX_COMPONENTS, 16), period,
+                                 integer(args, "periods", 1, 100, 2))
+    else:
+        raw = args.get("levels")
+        if not isinstance(raw, list) or not 1 <= len(raw) <= signals.Levels.MAX_LEVELS:
+            raise bad_args(f"'levels' must be a list of 1-{signals.Levels.MAX_LEVELS} numbers (V)", "levels")
+        levels = numbers({"levels": raw}, "levels", len(raw))
+        if any(abs(v) > 1.0 + 1e-12 for v in levels):
+            raise bad_args("'levels' are fractions of amplitude_v, within -1..1", "levels")
+        made = signals.Levels(base, j, [amplitude * v for v in levels], number(args, "hold_s", 0.01, 60.0, 2.0))
+    if made.duration > longest:
+        raise bad_args(f"the {signal} lasts {made.duration:g} s, over the {longest:g} s allowed", "periods")
+    return made
+
+
+def _settings(args: dict, signal: str) -> dict:
+    return {k: args[k] for k in SIGNAL_KEYS[signal] if k in args}
+
+
+def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str, joint: str, j: int) -> Plan:
+    volts = number(args, "amplitude_v", 0.01, 10.0)
+    settle = number(args, "settle_s", 0.2, 60.0, 2.0)
+    band = math.radians(number(args, "band_deg", 0.5, 45.0, 10.0))
+    centre_hz = number(args, "centre_hz", 0.0, 0.2, 0.03)
+    excitation = signal_of(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
+    lo, hi = ctx.limits[j]
+    q = setpoint[j]
+    if not (lo <= q - band and q + band <= hi):
+        raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(q):.1f} deg +- {math.degrees(band):.1f} deg "
+                                       f"(band_deg) leaves its limits {math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
+                            {"reason": "limits", "argument": "band_deg", "joint": joint,
+                             "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+    t = np.arange(0.0, excitation.duration, PREDICTION_STEP_S)
+    u = excitation.series(t)
+    peak = float(np.max(np.abs(u))) if len(u) else 0.0
+    model = ctx.authority.models[j] if ctx.authority is not None else None
+    u_op = model.static_volts(q, 0.0, 0.0) if model is not None else None
+    load = ctx.authority.load if ctx.authority is not None else None
+    if u_op is not None and load is not None:  # a known payload's holding volts are in the operating point
+        u_op += load.volts(setpoint)[j]
+    if ctx.authority is not None:
+        u_lo, u_hi = ctx.authority.u_min[j], ctx.authority.u_max[j]
+        centre = u_op if u_op is not None else 0.0
+        if centre - peak < u_lo or centre + peak > u_hi:
+            raise CommandFailed(P.REFUSED, f"joint {joint} needs about {centre:+.2f} V of V_MV to hold "
+                                           f"{math.degrees(q):.1f} deg; +- {peak:.2f} V of signal leaves the V_MV range "
+                                           f"{u_lo:+.2f}..{u_hi:+.2f} V: lower amplitude_v",
+                                {"reason": "input_range", "argument": "amplitude_v", "joint": joint,
+                                 "u_op_v": centre, "peak_v": peak, "range_v": [u_lo, u_hi]})
+    excursion = None
+    if model is not None:
+        excursion = predicted_excursion(model, u)
+        if excursion > band:
+            raise CommandFailed(P.REFUSED, f"the {signal} is predicted to move joint {joint} "
+                                           f"{math.degrees(excursion):.1f} deg from its operating point, beyond "
+                                           f"band_deg {math.degrees(band):.1f}: lower amplitude_v (or raise the "
+                                           f"signal's lowest frequency)",
+                                {"reason": "excursion", "argument": "amplitude_v", "joint": joint,
+                                 "predicted_deg": math.degrees(excursion), "band_deg": math.degrees(band)})
+    gains = centring_gains(model, centre_hz) if model is not None else (0.0, 0.0)
+    definition = {"side": "input", "signal": signal, "joint": joint, "amplitude_v": volts, "settle_s": settle,
+                  "band_deg": math.degrees(band), "operating_point_deg": [math.degrees(a) for a in setpoint],
+                  "centre_v_per_deg": math.radians(gains[0]), **_settings(args, signal)}
+    experiment = InputExperiment(setpoint, j, excitation, settle, (q - band, q + band), definition, gains)
+    reply = {"signal": signal, "joint": joint, "side": "input", "duration_s": experiment.duration, "settle_s": settle,
+             "predicted_excursion_deg": None if excursion is None else math.degrees(excursion),
+             "u_op_estimate_v": u_op}
+    return Plan(experiment, f"{signal}-input", reply, tuple(setpoint))
+
+
+def centring_gains(model, crossover_hz: float) -> tuple[float, float]:
+    """(kp [V/rad], ki [V/(rad s)]) of a PI that crosses over at ``crossover_hz`` on the joint's
+    slow dynamics kt / (D s + K) [rad/V] (the viscous term dominates there): |kp kt / (D j w)| = 1,
+    its zero a third of the crossover below."""
+    w = 2 * math.pi * crossover_hz
+    kp = w * model.D / model.kt
+    return kp, kp * w / 3.0
+
+
+def predicted_excursion(model, u: np.ndarray) -> float:
+    """The largest |angle change| [rad] the nominal linear model [2-50] (friction and dead time
+    aside) predicts for V_MV changes u [V] on PREDICTION_STEP_S, from rest."""
+    den = np.polymul([model.J, model.D, model.K], [model.T_ep, 1.0])
+    num_d, den_d, _ = cont2discrete(([model.kt], den), PREDICTION_STEP_S, method="zoh")
+    y = lfilter(np.ravel(num_d), den_d, u)
+    return float(np.max(np.abs(y))) if len(y) else 0.0

@@ -1,0 +1,182 @@
+"""Work done off the loop: building a controller or deriving its parameters (a Riccati solve,
+a c2d) takes milliseconds, several cycles, so it runs in a separate worker process and the
+loop only swaps the result in at a cycle boundary.
+
+A thread beside the loop was measured first (docs/benchmarks.md, "switch load"): it holds
+the GIL for milliseconds at a time and costs the loop an overrun per build. The process
+holds no lock the loop needs. What stays in the daemon is one courier thread that sends a
+job, waits for the answer and pickles/unpickles them (tens of microseconds per job); the loop
+thread only puts a job on a queue and later reads a finished future.
+
+The courier is created with the daemon, before the real-time set-up, so it and every worker
+it spawns keep the normal scheduling policy; the worker also drops any real-time policy it
+might have inherited and runs at nice 19. The worker is spawned (not forked: the loop's process holds threads
+and locked memory) on the first job or by :meth:`Preparer.warm`, and spawned again
+if it dies or overruns its time limit, which fails only the job it was doing. One job at a
+time: a second request while one is prepared is refused, so a flood of expensive requests
+cannot queue up work.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+
+from daemon.service import realtime
+
+DEFAULT_TIME_LIMIT_S = 30.0  # a build slower than this is taken as hung and its worker stopped
+
+
+class PreparationFailed(RuntimeError):
+    """The worker died or overran its time limit; the job was not done and nothing applied."""
+
+
+@dataclass
+class Deferred:
+    """A command whose reply waits for work off the loop. ``finish(result)`` runs on the loop
+    thread once the work is done, applies it at that cycle boundary and returns the reply."""
+
+    future: Future
+    finish: Callable[[object], dict]
+    request_id: object = None  # of the request it answers, set by the command layer
+    client: object = None  # who sent it (a daemon.wire.keys.Identity), set by the command layer
+
+
+class Preparer:
+    """Runs ``function(*args)`` in a worker process, one job at a time. ``function`` and its
+    arguments must pickle (module-level functions, plain data, controller classes)."""
+
+    def __init__(self, time_limit_s: float = DEFAULT_TIME_LIMIT_S):
+        self.time_limit_s = time_limit_s
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._current: Future | None = None
+        self._cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+        self._worker: _Worker | None = None
+        self.restarts = 0
+        self._courier = threading.Thread(target=self._carry, name="pneumad-prepare", daemon=True)
+        self._courier.start()
+
+    @property
+    def busy(self) -> bool:
+        return self._current is not None and not self._current.done()
+
+    def warm(self) -> Future:
+        """Spawn the worker and import the controllers now, so the first switch is quick."""
+        return self._put(_warm, ())
+
+    def submit(self, finish: Callable[[object], dict], function: Callable, *args) -> Deferred:
+        """Start ``function(*args)`` in the worker; the caller checks :attr:`busy` first."""
+        self._current = self._put(function, args)
+        return Deferred(self._current, finish)
+
+    def close(self) -> None:
+        self._jobs.put(None)
+
+    def _put(self, function: Callable, args: tuple) -> Future:
+        future: Future = Future()
+        self._jobs.put((future, function, args))
+        return future
+
+    # -- the courier thread -------------------------------------------------------------
+    def _carry(self) -> None:
+        try:
+            while (job := self._jobs.get()) is not None:
+                future, function, args = job
+                if future.set_running_or_notify_cancel():
+                    self._run(future, function, args)
+        finally:
+            if self._worker is not None:
+                self._worker.stop()
+
+    def _run(self, future: Future, function: Callable, args: tuple) -> None:
+        try:
+            if self._worker is None or not self._worker.alive:
+                self._worker = _Worker(self._cpus)
+            ok, value = self._worker.call(function, args, self.time_limit_s)
+        except PreparationFailed as exc:
+            self._worker.stop()
+            self._worker = None
+            self.restarts += 1
+            future.set_exception(exc)
+            return
+        except Exception as exc:  # the job itself would not pickle: refused, the worker is fine
+            future.set_exception(exc)
+            return
+        if ok:
+            future.set_result(value)
+        else:
+            future.set_exception(value)
+
+
+class _Worker:
+    """One spawned process at the end of a pipe."""
+
+    def __init__(self, cpus):
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._process = ctx.Process(target=_serve, args=(child, cpus), name="pneumad-prepare", daemon=True)
+        self._process.start()
+        child.close()
+
+    @property
+    def alive(self) -> bool:
+        return self._process.is_alive()
+
+    def call(self, function: Callable, args: tuple, time_limit_s: float) -> tuple[bool, object]:
+        """(True, result) or (False, the exception the job raised); PreparationFailed if
+        the worker died or did not answer in time (the time includes a fresh worker's start)."""
+        self._conn.send((function, args))
+        started = time.monotonic()
+        try:
+            if not self._conn.poll(time_limit_s):
+                raise PreparationFailed(f"the preparation took longer than {time_limit_s:g} s and was stopped; "
+                                        f"nothing was applied")
+            return self._conn.recv()
+        except (EOFError, OSError):
+            self._process.join(1.0)
+            raise PreparationFailed(f"the preparation worker died (exit code {self._process.exitcode}) "
+                                    f"after {time.monotonic() - started:.1f} s; nothing was applied; "
+                                    f"a new worker takes the next request") from None
+
+    def stop(self) -> None:
+        if self._process.is_alive():
+            self._process.kill()
+        self._process.join(5.0)
+        self._conn.close()
+
+
+# -- in the worker process ----------------------------------------------------------------
+def _serve(conn, cpus) -> None:
+    """The worker's main: the lowest normal priority, then answer jobs until the pipe closes.
+    Niced so the courier, which holds the GIL while it unpickles, is never waiting for a CPU
+    behind the worker (the loop would wait for the courier)."""
+    realtime.leave_real_time(cpus, nice=19)
+    while True:
+        try:
+            function, args = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            reply = (True, function(*args))
+        except Exception as exc:
+            reply = (False, exc)
+        try:
+            conn.send(reply)
+        except Exception as exc:  # a result or exception that will not pickle
+            conn.send((False, PreparationFailed(f"the result could not be sent back from the worker: "
+                                                f"{type(exc).__name__}: {exc}")))
+
+
+def _warm() -> None:
+    """Import every built-in controller (and numpy, scipy with them)."""
+    from controllers import registry
+    for name in registry.available():
+        try:
+            registry.load(name)
+        except LookupError:
+            pass  # a broken plugin is reported when someone asks for it

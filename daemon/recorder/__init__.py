@@ -1,0 +1,1 @@
+"""The recorder process: the daemon's own recordings, written beside the loop."""

@@ -1,0 +1,251 @@
+"""The recorder process's work (:mod:`daemon.recorder.process`): the daemon's recordings in progress,
+the requests that start, stop and list them, and the telemetry they are written from.
+
+Every recording is an MCAP file (:class:`daemon.recordings.mcap_log.McapRecording`) in the recording
+directory. A recording ends by request, after its ``seconds``, ``TAIL_S`` after the end of
+the reference it follows, at its size limit, when the disk's free space falls below the
+floor, or at a write error; each end is a ``record`` event saying why, and the file is
+readable up to its last complete chunk whatever the cause. A recording starts with the last
+half second of the state stream (``PREROLL_BATCHES``): what led up to its start.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import msgpack
+
+from daemon.wire import protocol as P
+from daemon.wire.arguments import CommandFailed, bad_args, checked_number
+from daemon.recordings.mcap_log import McapRecording
+from daemon.recorder.process import MAX_ACTIVE, MAX_SECONDS, NAME, TAIL_S
+
+LIST_LIMIT = 100  # files record.list shows, newest first
+PREROLL_BATCHES = 50  # state batches (10 cycles each) a new recording starts with: 0.5 s before its start
+DISK_CHECK_S = 1.0
+OPERATOR_COMMANDS = ("record.start", "record.stop")
+COMMANDS = (*OPERATOR_COMMANDS, "record.list")
+
+
+@dataclass
+class Active:
+    """A recording in progress."""
+
+    name: str
+    path: str
+    file: object
+    writer: McapRecording
+    who: str
+    started: float  # [s] monotonic
+    until: float = float("inf")  # [s] monotonic: when it ends by time
+    reference: int | None = None  # the reference generation it follows
+    stats: dict = field(default_factory=dict)
+
+    def summary(self, now: float) -> dict:
+        try:
+            size = self.file.tell()
+        except (OSError, ValueError):
+            size = None
+        return {"name": self.name, "file": self.path, "who": self.who, "seconds": now - self.started,
+                "messages": self.writer.messages, "gaps": self.writer.gaps, "bytes": size,
+                "follows_reference": self.reference is not None,
+                "ends_in_s": None if self.until == float("inf") else max(self.until - now, 0.0)}
+
+
+class Archive:
+    def __init__(self, rings_dir: str, directory: str, max_bytes: float, min_free_bytes: float,
+                 emit: Callable[[dict], None]):
+        self.rings_dir, self.directory = rings_dir, os.path.abspath(directory)
+        self.max_bytes, self.min_free_bytes = max_bytes, min_free_bytes
+        self.emit = emit
+        self.active: dict[str, Active] = {}
+        with open(os.path.join(rings_dir, "describe.json")) as f:
+            self.describe = json.load(f)
+        with open(os.path.join(rings_dir, "controller.json")) as f:
+            self.controller = json.load(f)
+        self._disk_checked = 0.0
+        self._preroll: deque[dict] = deque(maxlen=PREROLL_BATCHES)
+
+    # -- requests (from the messenger) -----------------------------------------------------
+    def request(self, body: bytes, who: str) -> bytes:
+        """Answer one ``record.*`` request (already allowed by the messenger): the reply's bytes."""
+        try:
+            request = P.decode_request(body)
+        except P.ProtocolError as exc:
+            return P.encode_error(exc.request_id, exc.code, exc.message)
+        handler = {"record.start": self._start_request, "record.stop": self._stop_request,
+                   "record.list": self._list}.get(request["cmd"])
+        if handler is None:
+            return P.encode_error(request["id"], P.UNKNOWN_COMMAND, f"unknown command {request['cmd'][:80]!r}")
+        try:
+            args = P.decode_args(request)
+            if not isinstance(args, dict):
+                raise bad_args("'args' must be a map")
+            return P.encode_result(request["id"], handler(args, who))
+        except CommandFailed as exc:
+            return P.encode_error(request["id"], exc.code, str(exc), exc.data)
+        except P.ProtocolError as exc:
+            return P.encode_error(request["id"], exc.code, exc.message)
+
+    def _start_request(self, args: dict, who: str) -> dict:
+        unknown = set(args) - {"name", "seconds"}
+        if unknown:
+            raise bad_args(f"unknown argument {sorted(map(str, unknown))[0][:40]!r}: record.start takes name, seconds",
+                           str(sorted(map(str, unknown))[0])[:40])
+        name = args.get("name")
+        if name is not None and not (isinstance(name, str) and NAME.match(name)):
+            raise bad_args("a name is 1-80 letters, digits, '.', '_' or '-', starting with a letter or digit", "name")
+        seconds = checked_number("seconds", args["seconds"], 0.001, MAX_SECONDS) if "seconds" in args else None
+        active = self.start(name or f"{time.strftime('%Y%m%d-%H%M%S')}-record", who,
+                            None if seconds is None else time.monotonic() + seconds)
+        return active.summary(time.monotonic())
+
+    def _stop_request(self, args: dict, who: str) -> dict:
+        unknown = set(args) - {"name"}
+        if unknown:
+            raise bad_args("record.stop takes only name", str(sorted(map(str, unknown))[0])[:40])
+        name = args.get("name")
+        if name is None:  # the one started by request (those following a reference end with it)
+            started = [a.name for a in self.active.values() if a.reference is None]
+            if len(started) != 1:
+                raise CommandFailed(P.BAD_STATE, "no recording started by record.start is running" if not started else
+                                    f"{len(started)} recordings are running: name one of {', '.join(sorted(started))}",
+                                    {"reason": "recording"})
+            name = started[0]
+        if name not in self.active:
+            raise CommandFailed(P.BAD_STATE, f"no recording named {str(name)[:80]!r} is running", {"reason": "recording"})
+        return self.end(self.active[name], f"record.stop from {who}")
+
+    def _list(self, args: dict, who: str) -> dict:
+        now = time.monotonic()
+        try:
+            entries = [e for e in os.scandir(self.directory) if e.name.endswith(".mcap") and e.is_file()]
+        except OSError:
+            entries = []
+        entries.sort(key=lambda e: e.stat().st_mtime, reverse=True)
+        return {"directory": self.directory, "active": [a.summary(now) for a in self.active.values()],
+                "files": [{"name": e.name[:-5], "bytes": e.stat().st_size, "modified_unix_s": e.stat().st_mtime}
+                          for e in entries[:LIST_LIMIT]], "more": max(len(entries) - LIST_LIMIT, 0)}
+
+    # -- recordings ------------------------------------------------------------------------
+    def _path(self, name: str) -> str:
+        return os.path.join(self.directory, name + ".mcap")
+
+    def start(self, name: str, who: str, until: float | None = None, reference: int | None = None) -> Active:
+        """Open a new recording (a taken name gets a -2, -3 ... suffix); CommandFailed if it cannot be."""
+        if len(self.active) >= MAX_ACTIVE:
+            raise CommandFailed(P.BAD_STATE, f"{MAX_ACTIVE} recordings are running already: stop one first",
+                                {"reason": "recording"})
+        try:
+            os.makedirs(self.directory, exist_ok=True)
+            self._check_free_space()
+            base, n = name, 1
+            while True:
+                try:
+                    f = open(self._path(name), "xb")
+                    break
+                except FileExistsError:
+                    n += 1
+                    name = f"{base}-{n}"
+            writer = McapRecording(f, self.describe, self.controller)
+        except OSError as exc:
+            raise CommandFailed(P.BAD_STATE, f"cannot record to {self.directory}: {exc.strerror or exc}",
+                                {"reason": "recording"}) from None
+        active = Active(name, self._path(name), f, writer, who, time.monotonic(),
+                        float("inf") if until is None else until, reference)
+        for message in self._preroll:  # what led up to it
+            writer.write("state", message)
+        self.active[name] = active
+        self.emit({"kind": "record", "action": "start", "name": name, "file": active.path, "who": who,
+                   "follows_reference": reference is not None})
+        return active
+
+    def end(self, active: Active, cause: str, failed: bool = False) -> dict:
+        """Close a recording; its summary (also an event)."""
+        self.active.pop(active.name, None)
+        summary = active.summary(time.monotonic())
+        try:
+            active.writer.finish()
+        except (OSError, ValueError) as exc:
+            failed, cause = True, f"{cause}; the file's index could not be written ({exc}): readable up to its last chunk"
+        finally:
+            try:
+                active.file.close()
+            except OSError:
+                pass
+        try:
+            summary["bytes"] = os.path.getsize(active.path)
+        except OSError:
+            pass
+        summary["cause"] = cause
+        self.emit({"kind": "record", "action": "failed" if failed else "stop", **summary})
+        return summary
+
+    def close(self, cause: str) -> None:
+        for active in list(self.active.values()):
+            self.end(active, cause)
+
+    # -- telemetry --------------------------------------------------------------------------
+    def message(self, topic: str, body: bytes) -> None:
+        """One telemetry message as subscribers receive it: kept up to date with, written to
+        every recording in progress."""
+        try:
+            message = msgpack.unpackb(body, raw=False)
+        except Exception:
+            return  # only the messenger sends these
+        if topic == "event":
+            self._follow(message)
+        elif topic == "state":
+            self._preroll.append(message)
+        for active in list(self.active.values()):
+            try:
+                active.writer.write(topic, message)
+                if active.file.tell() >= self.max_bytes:
+                    self.end(active, f"it reached the size limit ({self.max_bytes / 1e6:.0f} MB)")
+            except (OSError, ValueError) as exc:
+                self.end(active, f"write error: {getattr(exc, 'strerror', None) or exc}", failed=True)
+
+    def _follow(self, event: dict) -> None:
+        """What events tell the recorder: the controller in force, and the references it records."""
+        kind = event.get("kind")
+        if kind in ("controller", "params"):
+            self.controller = {"name": event.get("to", event.get("controller")), "params": event.get("params")}
+            try:
+                with open(os.path.join(self.rings_dir, "controller.json"), "w") as f:
+                    json.dump(self.controller, f)  # for a recorder started again
+            except OSError:
+                pass
+        elif kind == "reference" and event.get("action") == "start" and event.get("record"):
+            try:
+                self.start(str(event["record"]), str(event.get("who", "")),
+                           time.monotonic() + float(event.get("duration_s", 0.0)) + TAIL_S + 10.0,
+                           event.get("generation"))
+            except CommandFailed as exc:
+                self.emit({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})
+        elif kind == "reference" and event.get("action") == "end" or kind == "state" and event.get("to") != "enabled":
+            for active in self.active.values():
+                if active.reference is not None and (kind == "state" or active.reference == event.get("generation")):
+                    active.until = min(active.until, time.monotonic() + TAIL_S)
+
+    def tick(self, now: float) -> None:
+        """Recordings whose time is up end; every second, the disk's free space is checked."""
+        for active in [a for a in self.active.values() if now >= a.until]:
+            self.end(active, "its reference ended" if active.reference is not None else "its time was up")
+        if self.active and now - self._disk_checked >= DISK_CHECK_S:
+            self._disk_checked = now
+            try:
+                self._check_free_space()
+            except OSError as exc:
+                for active in list(self.active.values()):
+                    self.end(active, exc.strerror or str(exc), failed=True)
+
+    def _check_free_space(self) -> None:
+        st = os.statvfs(self.directory)
+        free = st.f_bavail * st.f_frsize
+        if free < self.min_free_bytes:
+            raise OSError(28, f"the disk is nearly full: {free / 1e6:.0f} MB left (the floor is "
+                              f"{self.min_free_bytes / 1e6:.0f} MB)")

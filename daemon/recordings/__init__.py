@@ -1,0 +1,9 @@
+"""Recording file formats (MCAP write and read, CSV export, numpy loading): a leaf every side
+may read.
+
+    from daemon import recordings
+    data = recordings.load("run.mcap")
+"""
+from daemon.recordings.reading import export_csv, load
+
+__all__ = ["export_csv", "load"]

@@ -1,0 +1,222 @@
+"""Recordings as MCAP, the container Foxglove, PlotJuggler and the ROS 2 bag tools open.
+
+One channel per telemetry topic (``/pneumad/state``, ``/pneumad/stats``, ``/pneumad/event``,
+``/pneumad/internals``, ``/pneumad/contact``), each message JSON-encoded against a JSON Schema (encoding
+``jsonschema``, which both viewers read natively). ``state`` is written one message per
+loop cycle, not per batch: its log time is the sample's time on the daemon's monotonic
+clock [ns] and its sequence number the cycle, and each joint's numbers sit under the joint's
+name (``joints.middle.angle_rad``), so a viewer plots them by name. Lost telemetry (a gap in
+a topic's ``seq``) is written where it happened, on ``/pneumad/gap``. The rig file is an
+attachment; ``describe``, the controller and its parameters, the software version and the
+rig hash are metadata records.
+
+Chunks are closed every CHUNK_BYTES, so a recording cut short (a killed recorder, a full
+disk) loses at most its last chunk: :func:`read` returns everything up to it.
+"""
+from __future__ import annotations
+
+import json
+import struct
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from mcap.exceptions import McapError
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import Writer
+
+PROFILE = ""  # no ROS profile: plain JSON messages
+CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
+PER_JOINT = ("angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts", "p_head_pa", "p_rod_pa")
+STATE_SCALARS = {"cycle": "integer", "t": "number", "force_n": "number", "mode": "string"}
+TOPICS = ("state", "stats", "event", "internals", "contact", "gap")
+
+
+def channel(topic: str) -> str:
+    return f"/pneumad/{topic}"
+
+
+def state_schema(joints: list[str]) -> dict:
+    number = {"type": "number"}
+    per_joint = {"type": "object", "properties": {k: number for k in PER_JOINT + ("shadow_u_volts",)}}
+    return {"title": "pneumad state sample (one loop cycle; SI units, volts at the hardware edge)", "type": "object",
+            "properties": {**{k: {"type": v} for k, v in STATE_SCALARS.items()},
+                           "joints": {"type": "object", "properties": {j: per_joint for j in joints}},
+                           "out_volts": {"type": "object", "additionalProperties": number}}}
+
+
+OTHER_SCHEMAS = {
+    "stats": {"title": "pneumad loop timing, once a stats period (docs/protocol.md)", "type": "object"},
+    "event": {"title": "pneumad event: state change, trip, switch ... (docs/protocol.md)", "type": "object",
+              "properties": {"kind": {"type": "string"}, "cause": {"type": "string"}}},
+    "internals": {"title": "the active controller's internal signals, per joint", "type": "object",
+                  "properties": {"controller": {"type": "string"}, "signals": {"type": "object"}}},
+    "contact": {"title": "the array pressure sensor's latest contact estimate (docs/protocol.md)", "type": "object",
+                "properties": {"frame": {"type": "integer"}, "frame_t": {"type": "number"}, "age_s": {"type": "number"},
+                               "contact": {"type": ["object", "null"]}}},
+    "gap": {"title": "telemetry lost between two messages of a topic", "type": "object",
+            "properties": {"topic": {"type": "string"}, "missing": {"type": "integer"}, "after_seq": {"type": "integer"}}},
+}
+
+
+def command_fields(describe: dict) -> tuple[list[int], list[tuple[str, int]]]:
+    """Where each joint's V_MV sits in a state message's ``u_volts`` (-1: the joint takes none),
+    and the other commands (a muscle pair's pressures and brake) as ("joint.name", index):
+    from ``describe``'s ``command_interfaces`` (a recording older than it: one V_MV a joint)."""
+    interfaces = describe.get("command_interfaces")
+    joints = [j["name"] for j in describe["joints"]]
+    if interfaces is None:
+        return list(range(len(joints))), []
+    v_mv = {c["joint"]: k for k, c in enumerate(interfaces) if c["name"] == "v_mv"}
+    others = [(f"{c['joint']}.{c['name']}", k) for k, c in enumerate(interfaces) if c["name"] != "v_mv"]
+    return [v_mv.get(name, -1) for name in joints], others
+
+
+def state_samples(m: dict, joints: list[str], outputs: list[str], fields=None) -> Iterator[dict]:
+    """A ``state`` batch (columns, as published) as one sample per cycle, each joint's numbers
+    under its name (``fields``: :func:`command_fields`; default one V_MV a joint), and commands
+    other than V_MV under ``commands``: what a recording holds and what its readers return."""
+    u_index, others = fields if fields is not None else (list(range(len(joints))), [])
+    nan = float("nan")
+    for i, cycle in enumerate(m["cycle"]):
+        shadow, u = m["shadow_u_volts"][i], m["u_volts"][i]
+        per_joint = {}
+        for j, name in enumerate(joints):
+            per_joint[name] = {k: m[k][i][j] for k in PER_JOINT if k != "u_volts"}
+            k = u_index[j]
+            per_joint[name]["u_volts"] = u[k] if k >= 0 else nan
+            if shadow is not None:
+                per_joint[name]["shadow_u_volts"] = shadow[k] if k >= 0 else nan
+        sample = {"cycle": cycle, "t": m["t"][i], "joints": per_joint, "out_volts": dict(zip(outputs, m["out_volts"][i])),
+                  "force_n": m["force_n"][i], "mode": m["mode"][i]}
+        if others:
+            sample["commands"] = {key: u[k] for key, k in others}
+        yield sample
+
+
+def _ns(t: float) -> int:
+    return max(int(round(t * 1e9)), 0)
+
+
+class McapRecording:
+    """Writes telemetry as the daemon publishes it (decoded messages, as a subscriber sees
+    them) to an open binary file."""
+
+    def __init__(self, f, describe: dict, controller: dict):
+        self._writer = Writer(f, chunk_size=CHUNK_BYTES)
+        self._writer.start(PROFILE, f"pneumad {describe.get('version', '?')}")
+        self._joints = [j["name"] for j in describe["joints"]]
+        self._outputs = [o[0] for o in describe["transport"]["outputs"]]
+        self._fields = command_fields(describe)
+        self._channels = {}
+        for topic in TOPICS:
+            schema = state_schema(self._joints) if topic == "state" else OTHER_SCHEMAS[topic]
+            sid = self._writer.register_schema(f"pneumad.{topic}", "jsonschema", json.dumps(schema).encode())
+            self._channels[topic] = self._writer.register_channel(channel(topic), "json", sid)
+        now = time.time_ns()
+        self._writer.add_attachment(now, now, "rig.toml", "application/toml", describe["rig"]["source"].encode())
+        self._writer.add_metadata("pneumad", {"software": str(describe.get("version")), "rig_hash": describe["rig"]["hash"],
+                                              "rig_name": describe["rig"]["name"], "controller": controller["name"],
+                                              "started_unix_s": f"{now / 1e9:.3f}"})
+        self._writer.add_metadata("describe", {"json": json.dumps(describe)})
+        self._writer.add_metadata("controller", {"json": json.dumps(controller)})
+        self._last_seq: dict[str, int] = {}
+        self._last_t = 0.0
+        self.messages = 0
+        self.gaps = 0
+
+    def write(self, topic: str, message: dict, lost: int = 0) -> None:
+        """One telemetry message; ``lost`` messages of this topic went missing before it."""
+        if topic not in self._channels:
+            return
+        seq = message.get("seq")
+        if lost or (seq is not None and topic in self._last_seq and seq > self._last_seq[topic] + 1):
+            missing = lost or seq - self._last_seq[topic] - 1
+            self.gaps += missing
+            self._add("gap", self._last_t, {"topic": topic, "missing": missing, "after_seq": self._last_seq.get(topic)})
+        if seq is not None:
+            self._last_seq[topic] = seq
+        if topic == "state":
+            for row in state_samples(message, self._joints, self._outputs, self._fields):
+                self._add("state", row["t"], row, sequence=row["cycle"])
+            return
+        self._add(topic, message.get("t", self._last_t), message)
+
+    def _add(self, topic: str, t: float, message: dict, sequence: int = 0) -> None:
+        self._last_t = t
+        stamp = _ns(t)
+        self._writer.add_message(self._channels[topic], stamp, json.dumps(message, allow_nan=True).encode(), stamp,
+                                 sequence if sequence >= 0 else 0)
+        self.messages += 1
+
+    def finish(self) -> None:
+        self._writer.finish()
+
+
+def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int, int]:
+    """Record a daemon's telemetry for ``seconds`` (or until the event ``stop`` is set) through
+    ``client`` (a :class:`daemon.client.client.Client`) to ``path``; (messages, messages lost). An
+    OSError (a full disk) propagates, the file readable up to its last complete chunk.
+    ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second."""
+    describe, controller = client.describe(), client.controller()
+    sub = client.subscribe((b"state", b"stats", b"event", b"internals", b"contact"))
+    time.sleep(0.2)  # let the subscription reach the publisher
+    try:
+        with open(path, "wb") as f:
+            rec = McapRecording(f, describe, controller)
+            start = time.monotonic()
+            while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()):
+                item = sub.receive(0.5)
+                if item is not None:
+                    rec.write(*item)
+                if progress is not None:
+                    progress(time.monotonic() - start, rec.messages, sub.lost)
+            rec.finish()
+    finally:
+        sub.close()
+    return rec.messages, sub.lost
+
+
+@dataclass
+class Contents:
+    """What :func:`read` found: messages per topic in file order, attachments, metadata, and
+    whether the file ended early (a recording cut short)."""
+
+    messages: dict[str, list[dict]] = field(default_factory=lambda: {t: [] for t in TOPICS})
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    truncated: str = ""
+
+    @property
+    def describe(self) -> dict:
+        return json.loads(self.metadata["describe"]["json"])
+
+    @property
+    def controller(self) -> dict:
+        return json.loads(self.metadata["controller"]["json"])
+
+
+def read(path) -> Contents:
+    """Everything in a pneumad MCAP recording, up to its last complete record: a truncated
+    file yields what was written before the cut, with ``truncated`` saying so."""
+    out = Contents()
+    topics: dict[int, str] = {}
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f).records:
+                if isinstance(record, Channel):
+                    topics[record.id] = record.topic.rsplit("/", 1)[-1]
+                elif isinstance(record, Message) and record.channel_id in topics:
+                    out.messages.setdefault(topics[record.channel_id], []).append(json.loads(record.data))
+                elif isinstance(record, Attachment):
+                    out.attachments[record.name] = record.data
+                elif isinstance(record, Metadata):
+                    out.metadata[record.name] = dict(record.metadata)
+                elif isinstance(record, Schema):
+                    continue
+        except (McapError, EOFError, ValueError, struct.error) as exc:  # cut short: keep what came before
+            out.truncated = f"{type(exc).__name__}: {exc}" or "cut short"
+    if "describe" not in out.metadata:
+        raise ValueError(f"{path}: not a pneumad MCAP recording (no describe metadata{': ' + out.truncated if out.truncated else ''})")
+    return out

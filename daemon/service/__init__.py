@@ -1,0 +1,1 @@
+"""What every daemon process shares with the system: real-time set-up and systemd's notify."""

@@ -1,0 +1,78 @@
+"""Request arguments checked, and the refusal a handler raises: shared by the loop's command
+handling (:mod:`daemon.loop.commands`) and the planner beside it (:mod:`daemon.planner.commands`).
+
+Every refusal carries a protocol error code, a message in plain words and, where a client
+may want to act on it without parsing English, ``data``: a map naming the argument and the
+numbers (docs/protocol.md, "Error data").
+"""
+from __future__ import annotations
+
+import math
+
+from daemon.wire import protocol as P
+
+
+class CommandFailed(Exception):
+    def __init__(self, code: str, message: str, data: dict | None = None):
+        super().__init__(message)
+        self.code, self.message, self.data = code, message, data
+
+    def __reduce__(self):  # it crosses from the planner process to the loop's
+        return type(self), (self.code, self.message, self.data)
+
+
+def bad_args(message: str, argument: str | None = None, **data) -> CommandFailed:
+    return CommandFailed(P.BAD_ARGS, message, {"argument": argument, **data} if argument else None)
+
+
+def number(args: dict, key: str, low: float, high: float, default: float | None = None) -> float:
+    return checked_number(key, args.get(key, default), low, high)
+
+
+def checked_number(key: str, value, low: float, high: float) -> float:
+    """``value`` as a float in low..high, or a bad_args error naming ``key``."""
+    if value is None:
+        raise bad_args(f"'{key}' is required", key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise bad_args(f"'{key}' must be a finite number, got {value!r:.80}", key)
+    if not low <= value <= high:
+        raise bad_args(f"'{key}' = {value} is outside {low}..{high}", key, low=low, high=high)
+    return float(value)
+
+
+def integer(args: dict, key: str, low: int, high: int, default: int) -> int:
+    value = args.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise bad_args(f"'{key}' must be a whole number, got {value!r:.80}", key)
+    if not low <= value <= high:
+        raise bad_args(f"'{key}' = {value} is outside {low}..{high}", key, low=low, high=high)
+    return value
+
+
+def numbers(args: dict, key: str, n: int) -> list[float]:
+    return checked_numbers(key, args.get(key), n)
+
+
+def checked_numbers(key: str, value, n: int) -> list[float]:
+    """``value`` as a list of n finite floats, or a bad_args error naming ``key``."""
+    if not isinstance(value, list) or len(value) != n:
+        raise bad_args(f"'{key}' must be a list of {n} numbers", key)
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise bad_args(f"'{key}' must hold finite numbers, got {v!r:.80}", key)
+    return [float(v) for v in value]
+
+
+def choice(args: dict, key: str, allowed) -> str:
+    """``args[key]`` if it is one of ``allowed`` (strings), else bad_args listing them."""
+    value = args.get(key)
+    if not isinstance(value, str) or value not in allowed:
+        raise bad_args(f"'{key}' must be one of {', '.join(allowed)}, got {value!r:.80}", key, allowed=list(allowed))
+    return value
+
+
+def only(args: dict, *allowed: str) -> None:
+    unknown = set(args) - set(allowed)
+    if unknown:
+        first = sorted(map(str, unknown))[0][:80]
+        raise bad_args(f"unknown argument {first!r} (allowed: {', '.join(allowed) or 'none'})", first)

@@ -1,0 +1,62 @@
+"""The ``state`` topic's binary rows: the loop packs one per cycle (:mod:`daemon.loop.telemetry`),
+the messenger turns a batch of them into the msgpack columns subscribers see
+(docs/protocol.md, "Telemetry"). Both sides read the layout from here."""
+from __future__ import annotations
+
+import functools
+import struct
+
+import msgpack
+
+from daemon.wire.states import State
+
+STATE_FIELDS = ("cycle", "t", "angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts",
+                "p_head_pa", "p_rod_pa", "out_volts", "force_n", "mode", "shadow_u_volts")
+# the ``contact`` topic's estimate: centre, semi-axes, peak pressure, shape, force, each with its 1 sigma
+CONTACT_FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual",
+                  "cx_sd", "cy_sd", "a_sd", "b_sd", "p_max_sd", "beta_sd", "force_sd_n")
+MODES = tuple(s.value for s in State)
+MODE_INDEX = {s: i for i, s in enumerate(State)}
+# A state batch: seq, joints n, outputs m, commands k, rows; then the rows (see row_format).
+HEADER = struct.Struct("<QHHHH")
+
+
+@functools.lru_cache(maxsize=8)
+def row_format(n: int, m: int, k: int) -> struct.Struct:
+    """One cycle: cycle, t [s]; angle, velocity, set-point [rad, rad/s, rad] per joint; the k
+    commands u (V_MV [V] per cylinder joint; a muscle pair's pressures [Pa] and brake [N m]);
+    p_head, p_rod [Pa] per joint (the pressure pair: a muscle pair's a and b); out volts per
+    output [V]; force [N]; mode index; shadow flag; shadow u per command (NaN without a shadow run)."""
+    return struct.Struct(f"<qd{5 * n + k + m + 1}dBB{k}d")
+
+
+def state_message(body: bytes) -> dict:
+    """The ``state`` message (columns, as subscribers see it) of a batch from :class:`Telemetry`."""
+    seq, n, m, k, count = HEADER.unpack_from(body)
+    row = row_format(n, m, k)
+    columns: dict[str, list] = {name: [] for name in STATE_FIELDS}
+    for r in row.iter_unpack(body[HEADER.size:HEADER.size + count * row.size]):
+        q, w, ref = (list(r[2 + i * n:2 + (i + 1) * n]) for i in range(3))
+        u = list(r[2 + 3 * n:2 + 3 * n + k])
+        ph, pr = list(r[2 + 3 * n + k:2 + 4 * n + k]), list(r[2 + 4 * n + k:2 + 5 * n + k])
+        rest = r[2 + 5 * n + k:]
+        columns["cycle"].append(r[0])
+        columns["t"].append(r[1])
+        columns["angle_rad"].append(q)
+        columns["velocity_rad_s"].append(w)
+        columns["setpoint_rad"].append(ref)
+        columns["error_rad"].append([a - b for a, b in zip(ref, q)])
+        columns["u_volts"].append(u)
+        columns["p_head_pa"].append(ph)
+        columns["p_rod_pa"].append(pr)
+        columns["out_volts"].append(list(rest[:m]))
+        columns["force_n"].append(rest[m])
+        columns["mode"].append(MODES[rest[m + 1]])
+        columns["shadow_u_volts"].append(list(rest[m + 3:]) if rest[m + 2] else None)
+    columns["seq"] = seq
+    return columns
+
+
+def to_payload(topic: bytes, body: bytes) -> bytes:
+    """What goes out on the PUB socket for what :class:`Telemetry` sent."""
+    return msgpack.packb(state_message(body)) if topic == b"state" else body
