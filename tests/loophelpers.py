@@ -12,6 +12,7 @@ from daemon.loop.cycle import ControlLoop
 from daemon.planner.process import Preparer
 from daemon.loop.port import ZmqServer
 from daemon.loop.telemetry import Telemetry
+from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import to_payload
 from hal import config
 from hal.rig import RigIO
@@ -23,9 +24,19 @@ class Captured:
 
     def __init__(self):
         self.messages: list[tuple[str, dict]] = []
+        self.stats: StatsBanks | None = None  # the loop's histograms (LoopStats.banks), to summarise its windows
+        self.release_stats = True  # False beside a messenger, which clears and hands the banks back itself
 
     def __call__(self, topic: bytes, body: bytes) -> None:
-        self.messages.append((topic.decode(), msgpack.unpackb(to_payload(topic, body), raw=False)))
+        if topic == b"stats":
+            message = summarise(self.stats, body, self.release_stats)
+        else:
+            message = msgpack.unpackb(to_payload(topic, body), raw=False)
+        self.messages.append((topic.decode(), message))
+
+    def follow(self, loop: ControlLoop, beside_messenger: bool = False) -> None:
+        """Summarise ``loop``'s stats windows, as its messenger would."""
+        self.stats, self.release_stats = loop.stats.banks, not beside_messenger
 
     def of(self, topic: str) -> list[dict]:
         return [m for t, m in self.messages if t == topic]
@@ -48,6 +59,7 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send), controller_plugins=plugins)
     if srv is not None:
         srv.attach(loop, shared_preparer())
+    captured.follow(loop, beside_messenger=srv is not None)
     loop.start()
     return loop, captured, srv
 

@@ -172,6 +172,7 @@ def test_telemetry_and_recordings_carry_the_muscle_commands_by_name():
 
     loop = make_loop("muscle_eq", rig="sim-muscle")
     captured = Captured()
+    captured.follow(loop)
     loop.telemetry = Telemetry(captured)
     loop.set_trajectory(JointMove(list(loop.reference[0]), [30 * DEG], 0.5), "move")
     loop.run(1500)

@@ -32,6 +32,7 @@ def wire_loop(backend: str | None, options: dict | None = None, virtual: bool = 
     gc.freeze()  # as the daemon does: a long test session's heap is not rescanned mid-move
     captured = Captured()
     loop = wires.wire_loop(backend, options, virtual, RELAXED, Telemetry(captured), spin_s=0.0)
+    captured.follow(loop)
     return loop, captured
 
 

@@ -199,9 +199,9 @@ class ControlLoop:
         self._drain_events()
         if wake >= self._stats_due - 0.5 * self.period:  # half a period absorbs float rounding
             self._stats_due += self.stats_period
-            if self.telemetry is not None:
-                self.telemetry.stats({**self.stats.summary(self.period), "t": wake})
-            self.stats.reset()
+            window = self.stats.close_window(wake, self.period)
+            if window is not None and self.telemetry is not None:
+                self.telemetry.stats(window)
         t4 = clock.now()
         if self.server is not None:
             self.server.poll(self)

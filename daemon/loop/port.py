@@ -28,6 +28,8 @@ from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger,
 from daemon.planner.process import Deferred
 from daemon.recorder.process import RecorderProcess, write_metadata
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+from daemon.loop.stats import LoopStats
+from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
 from hal.errors import ConfigError
 
@@ -59,6 +61,7 @@ class ZmqServer:
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
         self.rings = create_rings(self._rings_dir)
         self.heartbeat = Heartbeat(self._rings_dir, create=True)
+        self.stats_banks = StatsBanks.in_directory(self._rings_dir, create=True)  # the loop's histograms
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
@@ -78,6 +81,7 @@ class ZmqServer:
     def attach(self, loop, preparer=None) -> None:
         self.commands = Commands(loop, preparer, self.security)
         loop.server = self
+        loop.stats = LoopStats(self.stats_banks)  # counted where the messenger summarises them
         write_metadata(self._rings_dir, self.commands.describe({}), self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],

@@ -2,7 +2,8 @@
 
 - ``state``: every cycle, batched (``batch`` cycles a message), columns named with units;
   ``shadow_u_volts`` is what a shadow-run candidate would have commanded (None without one);
-- ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns);
+- ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns),
+  summarised beside the loop from its histograms (:mod:`daemon.wire.loop_stats`);
 - ``event``: state changes, trips, controller switches, at once;
 - ``internals``: the active controller's internal signals (its ``describe`` names them, e.g.
   SMC's sigma, the DOB's d_hat), one sample per ``state`` batch while the arm is enabled;
@@ -14,7 +15,8 @@ The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's num
 fixed binary row (one ``struct`` call) and hands a batch of rows to ``send``; the messenger
 process (:mod:`daemon.messenger.process`) turns it into the msgpack message with
 :func:`daemon.wire.telemetry_rows.to_payload`.
-The rare ``event`` and ``stats`` messages are packed by the loop and passed on as they are.
+The rare ``event`` messages are packed by the loop and passed on as they are; a ``stats``
+window is a small binary message that the messenger turns into percentiles.
 Sending never blocks: whatever ``send`` cannot take at once is dropped, never waited for.
 """
 from __future__ import annotations
@@ -31,7 +33,7 @@ class Telemetry:
         """``send(topic: bytes, body: bytes)`` must not block."""
         self._send = send
         self.batch = batch
-        self.seq = {b"state": 0, b"stats": 0, b"event": 0, b"internals": 0, b"contact": 0}
+        self.seq = {b"state": 0, b"event": 0, b"internals": 0, b"contact": 0}  # stats: numbered by its window
         self._shape: tuple[int, int] | None = None
         self._rows = 0
         self._buf = bytearray()
@@ -90,8 +92,9 @@ class Telemetry:
     def event(self, loop, event: dict) -> None:
         self._publish(b"event", {"cycle": loop.cycle, "t": loop.clock.now(), **event})
 
-    def stats(self, summary: dict) -> None:
-        self._publish(b"stats", summary)
+    def stats(self, window: bytes) -> None:
+        """A closed stats window (:mod:`daemon.wire.loop_stats`), summarised beside the loop."""
+        self._send(b"stats", window)
 
     def _publish(self, topic: bytes, message: dict) -> None:
         self.seq[topic] += 1

@@ -233,12 +233,15 @@ def main(argv=None) -> int:
         Recorder,  # the process's own work: the daemon's side never needs them
     )
     from daemon.messenger.relay import Relay
+    from daemon.wire.loop_stats import StatsBanks
     rings = {name: Ring(os.path.join(args.rings, name)) for name in RING_BYTES}
     recorder = Recorder(ctx, args.rings) if args.recorder else None
     print("ready", *(sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")),
           flush=True)
-    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), args.stall_s, guard, recorder, plotjuggler).run(
-        lambda: os.getppid() == parent)
+    stats = StatsBanks.in_directory(args.rings, create=False)
+    stats.reclaim()
+    Relay(sockets, rings, args.doorbell, Heartbeat(args.rings), stats, args.stall_s, guard, recorder,
+          plotjuggler).run(lambda: os.getppid() == parent)
     for helper in (recorder, plotjuggler):
         if helper is not None:
             helper.close()

@@ -19,6 +19,7 @@ from daemon.messenger.process import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, T
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
+from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import state_message
 
 
@@ -27,9 +28,10 @@ class Relay:
     telemetry from the loop's rings onto the sockets."""
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
-                 stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
+                 stats: StatsBanks, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
                  plotjuggler: PlotJugglerFeed | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
+        self.stats = stats  # the loop's timing histograms, summarised here once a window
         self.recorder = recorder
         self.plotjuggler = plotjuggler
         self.stall_s = stall_s
@@ -221,6 +223,8 @@ class Relay:
                 body = self._renumber(body)
             try:
                 columns = state_message(body) if topic == b"state" else None
+                if topic == b"stats":
+                    body = msgpack.packb(summarise(self.stats, body))
             except (struct.error, IndexError) as exc:
                 self._bad(tag, str(exc))
                 continue
