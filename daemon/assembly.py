@@ -32,20 +32,15 @@ from hal.transport import create_transport
 Publish = Callable[[bytes, bytes], None]  # a telemetry sink: (topic, payload)
 
 
-def load_rig(name: str | None = None, transport: str | None = None, transport_options: Sequence[str] = ()) -> config.RigConfig:
-    """The rig file (or built-in rig) ``name``, with its transport replaced by ``transport``
-    (and its ``KEY=VALUE`` options) when given."""
-    rig = config.load(name)
-    if transport:
-        rig = config.with_transport(rig, transport, dict(map(config.parse_option, transport_options)))
-    elif transport_options:
+def rig_of(args) -> config.RigConfig:
+    """The rig ``pneumad``'s options name: ``--config`` (a file or a built-in rig), its
+    transport replaced by ``--transport`` (with its ``--transport-option KEY=VALUE``) if given."""
+    rig = config.load(args.config)
+    if args.transport:
+        rig = config.with_transport(rig, args.transport, dict(map(config.parse_option, args.transport_option)))
+    elif args.transport_option:
         raise ConfigError("--transport-option needs --transport")
     return rig
-
-
-def rig_of(args) -> config.RigConfig:
-    """The rig ``pneumad``'s options name (``--config``, ``--transport``, ``--transport-option``)."""
-    return load_rig(args.config, args.transport, args.transport_option)
 
 
 def controller_plugins(items: Sequence[str]) -> dict[str, str]:
