@@ -54,13 +54,14 @@ def check_config(args) -> int:
 def cmd_run(args) -> int:
     if args.check:
         return check_config(args)
+    rig, plugins = assembly.rig_of(args), assembly.controller_plugins(args.controller_plugin)  # bad ones: exit 2, nothing bound
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
     with assembly.messenger(args) as server:
         # systemctl reload: the messenger reads its allow-list again.
         signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
         with assembly.planner() as preparer:
-            loop = assembly.loop_from_args(args, clock, server.publish)
+            loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish)
             server.attach(loop, preparer)
             return _run_loop(args, loop, server)
 

@@ -1,7 +1,8 @@
 """The house's import rules hold: import-linter's contracts in pyproject.toml (layers
 hal < controllers, sim_backend < daemon < bench < tests; the client never imports the
 loop's side; wire and recordings import no process folder; nothing but tests imports tests;
-the daemon reaches the simulator only by name; no cycles between sibling modules)."""
+the daemon never imports its harness, daemon.testing, and reaches the simulator only by
+name; no cycles between sibling modules)."""
 from __future__ import annotations
 
 import subprocess
