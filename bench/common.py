@@ -14,6 +14,7 @@ import zmq
 
 from daemon.wire import keys
 from daemon.client.client import Client
+from daemon.testing import daemons
 
 
 def header(title: str) -> None:
@@ -46,12 +47,7 @@ def per_call_us(fn, repeat: int, rounds: int = 5) -> float:
 
 def spawn_daemon(*options: str) -> tuple[subprocess.Popen, dict[str, str]]:
     """A real ``pneumad run`` on private ipc endpoints (the simulated rig), and the endpoints."""
-    tmp = tempfile.mkdtemp(prefix="pneumad-bench-")
-    eps = {k: f"ipc://{tmp}/{k}" for k in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", "daemon.main", "run", "--log-level", "WARNING",
-                               "--record-dir", f"{tmp}/recordings", *options,
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])])
-    return daemon, eps
+    return daemons.spawn(tempfile.mkdtemp(prefix="pneumad-bench-"), *options)
 
 
 @contextmanager

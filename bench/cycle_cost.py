@@ -19,7 +19,8 @@ from controllers.base import JointState, Reference
 from controllers.experiment import InputExperiment
 from controllers.signals import Multisine
 from daemon.loop.clock import VirtualClock
-from daemon.main import build_loop, parser
+from daemon.assembly import loop_from_args
+from daemon.main import parser
 from daemon.loop.port import ZmqServer
 
 
@@ -38,7 +39,7 @@ def main() -> None:
     clock = VirtualClock()
     server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
     try:
-        loop = build_loop(parser().parse_args(["run"]), clock, server.publish)
+        loop = loop_from_args(parser().parse_args(["run"]), clock, server.publish)
         server.attach(loop)
         gc.collect()
         gc.freeze()

@@ -78,7 +78,7 @@ def rig_text(case: Case) -> str:
 
 def record(case: Case, plan: identify.Plan, path: Path) -> None:
     """The open-loop experiments through the real loop (virtual clock), recorded as MCAP."""
-    from tests.loophelpers import call, dealer, make_loop, ok, run_seconds  # the in-process daemon
+    from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds  # the in-process daemon
     loop, captured, srv = make_loop(rig_text(case), server=True)
     try:
         sock = dealer(srv)

@@ -15,12 +15,10 @@ import time
 
 from bench import cyclictest
 from bench.common import header, percentiles
-from controllers.base import ControllerContext, JointState, Reference
-from controllers.pid import PID
+from controllers.base import JointState, Reference
+from daemon import assembly
 from hal import config
-from hal.actuation import RigActuation
-from hal.rig import RigIO
-from hal.transport import create_transport
+from hal.rig import PressureDrivers
 
 try:
     from opensourceleg.time import SoftRealtimeLoop
@@ -35,11 +33,10 @@ def main() -> None:
     args = ap.parse_args()
     header("opensourceleg SoftRealtimeLoop (dt 1 ms) with the daemon's per-cycle work")
     rig = config.load()
-    transport = create_transport(rig, time.monotonic)
-    transport.open()
-    io = RigIO(rig, transport)
-    act = RigActuation(rig)
-    pid = PID(ControllerContext.for_rig(rig, act, 0.001))
+    drivers = PressureDrivers.of(rig)
+    io = assembly.open_rig(rig, time.monotonic, drivers)
+    parts = assembly.loop_parts(rig, 0.001, "pid", drivers=drivers)
+    act, pid = parts.actuation, parts.controller
     q0 = list(io.read().angles)
     zeros = [0.0, 0.0]
     pid.reset(None, zeros)

@@ -87,7 +87,7 @@ def loop_arm(loop, sock, lease, run_seconds, ok, call):
 
 
 def measure(text: str, targets: list[list[float]]) -> list[payload_routine.Reading]:
-    from tests.loophelpers import call, dealer, make_loop, ok, run_seconds  # the in-process daemon
+    from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds  # the in-process daemon
     loop, _, srv = make_loop(text, server=True)
     try:
         sock = dealer(srv)

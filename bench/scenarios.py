@@ -12,11 +12,9 @@ from dataclasses import dataclass, field
 
 from controllers import lti_design, registry, trajectory
 from controllers.feasibility import Authority
-from daemon.loop.clock import VirtualClock
 from daemon.loop.cycle import ControlLoop
+from daemon.testing.loop import virtual_loop
 from hal import config, kinematics
-from hal.rig import RigIO
-from hal.transport import create_transport
 
 NO_TRACKING_RULE = {"tracking_error_deg = 10.0": "tracking_error_deg = 0.0"}  # a make_loop ``replace``
 SETTLE_S = 5.0  # hold at the path's start before it runs [s]
@@ -35,10 +33,7 @@ def make_loop(controller: str, params: dict | None = None, rig: str = "sim", rep
     cfg = config.parse(text, f"builtin:{rig}")
     if plant:
         cfg = config.with_transport(cfg, cfg.transport.backend, {**cfg.transport.options, **plant})
-    clock = VirtualClock()
-    transport = create_transport(cfg, clock.now)
-    transport.open()
-    loop = ControlLoop(RigIO(cfg, transport), clock, 0.001, controller="hold")
+    loop = virtual_loop(cfg, "hold")
     loop.start()
     loop.switch_controller(registry.build(controller, loop.context, params, options))
     loop.enable()

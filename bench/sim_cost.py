@@ -8,10 +8,11 @@ drivers' conversion of one input sweep and one output sweep, all channels.
 from __future__ import annotations
 
 from bench.common import header, per_call_us
+from daemon import assembly
 from daemon.loop.clock import VirtualClock
 from hal import config
 from hal.rig import RigIO
-from hal.transport import Transport, create_transport
+from hal.transport import Transport
 
 N = 20000
 
@@ -20,9 +21,8 @@ def main() -> None:
     header("simulator and driver cost per cycle")
     rig = config.load()
     clock = VirtualClock()
-    transport = create_transport(rig, clock.now)
-    transport.open()
-    io = RigIO(rig, transport)
+    io = assembly.open_rig(rig, clock.now)
+    transport = io.transport
     arm = transport.arm
     volts = list(io.volts_for(*io.bias_pressures))
     volts[0] = 6.0  # keep the bottom joint moving, so friction is in its slipping branch too

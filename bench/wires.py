@@ -10,11 +10,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
+from daemon import assembly
 from daemon.loop.clock import MonotonicClock, VirtualClock
 from daemon.loop.cycle import ControlLoop
 from hal import config
-from hal.rig import RigIO
-from hal.transport import create_transport
 
 
 @dataclass(frozen=True)
@@ -84,16 +83,15 @@ def stop_peer(proc: subprocess.Popen, hard: bool = False) -> None:
 
 
 def wire_loop(backend: str | None, options: dict | None = None, virtual: bool = False,
-              safety: dict | None = None, telemetry=None, spin_s: float = 200e-6) -> ControlLoop:
-    """The built-in rig through ``backend`` (None: the in-process simulator), PID, started."""
+              safety: dict | None = None, publish=None, spin_s: float = 200e-6) -> ControlLoop:
+    """The built-in rig through ``backend`` (None: the in-process simulator), PID, started;
+    its telemetry to ``publish`` if given."""
     rig = config.load()
     if backend is not None:
         rig = config.with_transport(rig, backend, options or {})
     if safety:
         rig = replace(rig, safety=replace(rig.safety, **safety))
     clock = VirtualClock() if virtual else MonotonicClock(spin_s)
-    transport = create_transport(rig, clock.now)
-    transport.open()
-    loop = ControlLoop(RigIO(rig, transport), clock, 0.001, controller="pid", telemetry=telemetry)
+    loop = assembly.build_loop(rig, clock, 0.001, "pid", publish=publish, contact=False)
     loop.start()
     return loop

@@ -33,6 +33,15 @@ class ParamError(ValueError):
     """A parameter change is refused; nothing was applied."""
 
 
+class ActuationError(ParamError):
+    """A controller built on a joint whose actuation it does not drive (``actuation``: the
+    joint's); :func:`controllers.registry.build` adds the controllers that do."""
+
+    def __init__(self, message: str, actuation: str):
+        super().__init__(message)
+        self.actuation = actuation
+
+
 @dataclass(frozen=True)
 class ParamSpec:
     name: str
@@ -162,8 +171,7 @@ class Controller(ABC):
         for i, joint in enumerate(context.joint_names):
             kind = context.actuation_of(i)
             if kind != self.actuation:
-                raise ParamError(f"{self.name} drives {self.actuation} joints; joint {joint!r} is a {kind} "
-                                 f"(controllers for it: {', '.join(_drivers(kind))})")
+                raise ActuationError(f"{self.name} drives {self.actuation} joints; joint {joint!r} is a {kind}", kind)
 
     def derive(self, values: Mapping[str, tuple[float, ...]]) -> object:
         """Constants the controller computes from a parameter set (gains, designs). Pure: it
@@ -259,17 +267,6 @@ class Controller(ABC):
         return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
                 "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options],
                 "internals": [s.describe() for s in cls.internals]}
-
-
-def _drivers(actuation: str) -> list[str]:
-    """The built-in controllers that drive joints of this actuation."""
-    from controllers import registry
-    names = []
-    for name in registry.BUILTIN:
-        cls = registry.load(name)
-        if cls.actuation in (actuation, None):
-            names.append(name)
-    return names
 
 
 def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import functools
 from importlib.metadata import entry_points
 
-from controllers.base import Controller, ControllerContext
+from controllers.base import ActuationError, Controller, ControllerContext, ParamError
 from hal.plugins import load_class
 
 BUILTIN = {
@@ -43,8 +43,18 @@ def load(name: str, plugins: dict[str, str] | None = None, paths: bool = True) -
 
 def build(name: str, context: ControllerContext, params: dict | None = None, options: dict | None = None,
           plugins: dict[str, str] | None = None, paths: bool = True) -> Controller:
-    """Construct and validate a controller off the loop; raises LookupError or ParamError."""
-    return load(name, plugins, paths)(context, options=options, **(params or {}))
+    """Construct and validate a controller off the loop; raises LookupError or ParamError
+    (on a joint it does not drive, naming the controllers that do)."""
+    cls = load(name, plugins, paths)
+    try:
+        return cls(context, options=options, **(params or {}))
+    except ActuationError as exc:
+        raise ParamError(f"{exc} (controllers for it: {', '.join(drivers(exc.actuation))})") from None
+
+
+def drivers(actuation: str) -> list[str]:
+    """The built-in controllers that drive joints of this actuation."""
+    return [name for name in BUILTIN if load(name).actuation in (actuation, None)]
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict,

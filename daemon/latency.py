@@ -9,8 +9,9 @@ from __future__ import annotations
 import gc
 import math
 
-from daemon.service import realtime
+from daemon.assembly import loop_from_args, realtime_setup
 from daemon.loop.clock import MonotonicClock
+from daemon.service import realtime
 
 # Verdict bounds, as fractions of the period.
 GOOD_P999, GOOD_MAX = 0.10, 0.50  # p99.9 within 10 %, worst within 50 % of the period
@@ -43,10 +44,8 @@ def histogram_lines(counts: list[int], width: int = 40) -> list[str]:
 
 
 def qualify(args) -> int:
-    from daemon.main import build_loop, realtime_setup
-
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
-    loop = build_loop(args, clock)
+    loop = loop_from_args(args, clock)
     for w in realtime_setup(args):
         print(f"warning: {w}")
     gc.collect()

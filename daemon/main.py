@@ -11,84 +11,26 @@ import signal
 import sys
 import time
 
-from daemon import keys_cli
-
-from daemon.service import realtime
+from daemon import assembly, keys_cli
+from daemon.latency import qualify
 from daemon.loop.clock import MonotonicClock
-from daemon.contact.process import ContactSensor
 from daemon.loop.cycle import ControlLoop
-from daemon.messenger.process import MessengerError
-from daemon.service.notify import Notifier
-from daemon.planner.process import Preparer
 from daemon.loop.port import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
-from daemon.loop.telemetry import Telemetry
-from hal import config
+from daemon.messenger.process import MessengerError
+from daemon.service import realtime
+from daemon.service.notify import Notifier
 from hal.errors import ConfigError, TransportError
-from hal.rig import RigIO
-from hal.transport import create_transport
 
 log = logging.getLogger("pneumad")
-
-
-def load_rig(args) -> config.RigConfig:
-    """The rig file, with its transport replaced if ``--transport`` says so."""
-    rig = config.load(args.config)
-    if args.transport:
-        rig = config.with_transport(rig, args.transport, dict(map(config.parse_option, args.transport_option)))
-    elif args.transport_option:
-        raise ConfigError("--transport-option needs --transport")
-    return rig
-
-
-def build_loop(args, clock, telemetry_send=None) -> ControlLoop:
-    rig = load_rig(args)
-    transport = create_transport(rig, clock.now)
-    transport.open()
-    io = RigIO(rig, transport)
-    telemetry = Telemetry(telemetry_send) if telemetry_send is not None else None
-    contact = None
-    if rig.contact_sensor is not None:
-        contact = ContactSensor(rig.contact_sensor, clock.now)
-        try:
-            contact.open()
-        except Exception:
-            transport.close()
-            raise
-    return ControlLoop(io, clock, args.period, controller=starting_controller(args, rig), telemetry=telemetry,
-                       controller_plugins=controller_plugins(args.controller_plugin), contact_sensor=contact)
-
-
-def controller_plugins(items: list[str]) -> dict[str, str]:
-    """``--controller-plugin NAME=module:Class`` options as a name -> path map."""
-    plugins = {}
-    for item in items:
-        name, sep, path = item.partition("=")
-        if not sep or not name.strip() or ":" not in path:
-            raise ConfigError(f"--controller-plugin {item!r}: expected NAME=module:Class")
-        plugins[name.strip()] = path.strip()
-    return plugins
-
-
-def starting_controller(args, rig) -> str:
-    """``--controller``, else the one the rig file names (``[rig] controller``), else pid."""
-    return args.controller or rig.rig.controller or "pid"
 
 
 def check_config(args) -> int:
     """``pneumad --check``: the rig file read and validated, the starting controller built on
     it (with the joints' models), a summary printed; nothing opened, nothing moved."""
-    rig = load_rig(args)
-    from controllers import registry
-    from controllers.base import ControllerContext
-    from hal.actuation import RigActuation
-    actuation = RigActuation(rig)
-    context = ControllerContext.for_rig(rig, actuation, args.period)
-    try:
-        registry.build(starting_controller(args, rig), context, plugins=controller_plugins(args.controller_plugin))
-    except (LookupError, ValueError) as exc:
-        raise ConfigError(f"--controller: {exc}") from None
+    rig = assembly.rig_of(args)
+    assembly.loop_parts(rig, args.period, args.controller, assembly.controller_plugins(args.controller_plugin))
     print(f"{rig.origin}: rig {rig.rig.name!r} ({rig.hash[:12]}), transport {rig.transport.backend}, "
-          f"controller {starting_controller(args, rig)}")
+          f"controller {assembly.starting_controller(args.controller, rig)}")
     for j in rig.joints:
         params = rig.joint_params(j)
         if j.muscles is not None:
@@ -112,35 +54,19 @@ def check_config(args) -> int:
 def cmd_run(args) -> int:
     if args.check:
         return check_config(args)
+    rig, plugins = assembly.rig_of(args), assembly.controller_plugins(args.controller_plugin)  # bad ones: exit 2, nothing bound
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
-    # Before the real-time set-up: the messenger process keeps normal priority and every CPU.
-    recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
-                                                         "min_free_mb": args.record_min_free_mb}
-    server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
-                       recording=recording, plotjuggler=args.plotjuggler)
-    # systemctl reload: the messenger reads its allow-list again.
-    signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
-    try:
-        return _serve(args, clock, server)
-    finally:
-        server.close()
+    with assembly.messenger(args) as server:
+        # systemctl reload: the messenger reads its allow-list again.
+        signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
+        with assembly.planner() as preparer:
+            loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish)
+            server.attach(loop, preparer)
+            return _run_loop(args, loop, server)
 
 
-def _serve(args, clock, server: ZmqServer) -> int:
-    # The planner worker is spawned and has imported the controllers before the
-    # transport opens: a process starting up beside a running wire delayed its replies.
-    preparer = Preparer()
-    try:
-        return _run_loop(args, clock, server, preparer)
-    finally:
-        preparer.close()
-
-
-def _run_loop(args, clock, server: ZmqServer, preparer: Preparer) -> int:
-    preparer.warm().result(timeout=120)
-    loop = build_loop(args, clock, server.publish)
-    server.attach(loop, preparer)
+def _run_loop(args, loop: ControlLoop, server: ZmqServer) -> int:
     notifier = Notifier()
     stop_reason = []
 
@@ -163,7 +89,7 @@ def _run_loop(args, clock, server: ZmqServer, preparer: Preparer) -> int:
         log.warning("%s", server.security["warning"])
     if notifier.watchdog_interval:
         loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
-    for warning in realtime_setup(args):
+    for warning in assembly.realtime_setup(args):
         log.warning(warning)
     gc.collect()
     gc.freeze()  # start-up objects never scanned again
@@ -183,19 +109,11 @@ def _run_loop(args, clock, server: ZmqServer, preparer: Preparer) -> int:
     return 0
 
 
-def realtime_setup(args) -> list[str]:
-    """The real-time set-up the timing options ask for (none of it with --no-rt); its warnings."""
-    idle_latency = None if args.no_rt or args.cpu_dma_latency_us < 0 else args.cpu_dma_latency_us
-    return realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt, idle_latency)
-
-
 def cmd_safe_state(args) -> int:
     """Write the configured safe state through the transport once, in a fresh process."""
-    rig = load_rig(args)
-    transport = create_transport(rig, time.monotonic)
-    transport.open()
+    io = assembly.open_rig(assembly.rig_of(args), time.monotonic)
+    rig, transport = io.config, io.transport
     try:
-        io = RigIO(rig, transport)
         io.write_safe()
         print(f"safe state written to {rig.rig.name} via {transport.backend}: "
               + ", ".join(f"{ch.name}={v:.3f} V" for ch, v in zip(transport.outputs, io.safe_volts)))
@@ -209,7 +127,6 @@ def cmd_keys(args) -> int:
 
 
 def cmd_latency(args) -> int:
-    from daemon.latency import qualify
     return qualify(args)
 
 

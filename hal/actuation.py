@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from hal.config import CYLINDER, RigConfig
-from hal.regulator import ITV0051, V_MAX, V_MIN
+from hal.regulator import V_MAX, V_MIN
+from hal.rig import PressureDrivers
 from hal.valve import ProportionalValve
 
 
@@ -42,7 +43,10 @@ class RigActuation:
     commands [Pa] and its brake torques [N m]. Runs every cycle: plain lists, no allocation
     beyond the three it returns."""
 
-    def __init__(self, rig: RigConfig):
+    def __init__(self, rig: RigConfig, drivers: PressureDrivers | None = None):
+        """``drivers``: the rig's pressure drivers when they are shared with its I/O
+        (:mod:`daemon.assembly`); default: built here."""
+        drivers = drivers or PressureDrivers.of(rig)
         commands: list[CommandInterface] = []
         self._cylinders = []  # (command index, joint index, head regulator, bias [V], rod pressure [Pa])
         self._muscles = []  # (command index, joint index)
@@ -50,7 +54,7 @@ class RigActuation:
         for i, j in enumerate(rig.joints):
             k = len(commands)
             if j.actuation == CYLINDER:
-                head, rod = ITV0051(j.head), ITV0051(j.rod)
+                head, rod = drivers.head[i], drivers.rod[i]  # the ITV0051 regulators
                 bias = j.head.bias_volts
                 commands.append(CommandInterface(j.name, "v_mv", "V", V_MIN - bias, V_MAX - bias))
                 self._cylinders.append((k, i, head, bias, rod.bias_pa))

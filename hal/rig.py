@@ -37,8 +37,25 @@ class Snapshot:
     pressures: tuple[float, ...] = ()  # measured (a, b) per joint with sensors, flattened [Pa]; NaN: none or implausible
 
 
+@dataclass(frozen=True)
+class PressureDrivers:
+    """Each joint's two pressure-output drivers (a cylinder's head and rod ITV0051 regulators,
+    a muscle pair's proportional valves), built once per rig and shared by the rig's I/O
+    (pressures -> volts) and its command interfaces (V_MV -> pressures)."""
+
+    head: tuple  # per joint, the first chamber's driver
+    rod: tuple  # per joint, the second chamber's driver
+
+    @classmethod
+    def of(cls, config: RigConfig) -> "PressureDrivers":
+        return cls(tuple(_pressure_device(j.pressure_outputs[0]) for j in config.joints),
+                   tuple(_pressure_device(j.pressure_outputs[1]) for j in config.joints))
+
+
 class RigIO:
-    def __init__(self, config: RigConfig, transport: Transport):
+    def __init__(self, config: RigConfig, transport: Transport, drivers: PressureDrivers | None = None):
+        """``drivers``: the rig's pressure drivers when they are shared (:mod:`daemon.assembly`);
+        default: built here."""
         self.config = config
         self.transport = transport
         self.joint_names = tuple(j.name for j in config.joints)
@@ -50,8 +67,8 @@ class RigIO:
         self._supply_idx = [transport.index(j.sensor.supply_channel, output=False) if j.sensor.supply_channel else -1
                             for j in config.joints]
         # each joint's pressure pair: a cylinder's head and rod regulators, a muscle pair's valves
-        self.head = [_pressure_device(j.pressure_outputs[0]) for j in config.joints]
-        self.rod = [_pressure_device(j.pressure_outputs[1]) for j in config.joints]
+        drivers = drivers or PressureDrivers.of(config)
+        self.head, self.rod = list(drivers.head), list(drivers.rod)
         self._head_idx = [transport.index(j.pressure_outputs[0].channel, output=True) for j in config.joints]
         self._rod_idx = [transport.index(j.pressure_outputs[1].channel, output=True) for j in config.joints]
         self.brakes = [(MRBrake(j.brake), transport.index(j.brake.channel, output=True))

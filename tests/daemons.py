@@ -3,9 +3,9 @@ on private ipc endpoints."""
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
+from daemon.testing import daemons
 from hal import config
 
 TOLERANT_STALL = "stall_after_s = 0.5  "
@@ -32,15 +32,9 @@ def real_daemon(tmp_path, *options: str, **popen) -> tuple[subprocess.Popen, dic
     """A real ``pneumad run`` (simulated rig, stall-tolerant unless ``--config`` says
     otherwise, recording into ``tmp_path/recordings``, no real-time set-up) on private ipc endpoints, started with
     ``python -m <module>`` (``module``: default ``daemon.main``)."""
-    module = popen.pop("module", "daemon.main")
     if "--config" not in options:
         options = (*options, "--config", str(tolerant_rig(tmp_path)))
-    if "--record-dir" not in options:
-        options = (*options, "--record-dir", str(Path(tmp_path) / "recordings"))
-    eps = {name: f"ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")}
-    daemon = subprocess.Popen([sys.executable, "-m", module, "run", "--no-rt", "--log-level", "WARNING", *options,
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
-    return daemon, eps
+    return daemons.spawn(tmp_path, "--no-rt", *options, **popen)
 
 
 def running(pid: int) -> bool:

@@ -1,71 +1,9 @@
-"""Test helpers: a simulated rig on a virtual clock, and a lockstep closed loop for it."""
+"""Test helpers: step-response figures (the simulated rig itself is :mod:`daemon.testing.simrig`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from bench import scenarios
-from controllers.base import Controller, ControllerContext, JointState, Reference
-from daemon.loop.clock import VirtualClock
-from hal import config
-from hal.actuation import RigActuation
-from hal.rig import RigIO
-from hal.transport import create_transport
-
-DT = 0.001
-
-
-@dataclass
-class SimRig:
-    clock: VirtualClock
-    rig: config.RigConfig
-    io: RigIO
-    actuation: RigActuation
-
-    @property
-    def transport(self):
-        return self.io.transport
-
-    @property
-    def arm(self):
-        return self.io.transport.arm
-
-    def context(self) -> ControllerContext:
-        return ControllerContext.for_rig(self.rig, self.actuation, DT)
-
-
-def make_rig(options: str = "", name: str = "sim", replace: dict[str, str] | None = None) -> SimRig:
-    """The built-in rig with extra ``[transport.options]`` lines (TOML) and text replacements."""
-    text = config.load(name).source
-    for old, new in (replace or {}).items():
-        assert old in text, old
-        text = text.replace(old, new)
-    if options:  # appended to the end of [transport.options], which the [arm] table follows
-        text = text.replace("\n[arm]\n", "\n" + options + "\n\n[arm]\n", 1)
-    rig = config.parse(text)
-    clock = VirtualClock()
-    transport = create_transport(rig, clock.now)
-    transport.open()
-    io = RigIO(rig, transport)
-    return SimRig(clock, rig, io, RigActuation(rig))
-
-
-def closed_loop(sim: SimRig, controller: Controller, reference, seconds: float):
-    """Run read -> control -> write in lockstep; ``reference(t)`` gives joint angles [rad].
-    Returns (times, measured angles, outputs) per cycle."""
-    snap = sim.io.read()
-    controller.reset(JointState(snap.t, snap.angles, [0.0] * len(snap.angles)), [0.0] * len(snap.angles))
-    times, angles, outputs = [], [], []
-    zeros = [0.0] * len(snap.angles)
-    for _ in range(int(round(seconds / DT))):
-        u = controller.step(JointState(snap.t, snap.angles, zeros), Reference(reference(snap.t), zeros, zeros))
-        sim.io.write_pressures(*sim.actuation.outputs(u))
-        sim.clock.sleep_until(sim.clock.now() + DT)
-        snap = sim.io.read()
-        times.append(snap.t)
-        angles.append(snap.angles)
-        outputs.append(u)
-    return times, angles, outputs
 
 
 def step_metrics(t, y, y0, step, t_step):

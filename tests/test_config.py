@@ -5,7 +5,7 @@ from hal import config
 from hal.errors import ConfigError
 from hal.rig import RigIO
 from hal.transport import create_transport
-from tests.simrig import make_rig
+from daemon.testing.simrig import make_rig
 
 BASE = config.load("sim").source
 

@@ -9,7 +9,7 @@ import pytest
 from importlib import resources
 
 from daemon.wire import protocol as P
-from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
 from tests.schemas import schema
 
 BUILTIN = resources.files("hal").joinpath("sim_2joint.toml").read_text()

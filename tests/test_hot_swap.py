@@ -9,7 +9,7 @@ import pytest
 from controllers import lti_design
 from daemon.wire import protocol as P
 from tests import plugins
-from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
 
 
 # the misbehaving controllers of tests/plugins.py, registered as the daemon's configuration would

@@ -12,6 +12,8 @@ from controllers.base import ControllerContext
 from controllers.identification import frf, rigfile
 from controllers.identification.fit import Experiment, fit_joint, fit_percent
 from controllers.signals import PRBS, LogChirp, Multisine
+from daemon.wire.arguments import CommandFailed
+from daemon.wire.signals import recorded
 from hal import config
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
@@ -113,11 +115,10 @@ def test_under_feedback_the_joint_input_output_method_is_unbiased_where_h1_is_no
 
 def test_open_loop_h1_of_a_multisine_matches_the_model_at_its_lines_with_high_coherence():
     p = IDENTIFIED["bottom"]
-    settings = {"side": "input", "signal": "multisine", "f0_hz": 0.1, "f1_hz": 2.0, "components": 12,
-                "period_s": 10.0, "periods": 7}
-    period = frf.period_of(settings)
+    signal = Multisine([0.0], 0, 1.0, 0.1, 2.0, 12, 10.0, 7)
+    period = frf.period_of(signal)
     assert period == 10.0
-    data = run_joint(p.replace({"Fs": 1e-6, "Fc": 0.0}), series(Multisine([0.0], 0, 1.0, 0.1, 2.0, 12, 10.0, 7), 70.0), 4)
+    data = run_joint(p.replace({"Fs": 1e-6, "Fc": 0.0}), series(signal, 70.0), 4)
     response = frf.estimate(data, period_s=period, transient_s=30.0).band(0.1, 1.0)  # ~3 D/K
     truth = frf.model(p, response.f)
     assert len(response.f) >= 6  # its lines in the thesis's band
@@ -187,3 +188,14 @@ def test_a_controller_rebuilt_on_the_plants_model_tracks_it_better_than_on_the_s
     path.write_text(rigfile.with_model(config.load().source, "bottom", "bottom-identified", reported, "a test"))
     stale, rebuilt = bench.tracking(case, None, "smc"), bench.tracking(case, str(path), "smc")
     assert rebuilt < 0.85 * stale, (stale, rebuilt)
+
+
+def test_a_recorded_signal_is_rebuilt_as_the_planner_made_it_with_its_period():
+    prbs = {"side": "input", "signal": "prbs", "joint": "bottom", "amplitude_v": 0.5, "order": 6, "bit_s": 0.1}
+    rebuilt = recorded(prbs)
+    assert isinstance(rebuilt, PRBS) and rebuilt.amplitude == 0.5
+    assert frf.period_of(rebuilt) == pytest.approx(63 * 0.1)  # a 2^6 - 1 bit sequence
+    chirp = {"side": "reference", "signal": "chirp", "joint": "bottom", "amplitude_deg": 2.0, "f0_hz": 0.1}
+    assert frf.period_of(recorded(chirp)) is None
+    with pytest.raises(CommandFailed, match="f1_hz"):  # a definition no planner could have made
+        recorded({**chirp, "f0_hz": 2.0, "f1_hz": 1.0})

@@ -8,7 +8,7 @@ import pytest
 from bench import scenarios as S
 from controllers import registry
 from controllers.trajectory import JointMove
-from tests.loophelpers import make_loop
+from daemon.testing.loop import make_loop
 
 BUILT_IN = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 

@@ -16,8 +16,8 @@ from controllers.known_load import KnownLoad
 from daemon.wire import protocol as P
 from hal import config
 from hal.kinematics import payload_torques
-from tests.loophelpers import call, dealer, exchange, make_loop, ok, run_seconds
-from tests.simrig import make_rig
+from daemon.testing.loop import call, dealer, exchange, make_loop, ok, run_seconds
+from daemon.testing.simrig import make_rig
 
 TRUE_PAYLOAD = (0.3, (20.0, -10.0))  # the simulated arm's [kg], [mm]: more than friction holds
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from daemon.loop.safety import State
-from tests.loophelpers import dealer, make_loop, ok, run_seconds
+from daemon.testing.loop import dealer, make_loop, ok, run_seconds
 
 RIG = (Path(__file__).resolve().parents[1] / "hal" / "sim_2joint.toml").read_text()
 

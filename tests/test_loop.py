@@ -7,7 +7,7 @@ from controllers import registry, trajectory
 from daemon.loop.safety import State
 from daemon.loop.stats import LoopStats
 from tests.daemons import tolerant_rig_text
-from tests.loophelpers import make_loop, run_seconds, tracking
+from daemon.testing.loop import make_loop, run_seconds, tracking
 from tests.plugins import Slow
 
 

@@ -16,7 +16,7 @@ from hal.mr_brake import BrakeConfig, MRBrake
 from hal.muscle import MuscleConfig, MuscleJoint, MusclePair
 from hal.pressure_sensor import PressureSensor, PressureSensorConfig
 from hal.valve import ProportionalValve, ValveConfig
-from tests.simrig import make_rig
+from daemon.testing.simrig import make_rig
 
 DEG = math.pi / 180.0
 RIG = config.load("sim-muscle")
@@ -168,7 +168,7 @@ def test_the_mr_brake_damps_the_swing_a_hung_load_starts():
 def test_telemetry_and_recordings_carry_the_muscle_commands_by_name():
     from daemon.recordings import mcap_log
     from daemon.loop.telemetry import Telemetry
-    from tests.loophelpers import Captured
+    from daemon.testing.loop import Captured
 
     loop = make_loop("muscle_eq", rig="sim-muscle")
     captured = Captured()

@@ -2,7 +2,8 @@
 import math
 
 from controllers.pid import PID
-from tests.simrig import closed_loop, deg, make_rig, step_metrics
+from daemon.testing.simrig import closed_loop, make_rig
+from tests.simrig import deg, step_metrics
 
 STEP_AT = 1.0
 

@@ -9,7 +9,7 @@ import zmq
 
 from daemon.wire import protocol as P
 from daemon.loop.safety import State
-from tests.loophelpers import call, dealer, exchange, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, exchange, make_loop, ok, run_seconds
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 
 from controllers.trajectory import JointMove
 from daemon.recordings import mcap_log, reading as recording
-from tests.loophelpers import dealer, make_loop, ok
+from daemon.testing.loop import dealer, make_loop, ok
 
 
 @pytest.fixture(scope="module")

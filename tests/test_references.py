@@ -11,7 +11,7 @@ from controllers import signals, trajectory
 from daemon.wire import protocol as P
 from daemon.client.client import read_waypoints
 from hal import config, kinematics
-from tests.loophelpers import call, dealer, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ from scipy import signal
 
 from hal.identified import IDENTIFIED, K_EP, P_OFFSET
 from sim_backend.joint_model import JointModel
-from tests.simrig import make_rig
+from daemon.testing.simrig import make_rig
 
 H = 0.001
 V_INI = 4.0

@@ -9,7 +9,7 @@ import pytest
 from hal.errors import CommandError, ConfigError, TransportTimeout
 from hal.kinematics import jacobian
 from sim_backend.transport import SimTransport, quantise
-from tests.simrig import DT, make_rig
+from daemon.testing.simrig import DT, make_rig
 
 
 def run(sim, seconds, v_mv=(0.0, 0.0)):

@@ -9,14 +9,12 @@ import msgpack
 import zmq
 
 from controllers.pid import PID
+from daemon import assembly
 from daemon.wire import protocol as P
 from daemon.loop.clock import MonotonicClock
-from daemon.loop.cycle import ControlLoop
 from daemon.loop.safety import State
 from hal import config
-from hal.rig import RigIO
-from hal.transport import create_transport
-from tests.loophelpers import call, dealer, make_loop, ok
+from daemon.testing.loop import call, dealer, make_loop, ok
 
 
 class SleepsOnce(PID):
@@ -36,10 +34,8 @@ def test_a_cycle_that_runs_past_the_stall_limit_trips_and_writes_the_safe_state_
     # must not be what trips it; the slow cycle is twice the limit.
     rig = dataclasses.replace(config.load(), safety=dataclasses.replace(config.load().safety, stall_after_s=0.3))
     clock = MonotonicClock(spin_s=0.0)
-    transport = create_transport(rig, clock.now)
-    transport.open()
-    io = RigIO(rig, transport)
-    loop = ControlLoop(io, clock, 0.001, controller="hold")
+    loop = assembly.build_loop(rig, clock, 0.001, "hold")
+    transport = loop.io.transport
     loop.start()
     loop.switch_controller(SleepsOnce(loop.context))
     loop.enable()
@@ -49,7 +45,7 @@ def test_a_cycle_that_runs_past_the_stall_limit_trips_and_writes_the_safe_state_
     transport._write = lambda values, write=transport._write: (written.append(list(values)), write(values))
     loop.run(1)
     assert loop.state is State.FAULT and "a cycle ran" in loop.supervisor.cause
-    assert written[-1] == list(io.safe_volts)  # in that same cycle, not the next
+    assert written[-1] == list(loop.io.safe_volts)  # in that same cycle, not the next
     transport.close()
 
 

@@ -15,7 +15,7 @@ from bench.common import child_process
 from daemon.messenger.process import MessengerError
 from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
-from tests.loophelpers import dealer, make_loop, ok
+from daemon.testing.loop import dealer, make_loop, ok
 
 
 @pytest.fixture

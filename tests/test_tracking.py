@@ -11,7 +11,7 @@ from controllers.trajectory import JointMove
 from daemon.loop.tracking import TrackingGuard
 from hal import config
 from hal.errors import ConfigError
-from tests.loophelpers import make_loop
+from daemon.testing.loop import make_loop
 
 LOST_RIG = {'tracking_action = "trip"': 'tracking_action = "fallback"'}
 

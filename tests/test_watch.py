@@ -6,7 +6,7 @@ from rich.console import Console
 
 from controllers.trajectory import JointMove
 from daemon.client.watch import View, _bar
-from tests.loophelpers import dealer, make_loop, ok
+from daemon.testing.loop import dealer, make_loop, ok
 
 
 def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():

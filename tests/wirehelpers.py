@@ -11,8 +11,7 @@ from bench import wires
 from bench.wires import stop_peer  # noqa: F401  (the tests stop peers through here too)
 from controllers import trajectory
 from daemon.loop.cycle import ControlLoop
-from daemon.loop.telemetry import Telemetry
-from tests.loophelpers import Captured
+from daemon.testing.loop import Captured
 
 # A shared, noisy test machine runs this loop without real-time priority, and stalls of tens
 # of milliseconds happen. A pipelined wire's sample dates from the request sent before the
@@ -31,7 +30,7 @@ def wire_loop(backend: str | None, options: dict | None = None, virtual: bool = 
     gc.collect()
     gc.freeze()  # as the daemon does: a long test session's heap is not rescanned mid-move
     captured = Captured()
-    loop = wires.wire_loop(backend, options, virtual, RELAXED, Telemetry(captured), spin_s=0.0)
+    loop = wires.wire_loop(backend, options, virtual, RELAXED, captured, spin_s=0.0)
     captured.follow(loop)
     return loop, captured
 

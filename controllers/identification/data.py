@@ -1,4 +1,7 @@
-"""One joint's experiments, read back from a recording (MCAP or .pnrec; :mod:`daemon.recordings.reading`).
+"""One joint's experiments, from a recording the caller has read (MCAP or .pnrec: the daemon's
+``daemon.recordings.reading.Run``, or anything with its ``describe``, ``messages`` and
+``samples``), with the signals rebuilt by the caller's ``rebuild`` (the daemon's is
+``daemon.wire.signals.recorded``): controllers never import the daemon.
 
 An experiment is found by its ``reference`` start event, which carries the signal's settings
 (``excite``'s ``signal``: side, joint, amplitude, operating point). An input-side one starts
@@ -10,17 +13,21 @@ starts from is the one the daemon ran with.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
 from controllers.identification.fit import Experiment
-from daemon.recordings import reading as recording
+from controllers.signals import Excitation
 from hal import config
 from hal.identified import JointParams
 from hal.regulator import ITV0051
 
 
-def rig_of(run: recording.Run) -> config.RigConfig:
+Rebuild = Callable[[dict], Excitation]  # a recorded signal definition -> the signal that ran
+
+
+def rig_of(run) -> config.RigConfig:
     """The rig configuration the recording was made with (its source text)."""
     rig = run.describe["rig"]
     return config.parse(rig["source"], rig.get("origin") or "<recording>")
@@ -37,9 +44,8 @@ def prior_of(rig: config.RigConfig, joint: str) -> JointParams:
     raise ValueError(f"no joint {joint!r} in the rig (joints: {', '.join(j.name for j in rig.joints)})")
 
 
-def experiments(path, joint: str | None = None) -> list[Experiment]:
-    """Every experiment in a recording (on ``joint``, if given), in order."""
-    run = recording.open_run(path)
+def experiments(run, source: str, rebuild: Rebuild, joint: str | None = None) -> list[Experiment]:
+    """Every experiment in a recording ``run`` read from ``source`` (on ``joint``, if given), in order."""
     rig = rig_of(run)
     events = run.messages.get("event", [])
     found = []
@@ -61,23 +67,14 @@ def experiments(path, joint: str | None = None) -> list[Experiment]:
         else:
             first, u_op = ev["cycle"], None
         last = min(c["cycle"] for c in (end, abort, {"cycle": math.inf}) if c is not None)
-        info = {"source": str(path), "rig_hash": run.describe["rig"]["hash"], "signal": signal, "u_op_v": u_op,
+        info = {"source": source, "rig_hash": run.describe["rig"]["hash"], "signal": signal, "u_op_v": u_op,
                 "start_cycle": first, "aborted": abort["cause"] if abort else "", "cut": (end or {}).get("cut", "")}
-        found.append(_experiment(run, rig, signal["joint"], first, last, info))
+        found.append(_experiment(run, rig, signal["joint"], first, last, info, rebuild))
     return found
 
 
-def _input_signal(definition: dict, samples: int, dt: float) -> np.ndarray:
-    """The input-side signal [V] from its settings, as the planner built it, on the samples
-    from the open-loop phase's first cycle."""
-    from daemon.planner.excitation import MAX_INPUT_DURATION_S, signal_of
-    settings = {k: v for k, v in definition.items() if k not in ("side", "signal", "joint", "amplitude_v")}
-    signal = signal_of(settings, definition["signal"], [0.0], 0, definition["amplitude_v"], MAX_INPUT_DURATION_S)
-    return signal.series(np.arange(samples) * dt)
-
-
-def _experiment(run: recording.Run, rig: config.RigConfig, joint: str, first: int, last: float,
-                info: dict) -> Experiment:
+def _experiment(run, rig: config.RigConfig, joint: str, first: int, last: float, info: dict,
+                rebuild: Rebuild) -> Experiment:
     rows = [s for s in run.samples if first <= s["cycle"] < last]
     if len(rows) < 100:
         raise ValueError(f"{info['source']}: the {info['signal']['signal']} on {joint} has {len(rows)} samples "
@@ -103,7 +100,9 @@ def _experiment(run: recording.Run, rig: config.RigConfig, joint: str, first: in
     y = np.degrees(data["angle_rad"] - data["angle_rad"][0])
     dt = float(np.median(np.diff(t)))
     if info["signal"]["side"] == "input":
-        r = _input_signal(info["signal"], len(rows), dt)  # the instrument of the joint input-output method [V]
+        # the instrument of the joint input-output method [V]: the input-side signal as the
+        # planner built it, on the samples from the open-loop phase's first cycle
+        r = rebuild(info["signal"]).series(np.arange(len(rows)) * dt)
     else:
         r = np.degrees(data["setpoint_rad"] - data["setpoint_rad"][0])  # [deg]
     return Experiment(dt, lever, y, t - t[0], data["u_volts"], float(np.degrees(data["angle_rad"][0])),

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.signal import coherence, csd, decimate, welch
 
 from controllers.identification.fit import Experiment
+from controllers.signals import PRBS, Excitation, Multisine
 from hal.identified import K_EP, JointParams
 
 EXCITED = 1e-3  # a frequency is excited when the input's power there is above this of its peak
@@ -84,15 +85,13 @@ def estimate(data: Experiment, rate_hz: float = 50.0, segment_s: float | None = 
     return _excited(f, s_uy / s_uu, coh, s_uu, "H1")
 
 
-def period_of(signal: dict) -> float | None:
-    """The period [s] of an experiment's signal (its ``signal`` settings), if it is periodic."""
-    from daemon.planner.excitation import MAX_INPUT_DURATION_S, signal_of  # the planner's own signals
-    if signal.get("signal") not in ("multisine", "prbs"):
-        return None
-    settings = {k: v for k, v in signal.items() if k not in ("side", "signal", "joint", "amplitude_v",
-                                                              "amplitude_deg")}
-    built = signal_of(settings, signal["signal"], [0.0], 0, 1.0, MAX_INPUT_DURATION_S)
-    return built.period_s if signal["signal"] == "multisine" else len(built.bits) * built.bit_s
+def period_of(signal: Excitation) -> float | None:
+    """The period [s] of an experiment's signal, if it is periodic (a multisine, a PRBS)."""
+    if isinstance(signal, Multisine):
+        return signal.period_s
+    if isinstance(signal, PRBS):
+        return len(signal.bits) * signal.bit_s
+    return None
 
 
 def _excited(f, g, coh, power, method) -> Response:

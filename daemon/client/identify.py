@@ -25,7 +25,9 @@ from controllers.identification.fit import fit_joint
 from controllers.identification.simulate import FITTED
 from controllers.nominal import NominalJoint
 from daemon.recordings import mcap_log
+from daemon.recordings import reading as recording
 from daemon.wire import protocol as P
+from daemon.wire.signals import recorded
 from daemon.client.client import Client, RemoteError
 from hal import config
 from hal.identified import UNITS
@@ -192,14 +194,14 @@ def _wait_for_rest(client: Client, joint: str, timeout_s: float = 30.0) -> None:
 def analyse(path: Path, joint: str, out: Path, population: int, generations: int, seed: int = 0) -> dict:
     """Fit the recording's experiments on ``joint`` (all but the last; the last is held out),
     write the figures, the rig file and a report into ``out``; the report."""
-    found = experiments_of.experiments(path, joint)
+    run = recording.open_run(path)
+    found = experiments_of.experiments(run, str(path), recorded, joint)
     aborted = [e.info["aborted"] for e in found if e.info["aborted"]]
     if aborted:
         raise SystemExit(f"{path}: an experiment was stopped: {aborted[0]}: lower the amplitude or widen the band")
     if len(found) < 2:
         raise SystemExit(f"{path}: {len(found)} experiment(s) on {joint}: two at least are needed (one held out)")
     estimation, held_out = found[:-1], found[-1:]
-    run = experiments_of.recording.open_run(path)
     rig = experiments_of.rig_of(run)
     prior = experiments_of.prior_of(rig, joint)
     result = fit_joint(estimation, prior, held_out, population=population, generations=generations, seed=seed,
@@ -207,7 +209,7 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
     out.mkdir(parents=True, exist_ok=True)
     labels = [f"{e.info['signal']['signal']} ({'held out' if i == len(found) - 1 else 'fitted'})"
               for i, e in enumerate(found)]
-    responses = [(label, frf.estimate(e, period_s=frf.period_of(e.info["signal"]))) for label, e in zip(labels, found)]
+    responses = [(label, frf.estimate(e, period_s=frf.period_of(recorded(e.info["signal"])))) for label, e in zip(labels, found)]
     bode = plots.bode(out / f"bode-{joint}.png", joint, responses,
                       [(f"identified (held-out Fit {result.heldout_fit_percent[0]:.1f} %)", result.params),
                        ("prior (rig file)", prior)], THESIS_BAND_HZ)

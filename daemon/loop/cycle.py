@@ -12,10 +12,8 @@ from __future__ import annotations
 import copy
 import math
 
-from controllers import registry
 from controllers.base import (
     Controller,
-    ControllerContext,
     JointState,
     Reference,
     check_output,
@@ -23,45 +21,33 @@ from controllers.base import (
 from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
-from daemon.loop.feed_forward import LoadFeedForward
 from daemon.loop.open_loop import OpenLoopRun
-from daemon.loop.safety import State, Supervisor
+from daemon.loop.parts import LoopParts
+from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
-from daemon.loop.tracking import TrackingGuard
-from hal.actuation import RigActuation
-from hal.errors import CommandError, ConfigError, TransportError
+from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
 START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
 
 class ControlLoop:
-    def __init__(self, io: RigIO, clock, period: float = 0.001, controller: str = "pid",
-                 telemetry=None, server=None, controller_plugins: dict[str, str] | None = None,
-                 contact_sensor=None):
+    def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None):
+        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`)."""
         self.io = io
         self.rig = io.config
         self.clock = clock
-        self.period = period
+        self.period = parts.context.dt
         self.n = len(io.joint_names)
-        self.actuation = RigActuation(self.rig)  # the joints' command interfaces
-        self.context = ControllerContext.for_rig(self.rig, self.actuation, period)
-        self.supervisor = Supervisor(self.rig, period)
-        self.controller_plugins = dict(controller_plugins or {})  # name -> module:Class, from the daemon's configuration
-        try:
-            self.controller: Controller = registry.build(controller, self.context, plugins=self.controller_plugins)
-        except (LookupError, ValueError) as exc:  # ParamError is a ValueError
-            raise ConfigError(f"--controller: {exc}") from None
+        self.actuation = parts.actuation  # the joints' command interfaces
+        self.context = parts.context
+        self.supervisor = parts.supervisor
+        self.controller_plugins = parts.controller_plugins  # name -> module:Class, from the daemon's configuration
+        self.controller: Controller = parts.controller
         self.shadow: ShadowRun | None = None
-        safety = self.rig.safety
-        self.tracking = TrackingGuard(io.joint_names, safety.tracking_error_deg, safety.tracking_window_s)
-        # built now, before the loop runs, and copied when needed: a fallback never builds in a cycle
-        self._fallback = None
-        if safety.tracking_action == "fallback":
-            try:
-                self._fallback = registry.build(safety.fallback_controller, self.context, plugins=self.controller_plugins)
-            except (LookupError, ValueError) as exc:  # ParamError is a ValueError
-                raise ConfigError(f"safety.fallback_controller: {exc}") from None
+        self.tracking = parts.tracking
+        # built before the loop runs, and copied when needed: a fallback never builds in a cycle
+        self._fallback = parts.fallback
         self.telemetry = telemetry
         self.server = server
         self.contact_sensor = contact_sensor  # daemon.contact.process: the latest contact estimate, or None
@@ -76,7 +62,7 @@ class ControlLoop:
         self.open_loop: OpenLoopRun | None = None  # an input-side experiment in progress
         self.u = list(self.actuation.neutral)  # last commands applied (V_MV [V] per cylinder joint: the
         #                                        controller's plus a known load's feed-forward; a muscle pair's [Pa])
-        self.feed_forward = LoadFeedForward(self.context)  # a known payload's V_MV, none at first
+        self.feed_forward = parts.feed_forward
         self.p_head, self.p_rod = list(io.safe_pressures[0]), list(io.safe_pressures[1])
         self.reference = ([0.0] * self.n, [0.0] * self.n, [0.0] * self.n)
         self.stiffness = [math.nan] * self.n  # stiffness set-point per joint [N m/rad]; NaN: the controller's own

@@ -1,4 +1,5 @@
-"""Test helpers: the real loop on a virtual clock with the simulated rig, and ZeroMQ peers."""
+"""The real loop in this process on a virtual clock with the simulated rig, served on private
+ports, and ZeroMQ peers that drive it a cycle at a time until their reply comes."""
 from __future__ import annotations
 
 import math
@@ -6,17 +7,17 @@ import math
 import msgpack
 import zmq
 
-from daemon.wire import protocol
+from daemon import assembly
 from daemon.loop.clock import VirtualClock
 from daemon.loop.cycle import ControlLoop
-from daemon.planner.process import Preparer
 from daemon.loop.port import ZmqServer
-from daemon.loop.telemetry import Telemetry
+from daemon.planner.process import Preparer
+from daemon.wire import protocol
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import to_payload
 from hal import config
-from hal.rig import RigIO
-from hal.transport import create_transport
+
+PRIVATE = "tcp://127.0.0.1:*"  # a free port per socket, never the default endpoints
 
 
 class Captured:
@@ -42,21 +43,24 @@ class Captured:
         return [m for t, m in self.messages if t == topic]
 
 
+def virtual_loop(rig: config.RigConfig, controller: str = "pid", publish=None,
+                 plugins: dict[str, str] | None = None) -> ControlLoop:
+    """The loop on ``rig`` on a fresh virtual clock (not started): it cycles only when run,
+    as fast as the machine goes. No contact-sensor process: its frames come in real time."""
+    return assembly.build_loop(rig, VirtualClock(), 0.001, controller, plugins, publish, contact=False)
+
+
 def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid", loop_stall_s: float = 60.0,
-              plugins: dict[str, str] | None = None):
-    """The loop on a virtual clock. It cycles only while a test runs it, so the messenger's
-    stall watch (``loop_stall_s``) is set long: a test that thinks for a second between two
-    requests has not stalled a real-time loop."""
+              plugins: dict[str, str] | None = None) -> tuple[ControlLoop, Captured, ZmqServer | None]:
+    """The loop on a virtual clock, started, its telemetry captured, and (``server``) served
+    on private ports with the session's planner worker. It cycles only while a test runs
+    it, so the messenger's stall watch (``loop_stall_s``) is set long: a test that thinks
+    for a second between two requests has not stalled a real-time loop."""
     rig = config.parse(rig_text) if rig_text else config.load()
-    clock = VirtualClock()
-    transport = create_transport(rig, clock.now)
-    transport.open()
-    io = RigIO(rig, transport)
-    srv = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*",
-                    loop_stall_s=loop_stall_s) if server else None
+    srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s) if server else None
     captured = Captured()
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
-    loop = ControlLoop(io, clock, 0.001, controller=controller, telemetry=Telemetry(send), controller_plugins=plugins)
+    loop = virtual_loop(rig, controller, send, plugins)
     if srv is not None:
         srv.attach(loop, shared_preparer())
     captured.follow(loop, beside_messenger=srv is not None)
@@ -68,9 +72,9 @@ _preparer: list[Preparer] = []
 
 
 def shared_preparer() -> Preparer:
-    """One planner worker for every in-process loop of a test session, spawned and warmed
-    once (a worker per test cost 1.5 s of start-up each). A job's reply always comes before
-    its test ends, so no test inherits another's work."""
+    """One planner worker for every in-process loop of a session, spawned and warmed once
+    (a worker per test cost 1.5 s of start-up each). A job's reply always comes before its
+    test ends, so no test inherits another's work."""
     if not _preparer:
         _preparer.append(Preparer())
         _preparer[0].warm().result(timeout=120)

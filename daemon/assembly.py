@@ -1,0 +1,156 @@
+"""The one assembler: a rig and the daemon's options -> transport, RigIO, the joints' command
+interfaces, the controllers' context, the loop, and the services around it (the messenger's
+sockets, the planner worker, the contact sensor, telemetry).
+
+``pneumad run``, ``pneumad --check``, ``pneumad latency``, the benches and the test harness
+(:mod:`daemon.testing`) all build through here, so a part added to the loop is wired once.
+Everything is built before the loop runs: nothing here runs in a cycle.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+
+from controllers import registry
+from controllers.base import ControllerContext
+from daemon.contact.process import ContactSensor
+from daemon.loop.cycle import ControlLoop
+from daemon.loop.feed_forward import LoadFeedForward
+from daemon.loop.parts import LoopParts
+from daemon.loop.port import ZmqServer
+from daemon.loop.safety import Supervisor
+from daemon.loop.telemetry import Telemetry
+from daemon.loop.tracking import TrackingGuard
+from daemon.planner.process import Preparer
+from daemon.service import realtime
+from hal import config
+from hal.actuation import RigActuation
+from hal.errors import ConfigError
+from hal.rig import PressureDrivers, RigIO
+from hal.transport import create_transport
+
+Publish = Callable[[bytes, bytes], None]  # a telemetry sink: (topic, payload)
+
+
+def rig_of(args) -> config.RigConfig:
+    """The rig ``pneumad``'s options name: ``--config`` (a file or a built-in rig), its
+    transport replaced by ``--transport`` (with its ``--transport-option KEY=VALUE``) if given."""
+    rig = config.load(args.config)
+    if args.transport:
+        rig = config.with_transport(rig, args.transport, dict(map(config.parse_option, args.transport_option)))
+    elif args.transport_option:
+        raise ConfigError("--transport-option needs --transport")
+    return rig
+
+
+def controller_plugins(items: Sequence[str]) -> dict[str, str]:
+    """``--controller-plugin NAME=module:Class`` options as a name -> path map."""
+    plugins = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name.strip() or ":" not in path:
+            raise ConfigError(f"--controller-plugin {item!r}: expected NAME=module:Class")
+        plugins[name.strip()] = path.strip()
+    return plugins
+
+
+def starting_controller(requested: str | None, rig: config.RigConfig) -> str:
+    """``requested`` (``--controller``), else the one the rig file names (``[rig] controller``), else pid."""
+    return requested or rig.rig.controller or "pid"
+
+
+def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | None = None,
+               plugins: dict[str, str] | None = None, drivers: PressureDrivers | None = None) -> LoopParts:
+    """What the loop is made of, built on ``rig`` without opening anything (``--check`` stops
+    here). A controller that cannot be built is a ConfigError naming the option or setting."""
+    plugins = dict(plugins or {})
+    actuation = RigActuation(rig, drivers)
+    context = ControllerContext.for_rig(rig, actuation, period)
+    try:
+        active = registry.build(starting_controller(controller, rig), context, plugins=plugins)
+    except (LookupError, ValueError) as exc:  # ParamError is a ValueError
+        raise ConfigError(f"--controller: {exc}") from None
+    safety = rig.safety
+    fallback = None
+    if safety.tracking_action == "fallback":
+        try:
+            fallback = registry.build(safety.fallback_controller, context, plugins=plugins)
+        except (LookupError, ValueError) as exc:
+            raise ConfigError(f"safety.fallback_controller: {exc}") from None
+    names = tuple(j.name for j in rig.joints)
+    return LoopParts(actuation, context, Supervisor(rig, period), active, fallback,
+                     TrackingGuard(names, safety.tracking_error_deg, safety.tracking_window_s),
+                     LoadFeedForward(context), plugins)
+
+
+def open_rig(rig: config.RigConfig, now: Callable[[], float], drivers: PressureDrivers | None = None) -> RigIO:
+    """The rig's transport created (samples stamped by ``now`` [s]) and opened, behind its
+    device drivers."""
+    transport = create_transport(rig, now)
+    transport.open()
+    try:
+        return RigIO(rig, transport, drivers)
+    except Exception:
+        transport.close()
+        raise
+
+
+def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: str | None = None,
+               plugins: dict[str, str] | None = None, publish: Publish | None = None,
+               contact: bool = True) -> ControlLoop:
+    """The loop on ``rig``, its transport open; telemetry to ``publish`` if given; the rig's
+    contact sensor's process started when it has one and ``contact`` (an in-process loop on
+    a virtual clock leaves it out: its frames come in real time). Each regulator's driver
+    is built once, for the I/O and the command interfaces both."""
+    drivers = PressureDrivers.of(rig)
+    parts = loop_parts(rig, period, controller, plugins, drivers)
+    io = open_rig(rig, clock.now, drivers)
+    sensor = None
+    if contact and rig.contact_sensor is not None:
+        sensor = ContactSensor(rig.contact_sensor, clock.now)
+        try:
+            sensor.open()
+        except Exception:
+            io.transport.close()
+            raise
+    return ControlLoop(io, clock, parts, telemetry=Telemetry(publish) if publish is not None else None,
+                       contact_sensor=sensor)
+
+
+def loop_from_args(args, clock, publish: Publish | None = None) -> ControlLoop:
+    """:func:`build_loop` with ``pneumad``'s options (run, latency)."""
+    return build_loop(rig_of(args), clock, args.period, args.controller, controller_plugins(args.controller_plugin),
+                      publish)
+
+
+def realtime_setup(args) -> list[str]:
+    """The real-time set-up ``pneumad``'s timing options ask for (none of it with --no-rt); its warnings."""
+    idle_latency = None if args.no_rt or args.cpu_dma_latency_us < 0 else args.cpu_dma_latency_us
+    return realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt, idle_latency)
+
+
+@contextmanager
+def messenger(args) -> Iterator[ZmqServer]:
+    """The messenger's sockets from ``pneumad run``'s options, closed on the way out. Made
+    before the real-time set-up: the messenger keeps normal priority and every CPU."""
+    recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
+                                                         "min_free_mb": args.record_min_free_mb}
+    server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
+                       recording=recording, plotjuggler=args.plotjuggler)
+    try:
+        yield server
+    finally:
+        server.close()
+
+
+@contextmanager
+def planner() -> Iterator[Preparer]:
+    """The planner worker, spawned and warmed, closed on the way out. It has imported the
+    controllers before the transport opens: a process starting beside a running wire
+    delayed its replies."""
+    preparer = Preparer()
+    try:
+        preparer.warm().result(timeout=120)
+        yield preparer
+    finally:
+        preparer.close()

@@ -1,0 +1,54 @@
+"""The one assembler (daemon/assembly.py): what it builds, once, and `pneumad --check` built
+through it without opening anything."""
+from __future__ import annotations
+
+import sys
+
+from daemon import assembly, main
+from daemon.loop.clock import VirtualClock
+from hal import config
+from hal.regulator import ITV0051
+
+
+def test_each_regulator_is_built_once_and_shared_by_the_io_and_the_command_interfaces(monkeypatch):
+    built = []  # the regulators the hal's drivers build (a nominal model's constants are the controllers')
+    original = ITV0051.__init__
+
+    def counted(self, *args, **kwargs):
+        if sys._getframe(1).f_globals["__name__"].startswith("hal."):
+            built.append(self)
+        original(self, *args, **kwargs)
+
+    monkeypatch.setattr(ITV0051, "__init__", counted)
+    rig = config.load()
+    loop = assembly.build_loop(rig, VirtualClock(), 0.001, "pid")
+    try:
+        assert len(built) == 2 * len(rig.joints)  # a head and a rod regulator per cylinder joint
+        assert loop.io.head + loop.io.rod == built
+        # V_MV -> head pressure goes through the very regulator the output sweep uses
+        loop.start()
+        p_head, _, _ = loop.actuation.outputs([0.5] * loop.actuation.width)
+        assert p_head == [reg.pressure(j.head.bias_volts + 0.5) for reg, j in zip(loop.io.head, rig.joints)]
+    finally:
+        loop.shutdown("test")
+
+
+def test_the_loop_runs_on_the_parts_the_assembler_built():
+    rig = config.load()
+    parts = assembly.loop_parts(rig, 0.002, "hold")
+    assert parts.context.dt == 0.002 and parts.controller.name == "hold" and parts.fallback is None
+    loop = assembly.build_loop(rig, VirtualClock(), 0.002, "hold")
+    try:
+        assert loop.period == 0.002 and loop.controller.name == "hold"
+        assert loop.context.u_min == parts.context.u_min
+    finally:
+        loop.shutdown("test")
+
+
+def test_check_builds_the_controller_and_opens_nothing(capsys):
+    # a serial transport to a port that does not exist: --check never opens it
+    assert main.main(["--check", "--transport", "serial", "--transport-option", "port=/nonexistent/pneumad"]) == 0
+    out = capsys.readouterr().out
+    assert "transport serial, controller pid" in out and "joint bottom" in out
+    assert main.main(["--check", "--controller", "no-such-controller"]) == 2
+    assert main.main(["--check", "--transport-option", "port=x"]) == 2  # an option for no --transport
