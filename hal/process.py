@@ -65,6 +65,7 @@ class Helper:
     # -- starting ---------------------------------------------------------------------------
     def spawn(self) -> None:
         """Start the child and return at once (:meth:`poll_ready` or :meth:`wait_ready` follow)."""
+        args = pickle.dumps(self.args)  # one that will not pickle fails here, before any child
         read, write = os.pipe()
         header = {"sys_path": list(sys.path), "parent": os.getpid(), "ready_fd": write, **self._setup}
         try:
@@ -76,7 +77,7 @@ class Helper:
         self.is_ready, self.payload = False, None
         try:
             pickle.dump(header, self._proc.stdin)
-            pickle.dump(self.args, self._proc.stdin)
+            self._proc.stdin.write(args)
             self._proc.stdin.close()
         except BrokenPipeError:
             pass  # it died at once: wait_ready says so
@@ -196,8 +197,13 @@ class SharedMemory:
         for name, ctype in self._fields.items():
             setattr(self, name, ctype.from_buffer(self._map, offsets[name]))
 
-    def __reduce__(self):
-        return SharedMemory, (self._fields, self.fd)  # the child holds the same descriptor number
+    def __reduce__(self):  # the child holds the same descriptor number; array types pickle as (item, length)
+        spec = {name: (t._type_, t._length_) if issubclass(t, ctypes.Array) else (t, 0) for name, t in self._fields.items()}
+        return _attach, (spec, self.fd)
+
+
+def _attach(spec: dict[str, tuple[type, int]], fd: int) -> SharedMemory:
+    return SharedMemory({name: item * length if length else item for name, (item, length) in spec.items()}, fd)
 
 
 # -- in the helper process ---------------------------------------------------------------------

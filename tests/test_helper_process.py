@@ -23,6 +23,7 @@ def _serve_until_told(child, shared):
     child.ready({"pid": os.getpid(), "nice": os.getpriority(os.PRIO_PROCESS, 0)})
     while not shared.stop.value and child.parent_alive():
         shared.beats.value += 1
+        shared.trace[:] = [shared.beats.value] * 3
         time.sleep(0.01)
     return 0
 
@@ -46,7 +47,7 @@ def _stubborn(child):
 
 
 def _shared():
-    return SharedMemory({"stop": ctypes.c_bool, "beats": ctypes.c_uint64})
+    return SharedMemory({"stop": ctypes.c_bool, "beats": ctypes.c_uint64, "trace": ctypes.c_double * 3})
 
 
 def _wait_gone(pid: int, limit_s: float = 10.0) -> bool:
@@ -65,7 +66,7 @@ def test_a_ready_child_shares_memory_and_stops_when_told():
     end = time.monotonic() + 10.0
     while shared.beats.value < 3 and time.monotonic() < end:
         time.sleep(0.01)
-    assert shared.beats.value >= 3  # the child writes where the parent reads
+    assert shared.beats.value >= 3 and shared.trace[0] >= 3  # the child writes where the parent reads
     shared.stop.value = True
     assert helper.join(10.0) == 0 and not helper.alive
 
@@ -136,3 +137,10 @@ def test_the_child_dies_with_its_parent_when_the_parent_is_killed():
             parent.kill()
             parent.wait()
         parent.stdout.close()
+
+
+def test_arguments_that_will_not_pickle_fail_before_any_child_is_started():
+    helper = Helper(f"{HERE}:_exits", (lambda: 0,))
+    with pytest.raises(Exception, match="pickle"):
+        helper.start()
+    assert helper.pid is None
