@@ -68,12 +68,15 @@ class Helper:
         args = pickle.dumps(self.args)  # one that will not pickle fails here, before any child
         read, write = os.pipe()
         header = {"sys_path": list(sys.path), "parent": os.getpid(), "ready_fd": write, **self._setup}
-        try:
-            self._proc = subprocess.Popen([sys.executable, "-m", "hal.process", self.target], stdin=subprocess.PIPE,
-                                          pass_fds=(write, *self.pass_fds))
+        self._ready = Connection(read, writable=False)
+        try:  # the interpreter's own flags (-B, -X ...) as multiprocessing passes them on
+            self._proc = subprocess.Popen([sys.executable, *subprocess._args_from_interpreter_flags(), "-m", "hal.process",
+                                           self.target], stdin=subprocess.PIPE, pass_fds=(write, *self.pass_fds))
+        except OSError:
+            self._close_ready()
+            raise
         finally:
             os.close(write)
-        self._ready = Connection(read, writable=False)
         self.is_ready, self.payload = False, None
         try:
             pickle.dump(header, self._proc.stdin)
