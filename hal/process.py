@@ -106,13 +106,14 @@ class Helper:
             return True
         if not self._ready.poll(limit_s):
             return False
+        reap_s = 5.0 if limit_s else 0.0  # poll_ready never waits
         try:
             kind, said = self._ready.recv()
         except (EOFError, OSError):
-            code = self._wait(5.0)
+            code = self._wait(reap_s)
             raise HelperFailed(f"{self.name}: exited (code {code}) before it was ready") from None
         if kind != "ready":
-            self._wait(5.0)
+            self._wait(reap_s)
             raise HelperFailed(said)
         self.is_ready, self.payload = True, said
         return True
