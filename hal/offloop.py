@@ -17,18 +17,20 @@ What the loop sees:
   worker's own words, so the trip says why. The worker keeps trying to reconnect every
   ``reopen_every_s``; once samples flow again the supervisor waits for a reset.
 Malformed replies (exception responses, wrong lengths) are counted, never fatal.
+
+The worker is a helper process (:class:`hal.process.Helper`): it dies with the daemon and says
+it is ready with its first sample.
 """
 from __future__ import annotations
 
 import ctypes
-import multiprocessing
 import os
-import signal
 import time
 import weakref
 from collections.abc import Callable, Sequence
 
 from hal.errors import TransportError, TransportTimeout
+from hal.process import Child, Helper, HelperFailed, SharedMemory
 from hal.seqlock import read_locked, try_read, write_locked
 from hal.transport import (
     FULL_SCALE_COUNTS,
@@ -74,20 +76,13 @@ class Link:
         pass
 
 
-class _Shared:
-    """The shared memory both processes map (created before the worker is spawned)."""
-
-    def __init__(self, n_in: int, n_out: int):
-        raw = multiprocessing.get_context("spawn")
-        self.in_seq = raw.RawValue(ctypes.c_uint64, 0)
-        self.in_t = raw.RawValue(ctypes.c_double, 0.0)  # time.monotonic() of the reply
-        self.inputs = raw.RawArray(ctypes.c_double, n_in)
-        self.out_seq = raw.RawValue(ctypes.c_uint64, 0)
-        self.outputs = raw.RawArray(ctypes.c_double, n_out)
-        self.link_up = raw.RawValue(ctypes.c_bool, False)
-        self.stop = raw.RawValue(ctypes.c_bool, False)
-        self.error = raw.RawArray(ctypes.c_char, _ERROR_BYTES)
-        self.counters = raw.RawArray(ctypes.c_uint64, len(COUNTERS))
+def _shared(n_in: int, n_out: int) -> SharedMemory:
+    """The memory both processes map: the inputs' seqlock, the reply's time.monotonic(), the
+    outputs' seqlock, the link's state, the stop flag, the last error, the counters."""
+    return SharedMemory({"in_seq": ctypes.c_uint64, "in_t": ctypes.c_double, "inputs": ctypes.c_double * n_in,
+                         "out_seq": ctypes.c_uint64, "outputs": ctypes.c_double * n_out, "link_up": ctypes.c_bool,
+                         "stop": ctypes.c_bool, "error": ctypes.c_char * _ERROR_BYTES,
+                         "counters": ctypes.c_uint64 * len(COUNTERS)})
 
 
 class OffLoopTransport(Transport):
@@ -104,8 +99,8 @@ class OffLoopTransport(Transport):
         self.open_timeout_s = open_timeout_s
         self.reopen_every_s = reopen_every_s
         self.worker_priority = worker_priority
-        self._shared: _Shared | None = None
-        self._process = None
+        self._shared: SharedMemory | None = None
+        self._process: Helper | None = None
         self._sweep = InputSweep(0, float("-inf"), (0.0,) * len(self.inputs))
         self._last_seq = 0
 
@@ -117,24 +112,21 @@ class OffLoopTransport(Transport):
     def open(self) -> None:
         """Spawn the worker and wait for its first sample: a peer that is not there stops
         the daemon at start with the worker's reason."""
-        self._shared = shared = _Shared(len(self.inputs), len(self.outputs))
+        self._shared = shared = _shared(len(self.inputs), len(self.outputs))
         factory, args = self.link_factory()
-        ctx = multiprocessing.get_context("spawn")
-        self._process = ctx.Process(target=_work, name=f"pneumad-{self.backend}", daemon=True,
-                                    args=(shared, factory, args, 1.0 / self.rate_hz, self.reopen_every_s,
-                                          self.worker_priority))
-        self._process.start()
+        self._process = Helper("hal.offloop:serve", (shared, factory, args, 1.0 / self.rate_hz, self.reopen_every_s,
+                                                    self.worker_priority),
+                               name=f"the {self.backend} worker", pass_fds=(shared.fd,))
         # Dropped without close() (an exception on the way, a test that failed), the worker
-        # must not outlive its transport: it would go on writing into shared memory that the
-        # allocator hands to the next transport (seen: one test's link error in the next's).
+        # must not outlive its transport: it would go on writing its outputs to the peer.
         self._finalizer = weakref.finalize(self, _stop_worker, shared, self._process)
-        deadline = time.monotonic() + self.open_timeout_s
-        while shared.in_seq.value == 0:
-            if not self._process.is_alive() or time.monotonic() > deadline:
-                reason = self._last_error() or "no answer"
-                self.close()
-                raise TransportTimeout(f"{self.backend}: no sample within {self.open_timeout_s:g} s of opening: {reason}")
-            time.sleep(0.01)
+        try:
+            self._process.start(self.open_timeout_s)
+        except HelperFailed as exc:
+            reason = self._last_error() or str(exc)
+            self.close()
+            raise TransportTimeout(f"{self.backend}: no sample within {self.open_timeout_s:g} s of opening: {reason}") \
+                from None
         super().open()
 
     def close(self) -> None:
@@ -181,7 +173,7 @@ class OffLoopTransport(Transport):
         write_locked(shared.out_seq, shared.outputs, volts_to_counts(values, self.outputs, self.full_scale))
 
     def _raise_link_down(self):
-        alive = self._process is not None and self._process.is_alive()
+        alive = self._process is not None and self._process.alive
         reason = self._last_error() or "the link is down"
         if not alive:
             reason = f"the {self.backend} worker process has stopped ({reason})"
@@ -199,22 +191,18 @@ class OffLoopTransport(Transport):
         return h
 
 
-def _stop_worker(shared: "_Shared", process) -> None:
+def _stop_worker(shared: SharedMemory, process: Helper) -> None:
     """Ask the worker to stop, then make sure it has."""
     shared.stop.value = True
     process.join(2.0)
-    if process.is_alive():
-        process.kill()
-        process.join(2.0)
 
 
 # -- in the worker process --------------------------------------------------------------------
-def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, priority: int) -> None:
+def serve(child: Child, shared: SharedMemory, factory, args, period: float, reopen_every_s: float,
+          priority: int) -> None:
     """The worker's main: exchange at the loop's rate until told to stop, or until the daemon
     is gone. An orphan must not go on writing the last outputs it was given: it would fight
     the dead-man command that writes the safe state after a crash (systemd's stop hook)."""
-    parent = os.getppid()
-    die_with_parent()
     if priority > 0:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -225,7 +213,7 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
     index = {name: i for i, name in enumerate(COUNTERS)}
     next_try = 0.0
     deadline = time.monotonic()
-    while not shared.stop.value and os.getppid() == parent:
+    while not shared.stop.value and child.parent_alive():
         if not shared.link_up.value:
             if time.monotonic() < next_try:
                 time.sleep(0.005)
@@ -257,20 +245,11 @@ def _work(shared: _Shared, factory, args, period: float, reopen_every_s: float, 
             shared.in_t.value = time.monotonic()
             shared.in_seq.value += 1
             counters[index["exchanges"]] += 1
+            child.ready()  # (once: the first sample is there)
         deadline = max(deadline + period, time.monotonic())  # never burst to catch up
         time.sleep(max(deadline - time.monotonic(), 0.0))
     link.close()
 
 
-def die_with_parent() -> None:
-    """Ask Linux to kill this process when its parent dies (prctl PR_SET_PDEATHSIG); the
-    loop's parent check covers other systems, one exchange later."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-def _error(shared: _Shared, message: str) -> None:
+def _error(shared: SharedMemory, message: str) -> None:
     shared.error.value = message.encode()[:_ERROR_BYTES - 1]

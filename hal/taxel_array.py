@@ -7,14 +7,21 @@ are masked as NaN, so an estimator knows the value is missing rather than zero. 
 implausible when a live taxel reads more than ``margin`` of full scale outside 0..full scale
 (a saturated or disconnected multiplexer), or when it has the wrong size: :meth:`pressures`
 raises :class:`ValueError` saying which, so a stream of such frames cannot pass as contact.
+
+Frames come from a **named source**, as transports are named (hal.transport): the rig file's
+``contact_sensor.source`` is a name in :data:`FRAME_SOURCES` or a ``module:Class`` path of a
+:class:`FrameSource`, loaded by name in the sensor's process (the simulated pad is one such
+source, sim_backend.contact_patch's); an unknown one is refused when the rig file is read.
 """
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from hal.plugins import load_class
 from hal.schema import require
 
 TAXELS = 16  # per side
@@ -60,8 +67,9 @@ class ContactSensorConfig:
     a process beside the loop (daemon.contact.process). ``offset_v`` and ``gain_pa_per_v``:
     one number for every taxel, or 256 row by row; ``dead``: [row, column] pairs;
     ``memory_ms`` and ``beta_memory_ms``: the estimator's memories (controllers.contact_force).
-    ``source`` names where frames come from: ``"sim"`` is the simulated pad, pressed by an impact at
-    ``sim_impact_speed_m_s`` every ``sim_impact_every_s`` (sim_backend.contact_patch)."""
+    ``source`` names where frames come from (:data:`FRAME_SOURCES` or ``module:Class``): ``"sim"``
+    is the simulated pad, pressed by an impact at ``sim_impact_speed_m_s`` every
+    ``sim_impact_every_s`` (sim_backend.contact_patch)."""
 
     source: str = "sim"
     rate_hz: float = 4000.0
@@ -75,7 +83,10 @@ class ContactSensorConfig:
     seed: int = 0
 
     def __post_init__(self):
-        require(self.source == "sim", "source", f"{self.source!r}: only \"sim\" (the simulated pad) is built")
+        try:
+            load_frame_source(self.source)
+        except LookupError as exc:
+            require(False, "source", str(exc))
         require(100.0 <= self.rate_hz <= 10000.0, "rate_hz", f"must be within 100-10000 Hz, got {self.rate_hz}")
         for name in ("offset_v", "gain_pa_per_v"):
             require(len(getattr(self, name)) in (1, TAXELS * TAXELS), name,
@@ -96,6 +107,30 @@ class ContactSensorConfig:
             return np.broadcast_to(np.asarray(values, float), (TAXELS * TAXELS,)).reshape(TAXELS, TAXELS)
         return TaxelCalibration(per_taxel(self.offset_v), per_taxel(self.gain_pa_per_v),
                                 tuple((int(r), int(c)) for r, c in self.dead))
+
+
+class FrameSource(ABC):
+    """Where a contact sensor's frames come from, built in the sensor's process from the rig
+    file's ``[contact_sensor]``: a real A/D's driver, or a simulator."""
+
+    @classmethod
+    @abstractmethod
+    def from_config(cls, config: ContactSensorConfig) -> "FrameSource":
+        ...
+
+    @abstractmethod
+    def frame(self, k: int) -> np.ndarray:
+        """Frame k's volts, one per taxel (k counts from the first frame, at ``rate_hz``)."""
+
+
+FRAME_SOURCES: dict[str, str] = {
+    "sim": "sim_backend.contact_patch:ImpactReplay",
+}
+
+
+def load_frame_source(name: str) -> type[FrameSource]:
+    """The frame source class for a name or a ``module:Class`` path (LookupError if none)."""
+    return load_class(name, FRAME_SOURCES, FrameSource, "contact sensor source")
 
 
 def taxel_centres_m() -> tuple[np.ndarray, np.ndarray]:

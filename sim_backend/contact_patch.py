@@ -36,6 +36,8 @@ from hal.taxel_array import (
     FULL_SCALE_PA,
     TAXELS,
     Contact,
+    ContactSensorConfig,
+    FrameSource,
     TaxelArray,
     TaxelCalibration,
     sensing_offsets_m,
@@ -123,11 +125,11 @@ class SimTaxelPad:
         return np.where(self.device.live, v, 0.0)
 
 
-class ImpactReplay:
-    """The simulated sensor's frames for a sensor process: an impact every ``every_s``, the
-    pad's noise between. The frames are made once, up front (the impact's, and a pool of
-    untouched ones), so the process spends its time on the estimator, as it would behind a
-    real A/D; ``truth(k)`` is the contact frame k shows."""
+class ImpactReplay(FrameSource):
+    """The simulated sensor's frames for a sensor process (the frame source named ``"sim"``):
+    an impact every ``every_s``, the pad's noise between. The frames are made once, up front
+    (the impact's, and a pool of untouched ones), so the process spends its time on the
+    estimator, as it would behind a real A/D; ``truth(k)`` is the contact frame k shows."""
 
     NOISE_FRAMES = 64
 
@@ -138,6 +140,13 @@ class ImpactReplay:
         self.touching = int(impact.duration_s * rate_hz)
         self.impact_frames = [pad.frame_volts(impact.at(self._t(k))) for k in range(self.touching)]
         self.noise_frames = [pad.frame_volts(None) for _ in range(self.NOISE_FRAMES)]
+
+    @classmethod
+    def from_config(cls, config: ContactSensorConfig) -> "ImpactReplay":
+        """The rig file's ``[contact_sensor]``: its calibration, ``sim_impact_speed_m_s``,
+        ``sim_impact_every_s`` and ``seed``."""
+        return cls(Impact(config.sim_impact_speed_m_s), config.sim_impact_every_s, config.rate_hz,
+                   config.calibration(), config.seed)
 
     def _t(self, k: int) -> float:
         return (k % self.cycle + 0.5) / self.rate_hz

@@ -8,17 +8,20 @@ The worker keeps the sensor's pace by the clock: frame k is due at start + k / r
 when the estimator falls behind it takes the newest frame due and counts the ones it passed
 over (``late_frames``), so the estimate is never older than it has to be. A frame that cannot
 be a reading is counted (``bad_frames``) and its reason kept, never estimated on.
+
+Frames come from the source the rig file names (``contact_sensor.source``, loaded by name in
+this process: hal.taxel_array's FrameSource); the process is a helper (hal.process.Helper)
+that dies with the daemon and says it is ready with its first estimate.
 """
 from __future__ import annotations
 
 import ctypes
 import math
-import multiprocessing
-import os
 import time
 import weakref
 
 from hal.errors import TransportTimeout
+from hal.process import Child, Helper, HelperFailed, SharedMemory
 from hal.seqlock import try_read, write_locked
 from hal.taxel_array import ContactSensorConfig
 
@@ -31,14 +34,10 @@ LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whol
 OPEN_TIMEOUT_S = 10.0
 
 
-class _Shared:
-    def __init__(self):
-        raw = multiprocessing.get_context("spawn")
-        self.seq = raw.RawValue(ctypes.c_uint64, 0)
-        self.values = raw.RawArray(ctypes.c_double, HEAD + len(FIELDS))
-        self.counters = raw.RawArray(ctypes.c_uint64, len(COUNTERS))
-        self.stop = raw.RawValue(ctypes.c_bool, False)
-        self.error = raw.RawArray(ctypes.c_char, _ERROR_BYTES)
+def _shared() -> SharedMemory:
+    return SharedMemory({"seq": ctypes.c_uint64, "values": ctypes.c_double * (HEAD + len(FIELDS)),
+                         "counters": ctypes.c_uint64 * len(COUNTERS), "stop": ctypes.c_bool,
+                         "error": ctypes.c_char * _ERROR_BYTES})
 
 
 class ContactSensor:
@@ -47,26 +46,24 @@ class ContactSensor:
     def __init__(self, config: ContactSensorConfig, clock):
         self.config = config
         self.clock = clock  # the loop's clock (seconds)
-        self._shared: _Shared | None = None
-        self._process = None
+        self._shared: SharedMemory | None = None
+        self._process: Helper | None = None
         self._latest: dict | None = None  # the newest estimate, as the topic carries it (its age aside)
         self._latest_mono = 0.0  # its frame's time.monotonic()
         self._last_seq = 0
 
     def open(self) -> None:
-        """Start the worker and wait for its first frame (the frames are made up front)."""
-        self._shared = shared = _Shared()
-        ctx = multiprocessing.get_context("spawn")
-        self._process = ctx.Process(target=_work, name="pneumad-contact", daemon=True, args=(shared, self.config))
-        self._process.start()
+        """Start the worker and wait for its first estimate (the frames are made up front)."""
+        self._shared = shared = _shared()
+        self._process = Helper("daemon.contact.process:serve", (shared, self.config), name="the contact sensor",
+                               pass_fds=(shared.fd,))
         self._finalizer = weakref.finalize(self, _stop, shared, self._process)
-        deadline = time.monotonic() + OPEN_TIMEOUT_S
-        while shared.seq.value == 0:
-            if not self._process.is_alive() or time.monotonic() > deadline:
-                reason = self.last_error() or "no frame"
-                self.close()
-                raise TransportTimeout(f"contact_sensor: no frame within {OPEN_TIMEOUT_S:g} s of opening: {reason}")
-            time.sleep(0.01)
+        try:
+            self._process.start(OPEN_TIMEOUT_S)
+        except HelperFailed as exc:
+            reason = self.last_error() or str(exc)
+            self.close()
+            raise TransportTimeout(f"contact_sensor: no frame within {OPEN_TIMEOUT_S:g} s of opening: {reason}") from None
 
     def close(self) -> None:
         if self._process is not None:
@@ -101,35 +98,26 @@ class ContactSensor:
         return self._shared.error.value.decode(errors="replace") if self._shared is not None else ""
 
 
-def _stop(shared: _Shared, process) -> None:
+def _stop(shared: SharedMemory, process: Helper) -> None:
     shared.stop.value = True
     process.join(2.0)
-    if process.is_alive():
-        process.kill()
-        process.join(2.0)
 
 
 # -- in the worker process --------------------------------------------------------------------
-def _work(shared: _Shared, config: ContactSensorConfig) -> None:
+def serve(child: Child, shared: SharedMemory, config: ContactSensorConfig) -> None:
     """Frames at the sensor's rate through the device and the estimator, until told to stop
     or the daemon is gone."""
     from controllers.contact_force import ContactEstimator  # the estimator lives in this process alone
-    from hal.offloop import die_with_parent
-    from hal.taxel_array import TaxelArray
-    from sim_backend.contact_patch import Impact, ImpactReplay
+    from hal.taxel_array import TaxelArray, load_frame_source
 
-    parent = os.getppid()
-    die_with_parent()
-    calibration = config.calibration()
-    source = ImpactReplay(Impact(config.sim_impact_speed_m_s), config.sim_impact_every_s, config.rate_hz,
-                          calibration, config.seed)
-    device = TaxelArray(calibration)
+    source = load_frame_source(config.source).from_config(config)
+    device = TaxelArray(config.calibration())
     estimator = ContactEstimator(config.memory_ms / 1e3, config.beta_memory_ms / 1e3, frame_hz=config.rate_hz)
     counters = shared.counters
     period = 1.0 / config.rate_hz
     start = time.monotonic()
     last = -1
-    while not shared.stop.value and os.getppid() == parent:
+    while not shared.stop.value and child.parent_alive():
         due = int((time.monotonic() - start) / period)
         if due <= last:
             time.sleep(max(start + (last + 1) * period - time.monotonic(), 0.0))
@@ -147,3 +135,4 @@ def _work(shared: _Shared, config: ContactSensorConfig) -> None:
         row = [float(due), start + due * period, float(found is not None)]
         row += [float(getattr(found, name)) for name in FIELDS] if found is not None else [math.nan] * len(FIELDS)
         write_locked(shared.seq, shared.values, row)
+        child.ready()  # (once: the first estimate is there)

@@ -15,7 +15,7 @@ import zmq
 from daemon.wire import protocol
 from daemon.messenger.guard import Guard
 from daemon.wire.keys import ANONYMOUS, OPERATOR, pack_identity
-from daemon.messenger.process import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
+from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed

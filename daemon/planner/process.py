@@ -9,25 +9,27 @@ job, waits for the answer and pickles/unpickles them (tens of microseconds per j
 thread only puts a job on a queue and later reads a finished future.
 
 The courier is created with the daemon, before the real-time set-up, so it and every worker
-it spawns keep the normal scheduling policy; the worker also drops any real-time policy it
-might have inherited and runs at nice 19. The worker is spawned (not forked: the loop's process holds threads
-and locked memory) on the first job or by :meth:`Preparer.warm`, and spawned again
+it spawns keep the normal scheduling policy; the worker is a helper process
+(:class:`hal.process.Helper`: a fresh interpreter, never a fork of the loop's process), which
+drops any real-time policy it might have inherited, runs at nice 19 and dies with the
+daemon. It is started on the first job or by :meth:`Preparer.warm`, and started again
 if it dies or overruns its time limit, which fails only the job it was doing. One job at a
 time: a second request while one is prepared is refused, so a flood of expensive requests
 cannot queue up work.
 """
 from __future__ import annotations
 
-import multiprocessing
 import os
 import queue
+import socket
 import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+from multiprocessing.connection import Connection
 
-from daemon.service import realtime
+from hal.process import Child, Helper, HelperFailed
 
 DEFAULT_TIME_LIMIT_S = 30.0  # a build slower than this is taken as hung and its worker stopped
 
@@ -96,10 +98,13 @@ class Preparer:
     def _run(self, future: Future, function: Callable, args: tuple) -> None:
         try:
             if self._worker is None or not self._worker.alive:
-                self._worker = _Worker(self._cpus)
+                if self._worker is not None:
+                    self._worker.stop()  # it died between jobs
+                self._worker = _Worker(self._cpus, self.time_limit_s)
             ok, value = self._worker.call(function, args, self.time_limit_s)
         except PreparationFailed as exc:
-            self._worker.stop()
+            if self._worker is not None:
+                self._worker.stop()
             self._worker = None
             self.restarts += 1
             future.set_exception(exc)
@@ -114,22 +119,28 @@ class Preparer:
 
 
 class _Worker:
-    """One spawned process at the end of a pipe."""
+    """One helper process at the end of a socket pair."""
 
-    def __init__(self, cpus):
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self._process = ctx.Process(target=_serve, args=(child, cpus), name="pneumad-prepare", daemon=True)
-        self._process.start()
-        child.close()
+    def __init__(self, cpus, start_limit_s: float):
+        ours, theirs = socket.socketpair()
+        self._conn = Connection(ours.detach())
+        self._process = Helper("daemon.planner.process:serve", (theirs.fileno(),), name="the preparation worker",
+                               pass_fds=(theirs.fileno(),), nice=19, cpus=cpus)
+        try:
+            self._process.start(start_limit_s)
+        except HelperFailed as exc:
+            self._conn.close()
+            raise PreparationFailed(f"{exc}; nothing was applied") from None
+        finally:
+            theirs.close()
 
     @property
     def alive(self) -> bool:
-        return self._process.is_alive()
+        return self._process.alive
 
     def call(self, function: Callable, args: tuple, time_limit_s: float) -> tuple[bool, object]:
         """(True, result) or (False, the exception the job raised); PreparationFailed if
-        the worker died or did not answer in time (the time includes a fresh worker's start)."""
+        the worker died or did not answer in time."""
         self._conn.send((function, args))
         started = time.monotonic()
         try:
@@ -138,24 +149,23 @@ class _Worker:
                                         f"nothing was applied")
             return self._conn.recv()
         except (EOFError, OSError):
-            self._process.join(1.0)
-            raise PreparationFailed(f"the preparation worker died (exit code {self._process.exitcode}) "
+            code = self._process.join(1.0)
+            raise PreparationFailed(f"the preparation worker died (exit code {code}) "
                                     f"after {time.monotonic() - started:.1f} s; nothing was applied; "
                                     f"a new worker takes the next request") from None
 
     def stop(self) -> None:
-        if self._process.is_alive():
-            self._process.kill()
-        self._process.join(5.0)
+        self._process.kill()
         self._conn.close()
 
 
 # -- in the worker process ----------------------------------------------------------------
-def _serve(conn, cpus) -> None:
-    """The worker's main: the lowest normal priority, then answer jobs until the pipe closes.
-    Niced so the courier, which holds the GIL while it unpickles, is never waiting for a CPU
-    behind the worker (the loop would wait for the courier)."""
-    realtime.leave_real_time(cpus, nice=19)
+def serve(child: Child, fd: int) -> None:
+    """The worker's main: answer jobs until the socket closes. Niced (by its handle) so the
+    courier, which holds the GIL while it unpickles, is never waiting for a CPU behind the
+    worker (the loop would wait for the courier)."""
+    conn = Connection(fd)
+    child.ready()
     while True:
         try:
             function, args = conn.recv()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from collections import deque
 from collections.abc import Callable
@@ -22,8 +23,11 @@ import msgpack
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args, checked_number
 from daemon.recordings.mcap_log import McapRecording
-from daemon.recorder.process import MAX_ACTIVE, MAX_SECONDS, NAME, TAIL_S
 
+TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
+MAX_ACTIVE = 4
+MAX_SECONDS = 24 * 3600.0
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,79}$")
 LIST_LIMIT = 100  # files record.list shows, newest first
 PREROLL_BATCHES = 50  # state batches (10 cycles each) a new recording starts with: 0.5 s before its start
 DISK_CHECK_S = 1.0

@@ -68,20 +68,6 @@ def hold_idle_latency(us: int, path: str = CPU_DMA_LATENCY) -> str | None:
     return None
 
 
-def leave_real_time(cpus, nice: int = 0) -> None:
-    """For a helper process: the normal scheduling class at ``nice``, on ``cpus`` (the CPUs
-    the daemon had before its real-time set-up), whatever it inherited from the loop. Best
-    effort: a helper that cannot change these still works."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        if nice:
-            os.setpriority(os.PRIO_PROCESS, 0, nice)
-        if cpus:
-            os.sched_setaffinity(0, cpus)
-    except (AttributeError, OSError):
-        pass
-
-
 def describe() -> dict:
     """What the process actually runs with (for status and the latency report)."""
     policy = os.sched_getscheduler(0)
