@@ -279,13 +279,13 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     import re
     from pathlib import Path
 
-    from daemon.loop.commands import Commands
+    from daemon.wire import catalog
 
     docs = Path(__file__).resolve().parents[1] / "docs"
     text = (docs / "protocol.md").read_text()
     commands_table = text.split("## Commands", 1)[1].split("\n\n", 2)[1]
     documented = set(re.findall(r"^\| `([a-z.]+)` \|", commands_table, re.M))
-    everything = set(Commands.TABLE) | set(P.MESSENGER_COMMANDS) | set(P.RECORDER_COMMANDS)
+    everything = set(catalog.COMMANDS)
     assert documented == everything
     codes_table = text.split("### Error codes", 1)[1].split("\n\n", 1)[0]
     codes = set(P.ERROR_CODES)

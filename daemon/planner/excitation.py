@@ -22,8 +22,8 @@ from scipy.signal import cont2discrete, lfilter
 from controllers import signals
 from controllers.experiment import InputExperiment
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed, bad_args, choice, integer, number, numbers, only
-from daemon.planner.commands import MAX_DURATION_S, Plan, PlanContext, check_authority
+from daemon.wire.arguments import CommandFailed, bad_args, choice, integer, number, numbers
+from daemon.planner.plans import MAX_DURATION_S, Plan, PlanContext, check_authority
 
 SIGNAL_KEYS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", "bit_s", "periods"),
                "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"), "steps": ("levels", "hold_s")}
@@ -32,13 +32,18 @@ PREDICTION_STEP_S = 0.005  # the excursion prediction's grid [s]
 
 
 def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    side = choice({"side": args.get("side", "reference")}, "side", ("reference", "input"))
-    args = {k: v for k, v in args.items() if k != "side"}
-    signal = choice(args, "signal", ("chirp", "prbs", "multisine", "steps") if side == "input"
-                    else ("chirp", "prbs", "multisine"))
+    args = dict(args)
+    side = args.pop("side", "reference")  # names, types and bounds: checked against the catalog by the messenger
+    signal = args["signal"]
+    if side == "reference" and signal == "steps":
+        raise bad_args("the steps signal is for the input side only (side: input)", "signal",
+                       allowed=["chirp", "prbs", "multisine"])
     common = ("signal", "joint", "amplitude_v", "settle_s", "band_deg", "centre_hz") if side == "input" else \
         ("signal", "joint", "amplitude_deg")
-    only(args, *common, *SIGNAL_KEYS[signal])
+    stray = sorted(k for k in args if k not in common and k not in SIGNAL_KEYS[signal])
+    if stray:
+        raise bad_args(f"{stray[0]!r} is not an argument of a {side}-side {signal} (it takes: "
+                       f"{', '.join((*common, *SIGNAL_KEYS[signal]))})", stray[0])
     joint = choice(args, "joint", ctx.joint_names)
     j = ctx.joint_names.index(joint)
     if side == "input":
@@ -51,6 +56,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                                        f"{math.degrees(excitation.peak):.1f} deg leaves its limits "
                                        f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
                             {"reason": "limits", "argument": "amplitude_deg", "joint": joint,
+                             "angle_deg": math.degrees(_outermost(setpoint[j], excitation.peak, lo, hi)),
                              "limits_deg": [math.degrees(lo), math.degrees(hi)]})
     check_authority(ctx, f"the {signal}", excitation,
                     "lower the amplitude" + (" or the top frequency" if signal != "prbs" else ""))
@@ -58,6 +64,11 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                              "amplitude_deg": math.degrees(amplitude), **_settings(args, signal)}
     return Plan(excitation, signal, {"signal": signal, "joint": joint, "side": "reference",
                                      "duration_s": excitation.duration}, tuple(setpoint))
+
+
+def _outermost(centre: float, half: float, lo: float, hi: float) -> float:
+    """The end of centre +- half that leaves lo..hi the most [rad]: a limits refusal's angle."""
+    return centre - half if lo - (centre - half) >= (centre + half) - hi else centre + half
 
 
 def signal_of(args: dict, signal: str, base, j: int, amplitude: float, longest: float) -> signals.Excitation:
@@ -112,6 +123,7 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
         raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(q):.1f} deg +- {math.degrees(band):.1f} deg "
                                        f"(band_deg) leaves its limits {math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
                             {"reason": "limits", "argument": "band_deg", "joint": joint,
+                             "angle_deg": math.degrees(_outermost(q, band, lo, hi)),
                              "limits_deg": [math.degrees(lo), math.degrees(hi)]})
     t = np.arange(0.0, excitation.duration, PREDICTION_STEP_S)
     u = excitation.series(t)

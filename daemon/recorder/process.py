@@ -37,7 +37,6 @@ MESSENGER_ID = b"messenger"  # the messenger's routing id on the control socket
 FEED_HWM = 200_000  # messages the feed may queue (about 10 minutes of telemetry)
 TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
 MAX_ACTIVE = 4
-MAX_SECONDS = 24 * 3600.0
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,79}$")
 START_TIMEOUT_S = 30.0
 
