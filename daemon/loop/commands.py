@@ -3,10 +3,11 @@ the lease.
 
 Handlers run at the end of a cycle in the loop's thread, so whatever they change takes
 effect at the next cycle boundary, and each does bounded work whatever its arguments: the
-envelope is decoded with ``args`` skipped (:func:`daemon.wire.protocol.decode_request`), a
-command's own small arguments are decoded and checked here, and anything whose cost grows
-with the request or the rig is handed to the worker process beside the loop
-(:class:`~daemon.planner.process.Preparer`) with a deferred reply:
+envelope is decoded with ``args`` skipped (:func:`daemon.wire.protocol.decode_request`); the
+messenger has already checked the command, its socket and its arguments against the catalog
+(:mod:`daemon.wire.catalog`), so a loop command's few small arguments are only decoded here;
+anything whose cost grows with the request or the rig is handed to the worker process beside
+the loop (:class:`~daemon.planner.process.Preparer`) with a deferred reply:
 
 - motion commands (``set``, ``path``, ``waypoints``, ``steps``, ``excite``) are planned and
   checked there (:mod:`daemon.planner.commands`); the loop installs the finished reference at a cycle

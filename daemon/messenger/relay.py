@@ -95,10 +95,13 @@ class Relay:
                              {"reason": "revoked", "key": frames[-1].get("User-Id")})
                 continue
             try:
-                request, command = self._admit(name, body, identity)
-            except (protocol.ProtocolError, CommandFailed) as exc:
-                self._send(sock, envelope, protocol.encode_error(exc.request_id, exc.code, exc.message,
-                                                                 getattr(exc, "data", None)))
+                request = protocol.decode_request(body)
+                command = self._admit(name, request, identity)
+            except protocol.ProtocolError as exc:
+                self._send(sock, envelope, protocol.encode_error(exc.request_id, exc.code, exc.message))
+                continue
+            except CommandFailed as exc:
+                self._send(sock, envelope, protocol.encode_error(request["id"], exc.code, exc.message, exc.data))
                 continue
             if command.server == "messenger":
                 self._served[command.name](sock, envelope, request["id"])
@@ -117,22 +120,17 @@ class Relay:
                 self.owed[token] = (sock, envelope, time.monotonic(), request["id"])
 
     @staticmethod
-    def _admit(socket: str, body: bytes, identity):
-        """The request decoded once and checked against the catalog, in the documented order:
-        envelope, command (on this socket), arguments, role; then (request, its catalog entry).
-        A refusal is raised with the request's id (``request_id``) for the reply."""
-        request = protocol.decode_request(body)
-        try:
-            command = catalog.find(request["cmd"], socket)
-            catalog.check_args(command, protocol.decode_args(request))
-            if command.role == catalog.OPERATOR and identity.role != OPERATOR:
-                raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an "
-                                                        f"operator may send {command.name}",
-                                    {"reason": "role", "role": identity.role})
-        except (protocol.ProtocolError, CommandFailed) as exc:
-            exc.request_id = request["id"]
-            raise
-        return request, command
+    def _admit(socket: str, request: dict, identity) -> catalog.Command:
+        """The request's catalog entry, checked in the documented order after its envelope:
+        the command (on this socket), its arguments, the key's role; a refusal raises
+        CommandFailed (or ProtocolError for arguments that cannot be read)."""
+        command = catalog.find(request["cmd"], socket)
+        catalog.check_args(command, protocol.decode_args(request))
+        if command.role == OPERATOR and identity.role != OPERATOR:
+            raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
+                                                    f"may send {command.name}",
+                                {"reason": "role", "role": identity.role})
+        return command
 
     # -- keys ------------------------------------------------------------------------------
     def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:

@@ -178,7 +178,8 @@ def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 
 def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    """An identification experiment (:mod:`daemon.planner.excitation`)."""
+    """An identification experiment (:mod:`daemon.planner.excitation`, which builds on
+    :mod:`daemon.planner.plans`, not on this module)."""
     return excitation.plan_excite(ctx, args, setpoint)
 
 

@@ -42,7 +42,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
         ("signal", "joint", "amplitude_deg")
     stray = sorted(k for k in args if k not in common and k not in SIGNAL_KEYS[signal])
     if stray:
-        raise bad_args(f"{stray[0]!r} is not an argument of a {side}-side {signal} (it takes: "
+        raise bad_args(f"unknown argument {stray[0]!r} for a {side}-side {signal} (it takes: "
                        f"{', '.join((*common, *SIGNAL_KEYS[signal]))})", stray[0])
     joint = choice(args, "joint", ctx.joint_names)
     j = ctx.joint_names.index(joint)

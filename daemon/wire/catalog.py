@@ -20,11 +20,11 @@ from dataclasses import dataclass
 
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args
+from daemon.wire.keys import OBSERVER, OPERATOR
 
 SERVERS = ("loop", "planner", "recorder", "messenger")
 BOTH = ("command", "control")
 COMMAND = ("command",)
-OPERATOR, OBSERVER = "operator", "observer"
 # Codes any request may get, whatever the command.
 COMMON_ERRORS = (P.BAD_MESSAGE, P.BAD_VERSION, P.UNKNOWN_COMMAND, P.LOOP_STALLED, P.FORBIDDEN, P.INTERNAL)
 KINDS = ("number", "integer", "string", "boolean", "list", "map", "number_or_list")
