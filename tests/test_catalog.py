@@ -135,3 +135,21 @@ def test_the_excitation_planner_does_not_import_the_motion_planner():
     imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)} | {
         a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     assert "daemon.planner.commands" not in imported and not any("planner.commands" in m for m in imported if m)
+
+
+def test_the_key_files_server_key_field_is_the_one_the_document_names(tmp_path):
+    """docs/protocol.md, "Keys": a client's key file carries the daemon's public key in its
+    metadata's ``server-key`` field, which zmq.auth.load_certificate does not return."""
+    import zmq.auth
+
+    from daemon.wire import keys
+
+    daemon_dir, out = tmp_path / "daemon", tmp_path / "out"
+    daemon_dir.mkdir()
+    out.mkdir()
+    server_public, _ = keys.init_server(str(daemon_dir))
+    secret_file = keys.make_client(str(daemon_dir), "alice", "operator", str(out))
+    expected = zmq.auth.load_certificate(server_public)[0]
+    assert keys.read_metadata(secret_file)["server-key"].encode() == expected
+    assert expected not in zmq.auth.load_certificate(secret_file)
+    assert "the `server-key` field of the file's `metadata` section" in (DOCS / "protocol.md").read_text()

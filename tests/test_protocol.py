@@ -360,6 +360,9 @@ def test_refusals_carry_data_naming_the_argument(daemon):
     assert approach["data"]["shortest_s"] > 0.01
     path = call(loop, sock, "path", {"name": "circle", "duration_s": 1.0, "approach_s": 30.0}, lease)["error"]
     assert path["data"]["shortest_for"] == "duration_s" and path["data"]["shortest_s"] > 1.0
+    multisine = {"signal": "multisine", "joint": "middle", "amplitude_deg": 0.5, "period_s": 20.0, "f0_hz": 0.04}
+    below = call(loop, sock, "excite", multisine, lease)["error"]  # f0_hz under one cycle per period
+    assert below["code"] == P.BAD_ARGS and below["data"] == {"argument": "f0_hz", "low": 0.05, "high": 100.0} and "1 / 20 s" in below["message"]
     middle = loop.reference[0][1]
     swing = call(loop, sock, "excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 45.0}, lease)["error"]
     assert swing["code"] == P.REFUSED and swing["data"]["reason"] == "limits"

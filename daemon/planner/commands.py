@@ -25,8 +25,9 @@ from controllers import registry, trajectory
 from controllers.base import Controller, ControllerContext
 from controllers.profile import first_outside_limits
 from daemon.planner import excitation
-from daemon.planner.plans import MAX_DURATION_S, Plan, PlanContext, check_authority
+from daemon.planner.plans import Plan, PlanContext, check_authority
 from daemon.wire import catalog
+from daemon.wire.catalog import MAX_DURATION_S
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args, checked_number, checked_numbers, number, numbers
 from hal import kinematics
@@ -34,6 +35,12 @@ from hal import kinematics
 APPROACH_MARGIN = 1.25  # an approach with no approach_s takes this times its shortest feasible duration
 APPROACH_MIN_S = 0.5  # ... and at least this long [s]
 PATHS = {"translation": (trajectory.translation, 15.0), "circle": (trajectory.circle, 20.0)}
+
+
+def _number(cmd: str, args: dict, key: str, default: float | None = None) -> float:
+    """A motion argument in the catalog's bounds, or its default (the catalog's, or ``default``)."""
+    spec = catalog.COMMANDS[cmd].arg(key)
+    return number(args, key, spec.low, spec.high, spec.default if default is None else default)
 
 
 def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
@@ -72,7 +79,7 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     given = [k for k in ("angles_deg", "angles_rad", "xy_mm") if k in args]
     if len(given) != 1:
         raise bad_args("give exactly one of angles_deg, angles_rad, xy_mm", "angles_deg")
-    duration = number(args, "duration_s", 0.0, MAX_DURATION_S, 0.0)
+    duration = _number("set", args, "duration_s")
     if given[0] == "angles_deg":
         target = [math.radians(a) for a in numbers(args, "angles_deg", ctx.n)]
     elif given[0] == "angles_rad":
@@ -119,7 +126,7 @@ def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A reference path of rig-facts §1, after an approach move to its start."""
     name = args["name"]  # one of PATHS: checked against the catalog by the messenger
     make, default_duration = PATHS[name]
-    duration = number(args, "duration_s", 0.5, MAX_DURATION_S, default_duration)
+    duration = _number("path", args, "duration_s", default_duration)
     reply = {"path": name, "duration_s": duration}
     if "duration_s" not in args and ctx.authority is not None:  # no duration asked: the thesis's, or
         shortest = ctx.authority.shortest(make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration))  # the fastest
@@ -193,7 +200,7 @@ def after_approach(ctx: PlanContext, args: dict, setpoint: list[float], path: tr
     request gives it, else in the shortest feasible duration with a margin (APPROACH_MARGIN)."""
     start = path.sample(0.0)[0]
     if "approach_s" in args:
-        approach = number(args, "approach_s", 0.0, 600.0)
+        approach = _number("path", args, "approach_s")
         chosen = False
     else:
         approach, chosen = shortest_approach(ctx, setpoint, start), True

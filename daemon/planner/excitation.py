@@ -21,9 +21,11 @@ from scipy.signal import cont2discrete, lfilter
 
 from controllers import signals
 from controllers.experiment import InputExperiment
+from daemon.wire import catalog
+from daemon.wire.catalog import MAX_DURATION_S
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args, choice, integer, number, numbers
-from daemon.planner.plans import MAX_DURATION_S, Plan, PlanContext, check_authority
+from daemon.planner.plans import Plan, PlanContext, check_authority
 
 SIGNAL_KEYS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", "bit_s", "periods"),
                "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"), "steps": ("levels", "hold_s")}
@@ -48,7 +50,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     j = ctx.joint_names.index(joint)
     if side == "input":
         return _plan_input(ctx, args, setpoint, signal, joint, j)
-    amplitude = math.radians(number(args, "amplitude_deg", 0.01, 45.0))
+    amplitude = math.radians(_number(args, "amplitude_deg"))
     excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
     lo, hi = ctx.limits[j]
     if not (lo <= setpoint[j] - excitation.peak and setpoint[j] + excitation.peak <= hi):
@@ -66,6 +68,22 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                                      "duration_s": excitation.duration}, tuple(setpoint))
 
 
+_EXCITE = catalog.COMMANDS["excite"]
+
+
+def _number(args: dict, key: str, longest: float | None = None) -> float:
+    """An excite argument in the catalog's bounds (a duration also within ``longest`` [s]), or
+    its default: the same check for a request and for an analysis rebuilding its signal."""
+    spec = _EXCITE.arg(key)
+    return number(args, key, spec.low, spec.high if longest is None else min(spec.high, longest), spec.default)
+
+
+def _integer(args: dict, key: str, default: int | None = None) -> int:
+    """An integer excite argument in the catalog's bounds (``default``: a signal's own)."""
+    spec = _EXCITE.arg(key)
+    return integer(args, key, int(spec.low), int(spec.high), spec.default if default is None else default)
+
+
 def _outermost(centre: float, half: float, lo: float, hi: float) -> float:
     """The end of centre +- half that leaves lo..hi the most [rad]: a limits refusal's angle."""
     return centre - half if lo - (centre - half) >= (centre + half) - hi else centre + half
@@ -75,25 +93,26 @@ def signal_of(args: dict, signal: str, base, j: int, amplitude: float, longest: 
     """The signal of the request, about ``base`` on joint j; its duration at most ``longest``.
     The same settings give the same signal: an analysis rebuilds it from the recording."""
     if signal == "chirp":
-        f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
-        f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
+        f0 = _number(args, "f0_hz")
+        f1 = _number(args, "f1_hz")
         if f1 <= f0:
             raise bad_args(f"'f1_hz' ({f1}) must be above 'f0_hz' ({f0})", "f1_hz")
-        return signals.LogChirp(base, j, amplitude, f0, f1, number(args, "duration_s", 1.0, longest, 60.0))
+        return signals.LogChirp(base, j, amplitude, f0, f1, _number(args, "duration_s", longest))
     if signal == "prbs":
-        made = signals.PRBS(base, j, amplitude, integer(args, "order", 2, 16, 8), number(args, "bit_s", 0.001, 60.0, 0.2),
-                            integer(args, "periods", 1, 100, 1))
+        made = signals.PRBS(base, j, amplitude, _integer(args, "order"), _number(args, "bit_s"),
+                            _integer(args, "periods", 1))
     elif signal == "multisine":
-        f0 = number(args, "f0_hz", 0.001, 100.0, 0.1)
-        f1 = number(args, "f1_hz", 0.001, 100.0, 1.0)
+        f0 = _number(args, "f0_hz")
+        f1 = _number(args, "f1_hz")
         if f1 <= f0:
             raise bad_args(f"'f1_hz' ({f1}) must be above 'f0_hz' ({f0})", "f1_hz")
-        period = number(args, "period_s", 1.0, min(longest, MAX_INPUT_DURATION_S), 20.0)
+        period = _number(args, "period_s", longest)
         if f0 * period < 1.0:
-            raise bad_args(f"'f0_hz' ({f0}) is below one cycle per period (1 / {period:g} s)", "f0_hz")
+            raise bad_args(f"'f0_hz' ({f0}) is below one cycle per period (1 / {period:g} s)", "f0_hz",
+                           low=1.0 / period, high=_EXCITE.arg("f0_hz").high)
         made = signals.Multisine(base, j, amplitude, f0, f1,
-                                 integer(args, "components", 1, signals.Multisine.MAX_COMPONENTS, 16), period,
-                                 integer(args, "periods", 1, 100, 2))
+                                 _integer(args, "components"), period,
+                                 _integer(args, "periods", 2))
     else:
         raw = args.get("levels")
         if not isinstance(raw, list) or not 1 <= len(raw) <= signals.Levels.MAX_LEVELS:
@@ -101,7 +120,7 @@ def signal_of(args: dict, signal: str, base, j: int, amplitude: float, longest: 
         levels = numbers({"levels": raw}, "levels", len(raw))
         if any(abs(v) > 1.0 + 1e-12 for v in levels):
             raise bad_args("'levels' are fractions of amplitude_v, within -1..1", "levels")
-        made = signals.Levels(base, j, [amplitude * v for v in levels], number(args, "hold_s", 0.01, 60.0, 2.0))
+        made = signals.Levels(base, j, [amplitude * v for v in levels], _number(args, "hold_s"))
     if made.duration > longest:
         raise bad_args(f"the {signal} lasts {made.duration:g} s, over the {longest:g} s allowed", "periods")
     return made
@@ -112,10 +131,10 @@ def _settings(args: dict, signal: str) -> dict:
 
 
 def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str, joint: str, j: int) -> Plan:
-    volts = number(args, "amplitude_v", 0.01, 10.0)
-    settle = number(args, "settle_s", 0.2, 60.0, 2.0)
-    band = math.radians(number(args, "band_deg", 0.5, 45.0, 10.0))
-    centre_hz = number(args, "centre_hz", 0.0, 0.2, 0.03)
+    volts = _number(args, "amplitude_v")
+    settle = _number(args, "settle_s")
+    band = math.radians(_number(args, "band_deg"))
+    centre_hz = _number(args, "centre_hz")
     excitation = signal_of(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
     lo, hi = ctx.limits[j]
     q = setpoint[j]

@@ -10,7 +10,6 @@ from controllers.feasibility import Authority, Infeasible
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
 
-MAX_DURATION_S = 3600.0
 
 
 @dataclass(frozen=True)

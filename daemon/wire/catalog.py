@@ -27,6 +27,7 @@ BOTH = ("command", "control")
 COMMAND = ("command",)
 # Codes any request may get, whatever the command.
 COMMON_ERRORS = (P.BAD_MESSAGE, P.BAD_VERSION, P.UNKNOWN_COMMAND, P.LOOP_STALLED, P.FORBIDDEN, P.INTERNAL)
+MAX_DURATION_S = 3600.0  # the longest reference a motion command may ask for [s]
 KINDS = ("number", "integer", "string", "boolean", "list", "map", "number_or_list")
 _JSON_TYPES = {"number": "number", "integer": "integer", "string": "string", "boolean": "boolean", "list": "array",
                "map": "object"}
@@ -179,14 +180,14 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("angles_deg", "list", "one angle per joint", unit="deg"),
         Arg("angles_rad", "list", "one angle per joint", unit="rad"),
         Arg("xy_mm", "list", "the tip [x, y]", 2, 2, "mm"),
-        Arg("duration_s", "number", "the cubic move's time, 0: a step", 0.0, 3600.0, "s", 0.0),
+        Arg("duration_s", "number", "the cubic move's time, 0: a step", 0.0, MAX_DURATION_S, "s", 0.0),
         Arg("stiffness_nm_deg", "number_or_list", "stiffness set-point, one or one per joint (muscle joints)",
             0.0, 10.0, "N m/deg"),
         _record("the move")), lease=True, deferred=True, errors=_REFUSALS),
     Command("path", "planner", "a reference path after an approach to its start", (
         "path", "duration_s", "approach_s", "approach_chosen", "stretched_from_s", "total_s", "cycle", "recording"), (
         Arg("name", "string", "the path", required=True, choices=("translation", "circle")),
-        Arg("duration_s", "number", "the path's time; default the thesis's or the shortest feasible", 0.5, 3600.0,
+        Arg("duration_s", "number", "the path's time; default the thesis's or the shortest feasible", 0.5, MAX_DURATION_S,
             "s"),
         _APPROACH, _record("the path")), lease=True, deferred=True, errors=_REFUSALS),
     Command("waypoints", "planner", "a path through waypoints after an approach to the first", (
@@ -216,7 +217,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("f0_hz", "number", "chirp, multisine: the lowest frequency (multisine: at least 1/period_s)",
             0.001, 100.0, "Hz", 0.1),
         Arg("f1_hz", "number", "chirp, multisine: the highest frequency, above f0_hz", 0.001, 100.0, "Hz", 1.0),
-        Arg("duration_s", "number", "chirp: its length", 1.0, 3600.0, "s", 60.0),
+        Arg("duration_s", "number", "chirp: its length", 1.0, MAX_DURATION_S, "s", 60.0),
         Arg("order", "integer", "prbs: register length (2^order - 1 bits)", 2, 16, default=8),
         Arg("bit_s", "number", "prbs: bit time", 0.001, 60.0, "s", 0.2),
         Arg("periods", "integer", "prbs (default 1), multisine (default 2): repetitions", 1, 100),
