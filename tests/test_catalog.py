@@ -153,3 +153,12 @@ def test_the_key_files_server_key_field_is_the_one_the_document_names(tmp_path):
     assert keys.read_metadata(secret_file)["server-key"].encode() == expected
     assert expected not in zmq.auth.load_certificate(secret_file)
     assert "the `server-key` field of the file's `metadata` section" in (DOCS / "protocol.md").read_text()
+
+
+def test_an_observer_may_read_and_list_but_not_record_reload_or_take_the_lease():
+    """The roles the document states (Keys) are the catalog's; the messenger refuses by them
+    (tests/test_security.py sends them with an observer's key)."""
+    operators = {name for name, c in catalog.COMMANDS.items() if c.role == "operator"}
+    assert operators == {"lease.acquire", "record.start", "record.stop", "keys.reload"}
+    row = next(line for line in (DOCS / "protocol.md").read_text().splitlines() if "--role observer" in line)
+    assert "lists the daemon's recordings" in row and "never takes the lease, starts or stops" in row
