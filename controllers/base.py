@@ -162,7 +162,11 @@ class Controller(ABC):
         # wrapper that adds to the output (the disturbance observer) shifts it every cycle
         self.u_lo, self.u_hi = list(context.u_min), list(context.u_max)
         self.given_options = self._known_options(options or {})  # kept to build a twin elsewhere
-        self.chosen = self.check_options(self.given_options)
+        try:
+            self.chosen = self.check_options(self.given_options)
+        except ParamError as exc:  # the options refused as a whole: named for a client
+            exc.data.setdefault("option", ", ".join(o.name for o in self.options))
+            raise
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
         self._values = defaults
         self.apply_params(self.prepare_params(values))

@@ -350,6 +350,8 @@ def test_refusals_carry_data_naming_the_argument(daemon):
                             "high": spec["high"], "unit": spec["unit"]}
     design = call(loop, sock, "controller.switch", {"name": "lti"}, lease)["error"]
     assert design["code"] == P.BAD_ARGS and design["data"] == {"argument": "options", "option": "design"}
+    refused = call(loop, sock, "controller.switch", {"name": "lti", "options": {"design": {"joints": {}}}}, lease)
+    assert refused["error"]["data"] == {"argument": "options", "option": "design"}, refused
     unknown = call(loop, sock, "controller.switch", {"name": "nonesuch"}, lease)["error"]
     assert unknown["data"]["argument"] == "name" and "pid" in unknown["data"]["allowed"]
     steps = call(loop, sock, "steps", {"angles_deg": [[120.0, -80.0], [121.0, -80.0]], "hold_s": [1.0, 0.0]},

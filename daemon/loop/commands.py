@@ -119,7 +119,8 @@ class Commands:
             message, code = exc.message, exc.code
         except ParamError as exc:  # a parameter (controller.set), an option (a design) refused
             message, code = str(exc), P.BAD_ARGS
-            data = {"argument": "options" if "option" in exc.data else "params", **exc.data}
+            argument = "params" if "parameter" in exc.data else "options" if "option" in exc.data else "name"
+            data = {"argument": argument, **exc.data}  # "name": the controller cannot run on this rig
         except LookupError as exc:  # no such controller
             message, code = str(exc).strip("'\""), P.BAD_ARGS
             data = {"argument": "name", "allowed": [c["name"] for c in self._controllers]}
