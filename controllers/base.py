@@ -30,7 +30,19 @@ from hal.bounds import clip as clamp  # noqa: F401  (part of the controller cont
 
 
 class ParamError(ValueError):
-    """A parameter change is refused; nothing was applied."""
+    """A parameter change is refused; nothing was applied. ``data``: what a client may act
+    on without the message (``parameter``/``option``, ``joint``, ``low``, ``high``, ``unit``)."""
+
+    def __init__(self, message: str, **data):
+        super().__init__(message)
+        self.data = data
+
+    def __reduce__(self):  # it crosses from the planner process to the loop's
+        return _param_error, (str(self), self.data)
+
+
+def _param_error(message: str, data: dict) -> ParamError:
+    return ParamError(message, **data)
 
 
 class ActuationError(ParamError):
@@ -159,7 +171,11 @@ class Controller(ABC):
         # wrapper that adds to the output (the disturbance observer) shifts it every cycle
         self.u_lo, self.u_hi = list(context.u_min), list(context.u_max)
         self.given_options = self._known_options(options or {})  # kept to build a twin elsewhere
-        self.chosen = self.check_options(self.given_options)
+        try:
+            self.chosen = self.check_options(self.given_options)
+        except ParamError as exc:  # the options refused as a whole: named for a client
+            exc.data.setdefault("option", ", ".join(o.name for o in self.options))
+            raise
         defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
         self._values = defaults
         self.apply_params(self.prepare_params(values))
@@ -189,11 +205,12 @@ class Controller(ABC):
         known = {o.name for o in self.options}
         unknown = sorted(map(str, set(options) - known))
         if unknown:
-            raise ParamError(f"{self.name}: unknown option {unknown[0]!r} (known: {', '.join(sorted(known)) or 'none'})")
+            raise ParamError(f"{self.name}: unknown option {unknown[0]!r} (known: {', '.join(sorted(known)) or 'none'})",
+                             option=unknown[0], allowed=sorted(known))
         missing = [o.name for o in self.options if o.required and o.name not in options]
         if missing:
             raise ParamError(f"{self.name}: option {missing[0]!r} is required: "
-                             f"{next(o.doc for o in self.options if o.name == missing[0])}")
+                             f"{next(o.doc for o in self.options if o.name == missing[0])}", option=missing[0])
         return options
 
     @abstractmethod
@@ -226,17 +243,21 @@ class Controller(ABC):
         for key, raw in changes.items():
             spec = specs.get(key)
             if spec is None:
-                raise ParamError(f"{self.name}: unknown parameter {key!r} (known: {', '.join(specs) or 'none'})")
+                raise ParamError(f"{self.name}: unknown parameter {key!r} (known: {', '.join(specs) or 'none'})",
+                                 parameter=key, allowed=list(specs))
             values = raw if isinstance(raw, (list, tuple)) else [raw] * n
             if len(values) != n:
-                raise ParamError(f"{self.name}.{key}: expected {n} values (one per joint), got {len(values)}")
+                raise ParamError(f"{self.name}.{key}: expected {n} values (one per joint), got {len(values)}",
+                                 parameter=key)
             checked = []
             for joint, v in zip(self.context.joint_names, values):
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ParamError(f"{self.name}.{key}[{joint}]: expected a finite number, got {v!r}")
+                    raise ParamError(f"{self.name}.{key}[{joint}]: expected a finite number, got {v!r}", parameter=key,
+                                     joint=joint)
                 if not spec.low <= v <= spec.high:
                     raise ParamError(f"{self.name}.{key}[{joint}] = {v} {spec.unit} is outside "
-                                     f"{spec.low}..{spec.high} {spec.unit}")
+                                     f"{spec.low}..{spec.high} {spec.unit}", parameter=key, joint=joint, low=spec.low,
+                                     high=spec.high, unit=spec.unit)
                 checked.append(float(v))
             merged[key] = tuple(checked)
         return merged

@@ -77,7 +77,7 @@ def test_a_controller_that_cannot_be_built_is_refused_and_the_active_one_stays(m
                              ({"name": "smc", "params": {"eps": -1}}, P.BAD_ARGS, "eps"),
                              ({"name": "lti"}, P.BAD_ARGS, "option 'design' is required"),
                              ({"name": "lti", "options": {"design": {"joints": {}}}}, P.BAD_ARGS, "no controller for"),
-                             ({"name": "smc", "params": []}, P.BAD_ARGS, "must be maps")):
+                             ({"name": "smc", "params": []}, P.BAD_ARGS, "must be a map")):
         reply = call(loop, sock, "controller.switch", args, lease)
         assert reply["error"]["code"] == code and text in reply["error"]["message"], reply
     assert loop.controller.name == "pid" and loop.state.value == "enabled"

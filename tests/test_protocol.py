@@ -279,13 +279,13 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     import re
     from pathlib import Path
 
-    from daemon.loop.commands import Commands
+    from daemon.wire import catalog
 
     docs = Path(__file__).resolve().parents[1] / "docs"
     text = (docs / "protocol.md").read_text()
     commands_table = text.split("## Commands", 1)[1].split("\n\n", 2)[1]
     documented = set(re.findall(r"^\| `([a-z.]+)` \|", commands_table, re.M))
-    everything = set(Commands.TABLE) | set(P.MESSENGER_COMMANDS) | set(P.RECORDER_COMMANDS)
+    everything = set(catalog.COMMANDS)
     assert documented == everything
     codes_table = text.split("### Error codes", 1)[1].split("\n\n", 1)[0]
     codes = set(P.ERROR_CODES)
@@ -305,3 +305,70 @@ def test_an_estop_is_never_refused_for_its_arguments(daemon):
     result = ok(loop, dealer(srv, "control"), "estop", {"who": {"not": "a string"}, "speed": float("nan")})
     assert result["state"] == "estop" and loop.state is State.ESTOP
     assert loop.supervisor.cause.startswith("e-stop from {")
+
+
+def test_the_order_of_checks_is_the_documented_one(daemon):
+    """Envelope, command, arguments (the catalog's), role, lease, state, then what needs the
+    rig: catalog-refused arguments are bad_args in every state; rig-refused ones wait for
+    the state (docs/protocol.md, "The order of checks")."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    bad = {"angles_deg": [120.0, -80.0], "speed": 3}
+    idle = call(loop, sock, "set", bad)  # no lease, idle: the arguments are checked first
+    assert idle["error"]["code"] == P.BAD_ARGS and idle["error"]["data"] == {"argument": "speed"}
+    assert call(loop, sock, "set", {"angles_deg": [120.0, -80.0]})["error"]["code"] == P.NO_LEASE
+    lease = leased(loop, sock)
+    assert call(loop, sock, "set", bad, lease)["error"]["code"] == P.BAD_ARGS
+    three = {"angles_deg": [120.0, -80.0, 3.0]}  # one angle per joint: the rig's to say, after the state
+    assert call(loop, sock, "set", three, lease)["error"]["data"] == {"reason": "state", "state": "idle"}
+    ok(loop, sock, "enable", lease=lease)
+    refused = call(loop, sock, "set", three, lease)["error"]
+    assert refused["code"] == P.BAD_ARGS and refused["data"] == {"argument": "angles_deg", "expected_items": 2}
+
+
+def test_estop_events_and_their_state_event_say_who_sent_it(daemon):
+    loop, captured, srv = daemon
+    ok(loop, dealer(srv, "control"), "estop", {"who": "the test"})
+    loop.run(20)
+    events = [e for e in captured.of("event") if e["kind"] == "estop" or e.get("to") == "estop"]
+    assert [e["kind"] for e in events] == ["estop", "state"]
+    assert all(e["who"] == "anonymous" for e in events), events
+
+
+def test_refusals_carry_data_naming_the_argument(daemon):
+    """bad_args always has data: a controller's parameter with its joint and bounds, a
+    missing design, an unknown controller, an element of a list; an authority refusal says
+    which duration its shortest_s is for; an excite's limits refusal gives the angle."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    spec = ok(loop, sock, "controller.get")["spec"][0]
+    high = call(loop, sock, "controller.set", {"params": {spec["name"]: spec["high"] * 2 + 1}}, lease)["error"]
+    assert high["code"] == P.BAD_ARGS
+    assert high["data"] == {"argument": "params", "parameter": spec["name"], "joint": "bottom", "low": spec["low"],
+                            "high": spec["high"], "unit": spec["unit"]}
+    design = call(loop, sock, "controller.switch", {"name": "lti"}, lease)["error"]
+    assert design["code"] == P.BAD_ARGS and design["data"] == {"argument": "options", "option": "design"}
+    refused = call(loop, sock, "controller.switch", {"name": "lti", "options": {"design": {"joints": {}}}}, lease)
+    assert refused["error"]["data"] == {"argument": "options", "option": "design"}, refused
+    unknown = call(loop, sock, "controller.switch", {"name": "nonesuch"}, lease)["error"]
+    assert unknown["data"]["argument"] == "name" and "pid" in unknown["data"]["allowed"]
+    steps = call(loop, sock, "steps", {"angles_deg": [[120.0, -80.0], [121.0, -80.0]], "hold_s": [1.0, 0.0]},
+                 lease)["error"]
+    assert steps["data"] == {"argument": "hold_s", "index": [1], "low": 0.001, "high": 3600.0}
+    approach = call(loop, sock, "path", {"name": "translation", "approach_s": 0.01}, lease)["error"]
+    assert approach["code"] == P.REFUSED and approach["data"]["shortest_for"] == "approach_s"
+    assert approach["data"]["shortest_s"] > 0.01
+    path = call(loop, sock, "path", {"name": "circle", "duration_s": 1.0, "approach_s": 30.0}, lease)["error"]
+    assert path["data"]["shortest_for"] == "duration_s" and path["data"]["shortest_s"] > 1.0
+    multisine = {"signal": "multisine", "joint": "middle", "amplitude_deg": 0.5, "period_s": 20.0, "f0_hz": 0.04}
+    below = call(loop, sock, "excite", multisine, lease)["error"]  # f0_hz under one cycle per period
+    assert below["code"] == P.BAD_ARGS and below["data"] == {"argument": "f0_hz", "low": 0.05, "high": 100.0} and "1 / 20 s" in below["message"]
+    middle = loop.reference[0][1]
+    swing = call(loop, sock, "excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 45.0}, lease)["error"]
+    assert swing["code"] == P.REFUSED and swing["data"]["reason"] == "limits"
+    lo, hi = swing["data"]["limits_deg"]
+    assert swing["data"]["angle_deg"] in (pytest.approx(math.degrees(middle) - 45.0),
+                                          pytest.approx(math.degrees(middle) + 45.0))
+    assert not lo <= swing["data"]["angle_deg"] <= hi

@@ -8,7 +8,7 @@
 
 Replies are matched to requests by id; a reply that never comes raises TimeoutError
 instead of hanging. A command whose reply is deferred (planned or built beside the loop:
-``protocol.DEFERRED_COMMANDS``) is waited for as long as the daemon's ``describe`` says such
+``catalog.DEFERRED``) is waited for as long as the daemon's ``describe`` says such
 work may take. ``keep_lease()`` renews the lease from a background thread.
 
 A daemon with keys (docs/protocol.md, "Keys") needs ``key_file``: the client's
@@ -29,7 +29,7 @@ import msgpack
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
-from daemon.wire import protocol
+from daemon.wire import catalog, protocol
 from daemon.wire.keys import secure_client
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -117,7 +117,7 @@ class Client:
     # -- requests -------------------------------------------------------------------------
     def call(self, cmd: str, args: dict | None = None, control: bool = False, timeout: float | None = None):
         """Send one request and wait for its reply; raise RemoteError or TimeoutError."""
-        if timeout is None and cmd in protocol.DEFERRED_COMMANDS:
+        if timeout is None and cmd in catalog.DEFERRED:
             timeout = max(self.timeout, self.deferred_timeout())
         with self._lock:
             sock = self._sockets["control" if control else "command"]

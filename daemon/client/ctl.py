@@ -7,6 +7,7 @@ import os
 import sys
 
 from daemon.wire import keys
+from daemon.wire.catalog import COMMANDS
 
 from daemon.recordings import mcap_log, reading as recording
 from daemon.client.client import Client, KeyRefused, RemoteError, read_waypoints
@@ -76,6 +77,11 @@ def motion(client: Client, args):
     return {**result, **follow(client, result.get("total_s", result.get("duration_s", 0.0)), result.get("recording"))}
 
 
+def _help(cmd: str, arg: str) -> str:
+    """An option's help: its argument's line in the command catalog (bounds, unit, default)."""
+    return COMMANDS[cmd].arg(arg).help()
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
     p.add_argument("--command", default=DEFAULT_COMMAND)
@@ -88,25 +94,24 @@ def parser() -> argparse.ArgumentParser:
                    help="the daemon's public key (server.key), if your key file does not hold it (or PNEUMAD_SERVER_KEY)")
     sub = p.add_subparsers(dest="what", required=True)
     for name in ("status", "describe", "enable", "disable", "estop", "reset", "abort"):
-        sub.add_parser(name)
+        sub.add_parser(name, help=COMMANDS[name].doc)
     w = sub.add_parser("watch", help="live text view")
     w.add_argument("--seconds", type=float, default=None)
-    s = sub.add_parser("set", help="move to joint angles [deg] or a tip point [mm]")
+    s = sub.add_parser("set", help=COMMANDS["set"].doc)
     motion = [s]
     s.add_argument("values", type=float, nargs="+")
     s.add_argument("--xy", action="store_true", help="values are x y in mm")
-    s.add_argument("--duration", type=float, default=0.0)
-    s.add_argument("--stiffness", type=float, default=None, metavar="NM_PER_DEG",
-                   help="joint stiffness [N m/deg], where the joints take one (the muscle rig)")
-    pa = sub.add_parser("path", help="run a reference path")
+    s.add_argument("--duration", type=float, default=0.0, help=_help("set", "duration_s"))
+    s.add_argument("--stiffness", type=float, default=None, metavar="NM_PER_DEG", help=_help("set", "stiffness_nm_deg"))
+    pa = sub.add_parser("path", help=COMMANDS["path"].doc)
     motion.append(pa)
     pa.add_argument("name", choices=["translation", "circle"])
-    pa.add_argument("--duration", type=float, default=None)
-    pa.add_argument("--approach", type=float, default=None)
+    pa.add_argument("--duration", type=float, default=None, help=_help("path", "duration_s"))
+    pa.add_argument("--approach", type=float, default=None, help=_help("path", "approach_s"))
     wp = sub.add_parser("waypoints", help="run a path through waypoints from a CSV file")
     motion.append(wp)
     wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
-    wp.add_argument("--approach", type=float, default=None)
+    wp.add_argument("--approach", type=float, default=None, help=_help("waypoints", "approach_s"))
     st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint angles [deg]")
     motion.append(st)
     st.add_argument("levels", nargs="+")
@@ -118,17 +123,12 @@ def parser() -> argparse.ArgumentParser:
     ex.add_argument("--amplitude", type=float, default=1.0, help="[deg], or [V] with --input (default 1)")
     ex.add_argument("--input", action="store_true",
                     help="open loop: the signal on the joint's V_MV about the present set-point, the others held")
-    ex.add_argument("--settle", type=float, default=2.0, help="--input: feedback holds this long first [s] (default 2)")
-    ex.add_argument("--band", type=float, default=10.0,
-                    help="--input: the joint is stopped and held if it leaves +- this [deg] (default 10)")
-    ex.add_argument("--components", type=int, default=16, help="multisine: sines (default 16)")
-    ex.add_argument("--period", type=float, default=20.0, help="multisine: period [s] (default 20)")
-    ex.add_argument("--f0", type=float, default=0.1, help="chirp start frequency [Hz] (default 0.1)")
-    ex.add_argument("--f1", type=float, default=1.0, help="chirp end frequency [Hz] (default 1)")
-    ex.add_argument("--duration", type=float, default=60.0, help="chirp duration [s] (default 60)")
-    ex.add_argument("--order", type=int, default=8, help="PRBS register length (default 8: 255 bits)")
-    ex.add_argument("--bit", type=float, default=0.2, help="PRBS bit time [s] (default 0.2)")
-    ex.add_argument("--periods", type=int, default=1, help="PRBS or multisine repetitions (default 1)")
+    for flag, arg in (("--settle", "settle_s"), ("--band", "band_deg"), ("--components", "components"),
+                      ("--period", "period_s"), ("--f0", "f0_hz"), ("--f1", "f1_hz"), ("--duration", "duration_s"),
+                      ("--order", "order"), ("--bit", "bit_s"), ("--periods", "periods")):
+        spec = COMMANDS["excite"].arg(arg)
+        ex.add_argument(flag, type=int if spec.kind == "integer" else float,
+                        default=1 if arg == "periods" else spec.default, help=spec.help())
     for m in motion:
         m.add_argument("--record", action="store_true",
                        help="the daemon records it, start to end plus 3 s, in its recording directory")
@@ -167,11 +167,11 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("file")
     r.add_argument("--seconds", type=float, default=10.0)
     rs = sub.add_parser("record.start", help="the daemon records telemetry (MCAP, in its recording directory)")
-    rs.add_argument("--name", default=None, help="the file's name without .mcap (default: the time and 'record')")
-    rs.add_argument("--seconds", type=float, default=None, help="end after this long (default: at record.stop)")
+    rs.add_argument("--name", default=None, help=_help("record.start", "name"))
+    rs.add_argument("--seconds", type=float, default=None, help=_help("record.start", "seconds"))
     rt = sub.add_parser("record.stop", help="end a recording the daemon is making")
-    rt.add_argument("--name", default=None, help="which (needed when several run)")
-    sub.add_parser("record.list", help="the daemon's recordings: those running, and its files")
+    rt.add_argument("--name", default=None, help=_help("record.stop", "name"))
+    sub.add_parser("record.list", help=COMMANDS["record.list"].doc)
     e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")

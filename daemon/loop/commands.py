@@ -3,10 +3,11 @@ the lease.
 
 Handlers run at the end of a cycle in the loop's thread, so whatever they change takes
 effect at the next cycle boundary, and each does bounded work whatever its arguments: the
-envelope is decoded with ``args`` skipped (:func:`daemon.wire.protocol.decode_request`), a
-command's own small arguments are decoded and checked here, and anything whose cost grows
-with the request or the rig is handed to the worker process beside the loop
-(:class:`~daemon.planner.process.Preparer`) with a deferred reply:
+envelope is decoded with ``args`` skipped (:func:`daemon.wire.protocol.decode_request`); the
+messenger has already checked the command, its socket and its arguments against the catalog
+(:mod:`daemon.wire.catalog`), so a loop command's few small arguments are only decoded here;
+anything whose cost grows with the request or the rig is handed to the worker process beside
+the loop (:class:`~daemon.planner.process.Preparer`) with a deferred reply:
 
 - motion commands (``set``, ``path``, ``waypoints``, ``steps``, ``excite``) are planned and
   checked there (:mod:`daemon.planner.commands`); the loop installs the finished reference at a cycle
@@ -31,9 +32,10 @@ import math
 from controllers import registry
 from controllers.base import ParamError
 from daemon.planner import commands as planner
-from daemon.wire import protocol as P
 from controllers.known_load import KnownLoad
-from daemon.wire.arguments import CommandFailed, bad_args, checked_numbers, number, only
+from daemon.wire import catalog
+from daemon.wire import protocol as P
+from daemon.wire.arguments import CommandFailed, bad_args
 from daemon.wire.keys import ANONYMOUS, Identity
 from daemon.loop.lease import Lease
 from daemon.planner.process import Deferred, Preparer
@@ -43,37 +45,19 @@ VERSION = "0.1.0"
 
 
 class Commands:
-    # name -> (method, needs the lease, allowed on the control socket)
-    TABLE = {
-        "ping": ("ping", False, True),
-        "status": ("status", False, True),
-        "describe": ("describe", False, False),
-        "estop": ("estop", False, True),
-        "abort": ("abort", False, True),
-        "enable": ("enable", True, False),
-        "disable": ("disable", True, True),
-        "reset": ("reset", True, False),
-        "set": ("motion", True, False),
-        "path": ("motion", True, False),
-        "waypoints": ("motion", True, False),
-        "steps": ("motion", True, False),
-        "excite": ("motion", True, False),
-        "controller.list": ("controller_list", False, False),
-        "controller.get": ("controller_get", False, False),
-        "controller.switch": ("controller_switch", True, False),
-        "controller.set": ("controller_set", True, False),
-        "controller.shadow": ("controller_shadow", True, False),
-        "controller.commit": ("controller_commit", True, False),
-        "controller.discard": ("controller_discard", True, False),
-        "load.set": ("load_set", True, False),
-        "load.clear": ("load_clear", True, False),
-        "lease.acquire": ("lease_acquire", False, False),
-        "lease.renew": ("lease_renew", True, False),
-        "lease.release": ("lease_release", True, False),
+    # The loop's and the planner's commands (daemon.wire.catalog) -> the method serving them;
+    # a deferred command's method takes the request (its arguments are decoded beside the loop).
+    HANDLERS = {
+        "ping": "ping", "status": "status", "describe": "describe", "estop": "estop", "abort": "abort",
+        "enable": "enable", "disable": "disable", "reset": "reset", "set": "motion", "path": "motion",
+        "waypoints": "motion", "steps": "motion", "excite": "motion", "controller.list": "controller_list",
+        "controller.get": "controller_get", "controller.switch": "controller_switch",
+        "controller.set": "controller_set", "controller.shadow": "controller_shadow",
+        "controller.commit": "controller_commit", "controller.discard": "controller_discard",
+        "load.set": "load_set", "load.clear": "load_clear", "lease.acquire": "lease_acquire",
+        "lease.renew": "lease_renew", "lease.release": "lease_release",
     }
-
-    BESIDE = frozenset({"motion", "controller_switch", "controller_set", "controller_shadow"})
-    CONTROL = tuple(sorted(name for name, (_, _, on_control) in TABLE.items() if on_control))
+    catalog.check_handlers(("loop", "planner"), HANDLERS)
 
     def __init__(self, loop, preparer: Preparer | None = None, security: dict | None = None):
         self.loop = loop
@@ -133,8 +117,13 @@ class Commands:
             message, code, data = exc.message, exc.code, exc.data
         except P.ProtocolError as exc:
             message, code = exc.message, exc.code
-        except (LookupError, ParamError) as exc:
+        except ParamError as exc:  # a parameter (controller.set), an option (a design) refused
+            message, code = str(exc), P.BAD_ARGS
+            argument = "params" if "parameter" in exc.data else "options" if "option" in exc.data else "name"
+            data = {"argument": argument, **exc.data}  # "name": the controller cannot run on this rig
+        except LookupError as exc:  # no such controller
             message, code = str(exc).strip("'\""), P.BAD_ARGS
+            data = {"argument": "name", "allowed": [c["name"] for c in self._controllers]}
         except Exception as exc:  # a plugin that fails to build is refused, never fatal
             message, code = f"{type(exc).__name__}: {exc}", P.REFUSED
         finally:
@@ -151,20 +140,15 @@ class Commands:
         return self.preparer.submit(finish, function, *args)
 
     def handle(self, request: dict, control: bool = False):
-        entry = self.TABLE.get(request["cmd"])
-        if entry is None:
-            raise CommandFailed(P.UNKNOWN_COMMAND, f"unknown command {request['cmd']!r} "
-                                                   f"(known: {', '.join(sorted(self.TABLE))})")
-        method, needs_lease, on_control = entry
-        if control and not on_control:
-            raise CommandFailed(P.UNKNOWN_COMMAND, f"{request['cmd']!r} is not served on the control socket "
-                                                   f"(it serves {', '.join(self.CONTROL)}; send it on the command "
-                                                   f"socket)")
-        if needs_lease:
+        """One request the messenger has checked against the catalog (command, socket,
+        arguments, role): the lease, then the command (which checks the state)."""
+        command = catalog.find(request["cmd"], "control" if control else "command")
+        if command.lease:
             self.lease.check(request["lease"], self.client)
-        if method in self.BESIDE:  # its arguments are decoded beside the loop, with its work
-            return getattr(self, method)(request)
-        return getattr(self, method)(P.decode_args(request))
+        method = getattr(self, self.HANDLERS[command.name])
+        if command.deferred:  # its arguments are decoded beside the loop, with its work
+            return method(request)
+        return method(P.decode_args(request))
 
     def tick(self) -> None:
         """Once a cycle: the lease's clock (:meth:`daemon.loop.lease.Lease.tick`)."""
@@ -172,24 +156,19 @@ class Commands:
 
     # -- lease ------------------------------------------------------------------------------
     def lease_acquire(self, args):
-        only(args, "ttl_s")
-        return self.lease.acquire(self.client, number(args, "ttl_s", 0.1, 60.0, self.lease.ttl))
+        return self.lease.acquire(self.client, float(args.get("ttl_s", self.lease.ttl)))
 
     def lease_renew(self, args):
-        only(args)
         return self.lease.renew()
 
     def lease_release(self, args):
-        only(args)
         return self.lease.release()
 
     # -- reading ----------------------------------------------------------------------------
     def ping(self, args):
-        only(args)
         return {"pong": True, "t": self.loop.clock.now(), "version": VERSION}
 
     def status(self, args):
-        only(args)
         loop = self.loop
         snap = loop.snapshot
         return {
@@ -217,7 +196,6 @@ class Commands:
         }
 
     def describe(self, args):
-        only(args)
         return self._describe
 
     def _build_describe(self) -> dict:
@@ -243,9 +221,9 @@ class Commands:
                       "pressure": "Pa", "force": "N", "time": "s"},
             "controllers": self._controllers,
             "states": [s.value for s in State],
-            "commands": sorted((*self.TABLE, *P.MESSENGER_COMMANDS)),
-            "control_commands": list(self.CONTROL),
-            "deferred_commands": sorted(P.DEFERRED_COMMANDS),
+            "commands": sorted(catalog.COMMANDS),
+            "control_commands": list(catalog.served_on("control")),
+            "deferred_commands": list(catalog.DEFERRED),
             "deferred_timeout_s": self.preparer.time_limit_s,
             "security": self.security,
         }
@@ -290,18 +268,16 @@ class Commands:
         said = args.get("who", "")
         said = (said if isinstance(said, str) else repr(said))[:64]
         who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
-        self.loop.estop(who)
+        self.loop.estop(who, signed=str(self.client))
         return {"state": self.loop.state.value}
 
     def abort(self, args):
         """Stop any path or move and hold the present position; a plan being prepared is
         discarded when it is done."""
-        only(args)
         self.loop.hold_position()
         return {"reference": "hold"}
 
     def enable(self, args):
-        only(args)
         try:
             self.loop.enable()
         except StateError as exc:
@@ -309,12 +285,10 @@ class Commands:
         return {"state": self.loop.state.value}
 
     def disable(self, args):
-        only(args)
         self.loop.disable()
         return {"state": self.loop.state.value}
 
     def reset(self, args):
-        only(args)
         try:
             self.loop.reset()
         except StateError as exc:
@@ -354,9 +328,8 @@ class Commands:
     def load_set(self, args):
         """Feed a known payload forward (controllers.known_load) from the next cycle, bumplessly;
         refused if the rig's joints have no model or cannot carry it in every posture."""
-        only(args, "mass_kg", "com_mm")
-        mass = number(args, "mass_kg", 0.0, 1000.0)
-        com = checked_numbers("com_mm", args.get("com_mm", [0.0, 0.0]), 2)
+        mass = float(args["mass_kg"])
+        com = [float(c) for c in args.get("com_mm", catalog.COMMANDS["load.set"].default("com_mm"))]
         rig = self.loop.rig
         try:
             load = KnownLoad.for_rig(mass, [c * 1e-3 for c in com], self.loop.context, rig.arm.link_lengths_m,
@@ -368,7 +341,6 @@ class Commands:
 
     def load_clear(self, args):
         """Stop feeding a load forward (bumplessly); says whether one was."""
-        only(args)
         had = self.loop.feed_forward.load is not None
         if had:
             self._known_load(None)
@@ -401,7 +373,6 @@ class Commands:
         return available
 
     def controller_get(self, args):
-        only(args)
         c = self.loop.controller
         return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
 
@@ -444,14 +415,12 @@ class Commands:
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""
-        only(args)
         if self.loop.shadow is None:
             raise CommandFailed(P.BAD_STATE, "no shadow run to commit: start one with controller.shadow")
         return {**self.loop.commit_shadow(), "active": self.loop.controller.name, "cycle": self.loop.cycle}
 
     def controller_discard(self, args):
         """End the shadow run without applying it; the run's comparison."""
-        only(args)
         if self.loop.shadow is None:
             raise CommandFailed(P.BAD_STATE, "no shadow run to discard")
         return self.loop.end_shadow("discard")

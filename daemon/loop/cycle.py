@@ -359,9 +359,14 @@ class ControlLoop:
     def disable(self) -> None:
         self.supervisor.disable()
 
-    def estop(self, who: str = "") -> None:
-        """Latch the e-stop and write the safe outputs now, in this very cycle."""
+    def estop(self, who: str = "", signed: str | None = None) -> None:
+        """Latch the e-stop and write the safe outputs now, in this very cycle; its events
+        (``estop``, ``state``) carry ``signed`` as ``who`` (the key that sent it) when given."""
+        first = len(self.supervisor.events)
         self.supervisor.estop(who)
+        if signed is not None:
+            for event in self.supervisor.events[first:]:
+                event["who"] = signed
         self._write_safe()
         self._drain_events()
 

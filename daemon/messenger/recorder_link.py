@@ -40,13 +40,14 @@ class Recorder:
         except zmq.Again:
             self.dropped += 1  # the recording shows it as a gap in the topic's seq
 
-    def ask(self, token: int, sock: zmq.Socket, envelope: list, body: bytes, who: str) -> bool:
-        """Pass a request on; False if the recorder cannot take it now."""
+    def ask(self, token: int, sock: zmq.Socket, envelope: list, body: bytes, request_id, who: str) -> bool:
+        """Pass a request on (already checked against the catalog); False if the recorder
+        cannot take it now."""
         try:
             self.control.send_multipart((_TOKEN.pack(token), who.encode(), body), zmq.NOBLOCK)
         except zmq.Again:
             return False
-        self.owed[token] = (sock, envelope, time.monotonic(), protocol.request_id_of(body))
+        self.owed[token] = (sock, envelope, time.monotonic(), request_id)
         return True
 
     def take_answers(self, publish_event) -> None:

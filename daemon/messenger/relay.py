@@ -12,7 +12,8 @@ import time
 import msgpack
 import zmq
 
-from daemon.wire import protocol
+from daemon.wire import catalog, protocol
+from daemon.wire.arguments import CommandFailed
 from daemon.messenger.guard import Guard
 from daemon.wire.keys import ANONYMOUS, OPERATOR, pack_identity
 from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
@@ -48,6 +49,8 @@ class Relay:
         self.poller.register(doorbell, zmq.POLLIN)
         if recorder is not None:
             self.poller.register(recorder.control, zmq.POLLIN)
+        self._served = {"keys.reload": self._answer_reload}  # the commands this process answers itself
+        catalog.check_handlers(("messenger",), self._served)
 
     def run(self, parent_alive) -> None:
         """Until the telemetry ring's END, or until the parent is gone."""
@@ -93,39 +96,56 @@ class Relay:
                 self._refuse(sock, envelope, body, "your key has been revoked: ask the lab for a new one",
                              {"reason": "revoked", "key": frames[-1].get("User-Id")})
                 continue
-            if b"keys.reload" in body and _command(body) in protocol.MESSENGER_COMMANDS:
-                self._answer_reload(sock, envelope, body, identity)
+            try:
+                request = protocol.decode_request(body)
+                command = self._admit(name, request, identity)
+            except protocol.ProtocolError as exc:
+                self._send(sock, envelope, protocol.encode_error(exc.request_id, exc.code, exc.message))
                 continue
-            if b"record." in body and _command(body) in protocol.RECORDER_COMMANDS:
-                self._to_recorder(sock, envelope, body, identity)
+            except CommandFailed as exc:
+                self._send(sock, envelope, protocol.encode_error(request["id"], exc.code, exc.message, exc.data))
+                continue
+            if command.server == "messenger":
+                self._served[command.name](sock, envelope, request["id"])
+                continue
+            if command.server == "recorder":
+                self._to_recorder(sock, envelope, body, request["id"], identity)
                 continue
             if self.stalled_since is not None and name == "command":
-                self._answer_stalled(sock, envelope, protocol.request_id_of(body),
-                                     "refused without reaching the loop: nothing was done")
+                self._answer_stalled(sock, envelope, request["id"], "refused without reaching the loop: nothing was done")
                 continue
             token = next(self._tokens)
             ring.put(token, pack_identity(identity) + body)
             if self.stalled_since is not None:  # a control request: kept for the loop, answered now
-                self._answer_stalled(sock, envelope, protocol.request_id_of(body), "queued: it takes effect if the loop resumes")
+                self._answer_stalled(sock, envelope, request["id"], "queued: it takes effect if the loop resumes")
             else:
-                self.owed[token] = (sock, envelope, time.monotonic(), protocol.request_id_of(body))
+                self.owed[token] = (sock, envelope, time.monotonic(), request["id"])
+
+    @staticmethod
+    def _admit(socket: str, request: dict, identity) -> catalog.Command:
+        """The request's catalog entry, checked in the documented order after its envelope:
+        the command (on this socket), its arguments, the key's role; a refusal raises
+        CommandFailed (or ProtocolError for arguments that cannot be read)."""
+        command = catalog.find(request["cmd"], socket)
+        catalog.check_args(command, protocol.decode_args(request))
+        if command.role == OPERATOR and identity.role != OPERATOR:
+            raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
+                                                    f"may send {command.name}",
+                                {"reason": "role", "role": identity.role})
+        return command
 
     # -- keys ------------------------------------------------------------------------------
     def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:
         self._send(sock, envelope, protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, message, data))
 
-    def _answer_reload(self, sock: zmq.Socket, envelope: list, body: bytes, identity) -> None:
-        """``keys.reload``, answered here: the allow-list is this process's."""
+    def _answer_reload(self, sock: zmq.Socket, envelope: list, request_id) -> None:
+        """``keys.reload``, answered here: the allow-list is this process's (the role was
+        checked in :meth:`_admit`)."""
         if self.guard is None:
-            reply = protocol.encode_error(protocol.request_id_of(body), protocol.BAD_STATE, "this daemon runs without keys "
-                                          "(pneumad run --keys DIR): there is no allow-list to reload",
-                                          {"reason": "no_keys"})
-        elif identity.role != OPERATOR:
-            reply = protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, f"key {identity.name!r} is an "
-                                          f"{identity.role}: only an operator may reload the keys",
-                                          {"reason": "role", "role": identity.role})
+            reply = protocol.encode_error(request_id, protocol.BAD_STATE, "this daemon runs without keys (pneumad run "
+                                          "--keys DIR): there is no allow-list to reload", {"reason": "no_keys"})
         else:
-            reply = protocol.encode_result(protocol.request_id_of(body), self._reload_keys())
+            reply = protocol.encode_result(request_id, self._reload_keys())
         self._send(sock, envelope, reply)
 
     def _reload_keys(self) -> dict:
@@ -146,21 +166,17 @@ class Relay:
     _send = staticmethod(send_reply)
 
     # -- the recorder ----------------------------------------------------------------------
-    def _to_recorder(self, sock: zmq.Socket, envelope: list, body: bytes, identity) -> None:
+    def _to_recorder(self, sock: zmq.Socket, envelope: list, body: bytes, request_id, identity) -> None:
         """``record.*``: passed to the recorder process (its answer comes back through
-        :meth:`Recorder.take_answers`), never to the loop; starting and stopping is an operator's."""
-        command = _command(body)
+        :meth:`Recorder.take_answers`), never to the loop."""
         if self.recorder is None:
             self._send(sock, envelope, protocol.encode_error(
-                protocol.request_id_of(body), protocol.BAD_STATE, "this daemon records nothing: start it with --record-dir DIR",
+                request_id, protocol.BAD_STATE, "this daemon records nothing: start it with --record-dir DIR",
                 {"reason": "no_recorder"}))
-        elif command != "record.list" and identity.role != OPERATOR:
-            self._refuse(sock, envelope, body, f"key {identity.name!r} is an {identity.role}: only an operator may "
-                         f"start or stop the daemon's recordings", {"reason": "role", "role": identity.role})
-        elif not self.recorder.ask(next(self._tokens), sock, envelope, body, str(identity)):
+        elif not self.recorder.ask(next(self._tokens), sock, envelope, body, request_id, str(identity)):
             self._send(sock, envelope, protocol.encode_error(
-                protocol.request_id_of(body), protocol.BAD_STATE, "the recorder is not taking requests just now (restarting?): "
-                                                       "ask again", {"reason": "recorder_unavailable"}))
+                request_id, protocol.BAD_STATE, "the recorder is not taking requests just now (restarting?): ask again",
+                {"reason": "recorder_unavailable"}))
 
     # -- the loop's heartbeat --------------------------------------------------------------
     def _watch_loop(self, now: float) -> None:
@@ -286,11 +302,3 @@ def _rebind(ctx: zmq.Context, endpoint: str, guard: Guard) -> zmq.Socket:
                 raise
             time.sleep(0.02)
     return open_socket(ctx, "telemetry", endpoint, guard)
-
-
-def _command(request: bytes):
-    """A request's command (None if it cannot be read): for the few the messenger answers."""
-    try:
-        return protocol.decode_request(request)["cmd"]
-    except protocol.ProtocolError:
-        return None

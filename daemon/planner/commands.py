@@ -20,98 +20,52 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 from controllers import registry, trajectory
 from controllers.base import Controller, ControllerContext
-from controllers.feasibility import Authority, Infeasible
 from controllers.profile import first_outside_limits
+from daemon.planner import excitation
+from daemon.planner.plans import Plan, PlanContext, check_authority
+from daemon.wire import catalog
+from daemon.wire.catalog import MAX_DURATION_S
 from daemon.wire import protocol as P
-from daemon.wire.arguments import (
-    CommandFailed,
-    bad_args,
-    checked_number,
-    checked_numbers,
-    choice,
-    number,
-    numbers,
-    only,
-)
+from daemon.wire.arguments import CommandFailed, bad_args, checked_number, checked_numbers, number, numbers
 from hal import kinematics
 
 APPROACH_MARGIN = 1.25  # an approach with no approach_s takes this times its shortest feasible duration
 APPROACH_MIN_S = 0.5  # ... and at least this long [s]
 PATHS = {"translation": (trajectory.translation, 15.0), "circle": (trajectory.circle, 20.0)}
-MAX_DURATION_S = 3600.0
 
 
-@dataclass(frozen=True)
-class PlanContext:
-    """What the planner knows of the rig: built once in the daemon, sent with each job (small)."""
-
-    joint_names: tuple[str, ...]
-    limits: tuple[tuple[float, float], ...]  # [rad]
-    link_lengths_m: tuple[float, ...]
-    elbow: int
-    authority: Authority | None  # None when a joint has no identified model: no authority check
-    muscles: tuple = ()  # hal.muscle.MuscleJoint per joint (None: a cylinder joint, it takes no stiffness)
-
-    @classmethod
-    def of(cls, rig, context) -> "PlanContext":
-        models_known = all(m is not None for m in context.models)
-        return cls(tuple(context.joint_names), tuple(j.limits_rad for j in rig.joints), tuple(rig.arm.link_lengths_m),
-                   rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None,
-                   tuple(context.muscles))
-
-    @property
-    def n(self) -> int:
-        return len(self.joint_names)
-
-
-@dataclass
-class Plan:
-    """A checked reference, ready for the loop to install, and what the reply will say."""
-
-    trajectory: trajectory.Trajectory
-    name: str  # what status.reference shows while it runs
-    reply: dict
-    start: tuple[float, ...]  # the set-point it was planned from [rad]
-    record: str | None = None  # the name of the daemon's recording of it (``record: true``)
-    stiffness: tuple[float, ...] | None = None  # a new stiffness set-point per joint [N m/rad] (``set``)
+def _number(cmd: str, args: dict, key: str, default: float | None = None) -> float:
+    """A motion argument in the catalog's bounds, or its default (the catalog's, or ``default``)."""
+    spec = catalog.COMMANDS[cmd].arg(key)
+    return number(args, key, spec.low, spec.high, spec.default if default is None else default)
 
 
 def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
     """``controller.switch`` / ``controller.shadow``: the named controller, built and validated.
     The name must be registered (a built-in, an entry point, or one of the daemon's
     configured ``plugins``): a request never names a module to import."""
-    args = P.decode_args(request)
-    only(args, "name", "params", "options")
-    name = args.get("name")
-    if not isinstance(name, str):
-        raise bad_args("'name' must be a controller name", "name")
-    params, options = args.get("params", {}), args.get("options", {})
-    if not isinstance(params, dict) or not isinstance(options, dict):
-        raise bad_args("'params' and 'options' must be maps", "params" if not isinstance(params, dict) else "options")
-    return registry.build(name, context, params, options, plugins=plugins, paths=False)
+    args = P.decode_args(request)  # checked against the catalog by the messenger
+    return registry.build(args["name"], context, args.get("params", {}), args.get("options", {}), plugins=plugins,
+                          paths=False)
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,
                    request: dict):
     """``controller.set``: the running controller's change, derived whole by a twin."""
     args = P.decode_args(request)
-    only(args, "params")
-    params = args.get("params")
-    if not isinstance(params, dict) or not params:
-        raise bad_args("'params' must be a non-empty map", "params")
+    params = args["params"]  # a map: checked against the catalog by the messenger
+    if not params:
+        raise bad_args("'params' must name at least one parameter", "params")
     return registry.prepare_change(cls, context, options, values, params)
 
 
 def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:
     """The worker's entry point: decode and plan one motion request."""
     args = P.decode_args(request)
-    record = args.pop("record", False)
-    if not isinstance(record, bool):
-        raise bad_args("must be true or false: true records the reference, start to end, on the daemon", "record")
+    record = args.pop("record", False)  # a boolean: checked against the catalog by the messenger
     plan = PLANNERS[request["cmd"]](ctx, args, list(setpoint))
     if record:
         plan.record = f"{time.strftime('%Y%m%d-%H%M%S')}-{request['cmd']}-{plan.name}"
@@ -122,11 +76,10 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """Move to joint angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
     ``duration_s`` with cubic time scaling (0: a step); where the joints take one, with a new
     stiffness set-point (``stiffness_nm_deg``, one number or one per joint)."""
-    only(args, "angles_deg", "angles_rad", "xy_mm", "duration_s", "stiffness_nm_deg")
     given = [k for k in ("angles_deg", "angles_rad", "xy_mm") if k in args]
     if len(given) != 1:
         raise bad_args("give exactly one of angles_deg, angles_rad, xy_mm", "angles_deg")
-    duration = number(args, "duration_s", 0.0, MAX_DURATION_S, 0.0)
+    duration = _number("set", args, "duration_s")
     if given[0] == "angles_deg":
         target = [math.radians(a) for a in numbers(args, "angles_deg", ctx.n)]
     elif given[0] == "angles_rad":
@@ -136,7 +89,7 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     check_limits(ctx, target)
     stiffness = stiffness_setpoint(ctx, args, target) if "stiffness_nm_deg" in args else None
     move = trajectory.JointMove(setpoint, target, duration)
-    check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that angle")
+    check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that angle", "duration_s")
     reply = {"target_deg": [math.degrees(q) for q in target], "duration_s": duration}
     if stiffness is not None:
         reply["stiffness_nm_deg"] = [k / DEG_PER_RAD for k in stiffness]
@@ -144,7 +97,7 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 
 DEG_PER_RAD = 180.0 / math.pi
-STIFFNESS_MAX_NM_DEG = 10.0
+STIFFNESS_MAX_NM_DEG = catalog.COMMANDS["set"].arg("stiffness_nm_deg").high
 
 
 def stiffness_setpoint(ctx: PlanContext, args: dict, target: Sequence[float]) -> tuple[float, ...]:
@@ -171,10 +124,9 @@ def stiffness_setpoint(ctx: PlanContext, args: dict, target: Sequence[float]) ->
 
 def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A reference path of rig-facts §1, after an approach move to its start."""
-    only(args, "name", "duration_s", "approach_s")
-    name = choice(args, "name", PATHS)
+    name = args["name"]  # one of PATHS: checked against the catalog by the messenger
     make, default_duration = PATHS[name]
-    duration = number(args, "duration_s", 0.5, MAX_DURATION_S, default_duration)
+    duration = _number("path", args, "duration_s", default_duration)
     reply = {"path": name, "duration_s": duration}
     if "duration_s" not in args and ctx.authority is not None:  # no duration asked: the thesis's, or
         shortest = ctx.authority.shortest(make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration))  # the fastest
@@ -182,7 +134,7 @@ def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
             reply["duration_s"] = duration = math.ceil(shortest * 10.0) / 10.0
             reply["stretched_from_s"] = default_duration
     path = make(ctx.link_lengths_m, ctx.elbow, ctx.n, duration)
-    check_authority(ctx, f"the {name} path", path)
+    check_authority(ctx, f"the {name} path", path, shortest_for="duration_s")
     return after_approach(ctx, args, setpoint, path, name, reply)
 
 
@@ -190,7 +142,6 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A path through waypoints, joint (``angles_deg``: one row per point) or Cartesian
     (``xy_mm``), after an approach to the first; ``durations_s[i]`` is the time from point
     i to point i + 1, with cubic time scaling on each segment."""
-    only(args, "angles_deg", "xy_mm", "durations_s", "approach_s")
     given = [k for k in ("angles_deg", "xy_mm") if k in args]
     if len(given) != 1:
         raise bad_args("give exactly one of angles_deg (joint waypoints) or xy_mm (Cartesian waypoints)", "angles_deg")
@@ -198,12 +149,12 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     rows = args[key]
     if not isinstance(rows, list) or not 2 <= len(rows) <= 1000:
         raise bad_args(f"'{key}' must be a list of 2 to 1000 points", key)
-    points = [checked_numbers(f"{key}[{i}]", row, ctx.n if key == "angles_deg" else 2) for i, row in enumerate(rows)]
+    points = [checked_numbers(key, row, ctx.n if key == "angles_deg" else 2, i) for i, row in enumerate(rows)]
     durations = args.get("durations_s")
     if not isinstance(durations, list) or len(durations) != len(points) - 1:
         raise bad_args(f"'durations_s' must list {len(points) - 1} segment durations (one fewer than points)",
                        "durations_s")
-    durations = [checked_number(f"durations_s[{i}]", d, 0.01, MAX_DURATION_S) for i, d in enumerate(durations)]
+    durations = [checked_number("durations_s", d, 0.01, MAX_DURATION_S, i) for i, d in enumerate(durations)]
     if key == "angles_deg":
         points = [[math.radians(a) for a in p] for p in points]
         for p in points:
@@ -213,20 +164,19 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
         for i, p in enumerate(points):
             tip_angles(ctx, p, f"waypoint {i} at {p} mm: ")
         path = trajectory.cartesian_waypoints(ctx.link_lengths_m, ctx.elbow, ctx.n, points, durations)
-    check_authority(ctx, "the waypoint path", path)
+    check_authority(ctx, "the waypoint path", path, shortest_for="durations_s")
     return after_approach(ctx, args, setpoint, path, "waypoints", {"points": len(points), "duration_s": path.duration})
 
 
 def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A step sequence: jump to ``angles_deg[i]`` and hold it ``hold_s[i]`` seconds."""
-    only(args, "angles_deg", "hold_s")
     rows, holds = args.get("angles_deg"), args.get("hold_s")
     if not isinstance(rows, list) or not 1 <= len(rows) <= 1000:
         raise bad_args("'angles_deg' must be a list of 1 to 1000 levels, one angle per joint each", "angles_deg")
     if not isinstance(holds, list) or len(holds) != len(rows):
         raise bad_args("'hold_s' must give one hold time per level", "hold_s")
-    levels = [[math.radians(a) for a in checked_numbers(f"angles_deg[{i}]", row, ctx.n)] for i, row in enumerate(rows)]
-    holds = [checked_number(f"hold_s[{i}]", h, 0.001, MAX_DURATION_S) for i, h in enumerate(holds)]
+    levels = [[math.radians(a) for a in checked_numbers("angles_deg", row, ctx.n, i)] for i, row in enumerate(rows)]
+    holds = [checked_number("hold_s", h, 0.001, MAX_DURATION_S, i) for i, h in enumerate(holds)]
     for level in levels:
         check_limits(ctx, level)
     seq = trajectory.Steps(levels, holds)
@@ -235,9 +185,9 @@ def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 
 def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    """An identification experiment (:mod:`daemon.planner.excitation`)."""
-    from daemon.planner import excitation as excite_plan  # it builds on this module's checks
-    return excite_plan.plan_excite(ctx, args, setpoint)
+    """An identification experiment (:mod:`daemon.planner.excitation`, which builds on
+    :mod:`daemon.planner.plans`, not on this module)."""
+    return excitation.plan_excite(ctx, args, setpoint)
 
 
 PLANNERS = {"set": plan_set, "path": plan_path, "waypoints": plan_waypoints, "steps": plan_steps,
@@ -250,12 +200,13 @@ def after_approach(ctx: PlanContext, args: dict, setpoint: list[float], path: tr
     request gives it, else in the shortest feasible duration with a margin (APPROACH_MARGIN)."""
     start = path.sample(0.0)[0]
     if "approach_s" in args:
-        approach = number(args, "approach_s", 0.0, 600.0)
+        approach = _number("path", args, "approach_s")
         chosen = False
     else:
         approach, chosen = shortest_approach(ctx, setpoint, start), True
     move = trajectory.JointMove(setpoint, start, approach)
-    check_authority(ctx, "the approach to its start", move, None if approach else "the rig cannot hold the start")
+    check_authority(ctx, "the approach to its start", move, None if approach else "the rig cannot hold the start",
+                    "approach_s")
     chain = trajectory.Chain([move, path])
     where = first_outside_limits(chain.profile(), ctx.limits, ctx.joint_names)
     if where is not None:
@@ -290,14 +241,3 @@ def check_limits(ctx: PlanContext, angles: Sequence[float]) -> None:
                                            f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
                                 {"reason": "limits", "joint": name, "angle_deg": math.degrees(q),
                                  "limits_deg": [math.degrees(lo), math.degrees(hi)]})
-
-
-def check_authority(ctx: PlanContext, what: str, reference: trajectory.Trajectory, fixed: str | None = None) -> None:
-    """A refusal with the numbers and the shortest duration that would do (rig-facts §1
-    "Authority") unless the rig can deliver ``reference``; see :meth:`Authority.check`."""
-    if ctx.authority is None:
-        return
-    try:
-        ctx.authority.check(reference, fixed)
-    except Infeasible as exc:
-        raise CommandFailed(P.REFUSED, f"{what} in {reference.duration:g} s is {exc}", exc.data()) from None

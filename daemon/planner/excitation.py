@@ -20,10 +20,11 @@ import numpy as np
 from scipy.signal import cont2discrete, lfilter
 
 from controllers.experiment import InputExperiment
+from daemon.wire.catalog import MAX_DURATION_S
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed, choice, number, only
-from daemon.wire.signals import MAX_INPUT_DURATION_S, signal_of
-from daemon.planner.commands import MAX_DURATION_S, Plan, PlanContext, check_authority
+from daemon.wire.arguments import CommandFailed, bad_args, choice
+from daemon.wire.signals import MAX_INPUT_DURATION_S, excite_number as _number, signal_of
+from daemon.planner.plans import Plan, PlanContext, check_authority
 
 SIGNAL_KEYS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", "bit_s", "periods"),
                "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"), "steps": ("levels", "hold_s")}
@@ -31,18 +32,23 @@ PREDICTION_STEP_S = 0.005  # the excursion prediction's grid [s]
 
 
 def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    side = choice({"side": args.get("side", "reference")}, "side", ("reference", "input"))
-    args = {k: v for k, v in args.items() if k != "side"}
-    signal = choice(args, "signal", ("chirp", "prbs", "multisine", "steps") if side == "input"
-                    else ("chirp", "prbs", "multisine"))
+    args = dict(args)
+    side = args.pop("side", "reference")  # names, types and bounds: checked against the catalog by the messenger
+    signal = args["signal"]
+    if side == "reference" and signal == "steps":
+        raise bad_args("the steps signal is for the input side only (side: input)", "signal",
+                       allowed=["chirp", "prbs", "multisine"])
     common = ("signal", "joint", "amplitude_v", "settle_s", "band_deg", "centre_hz") if side == "input" else \
         ("signal", "joint", "amplitude_deg")
-    only(args, *common, *SIGNAL_KEYS[signal])
+    stray = sorted(k for k in args if k not in common and k not in SIGNAL_KEYS[signal])
+    if stray:
+        raise bad_args(f"unknown argument {stray[0]!r} for a {side}-side {signal} (it takes: "
+                       f"{', '.join((*common, *SIGNAL_KEYS[signal]))})", stray[0])
     joint = choice(args, "joint", ctx.joint_names)
     j = ctx.joint_names.index(joint)
     if side == "input":
         return _plan_input(ctx, args, setpoint, signal, joint, j)
-    amplitude = math.radians(number(args, "amplitude_deg", 0.01, 45.0))
+    amplitude = math.radians(_number(args, "amplitude_deg"))
     excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
     lo, hi = ctx.limits[j]
     if not (lo <= setpoint[j] - excitation.peak and setpoint[j] + excitation.peak <= hi):
@@ -50,6 +56,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                                        f"{math.degrees(excitation.peak):.1f} deg leaves its limits "
                                        f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
                             {"reason": "limits", "argument": "amplitude_deg", "joint": joint,
+                             "angle_deg": math.degrees(_outermost(setpoint[j], excitation.peak, lo, hi)),
                              "limits_deg": [math.degrees(lo), math.degrees(hi)]})
     check_authority(ctx, f"the {signal}", excitation,
                     "lower the amplitude" + (" or the top frequency" if signal != "prbs" else ""))
@@ -59,15 +66,20 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                                      "duration_s": excitation.duration}, tuple(setpoint))
 
 
+def _outermost(centre: float, half: float, lo: float, hi: float) -> float:
+    """The end of centre +- half that leaves lo..hi the most [rad]: a limits refusal's angle."""
+    return centre - half if lo - (centre - half) >= (centre + half) - hi else centre + half
+
+
 def _settings(args: dict, signal: str) -> dict:
     return {k: args[k] for k in SIGNAL_KEYS[signal] if k in args}
 
 
 def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str, joint: str, j: int) -> Plan:
-    volts = number(args, "amplitude_v", 0.01, 10.0)
-    settle = number(args, "settle_s", 0.2, 60.0, 2.0)
-    band = math.radians(number(args, "band_deg", 0.5, 45.0, 10.0))
-    centre_hz = number(args, "centre_hz", 0.0, 0.2, 0.03)
+    volts = _number(args, "amplitude_v")
+    settle = _number(args, "settle_s")
+    band = math.radians(_number(args, "band_deg"))
+    centre_hz = _number(args, "centre_hz")
     excitation = signal_of(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
     lo, hi = ctx.limits[j]
     q = setpoint[j]
@@ -75,6 +87,7 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
         raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(q):.1f} deg +- {math.degrees(band):.1f} deg "
                                        f"(band_deg) leaves its limits {math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
                             {"reason": "limits", "argument": "band_deg", "joint": joint,
+                             "angle_deg": math.degrees(_outermost(q, band, lo, hi)),
                              "limits_deg": [math.degrees(lo), math.degrees(hi)]})
     t = np.arange(0.0, excitation.duration, PREDICTION_STEP_S)
     u = excitation.series(t)

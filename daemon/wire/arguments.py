@@ -21,22 +21,28 @@ class CommandFailed(Exception):
         return type(self), (self.code, self.message, self.data)
 
 
-def bad_args(message: str, argument: str | None = None, **data) -> CommandFailed:
-    return CommandFailed(P.BAD_ARGS, message, {"argument": argument, **data} if argument else None)
+def bad_args(message: str, argument: str, **data) -> CommandFailed:
+    """A ``bad_args`` refusal; its data names the request's ``argument`` (a top-level name)
+    and, for one element of a list, its ``index`` (a list of 0-based indices, outermost
+    first), with any bounds (``low``, ``high``) or choices (``allowed``)."""
+    return CommandFailed(P.BAD_ARGS, message, {"argument": argument, **data})
 
 
 def number(args: dict, key: str, low: float, high: float, default: float | None = None) -> float:
     return checked_number(key, args.get(key, default), low, high)
 
 
-def checked_number(key: str, value, low: float, high: float) -> float:
-    """``value`` as a float in low..high, or a bad_args error naming ``key``."""
+def checked_number(key: str, value, low: float, high: float, index: int | None = None) -> float:
+    """``value`` as a float in low..high, or a bad_args error naming ``key`` (element
+    ``index`` of it, when given)."""
+    where = {} if index is None else {"index": [index]}
+    label = key if index is None else f"{key}[{index}]"
     if value is None:
-        raise bad_args(f"'{key}' is required", key)
+        raise bad_args(f"'{label}' is required", key, **where)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise bad_args(f"'{key}' must be a finite number, got {value!r:.80}", key)
+        raise bad_args(f"'{label}' must be a finite number, got {value!r:.80}", key, **where)
     if not low <= value <= high:
-        raise bad_args(f"'{key}' = {value} is outside {low}..{high}", key, low=low, high=high)
+        raise bad_args(f"'{label}' = {value} is outside {low}..{high}", key, low=low, high=high, **where)
     return float(value)
 
 
@@ -53,13 +59,17 @@ def numbers(args: dict, key: str, n: int) -> list[float]:
     return checked_numbers(key, args.get(key), n)
 
 
-def checked_numbers(key: str, value, n: int) -> list[float]:
-    """``value`` as a list of n finite floats, or a bad_args error naming ``key``."""
+def checked_numbers(key: str, value, n: int, index: int | None = None) -> list[float]:
+    """``value`` as a list of n finite floats, or a bad_args error naming ``key`` (element
+    ``index`` of it, when given: a row of a list of rows)."""
+    outer = [] if index is None else [index]
+    label = key if index is None else f"{key}[{index}]"
     if not isinstance(value, list) or len(value) != n:
-        raise bad_args(f"'{key}' must be a list of {n} numbers", key)
-    for v in value:
+        raise bad_args(f"'{label}' must be a list of {n} numbers", key, **({"index": outer} if outer else {}),
+                       expected_items=n)
+    for i, v in enumerate(value):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise bad_args(f"'{key}' must hold finite numbers, got {v!r:.80}", key)
+            raise bad_args(f"'{label}' must hold finite numbers, got {v!r:.80}", key, index=[*outer, i])
     return [float(v) for v in value]
 
 
@@ -69,10 +79,3 @@ def choice(args: dict, key: str, allowed) -> str:
     if not isinstance(value, str) or value not in allowed:
         raise bad_args(f"'{key}' must be one of {', '.join(allowed)}, got {value!r:.80}", key, allowed=list(allowed))
     return value
-
-
-def only(args: dict, *allowed: str) -> None:
-    unknown = set(args) - set(allowed)
-    if unknown:
-        first = sorted(map(str, unknown))[0][:80]
-        raise bad_args(f"unknown argument {first!r} (allowed: {', '.join(allowed) or 'none'})", first)

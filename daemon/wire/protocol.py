@@ -14,16 +14,6 @@ DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
 DEFAULT_TELEMETRY = "tcp://127.0.0.1:5562"
 MAX_MESSAGE_BYTES = 64 * 1024  # larger frames are dropped by ZeroMQ before they are read
 
-# Commands whose reply waits for work beside the loop (a plan, a controller build): a client
-# waits for them up to describe's ``deferred_timeout_s``.
-DEFERRED_COMMANDS = ("set", "path", "waypoints", "steps", "excite", "controller.switch", "controller.shadow",
-                     "controller.set")
-
-# Commands the messenger answers itself, never passed to the loop (docs/protocol.md, Keys).
-MESSENGER_COMMANDS = ("keys.reload",)
-# Commands the messenger passes to the recorder process, never to the loop (docs/protocol.md, Recordings).
-RECORDER_COMMANDS = ("record.start", "record.stop", "record.list")
-
 # Error codes a client can branch on.
 BAD_MESSAGE = "bad_message"  # not msgpack, not a map, or a field of the wrong type
 BAD_VERSION = "bad_version"
