@@ -24,10 +24,11 @@ def readme_lines() -> list[str]:
 
 def relaxed_rig(tmp_path):
     """sim-muscle with this shared machine's stalls tolerated (tests.daemons says why) and a
-    wire's sample age (tests.wirehelpers.RELAXED)."""
+    wire's sample age up to 0.5 s (a loaded machine held the peer 180 ms; what this test
+    checks is the README's commands, not the machine's latency)."""
     text = config.load("sim-muscle").source
     text = text.replace("stall_after_s = 0.05", "stall_after_s = 0.5").replace("stale_after_s = 0.005",
-                                                                                  "stale_after_s = 0.15")
+                                                                                  "stale_after_s = 0.5")
     path = tmp_path / "muscle.toml"
     path.write_text(text)
     return path
