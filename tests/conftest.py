@@ -1,4 +1,5 @@
-"""A session-wide guard: the suite is safe to run on a lab PC where ``pneumad.service`` runs.
+"""A session-wide guard: the suite is safe to run on a lab PC where ``pneumad.service`` runs;
+and the long tests scheduled first.
 
 Once per session (in the controlling process under pytest-xdist, never in its workers):
 
@@ -123,6 +124,12 @@ def pytest_sessionfinish(session):
     session.config.stash[REPORT] = (notes, problems)
     if problems and session.exitstatus == pytest.ExitCode.OK:
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_collection_modifyitems(items):
+    """The long tests first (their modules kept in order): spread over xdist's workers, they
+    no longer finish alone at the end of a run."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 def pytest_terminal_summary(terminalreporter, config):

@@ -166,8 +166,10 @@ def test_dead_man_command_writes_the_safe_state(tmp_path):
 def test_bad_config_exits_with_a_clear_message(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(config.load().source.replace("direction = 1", "direction = 7", 1))
-    out = subprocess.run([BIN / "pneumad", "--config", str(bad), "--no-rt"], capture_output=True, text=True,
-                         env=env_with(), timeout=60)
+    # private endpoints: a config that did load would bind them, never a lab daemon's
+    out = subprocess.run([BIN / "pneumad", "--config", str(bad), "--no-rt",
+                          *sum(([f"--{k}", v] for k, v in endpoints(tmp_path).items()), [])],
+                         capture_output=True, text=True, env=env_with(), timeout=60)
     assert out.returncode == 2
     assert "joints[0].sensor.direction: must be +1 or -1" in out.stderr
 
@@ -213,6 +215,7 @@ def test_latency_verdict_bounds(p999, worst, overruns, word):
     assert verdict({"p99.9": p999, "max": worst}, overruns, 0.001).startswith(word)
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_a_recording_that_runs_out_of_disk_ends_with_a_clear_error(tmp_path):
     """/dev/full answers every write with ENOSPC, as a full disk does: pneumactl record says
     so and exits 1, and the daemon is not touched by it."""

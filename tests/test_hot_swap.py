@@ -157,6 +157,7 @@ def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):
 @pytest.mark.parametrize("plugin, text", [("DiesWhenBuilt", "worker died (exit code 3)"),
                                           ("HangsWhenBuilt", "took longer than 2 s"),
                                           ("UnsendableWhenBuilt", "could not be sent back")])
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_works(moving, plugin, text,
                                                                                       monkeypatch):
     """The build runs in a worker process: whatever it does there, the loop keeps its

@@ -82,6 +82,7 @@ def test_no_server_at_start_is_a_clear_error():
         wire_loop("modbus", {"port": free_port(), "open_timeout_s": 1.0})
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_dead_man_command_writes_the_safe_state_through_modbus():
     """``pneumad safe-state`` (systemd's stop hook) over Modbus: a fresh process, its own
     exchange worker, and the safe outputs in the module's registers when it exits."""
@@ -91,8 +92,9 @@ def test_the_dead_man_command_writes_the_safe_state_through_modbus():
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)
         client.connect()
         client.write_registers(100, [30000] * 4, device_id=1)  # outputs driven somewhere
-        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",
-                              "--transport-option", f"port={port}"], capture_output=True, text=True, timeout=60)
+        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",  # a busy
+                              "--transport-option", f"port={port}", "--transport-option", "open_timeout_s=60"],  # start
+                             capture_output=True, text=True, timeout=120)
         assert out.returncode == 0 and "safe state written" in out.stdout, out.stderr
         assert client.read_holding_registers(100, count=4, device_id=1).registers == [0, 0, 0, 0]
         client.close()
@@ -124,8 +126,9 @@ def test_a_daemon_killed_hard_leaves_no_worker_writing_over_the_dead_man():
         worker = int(holder.stdout.readline())
         holder.kill()
         holder.wait(10)
-        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",
-                              "--transport-option", f"port={port}"], capture_output=True, text=True, timeout=60)
+        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",  # a busy
+                              "--transport-option", f"port={port}", "--transport-option", "open_timeout_s=60"],  # start
+                             capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
         time.sleep(0.3)  # an orphaned worker would have written its outputs again by now
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)

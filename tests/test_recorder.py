@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from bench.common import child_process
 from daemon.recordings import mcap_log
 from daemon.client.client import Client, RemoteError
-from tests.daemons import real_daemon
+from tests.daemons import real_daemon, wait_for_own_daemon
 from tests.schemas import schema
 
 pytestmark = pytest.mark.slow
@@ -25,7 +25,7 @@ def start(tmp_path, *options):
     tmp_path.mkdir(exist_ok=True)
     daemon, eps = real_daemon(tmp_path, *options)
     client = Client(**eps, timeout=5.0)
-    client.call("ping", timeout=60.0)
+    wait_for_own_daemon(client, daemon)
     return daemon, eps, client
 
 
