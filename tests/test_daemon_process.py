@@ -17,7 +17,7 @@ from daemon.recordings import reading as recording
 from daemon.client.client import Client
 from daemon.service.notify import Notifier
 from hal import config
-from tests.daemons import tolerant_rig, tolerant_rig_text
+from tests.daemons import tolerant_rig, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +63,7 @@ class NotifyListener:
             except socket.timeout:
                 pass
 
-    def wait_for(self, text: str, limit: float = 15.0) -> bool:
+    def wait_for(self, text: str, limit: float = 120.0) -> bool:  # a busy machine starts slowly
         end = time.monotonic() + limit
         while time.monotonic() < end:
             if any(text in d for _, d in self.received):
@@ -225,6 +225,8 @@ def test_a_recording_that_runs_out_of_disk_ends_with_a_clear_error(tmp_path):
                                "--record-dir", str(tmp_path / "recordings"),
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])], env=env_with(), cwd=tmp_path)
     try:
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)  # its start waited for, however busy the machine
         ctl = [BIN / "pneumactl", *sum(([f"--{k}", v] for k, v in eps.items()), []), "--timeout", "30"]
         assert subprocess.run([*ctl, "status"], capture_output=True, env=env_with(), timeout=60).returncode == 0
         out = subprocess.run([*ctl, "record", "/dev/full", "--seconds", "1"], capture_output=True, text=True,

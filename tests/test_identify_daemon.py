@@ -43,7 +43,8 @@ def start(tmp_path, rig_path, port):
     # A Modbus transaction may take up to 0.5 s here (the rig file's 50 ms is a lab's wire, not a
     # busy test machine's loopback): a slow reply is waited for, a lost one still trips.
     daemon, eps = real_daemon(tmp_path, "--config", str(rig_path), "--transport", "modbus",
-                              "--transport-option", f"port={port}", "--transport-option", "timeout_s=0.5")
+                              "--transport-option", f"port={port}", "--transport-option", "timeout_s=0.5",
+                              "--transport-option", "open_timeout_s=60")
     client = Client(**eps, timeout=5.0)
     wait_for_own_daemon(client, daemon)
     return daemon, eps, client
