@@ -1,11 +1,16 @@
 """Real daemon processes for tests: ``pneumad run`` on the simulated rig, no real-time set-up,
-on private ipc endpoints."""
+on private ipc endpoints; and the check that the daemon answering is the test's own."""
 from __future__ import annotations
 
+import os
+import socket
 import subprocess
+import time
 from pathlib import Path
 
+from daemon.client.client import ENDPOINT_VARIABLES, Client
 from daemon.testing import daemons
+from daemon.testing.daemons import private_endpoints  # noqa: F401  (the tests' own import of it)
 from hal import config
 
 TOLERANT_STALL = "stall_after_s = 0.5  "
@@ -44,3 +49,37 @@ def running(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def free_tcp_ports(n: int = 3) -> list[int]:
+    """``n`` loopback ports nobody listens on now (the kernel's choice; none of 5560-5562 while
+    tests/conftest.py holds those)."""
+    sockets = [socket.socket() for _ in range(n)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
+
+
+def endpoint_env(eps: dict[str, str], **extra: str) -> dict[str, str]:
+    """This process's environment with PNEUMAD_COMMAND/CONTROL/TELEMETRY set to ``eps``: the
+    client and pneumactl started with it talk to the test's daemon only."""
+    return {**os.environ, **{ENDPOINT_VARIABLES[name]: ep for name, ep in eps.items()}, **extra}
+
+
+def wait_for_own_daemon(client: Client, daemon: subprocess.Popen, limit_s: float = 60.0) -> dict:
+    """Ping until ``daemon`` answers, and check that it is the daemon that answered (its pid in
+    the reply): never a daemon someone else started. Returns the ping's ``daemon`` map."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        assert daemon.poll() is None, f"pneumad exited with {daemon.returncode}"
+        try:
+            answer = client.call("ping", timeout=1.0)["daemon"]
+            break
+        except TimeoutError:
+            assert time.monotonic() < deadline, f"pneumad did not answer within {limit_s} s"
+    assert answer["pid"] == daemon.pid, f"another daemon answered: {answer} (ours: pid {daemon.pid})"
+    return answer

@@ -12,6 +12,7 @@ from hal import config
 from hal.errors import TransportError
 from sim_backend.can_peer import CanPeer
 from tests.wirehelpers import (
+    RELAXED,
     move_and_track,
     start_peer,
     stop_peer,
@@ -63,6 +64,7 @@ def test_pid_tracks_a_move_over_udp_multicast_with_the_node_in_its_own_process()
     assert health.counters["wrong_ids"] == 0 and health.counters["bad_lengths"] == 0
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_after_reset():
     channel = group()
     nodes = [node(channel)]
@@ -71,7 +73,8 @@ def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_afte
         cycles, cause = trip_and_recover(loop, lambda: stop_peer(nodes[-1], hard=True),
                                          lambda: nodes.append(node(channel)),
                                          lambda: loop.clock.now() - loop.snapshot.t < 0.005)
-        assert "stale" in cause and cycles <= 170, (cycles, cause)  # the stale limit (150 ms here) and a few cycles
+        # the stale limit (RELAXED's) and a few cycles
+        assert "stale" in cause and cycles <= RELAXED["stale_after_s"] * 1000 + 20, (cycles, cause)
     finally:
         loop.shutdown()
         stop_peer(nodes[-1])

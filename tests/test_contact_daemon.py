@@ -13,12 +13,13 @@ from daemon.client.client import Client
 from hal import config
 from hal.taxel_array import PAD_M, TAXELS
 from sim_backend.contact_patch import Impact, ImpactReplay
-from tests.daemons import real_daemon, tolerant_rig_text
+from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 
 SENSOR = "\n[contact_sensor]\nrate_hz = 4000.0\nsim_impact_speed_m_s = 0.11\nsim_impact_every_s = 1.0\ndead = [[2, 2]]\n"
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulated_impacts(tmp_path):
     rig_path = tmp_path / "rig.toml"
     rig_path.write_text(tolerant_rig_text() + SENSOR)
@@ -29,7 +30,7 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
     validate = schema("telemetry", "contact")
     try:
         with Client(**eps, timeout=5.0) as client:
-            client.call("ping", timeout=60.0)
+            wait_for_own_daemon(client, daemon)
             subscription = client.subscribe((b"contact",))
             messages = []
             while len(messages) < 400:  # 4 s: four impacts

@@ -59,6 +59,7 @@ def errors(frames, every: int = 1, **estimators) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("speed", [0.03, 0.11])
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_every_parameter_within_5_percent_and_better_than_the_papers_and_plain_wls(speed):
     """Every frame within 5 %; on the RMS over the impact, every parameter better than the
     paper's S-WLS + RLS as read (a single frame's worst is the noise's draw), and beta's worst
@@ -73,6 +74,7 @@ def test_every_parameter_within_5_percent_and_better_than_the_papers_and_plain_w
     assert len(found["ours"]) > 0.5 * Impact(speed).duration_s * FRAME_HZ
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_a_dead_taxel_at_the_contact_peak_and_a_slide_elsewhere_on_the_pad():
     """(The default pad already has a dead taxel inside the larger contacts.) With the peak's
     own taxel dead, beta loses its best-informed row and still stays within 5 %."""
@@ -84,6 +86,7 @@ def test_a_dead_taxel_at_the_contact_peak_and_a_slide_elsewhere_on_the_pad():
     assert np.abs(found["ours"][:, :6]).max() < 0.05
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_rates_follow_a_growing_and_shrinking_contact_without_lag():
     """Noise-free frames of the fastest impact: the contact's size changes by up to 1 % a frame
     at its start and end. The daemon's estimator, which carries each parameter's rate, stays
@@ -98,6 +101,7 @@ def test_the_rates_follow_a_growing_and_shrinking_contact_without_lag():
     assert paper[2] > 0.01 and paper[4] > 0.01  # p_max and the force: the lag a constant memory has
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_its_own_sigma_tells_the_truth():
     """Over a slow and a fast impact, the errors divided by the estimator's own 1 sigma have an
     RMS near 1 and never reach 5: the sigma on the telemetry can be believed."""

@@ -47,6 +47,7 @@ def test_circle_at_the_shortest_feasible_period_tracks_within_the_targets(name):
     assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_observer_rejects_a_step_torque_faster_than_smc_alone():
     torque = S.make_loop("pid").context.models[0].kt * 1.0  # one volt's worth on the bottom joint
     plain = S.disturbance_rejection(S.make_loop("smc"), 0, torque, 10.0)
@@ -57,6 +58,7 @@ def test_the_observer_rejects_a_step_torque_faster_than_smc_alone():
 
 @pytest.mark.parametrize("old,new", [("pid", "smc"), ("smc", "smc_dob"), ("smc_dob", "sac"), ("sac", "pid"),
                                      ("smc", "hold"), ("smc_dob", "lti"), ("lti", "lti_dob"), ("lti_dob", "pid")])
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new):
     loop = S.make_loop("hold")
     loop.switch_controller(registry.build(old, loop.context, options=S.example_options(old)))
@@ -178,6 +180,7 @@ def test_the_pfc_keeps_the_augmented_plant_aspr_at_the_default_and_the_thesis_ga
     assert max(np.roots(closed).real) < 0
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_sac_holds_the_middle_joint_against_a_torque_step_without_stick_slip_hunting():
     """With the dead zone on its adaptation SAC's middle joint stays within 0.5 deg; without
     it, its integral gains ramp while friction holds the joint and it hunts by +-0.6 deg."""

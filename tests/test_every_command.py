@@ -15,7 +15,7 @@ from bench.command_cases import CASES, prepare
 from daemon.wire import protocol as P
 from daemon.client.client import Client
 from tests.schemas import schema
-from tests.daemons import real_daemon
+from tests.daemons import real_daemon, wait_for_own_daemon
 
 pytestmark = pytest.mark.slow
 _ids = itertools.count(1)
@@ -32,7 +32,7 @@ def daemon(tmp_path_factory):
     sub.setsockopt(zmq.SUBSCRIBE, b"")
     sub.connect(eps["telemetry"])
     try:
-        client.call("ping", timeout=60.0)
+        wait_for_own_daemon(client, proc)
         client.acquire_lease(ttl_s=60.0)
         client.keep_lease()
         yield client, eps, sub

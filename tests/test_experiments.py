@@ -28,6 +28,7 @@ def events(captured, kind):
     return [e for e in captured.of("event") if e["kind"] == kind]
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_an_input_prbs_drives_the_joint_open_loop_and_feedback_takes_it_back_after():
     loop, captured, srv, sock, lease = armed_loop()
     try:
@@ -61,6 +62,7 @@ def test_an_input_prbs_drives_the_joint_open_loop_and_feedback_takes_it_back_aft
         srv.close()
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_a_joint_that_leaves_its_band_is_stopped_and_held_where_it_is():
     # the plant's viscous friction a third of the model's: it moves three times as far as predicted
     rig = BUILTIN + "\n[transport.options.joints.bottom]\noverrides = {D = 0.0627}\n"

@@ -5,14 +5,14 @@ import pytest
 
 from bench.fuzz import fuzz
 from daemon.client.client import Client
-from tests.daemons import real_daemon
+from tests.daemons import real_daemon, wait_for_own_daemon
 
 
 @pytest.fixture
 def daemon(tmp_path):
     proc, eps = real_daemon(tmp_path)
     try:
-        Client(**eps).call("ping", timeout=60.0)
+        wait_for_own_daemon(Client(**eps), proc)
         yield proc, eps
     finally:
         proc.terminate()
@@ -20,6 +20,7 @@ def daemon(tmp_path):
 
 
 @pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_fuzzed_frames_get_documented_replies_and_change_nothing_they_are_refused(daemon, seed):
     proc, eps = daemon
     tally = fuzz(eps, 1000, seed)

@@ -22,6 +22,7 @@ def lag_lead(k: float, a: float, b: float, **extra) -> dict:
     return {"joints": {"bottom": joint, "middle": dict(joint)}}
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_thesis_pi_written_as_matrices_tracks_as_the_built_in_pid_does():
     results = {}
     for name, options in (("pid", None), ("lti", {"design": PI})):

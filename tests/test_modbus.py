@@ -48,13 +48,16 @@ def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exch
 def test_a_killed_server_trips_the_loop_with_the_reason_and_a_new_one_recovers_after_reset():
     port = free_port()
     peers = [peer(port)]
-    loop, _ = wire_loop("modbus", {"port": port, "reopen_every_s": 0.1})
+    # a transaction may take 150 ms on a busy machine (as the tracking test above allows)
+    loop, _ = wire_loop("modbus", {"port": port, "reopen_every_s": 0.1, "timeout_s": 0.15})
     try:
         cycles, cause = trip_and_recover(loop, lambda: stop_peer(peers[-1], hard=True),
                                          lambda: peers.append(peer(port)),
                                          lambda: loop.io.transport.health().counters["reconnects"] >= 2)
         assert "connection to 127.0.0.1" in cause and "lost" in cause, cause
-        assert cycles < 100  # the connection reset is seen on the worker's next exchange
+        # the connection reset is seen on the worker's next exchange (the cause says so); the
+        # count is bounded generously, as a busy machine may hold the worker for a while
+        assert cycles < 1000
     finally:
         loop.shutdown()
         stop_peer(peers[-1])
@@ -79,6 +82,7 @@ def test_no_server_at_start_is_a_clear_error():
         wire_loop("modbus", {"port": free_port(), "open_timeout_s": 1.0})
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_dead_man_command_writes_the_safe_state_through_modbus():
     """``pneumad safe-state`` (systemd's stop hook) over Modbus: a fresh process, its own
     exchange worker, and the safe outputs in the module's registers when it exits."""
@@ -88,8 +92,9 @@ def test_the_dead_man_command_writes_the_safe_state_through_modbus():
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)
         client.connect()
         client.write_registers(100, [30000] * 4, device_id=1)  # outputs driven somewhere
-        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",
-                              "--transport-option", f"port={port}"], capture_output=True, text=True, timeout=60)
+        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",  # a busy
+                              "--transport-option", f"port={port}", "--transport-option", "open_timeout_s=60"],  # start
+                             capture_output=True, text=True, timeout=120)
         assert out.returncode == 0 and "safe state written" in out.stdout, out.stderr
         assert client.read_holding_registers(100, count=4, device_id=1).registers == [0, 0, 0, 0]
         client.close()
@@ -121,8 +126,9 @@ def test_a_daemon_killed_hard_leaves_no_worker_writing_over_the_dead_man():
         worker = int(holder.stdout.readline())
         holder.kill()
         holder.wait(10)
-        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",
-                              "--transport-option", f"port={port}"], capture_output=True, text=True, timeout=60)
+        out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",  # a busy
+                              "--transport-option", f"port={port}", "--transport-option", "open_timeout_s=60"],  # start
+                             capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
         time.sleep(0.3)  # an orphaned worker would have written its outputs again by now
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)

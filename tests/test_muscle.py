@@ -124,6 +124,7 @@ def test_a_tip_load_step_deflects_the_held_joint_by_load_torque_over_stiffness(s
     assert moved < 0 and abs(moved - predicted) <= 0.1 * abs(predicted)
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_a_heavier_load_or_a_softer_joint_settles_later_under_position_control():
     light = muscle_steps.step_case("muscle_eq", 0.0, 45.0, 0.5, 16.66)[1]
     soft = muscle_steps.step_case("muscle_eq", 0.0, 45.0, 0.2, 16.66)[1]

@@ -11,7 +11,8 @@ import pytest
 
 from daemon.client.client import Client, RemoteError
 from hal import config
-from tests.test_readme_tour import BIN, ROOT, wait_for_daemon
+from tests.daemons import endpoint_env, private_endpoints, wait_for_own_daemon
+from tests.test_readme_tour import BIN, ROOT
 from tests.wirehelpers import start_peer, stop_peer
 
 
@@ -23,10 +24,11 @@ def readme_lines() -> list[str]:
 
 def relaxed_rig(tmp_path):
     """sim-muscle with this shared machine's stalls tolerated (tests.daemons says why) and a
-    wire's sample age (tests.wirehelpers.RELAXED)."""
+    wire's sample age up to 0.5 s (a loaded machine held the peer 180 ms; what this test
+    checks is the README's commands, not the machine's latency)."""
     text = config.load("sim-muscle").source
     text = text.replace("stall_after_s = 0.05", "stall_after_s = 0.5").replace("stale_after_s = 0.005",
-                                                                                  "stale_after_s = 0.15")
+                                                                                  "stale_after_s = 0.5")
     path = tmp_path / "muscle.toml"
     path.write_text(text)
     return path
@@ -39,18 +41,20 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
     rig, link = relaxed_rig(tmp_path), tmp_path / "bridge"
     peer = start_peer("sim_backend.serial_peer", "--config", str(rig), "--link", str(link),
                       ready=lambda: os.path.exists(link))
+    eps = private_endpoints(tmp_path)  # the lines reach it through the environment, never the default ports
     daemon = subprocess.Popen([BIN + "pneumad", "--no-rt", "--config", str(rig), "--transport", "serial",
-                               "--transport-option", f"port={link}", "--record-dir", str(tmp_path / "rec")], cwd=ROOT)
+                               "--transport-option", f"port={link}", "--record-dir", str(tmp_path / "rec"),
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=tmp_path)
     try:
-        with Client(timeout=5.0) as client:
-            wait_for_daemon(client, daemon)
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
             describe = client.call("describe")
             joint, = describe["joints"]
             assert joint["actuation"] == "muscle_pair" and joint["setpoints"] == ["angle", "stiffness"]
             assert [c["name"] for c in describe["command_interfaces"]] == ["pressure_a", "pressure_b", "brake"]
             for line in lines:
-                done = subprocess.run(["bash", "-c", line.replace(".venv/bin/", BIN, 1)], cwd=ROOT,
-                                      capture_output=True, text=True, timeout=60)
+                done = subprocess.run(["bash", "-c", line.replace(".venv/bin/", BIN, 1)], cwd=tmp_path,
+                                      env=endpoint_env(eps), capture_output=True, text=True, timeout=60)
                 assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}"
                 status = client.status()
                 assert status["state"] == "enabled", (line, status["cause"])

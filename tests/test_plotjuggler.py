@@ -11,7 +11,7 @@ import zmq
 from daemon.client.client import Client
 from daemon.loop.port import ZmqServer
 from hal.errors import ConfigError
-from tests.daemons import real_daemon
+from tests.daemons import real_daemon, wait_for_own_daemon
 
 pytestmark = pytest.mark.slow
 
@@ -35,7 +35,7 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
     sub.connect(endpoint)
     try:
         with Client(**eps, timeout=5.0) as client:
-            client.call("ping", timeout=60.0)
+            wait_for_own_daemon(client, daemon)
             client.acquire_lease()
             client.keep_lease()
             client.enable()

@@ -2,7 +2,12 @@
 user would type it: so the README cannot drift from what the daemon does.
 
 Each ``pneumactl`` line runs through bash as written (``.venv/bin/`` is this interpreter's
-bin directory), in the repository, and must exit 0. Before a motion line the test waits for
+bin directory) and must exit 0. It runs in a temporary directory holding copies of what the
+README's relative paths name (``examples/``, ``controllers/designs/``), so the tour's files
+(``run.mcap``, ``run.csv``, ``plots/``) are its own and a user's in the checkout are never
+touched; its daemon is on private endpoints that the lines reach through ``PNEUMAD_COMMAND``,
+``PNEUMAD_CONTROL`` and ``PNEUMAD_TELEMETRY``, so a daemon on the default endpoints (the lab's
+own) is never spoken to. Before a motion line the test waits for
 the reference in force to end, as a user would (a motion command while another runs is
 refused by design); ``watch`` is left with Ctrl-C after a moment.
 """
@@ -20,7 +25,8 @@ import pytest
 
 from daemon.recordings import mcap_log
 from daemon.client.client import Client
-from tests.daemons import tolerant_rig
+from tests.daemons import (endpoint_env, free_tcp_ports, private_endpoints, tolerant_rig,
+                           wait_for_own_daemon)
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = str(Path(sys.executable).parent) + "/"
@@ -44,32 +50,34 @@ def wait_for_reference_end(client: Client, limit_s: float = 60.0) -> None:
         time.sleep(min(remaining, 1.0) + 0.05)
 
 
-def wait_for_daemon(client: Client, daemon: subprocess.Popen, limit_s: float = 60.0) -> None:
-    deadline = time.monotonic() + limit_s
-    while True:
-        assert daemon.poll() is None, "pneumad exited (is another daemon on the default endpoints?)"
-        try:
-            client.call("ping", timeout=1.0)
-            return
-        except TimeoutError:
-            assert time.monotonic() < deadline, "pneumad did not answer"
+def tour_directory(tmp_path: Path) -> Path:
+    """A working directory with copies of what the README's relative paths name."""
+    work = tmp_path / "work"
+    shutil.copytree(ROOT / "examples", work / "examples")
+    shutil.copytree(ROOT / "controllers" / "designs", work / "controllers" / "designs")
+    return work
+
+
+def start_daemon(tmp_path: Path, cwd: Path) -> tuple[subprocess.Popen, dict[str, str]]:
+    """The tour's daemon line on private endpoints (the lines reach it through the environment)."""
+    eps = private_endpoints(tmp_path)
+    # As the README advises it: real-time scheduling where the test may have it (root, as in
+    # CI), --no-rt otherwise. One change to the rig: its stall limit (tests.daemons says why).
+    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config",
+                               str(tolerant_rig(tmp_path)), "--record-dir", str(tmp_path / "recordings"),
+                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=cwd)
+    return daemon, eps
 
 
 def test_the_readme_tour_runs_as_written(tmp_path):
     lines = tour_lines()
     assert len(lines) >= 15 and any(" watch" in line for line in lines)
-    # The tour's daemon line, as the README advises it: real-time scheduling where the test may
-    # have it (root, as in CI), --no-rt otherwise. Without it, the other processes of a loaded
-    # machine can hold the loop past its 50 ms stall limit, and it rightly trips.
-    # One change to the rig: its stall limit (tests.daemons.tolerant_rig_text says why); the
-    # tour checks the README's commands, not this machine's latency.
-    rig = tolerant_rig(tmp_path)
-    # Its recordings go to the test's own directory, not the checkout's ./recordings.
-    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config", str(rig),
-                               "--record-dir", str(tmp_path / "recordings")], cwd=ROOT)
+    work = tour_directory(tmp_path)
+    daemon, eps = start_daemon(tmp_path, work)
+    env = endpoint_env(eps, PYTHONUNBUFFERED="1")
     try:
-        with Client(timeout=5.0) as client:
-            wait_for_daemon(client, daemon)
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
             for line in lines:
                 command = line.replace(".venv/bin/", BIN, 1)
                 words = line.split()
@@ -79,7 +87,7 @@ def test_the_readme_tour_runs_as_written(tmp_path):
                     # Ctrl-C as a terminal sends it. A test run started in the background by a
                     # script has SIGINT ignored, and children inherit that (a shell cannot undo
                     # it): give the command the default action a terminal's would have.
-                    proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=ROOT,
+                    proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=work, env=env,
                                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                             preexec_fn=restore_sigint)
                     time.sleep(2.0)
@@ -87,8 +95,8 @@ def test_the_readme_tour_runs_as_written(tmp_path):
                     out, err = proc.communicate(timeout=10)
                     assert proc.returncode == 0 and "cycle" in out, (line, out, err)
                     continue
-                done = subprocess.run(["bash", "-c", command], cwd=ROOT, capture_output=True, text=True, timeout=120,
-                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                done = subprocess.run(["bash", "-c", command], cwd=work, capture_output=True, text=True, timeout=120,
+                                      env=env)
                 assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
                 state = client.status()["state"]
                 expected = {"enable": "enabled", "estop": "estop", "reset": "idle", "disable": "idle"}.get(words[1])
@@ -104,14 +112,30 @@ def test_the_readme_tour_runs_as_written(tmp_path):
             snippet = "\n".join(line.strip() for line in text.splitlines()
                                  if "from daemon import recordings" in line or "recordings.load(" in line)
             done = subprocess.run([sys.executable, "-c", snippet + "\nassert len(data['middle.angle_rad']) > 1000"],
-                                  cwd=ROOT, capture_output=True, text=True, timeout=60)
+                                  cwd=work, capture_output=True, text=True, timeout=60)
             assert done.returncode == 0, (snippet, done.stderr)
+            assert {"run.mcap", "run.csv", "plots"} <= {p.name for p in work.iterdir()}
     finally:
         daemon.send_signal(signal.SIGTERM)
         daemon.wait(timeout=10)
-        for name in ("run.mcap", "run.csv"):
-            (ROOT / name).unlink(missing_ok=True)
-        shutil.rmtree(ROOT / "plots", ignore_errors=True)
+
+
+def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tmp_path):
+    """The environment the tour's lines run in takes ``pneumactl`` to the test's daemon: its
+    ping names that daemon (pid and the instance drawn at its start), and so does status."""
+    work = tour_directory(tmp_path)
+    daemon, eps = start_daemon(tmp_path, work)
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            ours = wait_for_own_daemon(client, daemon)
+        for what in ("ping", "status"):
+            done = subprocess.run(["bash", "-c", f"{BIN}pneumactl {what}"], cwd=work, env=endpoint_env(eps),
+                                  capture_output=True, text=True, timeout=60)
+            assert done.returncode == 0, done.stderr
+            assert json.loads(done.stdout)["daemon"] == ours and ours["pid"] == daemon.pid
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        daemon.wait(timeout=10)
 
 
 def restore_sigint() -> None:
@@ -126,20 +150,29 @@ def test_the_readme_keys_example_runs_as_written(tmp_path):
     lines = [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
              for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
     assert len(lines) == 4 and " --keys " in lines[2] and "--key alice.key_secret" in lines[3]
+    # The README's ports are the lab daemon's: the test's daemon takes free ones, and Alice's
+    # line reaches it through the environment, as a laptop's shell would set it.
+    ports = dict(zip(("5560", "5561", "5562"), map(str, free_tcp_ports())))
+    daemon_line = re.sub(r":(556[0-2])\b", lambda m: ":" + ports[m.group(1)], lines[2])
+    assert daemon_line.count("tcp://0.0.0.0:") == 3 and not re.search(r":556[0-2]\b", daemon_line)
+    env = endpoint_env({name: f"tcp://127.0.0.1:{ports[default]}" for name, default in
+                        (("command", "5560"), ("control", "5561"), ("telemetry", "5562"))})
     for line in lines[:2]:
         done = subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=60)
         assert done.returncode == 0, (line, done.stderr)
-    daemon = subprocess.Popen(["bash", "-c", "exec " + lines[2] + ("" if os.geteuid() == 0 else " --no-rt")],
+    daemon = subprocess.Popen(["bash", "-c", "exec " + daemon_line + ("" if os.geteuid() == 0 else " --no-rt")],
                               cwd=tmp_path)
     try:
         deadline = time.monotonic() + 60
         while True:
             assert daemon.poll() is None, "pneumad exited (is another daemon on the default endpoints?)"
-            done = subprocess.run(["bash", "-c", lines[3]], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+            done = subprocess.run(["bash", "-c", lines[3]], cwd=tmp_path, env=env, capture_output=True, text=True,
+                                  timeout=60)
             if done.returncode == 0:
                 break
             assert time.monotonic() < deadline, done.stderr
         assert '"name": "alice"' in done.stdout and '"mode": "curve"' in done.stdout
+        assert json.loads(done.stdout)["daemon"]["pid"] == daemon.pid  # bash exec'd pneumad: the same process
     finally:
         daemon.terminate()
         daemon.wait(10)
@@ -153,13 +186,13 @@ def test_the_readme_identify_section_runs_as_written(tmp_path):
     lines = [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
              for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
     assert [line.split()[1] for line in lines] == ["enable", "identify", "--no-rt"]
-    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config",
-                               str(tolerant_rig(tmp_path)), "--record-dir", str(tmp_path / "recordings")], cwd=tmp_path)
+    daemon, eps = start_daemon(tmp_path, tmp_path)
     try:
-        with Client(timeout=5.0) as client:
-            wait_for_daemon(client, daemon)
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
             for line in lines[:2]:
-                done = subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+                done = subprocess.run(["bash", "-c", line], cwd=tmp_path, env=endpoint_env(eps), capture_output=True,
+                                      text=True, timeout=600)
                 assert done.returncode == 0, (line, done.stderr[-3000:])
             assert client.status()["trips"] == 0
     finally:

@@ -46,6 +46,7 @@ def write(path, session, skip_state_batch: int | None = None):
     return rec
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_the_mcap_package_reads_a_recording_with_its_schemas_attachment_and_metadata(tmp_path, session):
     describe = session[0]
     path = tmp_path / "run.mcap"
@@ -134,6 +135,7 @@ def test_load_gives_numpy_columns_named_with_units(tmp_path, session):
     assert np.all(np.diff(data["t"]) > 0) and np.all(np.diff(data["cycle"]) == 1)
 
 
+@pytest.mark.slow  # long: kept out of the fast subset
 def test_plot_writes_the_figures_of_one_run_and_of_an_overlay(tmp_path, session):
     from daemon.client import plots
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,7 +15,7 @@ import zmq
 from daemon.wire import keys
 from daemon.wire import protocol as P
 from daemon.client.client import Client, KeyRefused, RemoteError
-from tests.daemons import real_daemon
+from tests.daemons import free_tcp_ports, real_daemon
 
 pytestmark = pytest.mark.slow
 
@@ -189,22 +188,16 @@ def test_pneumactl_takes_a_key_file_and_reports_a_refusal(lab):
     assert no_server.returncode == 2 and "--server-key" in no_server.stderr
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_binding_past_loopback_without_keys_is_refused_unless_insecure(tmp_path):
-    port = free_port()
-    exposed = [f"tcp://0.0.0.0:{port}", "tcp://127.0.0.1:0", "tcp://127.0.0.1:0"]
+    port, control, telemetry = free_tcp_ports()
+    exposed = [f"tcp://0.0.0.0:{port}", f"tcp://127.0.0.1:{control}", f"tcp://127.0.0.1:{telemetry}"]
     args = [sys.executable, "-m", "daemon.main", "run", "--no-rt", "--command", exposed[0], "--control", exposed[1],
             "--telemetry", exposed[2]]
     refused = subprocess.run(args, capture_output=True, text=True, timeout=60)
     assert refused.returncode == 2 and "--insecure" in refused.stderr and "--keys" in refused.stderr
     proc = subprocess.Popen([*args, "--insecure", "--log-level", "WARNING"], stderr=subprocess.PIPE, text=True)
     try:
-        with Client(f"tcp://127.0.0.1:{port}", timeout=10.0) as c:
+        with Client(f"tcp://127.0.0.1:{port}", exposed[1], exposed[2], timeout=10.0) as c:
             c.call("ping", timeout=60.0)
             security = c.status()["security"]
             assert security["mode"] == "insecure" and "anyone who can reach" in security["warning"]

@@ -6,6 +6,7 @@ import gc
 import math
 import subprocess
 import sys
+import time
 
 from bench import wires
 from bench.wires import stop_peer  # noqa: F401  (the tests stop peers through here too)
@@ -14,10 +15,11 @@ from daemon.loop.cycle import ControlLoop
 from daemon.testing.loop import Captured
 
 # A shared, noisy test machine runs this loop without real-time priority, and stalls of tens
-# of milliseconds happen. A pipelined wire's sample dates from the request sent before the
-# stall, so stale data trips at 150 ms here (the rig file: 5 ms) and stalls at 0.5 s (50 ms):
-# what the tests see is the wire's behaviour, not the scheduler's.
-RELAXED = {"stale_after_s": 0.15, "stall_after_s": 0.5}
+# (under load, hundreds) of milliseconds happen. A pipelined wire's sample dates from the
+# request sent before the stall, so stale data trips at 1 s here (the rig file: 5 ms) and
+# stalls at 2 s (50 ms; a loaded machine held this loop 1 s): what the tests see is the
+# wire's behaviour, not the scheduler's.
+RELAXED = {"stale_after_s": 1.0, "stall_after_s": 2.0}
 
 
 def start_peer(module: str, *args: str, ready) -> subprocess.Popen:
@@ -82,10 +84,10 @@ def trip_and_recover(loop: ControlLoop, kill, restart, back) -> tuple[int, str]:
     loop.run(300)
     assert loop.cycle == cycle + 300 and loop.state.value == "fault"
     restart()
-    for _ in range(20000):
+    deadline = time.monotonic() + 120  # the peer's restart is waited for, however busy the machine
+    while not back():
+        assert time.monotonic() < deadline, "the peer never came back"
         loop.run(1)
-        if back():
-            break
     loop.run(100)
     assert tuple(loop.io.last_volts) == tuple(loop.io.safe_volts) and loop.state.value == "fault"
     loop.reset()

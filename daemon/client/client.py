@@ -14,7 +14,9 @@ work may take. ``keep_lease()`` renews the lease from a background thread.
 A daemon with keys (docs/protocol.md, "Keys") needs ``key_file``: the client's
 ``NAME.key_secret``, which names the daemon's public key itself, or with ``server_key_file``
 (the daemon's ``server.key``); ``PNEUMAD_KEY`` and ``PNEUMAD_SERVER_KEY`` in the environment
-give them too. A daemon that refuses the key (unknown, revoked, or none given) is reported as
+give them too. ``PNEUMAD_COMMAND``, ``PNEUMAD_CONTROL`` and ``PNEUMAD_TELEMETRY`` give the
+endpoints where no argument does (else the protocol's defaults, tcp://127.0.0.1:5560-5562).
+A daemon that refuses the key (unknown, revoked, or none given) is reported as
 :class:`KeyRefused`, not as a silent time-out.
 """
 from __future__ import annotations
@@ -34,6 +36,16 @@ from daemon.wire.keys import secure_client
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
+ENDPOINT_VARIABLES = {"command": "PNEUMAD_COMMAND", "control": "PNEUMAD_CONTROL", "telemetry": "PNEUMAD_TELEMETRY"}
+_DEFAULT_ENDPOINTS = {"command": DEFAULT_COMMAND, "control": DEFAULT_CONTROL, "telemetry": DEFAULT_TELEMETRY}
+
+
+def default_endpoint(name: str) -> str:
+    """The endpoint of socket ``name`` when none is given: its environment variable, else the
+    protocol's default."""
+    return os.environ.get(ENDPOINT_VARIABLES[name]) or _DEFAULT_ENDPOINTS[name]
+
+
 class RemoteError(RuntimeError):
     """The daemon answered with an error."""
 
@@ -51,10 +63,13 @@ _HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILE
 
 
 class Client:
-    def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
-                 telemetry: str = DEFAULT_TELEMETRY, timeout: float = 2.0, context: zmq.Context | None = None,
+    def __init__(self, command: str | None = None, control: str | None = None,
+                 telemetry: str | None = None, timeout: float = 2.0, context: zmq.Context | None = None,
                  key_file: str | None = None, server_key_file: str | None = None):
         self.context = context or zmq.Context.instance()
+        command = command or default_endpoint("command")
+        control = control or default_endpoint("control")
+        telemetry = telemetry or default_endpoint("telemetry")
         self.endpoints = {"command": command, "control": control, "telemetry": telemetry}
         self.timeout = timeout
         self.key_file = key_file or os.environ.get("PNEUMAD_KEY") or None

@@ -10,7 +10,7 @@ from daemon.wire import keys
 from daemon.wire.catalog import COMMANDS
 
 from daemon.recordings import mcap_log, reading as recording
-from daemon.client.client import Client, KeyRefused, RemoteError, read_waypoints
+from daemon.client.client import ENDPOINT_VARIABLES, Client, KeyRefused, RemoteError, read_waypoints
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
@@ -84,16 +84,16 @@ def _help(cmd: str, arg: str) -> str:
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
-    p.add_argument("--command", default=DEFAULT_COMMAND)
-    p.add_argument("--control", default=DEFAULT_CONTROL)
-    p.add_argument("--telemetry", default=DEFAULT_TELEMETRY)
+    for name, default in (("command", DEFAULT_COMMAND), ("control", DEFAULT_CONTROL), ("telemetry", DEFAULT_TELEMETRY)):
+        p.add_argument(f"--{name}", default=None, metavar="ENDPOINT",
+                       help=f"the daemon's {name} endpoint (else {ENDPOINT_VARIABLES[name]}, else {default})")
     p.add_argument("--timeout", type=float, default=2.0)
     p.add_argument("--key", default=None, metavar="FILE",
                    help="your key (NAME.key_secret) for a daemon with keys (or PNEUMAD_KEY)")
     p.add_argument("--server-key", default=None, metavar="FILE",
                    help="the daemon's public key (server.key), if your key file does not hold it (or PNEUMAD_SERVER_KEY)")
     sub = p.add_subparsers(dest="what", required=True)
-    for name in ("status", "describe", "enable", "disable", "estop", "reset", "abort"):
+    for name in ("ping", "status", "describe", "enable", "disable", "estop", "reset", "abort"):
         sub.add_parser(name, help=COMMANDS[name].doc)
     w = sub.add_parser("watch", help="live text view")
     w.add_argument("--seconds", type=float, default=None)
@@ -291,7 +291,7 @@ def timeout_hint(client: Client) -> str:
 
 def run(client: Client, args):
     w = args.what
-    if w in ("status", "describe"):
+    if w in ("ping", "status", "describe"):
         return getattr(client, w)()
     if w == "estop":
         return client.estop("pneumactl")

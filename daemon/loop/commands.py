@@ -28,6 +28,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import secrets
+import time
 
 from controllers import registry
 from controllers.base import ParamError
@@ -66,6 +69,8 @@ class Commands:
         self.lease = Lease(loop)
         self.requests = 0
         self.errors = 0
+        # Which daemon answers (ping, status): a client on a shared machine can tell its own.
+        self.daemon = {"pid": os.getpid(), "started": time.time(), "instance": secrets.token_hex(8)}
         # Built once, off the loop: scanning entry points costs milliseconds.
         self.owns_preparer = preparer is None  # else whoever passed it closes it
         self.preparer = preparer or Preparer()
@@ -166,7 +171,7 @@ class Commands:
 
     # -- reading ----------------------------------------------------------------------------
     def ping(self, args):
-        return {"pong": True, "t": self.loop.clock.now(), "version": VERSION}
+        return {"pong": True, "t": self.loop.clock.now(), "version": VERSION, "daemon": self.daemon}
 
     def status(self, args):
         loop = self.loop
@@ -193,6 +198,7 @@ class Commands:
             "load": self._load(),
             "transport": vars(loop.io.transport.health()),
             "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
+            "daemon": self.daemon,
         }
 
     def describe(self, args):

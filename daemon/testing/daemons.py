@@ -15,7 +15,12 @@ def spawn(directory, *options: str, module: str = "daemon.main", **popen) -> tup
     process and its endpoints (name -> address)."""
     if "--record-dir" not in options:
         options = (*options, "--record-dir", str(Path(directory) / "recordings"))
-    eps = {name: f"ipc://{directory}/{name}" for name in ENDPOINTS}
+    eps = private_endpoints(directory)
     daemon = subprocess.Popen([sys.executable, "-m", module, "run", "--log-level", "WARNING", *options,
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
     return daemon, eps
+
+
+def private_endpoints(directory) -> dict[str, str]:
+    """ipc endpoints in ``directory``: nobody else's daemon can be on them."""
+    return {name: f"ipc://{directory}/{name}" for name in ENDPOINTS}

@@ -76,7 +76,10 @@ def shared_preparer() -> Preparer:
     (a worker per test cost 1.5 s of start-up each). A job's reply always comes before its
     test ends, so no test inherits another's work."""
     if not _preparer:
-        _preparer.append(Preparer())
+        # 120 s, not the daemon's 30 s: a worker spawned on a machine busy with other test
+        # processes has taken over 30 s to import the controllers (a test that needs a hang
+        # noticed sooner sets its own limit)
+        _preparer.append(Preparer(time_limit_s=120.0))
         _preparer[0].warm().result(timeout=120)
     return _preparer[0]
 

@@ -1,0 +1,146 @@
+"""A session-wide guard: the suite is safe to run on a lab PC where ``pneumad.service`` runs;
+and the long tests scheduled first.
+
+Once per session (in the controlling process under pytest-xdist, never in its workers):
+
+- listeners on 127.0.0.1:5560-5562, the default endpoints a lab's daemon holds, bound at the
+  start and checked at the end: any connection or byte to them fails the session, naming the
+  port. A port that cannot be bound (a real daemon holds it) is not watched, and the summary
+  says so; no test may reach it either way.
+- the checkout's ``git status --porcelain --ignored`` taken at the start and compared at the
+  end: a test that wrote, moved or deleted anything in the checkout fails the session (Python's
+  and pytest's own caches excepted). Skipped outside a git checkout.
+"""
+from __future__ import annotations
+
+import selectors
+import socket
+import subprocess
+import threading
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_PORTS = (5560, 5561, 5562)
+CACHES = ("__pycache__", ".pytest_cache")
+
+
+class PortWatch:
+    """Listeners on the default ports, counting every connection and byte they receive."""
+
+    def __init__(self, ports=DEFAULT_PORTS):
+        self.received: dict[int, list[str]] = {}
+        self.unwatched: dict[int, str] = {}
+        self.watched: list[int] = []
+        self._selector = selectors.DefaultSelector()
+        self._stop = threading.Event()
+        for port in ports:
+            listener = socket.socket()
+            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # still refused while another listens
+            try:
+                listener.bind(("127.0.0.1", port))
+                listener.listen()
+            except OSError as exc:
+                listener.close()
+                self.unwatched[port] = exc.strerror or str(exc)
+                continue
+            listener.setblocking(False)
+            self.watched.append(port)
+            self._selector.register(listener, selectors.EVENT_READ, (port, None))
+        self._thread = threading.Thread(target=self._serve, name="default-port-watch", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            for key, _ in self._selector.select(timeout=0.1):
+                port, peer = key.data
+                if peer is None:  # a listener: someone connected
+                    conn, address = key.fileobj.accept()
+                    conn.setblocking(False)
+                    self.received.setdefault(port, []).append(f"a connection from {address[0]}:{address[1]}")
+                    self._selector.register(conn, selectors.EVENT_READ, (port, address))
+                    continue
+                try:
+                    data = key.fileobj.recv(65536)
+                except OSError:
+                    data = b""
+                if data:
+                    self.received[port].append(f"{len(data)} bytes ({data[:16]!r}...)")
+                else:
+                    self._selector.unregister(key.fileobj)
+                    key.fileobj.close()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        for key in list(self._selector.get_map().values()):
+            key.fileobj.close()
+        self._selector.close()
+
+
+def checkout_state() -> list[str] | None:
+    """``git status --porcelain --ignored`` of the checkout, caches left out; None outside git."""
+    try:
+        done = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--ignored"], capture_output=True,
+                              text=True, timeout=60)
+    except OSError:
+        return None
+    if done.returncode != 0:
+        return None
+    return sorted(line for line in done.stdout.splitlines() if not any(part in CACHES for part in Path(line[3:]).parts))
+
+
+def is_controller(config) -> bool:
+    """True in a plain run and in xdist's controlling process; False in its workers."""
+    return not hasattr(config, "workerinput")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session):
+    if not is_controller(session.config):
+        return
+    session.config.stash[GUARD] = (PortWatch(), checkout_state())
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionfinish(session):
+    guard = session.config.stash.get(GUARD, None)
+    if guard is None:
+        return
+    watch, before = guard
+    watch.close()
+    problems = [f"127.0.0.1:{port} (a default endpoint) received {', '.join(what)}"
+                for port, what in sorted(watch.received.items())]
+    after = checkout_state() if before is not None else None
+    if before is not None and after != before:
+        gone, new = sorted(set(before) - set(after)), sorted(set(after) - set(before))
+        problems.append(f"the checkout changed during the tests: before only {gone}, after only {new}")
+    notes = [f"default endpoints watched: {', '.join(map(str, watch.watched)) or 'none'}"]
+    notes += [f"127.0.0.1:{port} not watched (cannot bind: {why}; a daemon holds it?)"
+              for port, why in sorted(watch.unwatched.items())]
+    notes.append("checkout unchanged" if before is not None and after == before else
+                 "checkout not checked (not a git checkout)" if before is None else "checkout CHANGED")
+    session.config.stash[REPORT] = (notes, problems)
+    if problems and session.exitstatus == pytest.ExitCode.OK:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_collection_modifyitems(items):
+    """The long tests first (their modules kept in order): spread over xdist's workers, they
+    no longer finish alone at the end of a run."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    notes, problems = config.stash.get(REPORT, ([], []))
+    if notes or problems:
+        terminalreporter.section("lab-PC guard")
+    for line in notes:
+        terminalreporter.write_line(line)
+    for line in problems:
+        terminalreporter.write_line("FAILED: " + line, red=True)
+
+
+GUARD = pytest.StashKey[tuple]()
+REPORT = pytest.StashKey[tuple]()
