@@ -93,6 +93,8 @@ def test_bad_values_are_refused_with_the_argument_its_bounds_and_the_element_at_
     assert refusal("path", {"name": "spiral"}).data == {"argument": "name", "allowed": ["translation", "circle"]}
     assert refusal("path", {}).data == {"argument": "name"}  # required
     assert refusal("load.set", {"mass_kg": 1.0, "com_mm": [1.0]}).data == {"argument": "com_mm", "low": 2, "high": 2}
+    assert refusal("load.set", {"mass_kg": 1.0, "com_mm": [1.0, ""]}).data == {  # found by tests/test_fuzz.py
+        "argument": "com_mm", "index": [1], "expected": "number"}
     assert refusal("controller.set", {"params": [1]}).data == {"argument": "params", "expected": "map"}
     assert refusal("record.start", {"seconds": 0}).data == {"argument": "seconds", "low": 0.001, "high": 86400.0}
 

@@ -47,6 +47,7 @@ class Arg:
     default: object = None
     required: bool = False
     choices: tuple[str, ...] = ()
+    numbers: bool = False  # a list whose every item is a finite number (a small fixed list: the check is bounded)
 
     def help(self) -> str:
         """A line of help: what it is, its unit, bounds and default (pneumactl's help)."""
@@ -84,7 +85,7 @@ class Arg:
             if self.kind == "list" and self.low is not None and not self.low <= len(value) <= self.high:
                 raise bad_args(f"'{self.name}' must hold {self.low:g} to {self.high:g} items, got {len(value)}",
                                self.name, low=self.low, high=self.high)
-            if self.kind == "number_or_list":
+            if self.kind == "number_or_list" or self.numbers:
                 for i, v in enumerate(value):
                     self._check_item(i, v)
         elif kind == "map":
@@ -92,11 +93,13 @@ class Arg:
                 raise bad_args(f"'{self.name}' must be a map, got {type(value).__name__}", self.name, expected=kind)
 
     def _check_item(self, index: int, value) -> None:
-        """One number of a list (``number_or_list``), in the argument's bounds."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or not self.low <= value <= self.high:
-            raise bad_args(f"'{self.name}[{index}]' = {value!r:.80} is not a number in {self.low:g}..{self.high:g}",
-                           self.name, index=[index], low=self.low, high=self.high)
+        """One number of a list: finite, and for ``number_or_list`` in the argument's bounds."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise bad_args(f"'{self.name}[{index}]' must be a finite number, got {value!r:.80}", self.name,
+                           index=[index], expected="number")
+        if self.kind == "number_or_list" and not self.low <= value <= self.high:
+            raise bad_args(f"'{self.name}[{index}]' = {value} is outside {self.low:g}..{self.high:g}", self.name,
+                           index=[index], low=self.low, high=self.high)
 
     def schema(self) -> dict:
         """This argument as JSON Schema (docs/schemas/args.schema.json)."""
@@ -104,6 +107,8 @@ class Arg:
             number = {"type": "number", "minimum": self.low, "maximum": self.high}
             return {"description": self.help(), "oneOf": [number, {"type": "array", "items": number}]}
         out = {"description": self.help(), "type": _JSON_TYPES[self.kind]}
+        if self.numbers:
+            out["items"] = {"type": "number"}
         if self.choices:
             out["enum"] = list(self.choices)
         if self.low is not None:
@@ -179,7 +184,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
                                                                       "cycle", "recording"), (
         Arg("angles_deg", "list", "one angle per joint", unit="deg"),
         Arg("angles_rad", "list", "one angle per joint", unit="rad"),
-        Arg("xy_mm", "list", "the tip [x, y]", 2, 2, "mm"),
+        Arg("xy_mm", "list", "the tip [x, y]", 2, 2, "mm", numbers=True),
         Arg("duration_s", "number", "the cubic move's time, 0: a step", 0.0, MAX_DURATION_S, "s", 0.0),
         Arg("stiffness_nm_deg", "number_or_list", "stiffness set-point, one or one per joint (muscle joints)",
             0.0, 10.0, "N m/deg"),
@@ -241,7 +246,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("load.set", "loop", "feed a known payload forward", ("load", "cycle"), (
         Arg("mass_kg", "number", "the payload's mass", 0.0, 1000.0, "kg", required=True),
         Arg("com_mm", "list", "its centre of mass from the tip, [along, across] the last link", 2, 2, "mm",
-            [0.0, 0.0])), lease=True),
+            [0.0, 0.0], numbers=True)), lease=True),
     Command("load.clear", "loop", "stop feeding a load forward", ("cleared", "cycle"), lease=True),
     Command("record.start", "recorder", "the daemon records its telemetry", _RECORDING, (
         Arg("name", "string", "the file's name without .mcap (1-80 letters, digits, '.', '_', '-')"),
