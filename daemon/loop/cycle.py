@@ -258,7 +258,7 @@ class ControlLoop:
         hold.reset(self._state(), self.feed_forward.share(self.u))
         self.controller = hold
         self.events.add({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
-                                "params": hold.get_params()})
+                         "params": hold.get_params()})
 
     def controller_lost(self, cause: str) -> None:
         """The tracking rule fired: the fallback controller takes over and holds the arm where
@@ -266,7 +266,7 @@ class ControlLoop:
         lost, spare = self.controller.name, self._fallback
         if spare is not None and lost != spare.name:
             self.events.add({"kind": "tracking", "controller": lost, "cause": cause,
-                                           "action": "fallback", "to": spare.name})
+                             "action": "fallback", "to": spare.name})
             self.switch(copy.deepcopy(spare), f"fallback: {lost}: {cause}")
             self.hold()
             return
