@@ -10,19 +10,20 @@ anything whose cost grows with the request or the rig is handed to the worker pr
 the loop (:class:`~daemon.planner.process.Preparer`) with a deferred reply:
 
 - motion commands (``set``, ``path``, ``waypoints``, ``steps``, ``excite``) are planned and
-  checked there (:mod:`daemon.planner.commands`); the loop installs the finished reference at a cycle
-  boundary, or discards it if the reference or the state changed meanwhile (an ``abort``,
+  checked there (:mod:`daemon.planner.commands`); the loop installs the finished plan at a cycle
+  boundary, or refuses it if the reference or the state changed meanwhile (an ``abort``,
   ``estop``, ``disable``, a trip), so nothing starts that was overtaken;
 - ``controller.switch``, ``controller.shadow`` and ``controller.set`` build a controller or
   derive its parameters there.
 
-Status and describe are built from the loop's last cycle record and the static rig
-description; they never wait on anything.
+Handlers change the loop only through its named controls (``enable`` ... ``set_load``,
+:class:`~daemon.loop.cycle.ControlLoop`) and read it only through its view
+(:class:`~daemon.loop.view.LoopView`): status and describe never wait on anything.
 
 Anyone may read, and anyone may e-stop or abort; commands that move the arm or change what
 moves it need the lease (:mod:`daemon.loop.lease`). Each request comes with who sent it
 (:class:`daemon.wire.keys.Identity`: a CURVE key's name and role, or anonymous without keys), and
-every event a request causes records who asked.
+every event a request causes records who asked (:meth:`daemon.loop.events.EventLog.signed`).
 """
 from __future__ import annotations
 
@@ -85,7 +86,6 @@ class Commands:
         every failure becomes an error reply. Work done off the loop comes back as a Deferred:
         see :meth:`complete`."""
         self.requests += 1
-        request_id = None
         self.client = client
         with self.loop.events.signed(str(client)):
             return self._handle_payload(payload, control, start)
