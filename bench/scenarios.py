@@ -35,7 +35,7 @@ def make_loop(controller: str, params: dict | None = None, rig: str = "sim", rep
         cfg = config.with_transport(cfg, cfg.transport.backend, {**cfg.transport.options, **plant})
     loop = virtual_loop(cfg, "hold")
     loop.start()
-    loop.switch_controller(registry.build(controller, loop.context, params, options))
+    loop.switch(registry.build(controller, loop.context, params, options))
     loop.enable()
     return loop
 
@@ -131,7 +131,7 @@ class StepResult:
 
 def step_response(loop: ControlLoop, joint: int, step_deg: float, seconds: float) -> StepResult:
     """A set-point step on one joint from rest; the others hold."""
-    loop.hold_position()
+    loop.hold()
     loop.run(int(SETTLE_S / loop.period))
     q0 = list(loop.reference[0])
     target = list(q0)
@@ -166,7 +166,7 @@ class Rejection:
 
 def disturbance_rejection(loop: ControlLoop, joint: int, torque_nm: float, seconds: float) -> Rejection:
     """A step torque [N m] on one joint while it holds position."""
-    loop.hold_position()
+    loop.hold()
     loop.run(int(SETTLE_S / loop.period))
     q0 = loop.reference[0][joint]
     loop.io.transport.arm.disturbance_nm[joint] = torque_nm

@@ -61,13 +61,13 @@ def test_the_observer_rejects_a_step_torque_faster_than_smc_alone():
 @pytest.mark.slow  # long: kept out of the fast subset
 def test_switching_while_the_path_runs_is_bumpless_and_misses_no_cycle(old, new):
     loop = S.make_loop("hold")
-    loop.switch_controller(registry.build(old, loop.context, options=S.example_options(old)))
+    loop.switch(registry.build(old, loop.context, options=S.example_options(old)))
     path = S.make_path(loop, "translation", 15.0)
     S.approach(loop, path.sample(0.0)[0])
     loop.set_trajectory(path, "path")
     loop.run(5000)  # halfway along, moving
     before, cycle = list(loop.u), loop.cycle
-    loop.switch_controller(registry.build(new, loop.context, options=S.example_options(new)))
+    loop.switch(registry.build(new, loop.context, options=S.example_options(new)))
     loop.run(1)
     span = [hi - lo for lo, hi in zip(loop.context.u_min, loop.context.u_max)]
     assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(loop.u, before, span)), (before, loop.u)

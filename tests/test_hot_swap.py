@@ -117,7 +117,7 @@ def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(mov
     cycles = [c for m in captured.of("state") for c in m["cycle"]]
     assert cycles == list(range(cycles[0], cycles[0] + len(cycles)))  # no cycle missed across it all
     assert loop.stats.overruns_total == 0
-    assert loop.state.value == "enabled" and loop.controller.name == "smc_dob" and loop.shadow is None
+    assert loop.state.value == "enabled" and loop.controller.name == "smc_dob" and loop.shadow_run is None
     assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
     kinds = [(e["kind"], e.get("action")) for e in captured.of("event")]
     assert ("shadow", "start") in kinds and ("shadow", "commit") in kinds
@@ -127,7 +127,7 @@ def test_a_failing_shadow_ends_its_own_run_and_nothing_else(moving):
     loop, captured, sock, lease = moving
     ok(loop, sock, "controller.shadow", {"name": "Raising"}, lease)
     run_seconds(loop, 0.1)
-    assert loop.shadow is None and loop.controller.name == "pid" and loop.state.value == "enabled"
+    assert loop.shadow_run is None and loop.controller.name == "pid" and loop.state.value == "enabled"
     failed = [e for e in captured.of("event") if e.get("kind") == "shadow" and e.get("action") == "failed"]
     assert failed and "controller bug" in failed[0]["cause"]
     assert call(loop, sock, "controller.commit", {}, lease)["error"]["code"] == P.BAD_STATE
@@ -140,7 +140,7 @@ def test_a_discarded_shadow_run_reports_its_comparison_and_changes_nothing(movin
     summary = ok(loop, sock, "controller.discard", {}, lease)
     assert summary["controller"] == "pid" and summary["cycles"] >= 990
     assert max(summary["max_diff_volts"]) > 0.0  # other gains, other outputs
-    assert loop.shadow is None and loop.controller.get_params()["Kp"] != [60.0, 60.0]
+    assert loop.shadow_run is None and loop.controller.get_params()["Kp"] != [60.0, 60.0]
 
 
 def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):

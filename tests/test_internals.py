@@ -19,7 +19,7 @@ def test_the_internals_named_in_describe_are_published_while_enabled(name):
     loop.run(100)
     assert not captured.of("internals")  # idle: nothing to see
     loop.enable()
-    loop.switch_controller(registry.build(name, loop.context, options=S.example_options(name)))
+    loop.switch(registry.build(name, loop.context, options=S.example_options(name)))
     start = JointMove(list(loop.angles), [loop.angles[0] + math.radians(5.0), loop.angles[1]], 1.0)
     loop.set_trajectory(start, "move")
     loop.run(1000)

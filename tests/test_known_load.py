@@ -176,7 +176,7 @@ def test_an_input_experiment_is_planned_about_the_volts_that_hold_the_known_load
     args = {"side": "input", "signal": "multisine", "joint": "middle", "amplitude_v": 0.5, "f0_hz": 0.5,
             "f1_hz": 1.0, "components": 1, "period_s": 2.0, "periods": 2}
     request = {"cmd": "excite", "payload": msgpack.packb(args), "args_span": (0, len(msgpack.packb(args))), "id": 1}
-    without = planner.plan(plain, request, setpoint).reply["u_op_estimate_v"]
-    with_load = planner.plan(loaded, request, setpoint).reply["u_op_estimate_v"]
+    without = planner.plan(plain, request, setpoint, 0).reply["u_op_estimate_v"]
+    with_load = planner.plan(loaded, request, setpoint, 0).reply["u_op_estimate_v"]
     assert with_load - without == pytest.approx(load.volts(setpoint)[1], abs=1e-9)
     assert with_load - without > 2.0

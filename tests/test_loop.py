@@ -75,7 +75,7 @@ def test_estop_writes_the_safe_state_at_once_and_latches():
 @pytest.mark.parametrize("plugin", ["tests.plugins:Raising", "tests.plugins:ReturnsNaN"])
 def test_failing_controller_trips_to_safe_and_the_loop_keeps_running(plugin):
     loop, captured, _ = enabled_loop()
-    loop.switch_controller(registry.build(plugin, loop.context))  # the daemon's own choice: a path is allowed
+    loop.switch(registry.build(plugin, loop.context))  # the daemon's own choice: a path is allowed
     cycle = loop.cycle
     run_seconds(loop, 0.5)
     assert loop.cycle == cycle + 500  # never stopped
@@ -149,7 +149,7 @@ def test_a_timed_reference_has_start_and_end_events_and_one_replaced_ends_cut():
     run_seconds(loop, 1.0)
     loop.set_trajectory(trajectory.JointMove(list(loop.reference[0]), start, 2.0), "set")
     run_seconds(loop, 0.5)
-    loop.hold_position()  # an abort
+    loop.hold()  # an abort
     loop.run(10)
     refs = [e for e in captured.of("event") if e["kind"] == "reference"]
     assert [(e["action"], e.get("cut", "")) for e in refs] == [("start", ""), ("end", ""), ("start", ""),
@@ -168,7 +168,7 @@ def test_joint_limit_trips():
 def test_overrun_skips_ahead_and_never_bursts():
     loop, _, _ = enabled_loop()
     Slow.clock = loop.clock
-    loop.switch_controller(Slow(loop.context))
+    loop.switch(Slow(loop.context))
     start_t, start_cycle = loop.clock.now(), loop.cycle
     loop.run(300)
     # 3 slow steps, each 3.5 periods late: 3 deadlines skipped each, and nothing run twice

@@ -27,7 +27,7 @@ def test_the_thesis_pi_written_as_matrices_tracks_as_the_built_in_pid_does():
     results = {}
     for name, options in (("pid", None), ("lti", {"design": PI})):
         loop = S.make_loop("pid")
-        loop.switch_controller(registry.build(name, loop.context, options=options))
+        loop.switch(registry.build(name, loop.context, options=options))
         results[name] = S.run_path(loop, S.make_path(loop, "translation", 15.0))
     for a, b in zip(results["pid"].joint_max, results["lti"].joint_max):
         assert a == pytest.approx(b, abs=0.05)  # Tustin against forward Euler: the same controller
@@ -104,7 +104,7 @@ def test_a_saturating_step_does_not_wind_up_the_design_state():
     overshoots = {}
     for name, options in (("pid", None), ("lti", {"design": PI})):
         loop = S.make_loop("pid")
-        loop.switch_controller(registry.build(name, loop.context, options=options))
+        loop.switch(registry.build(name, loop.context, options=options))
         start = list(loop.reference[0])
         S.approach(loop, start)
         target = list(start)
@@ -125,7 +125,7 @@ def test_a_live_gain_change_scales_the_output_next_cycle():
     loops = []
     for _ in range(2):  # the same run twice; then one of them halves the bottom joint's gain
         loop = S.make_loop("pid")
-        loop.switch_controller(registry.build("lti", loop.context, options={"design": PI}))
+        loop.switch(registry.build("lti", loop.context, options={"design": PI}))
         loop.run(3000)
         target = list(loop.reference[0])
         target[0] += math.radians(1.0)

@@ -19,7 +19,7 @@ def pin_and_release(name: str, volts_worth: float, pinned_s: float = 6.0, after_
     when released, and the error [deg] and output [V] each cycle after."""
     # the tracking rule would rightly trip a joint pushed this far: this test is about what comes after
     loop = S.make_loop(name, options=S.example_options(name), replace=S.NO_TRACKING_RULE)
-    loop.hold_position()
+    loop.hold()
     loop.run(3000)
     reference = loop.reference[0][MIDDLE]
     lo, hi = loop.context.u_min[MIDDLE], loop.context.u_max[MIDDLE]

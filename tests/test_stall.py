@@ -37,7 +37,7 @@ def test_a_cycle_that_runs_past_the_stall_limit_trips_and_writes_the_safe_state_
     loop = assembly.build_loop(rig, clock, 0.001, "hold")
     transport = loop.io.transport
     loop.start()
-    loop.switch_controller(SleepsOnce(loop.context))
+    loop.switch(SleepsOnce(loop.context))
     loop.enable()
     loop.run(49)  # the 50th control step sleeps; the loop woke on time for it
     assert loop.state is State.ENABLED

@@ -35,7 +35,7 @@ def test_a_joint_outside_the_band_is_lost_only_when_it_does_not_close_in():
 def pushed_away(loop, seconds: float) -> float:
     """Push the middle joint with a torque worth 8 V (beyond its -4 V) for up to ``seconds``;
     the middle angle [deg] when the loop left enabled (or at the end)."""
-    loop.hold_position()
+    loop.hold()
     loop.run(2000)
     loop.io.transport.arm.disturbance_nm[1] = loop.context.models[1].kt * 8.0
     for _ in range(int(seconds / loop.period)):
@@ -57,7 +57,7 @@ def test_a_joint_pushed_off_trips_with_who_and_why_well_inside_its_limit():
 
 def test_a_large_move_the_joint_is_catching_up_on_is_not_a_loss():
     loop = S.make_loop("pid")
-    loop.hold_position()
+    loop.hold()
     loop.run(2000)
     target = [loop.angles[0], loop.angles[1] + math.radians(35.0)]  # middle: over 10 s at its few deg/s
     loop.set_trajectory(JointMove(list(loop.angles), target, 0.0), "step")
@@ -73,7 +73,7 @@ def test_the_fallback_controller_takes_the_arm_and_holds_it_where_it_is():
         rig = rig.replace(old, new)
     loop, captured, _ = make_loop(rig, plugins={"pushes_away": "tests.plugins:PushesAway"})
     loop.enable()
-    loop.switch_controller(registry.build("pushes_away", loop.context, plugins=loop.controller_plugins))
+    loop.switch(registry.build("pushes_away", loop.context, plugins=loop.controller_plugins))
     loop.run(15000)
     assert loop.state.value == "enabled", loop.supervisor.cause
     assert loop.controller.name == "pid" and loop.trajectory_name == "hold"
@@ -92,7 +92,7 @@ def test_a_fallback_that_loses_the_joint_too_trips():
     rig = rig.replace('fallback_controller = "pid"', 'fallback_controller = "pushes_away"')
     loop, captured, _ = make_loop(rig, plugins={"pushes_away": "tests.plugins:PushesAway"})
     loop.enable()
-    loop.switch_controller(registry.build("pushes_away", loop.context, plugins=loop.controller_plugins))
+    loop.switch(registry.build("pushes_away", loop.context, plugins=loop.controller_plugins))
     loop.run(15000)
     assert loop.state.value == "fault" and "controller pushes_away: joint middle lost" in loop.supervisor.cause
     assert [m["action"] for m in captured.of("event") if m["kind"] == "tracking"] == ["trip"]
@@ -100,7 +100,7 @@ def test_a_fallback_that_loses_the_joint_too_trips():
 
 def test_a_sensor_stuck_during_a_move_is_caught_by_the_tracking_rule():
     loop = S.make_loop("pid")
-    loop.hold_position()
+    loop.hold()
     loop.run(2000)
     loop.io.transport.inject("stuck", "ai0")  # the bottom joint's wiper freezes
     target = [loop.angles[0] + math.radians(25.0), loop.angles[1]]

@@ -10,24 +10,24 @@ anything whose cost grows with the request or the rig is handed to the worker pr
 the loop (:class:`~daemon.planner.process.Preparer`) with a deferred reply:
 
 - motion commands (``set``, ``path``, ``waypoints``, ``steps``, ``excite``) are planned and
-  checked there (:mod:`daemon.planner.commands`); the loop installs the finished reference at a cycle
-  boundary, or discards it if the reference or the state changed meanwhile (an ``abort``,
+  checked there (:mod:`daemon.planner.commands`); the loop installs the finished plan at a cycle
+  boundary, or refuses it if the reference or the state changed meanwhile (an ``abort``,
   ``estop``, ``disable``, a trip), so nothing starts that was overtaken;
 - ``controller.switch``, ``controller.shadow`` and ``controller.set`` build a controller or
   derive its parameters there.
 
-Status and describe are built from the loop's last cycle record and the static rig
-description; they never wait on anything.
+Handlers change the loop only through its named controls (``enable`` ... ``set_load``,
+:class:`~daemon.loop.cycle.ControlLoop`) and read it only through its view
+(:class:`~daemon.loop.view.LoopView`): status and describe never wait on anything.
 
 Anyone may read, and anyone may e-stop or abort; commands that move the arm or change what
 moves it need the lease (:mod:`daemon.loop.lease`). Each request comes with who sent it
 (:class:`daemon.wire.keys.Identity`: a CURVE key's name and role, or anonymous without keys), and
-every event a request causes records who asked.
+every event a request causes records who asked (:meth:`daemon.loop.events.EventLog.signed`).
 """
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import secrets
 import time
@@ -74,9 +74,10 @@ class Commands:
         # Built once, off the loop: scanning entry points costs milliseconds.
         self.owns_preparer = preparer is None  # else whoever passed it closes it
         self.preparer = preparer or Preparer()
-        self._controllers = self._describe_controllers(loop.controller_plugins)
+        self.view = loop.view  # what the handlers read; they change the loop only through its controls
+        self._controllers = self._describe_controllers(self.view.controller_plugins)
         self._describe = self._build_describe()
-        self._plan_context = planner.PlanContext.of(loop.rig, loop.context)
+        self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
 
     # -- entry points -----------------------------------------------------------------------
     def handle_payload(self, payload: bytes, control: bool = False, client: Identity = ANONYMOUS,
@@ -85,16 +86,18 @@ class Commands:
         every failure becomes an error reply. Work done off the loop comes back as a Deferred:
         see :meth:`complete`."""
         self.requests += 1
-        request_id = None
         self.client = client
-        events = self.loop.supervisor.events
-        first_event = len(events)
+        with self.loop.events.signed(str(client)):
+            return self._handle_payload(payload, control, start)
+
+    def _handle_payload(self, payload: bytes, control: bool, start: int) -> bytes | Deferred:
+        request_id = None
         try:
             request = P.decode_request(payload, start)
             request_id = request["id"]
             result = self.handle(request, control)
             if isinstance(result, Deferred):
-                result.request_id, result.client = request_id, client
+                result.request_id, result.client = request_id, self.client
                 return result
             return P.encode_result(request_id, result)
         except P.ProtocolError as exc:
@@ -106,16 +109,16 @@ class Commands:
         except Exception as exc:  # a bug in a handler must not take the loop down
             self.errors += 1
             return P.encode_error(request_id, P.INTERNAL, f"{type(exc).__name__}: {exc}")
-        finally:
-            _signed(events, first_event, client)
 
     def complete(self, deferred: Deferred) -> bytes:
         """The reply to a deferred command whose work is done: its result applied now, at
         this cycle boundary, or the error that stopped it."""
+        with self.loop.events.signed(str(deferred.client)):
+            return self._complete(deferred)
+
+    def _complete(self, deferred: Deferred) -> bytes:
         request_id = deferred.request_id
         data = None
-        events = self.loop.supervisor.events
-        first_event = len(events)
         try:
             return P.encode_result(request_id, deferred.finish(deferred.future.result()))
         except CommandFailed as exc:
@@ -131,8 +134,6 @@ class Commands:
             data = {"argument": "name", "allowed": [c["name"] for c in self._controllers]}
         except Exception as exc:  # a plugin that fails to build is refused, never fatal
             message, code = f"{type(exc).__name__}: {exc}", P.REFUSED
-        finally:
-            _signed(events, first_event, deferred.client)
         self.errors += 1
         return P.encode_error(request_id, code, message, data)
 
@@ -171,58 +172,40 @@ class Commands:
 
     # -- reading ----------------------------------------------------------------------------
     def ping(self, args):
-        return {"pong": True, "t": self.loop.clock.now(), "version": VERSION, "daemon": self.daemon}
+        return {"pong": True, "t": self.view.now(), "version": VERSION, "daemon": self.daemon}
 
     def status(self, args):
-        loop = self.loop
-        snap = loop.snapshot
-        return {
-            "state": loop.state.value,
-            "cause": loop.supervisor.cause,
-            "cycle": loop.cycle,
-            "t": loop.clock.now(),
-            "controller": loop.controller.name,
-            "shadow": loop.shadow.summary() if loop.shadow is not None else None,
-            "reference": loop.trajectory_name if loop.supervisor.enabled else None,
-            "reference_remaining_s": loop.reference_remaining() if loop.supervisor.enabled else 0.0,
-            "joints": {name: self._joint_status(i) for i, name in enumerate(loop.io.joint_names)},
-            "force_n": None if loop.force != loop.force else loop.force,
-            "faults": list(snap.faults) if snap is not None else [],
-            "lease_held": self.lease.held,
-            "lease_holder": self.lease.holder.name if self.lease.held else None,
-            "unleased_disable_in_s": self.lease.disable_in(),
-            "client": {"name": self.client.name, "role": self.client.role},
-            "security": self.security,
-            "trips": loop.supervisor.trips,
-            "overruns_total": loop.stats.overruns_total,
-            "load": self._load(),
-            "transport": vars(loop.io.transport.health()),
-            "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
-            "daemon": self.daemon,
-        }
+        fields = {**self.view.status(),
+                  "lease_held": self.lease.held,
+                  "lease_holder": self.lease.holder.name if self.lease.held else None,
+                  "unleased_disable_in_s": self.lease.disable_in(),
+                  "client": {"name": self.client.name, "role": self.client.role},
+                  "security": self.security,
+                  "daemon": self.daemon}
+        return {key: fields[key] for key in STATUS_FIELDS}
 
     def describe(self, args):
         return self._describe
 
     def _build_describe(self) -> dict:
-        loop, rig = self.loop, self.loop.rig
+        view, rig = self.view, self.view.rig
         return {
             "version": VERSION,
             "protocol": P.VERSION,
             "rig": {"name": rig.rig.name, "description": rig.rig.description, "origin": rig.origin, "hash": rig.hash,
                     "source": rig.source},
-            "period_s": loop.period,
+            "period_s": view.period,
             "joints": [self._describe_joint(j) for j in rig.joints],
-            "command_interfaces": [c.describe() for c in loop.actuation.commands],
+            "command_interfaces": [c.describe() for c in view.command_interfaces],
             "arm": {"link_lengths_mm": list(rig.arm.link_lengths_mm), "elbow": rig.arm.elbow},
             "limits": {"max_pressure_mpa": rig.limits.max_pressure_mpa,
                        "max_pressure_rate_mpa_s": rig.limits.max_pressure_rate_mpa_s,
                        "authority_fraction": rig.limits.authority_fraction},
             "tracking": {"error_deg": rig.safety.tracking_error_deg, "window_s": rig.safety.tracking_window_s,
                          "action": rig.safety.tracking_action, "fallback_controller": rig.safety.fallback_controller},
-            "transport": {"backend": loop.io.transport.backend, "rate_hz": loop.io.transport.rate_hz,
-                          "inputs": [[c.name, c.kind.value, c.low, c.high] for c in loop.io.transport.inputs],
-                          "outputs": [[c.name, c.kind.value, c.low, c.high] for c in loop.io.transport.outputs]},
+            "transport": {"backend": view.transport.backend, "rate_hz": view.transport.rate_hz,
+                          "inputs": [[c.name, c.kind.value, c.low, c.high] for c in view.transport.inputs],
+                          "outputs": [[c.name, c.kind.value, c.low, c.high] for c in view.transport.outputs]},
             "units": {"angle": "rad (deg where a key says _deg)", "u": "V (V_MV, head chamber above its bias)",
                       "pressure": "Pa", "force": "N", "time": "s"},
             "controllers": self._controllers,
@@ -234,28 +217,9 @@ class Commands:
             "security": self.security,
         }
 
-    def _joint_status(self, i: int) -> dict:
-        """One joint in ``status``: angle, set-point, speed, and its commands in force (V_MV as
-        ``u_volts``; a muscle pair's pressures [Pa] and brake [N m], its stiffness set-point
-        and measured pressures)."""
-        loop = self.loop
-        name = loop.io.joint_names[i]
-        out = {"angle_deg": math.degrees(loop.angles[i]), "setpoint_deg": math.degrees(loop.reference[0][i]),
-               "velocity_deg_s": math.degrees(loop.velocities[i])}
-        commands = {c.name: loop.u[k] for k, c in enumerate(loop.actuation.commands) if c.joint == name}
-        if "v_mv" in commands:
-            out["u_volts"] = commands["v_mv"]
-        else:
-            k = loop.stiffness[i]
-            out["commands"] = commands
-            out["stiffness_nm_deg"] = None if k != k else math.radians(k)
-            pressures = loop.pressures[2 * i:2 * i + 2]
-            out["pressures_pa"] = [None if p != p else p for p in pressures]
-        return out
-
     def _describe_joint(self, j) -> dict:
         """A joint as ``describe`` gives it: limits, actuation, its commands' ranges, safe state."""
-        commands = [c for c in self.loop.actuation.commands if c.joint == j.name]
+        commands = [c for c in self.view.command_interfaces if c.joint == j.name]
         joint = {"name": j.name, "min_angle_deg": j.min_angle_deg, "max_angle_deg": j.max_angle_deg,
                  "max_speed_deg_s": j.max_speed_deg_s, "actuation": j.actuation, "chambers": list(j.chambers),
                  "commands": [c.name for c in commands],
@@ -274,61 +238,45 @@ class Commands:
         said = args.get("who", "")
         said = (said if isinstance(said, str) else repr(said))[:64]
         who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
-        self.loop.estop(who, signed=str(self.client))
-        return {"state": self.loop.state.value}
+        self.loop.estop(who)
+        return {"state": self.view.state.value}
 
     def abort(self, args):
         """Stop any path or move and hold the present position; a plan being prepared is
         discarded when it is done."""
-        self.loop.hold_position()
+        self.loop.hold()
         return {"reference": "hold"}
 
     def enable(self, args):
-        try:
-            self.loop.enable()
-        except StateError as exc:
-            raise CommandFailed(P.BAD_STATE, str(exc)) from None
-        return {"state": self.loop.state.value}
+        _in_state(self.loop.enable)
+        return {"state": self.view.state.value}
 
     def disable(self, args):
         self.loop.disable()
-        return {"state": self.loop.state.value}
+        return {"state": self.view.state.value}
 
     def reset(self, args):
-        try:
-            self.loop.reset()
-        except StateError as exc:
-            raise CommandFailed(P.BAD_STATE, str(exc)) from None
-        return {"state": self.loop.state.value}
+        _in_state(self.loop.reset)
+        return {"state": self.view.state.value}
 
     # -- motion -----------------------------------------------------------------------------
     def motion(self, request: dict) -> Deferred:
         """Plan a motion command beside the loop (:mod:`daemon.planner.commands`) from the set-point in
-        force now; install it at the cycle boundary after the plan is done, unless the
-        reference or the state changed meanwhile."""
-        loop = self.loop
-        self._require_enabled()
-        remaining = loop.reference_remaining()
+        force now; the loop installs it at the cycle boundary after the plan is done, unless the
+        reference or the state changed meanwhile (:meth:`~daemon.loop.cycle.ControlLoop.install`)."""
+        self.loop.require_enabled()
+        name, remaining = self.view.reference_running()
         if remaining > 0:
-            raise CommandFailed(P.BAD_STATE, f"a reference ({loop.trajectory_name}) is running for {remaining:.1f} s "
+            raise CommandFailed(P.BAD_STATE, f"a reference ({name}) is running for {remaining:.1f} s "
                                              f"more: abort it first, or send this once it ends",
                                 {"reason": "reference_running", "remaining_s": remaining})
-        generation, setpoint = loop.trajectory_generation, list(loop.reference[0])
+        generation, setpoint = self.view.reference_origin()
 
         def finish(plan: planner.Plan) -> dict:
-            if loop.trajectory_generation != generation or list(loop.reference[0]) != list(plan.start):
-                raise CommandFailed(P.BAD_STATE, "the reference changed while this was planned (an abort, a reset, "
-                                                 "another command): nothing was started", {"reason": "overtaken"})
-            self._require_enabled()
-            loop.set_trajectory(plan.trajectory, plan.name, plan.record, plan.stiffness)
-            return {**plan.reply, "cycle": loop.cycle, **({"recording": plan.record} if plan.record else {})}
+            self.loop.install(plan)
+            return {**plan.reply, "cycle": self.view.cycle, **({"recording": plan.record} if plan.record else {})}
 
-        return self._off_loop(finish, planner.plan, self._plan_context, request, setpoint)
-
-    def _require_enabled(self):
-        if not self.loop.supervisor.enabled:
-            raise CommandFailed(P.BAD_STATE, f"the arm is {self.loop.state.value}: enable it first",
-                                {"reason": "state", "state": self.loop.state.value})
+        return self._off_loop(finish, planner.plan, self._plan_context, request, setpoint, generation)
 
     # -- a known load ---------------------------------------------------------------------
     def load_set(self, args):
@@ -336,21 +284,21 @@ class Commands:
         refused if the rig's joints have no model or cannot carry it in every posture."""
         mass = float(args["mass_kg"])
         com = [float(c) for c in args.get("com_mm", catalog.COMMANDS["load.set"].default("com_mm"))]
-        rig = self.loop.rig
+        rig = self.view.rig
         try:
-            load = KnownLoad.for_rig(mass, [c * 1e-3 for c in com], self.loop.context, rig.arm.link_lengths_m,
+            load = KnownLoad.for_rig(mass, [c * 1e-3 for c in com], self.view.context, rig.arm.link_lengths_m,
                                      rig.arm.gravity_m_s2)
         except ValueError as exc:
             raise bad_args(str(exc), "com_mm" if "centre of mass" in str(exc) else "mass_kg") from None
         self._known_load(load)
-        return {"load": self._load(), "cycle": self.loop.cycle}
+        return {"load": self.view.load(), "cycle": self.view.cycle}
 
     def load_clear(self, args):
         """Stop feeding a load forward (bumplessly); says whether one was."""
-        had = self.loop.feed_forward.load is not None
+        had = self.view.load() is not None
         if had:
             self._known_load(None)
-        return {"cleared": had, "cycle": self.loop.cycle}
+        return {"cleared": had, "cycle": self.view.cycle}
 
     def _known_load(self, load: KnownLoad | None) -> None:
         """The loop feeds ``load`` forward, and motion is planned with it."""
@@ -358,15 +306,9 @@ class Commands:
         ctx = self._plan_context
         self._plan_context = dataclasses.replace(ctx, authority=dataclasses.replace(ctx.authority, load=load))
 
-    def _load(self) -> dict | None:
-        ff = self.loop.feed_forward
-        if ff.load is None:
-            return None
-        return {**ff.load.describe(), "feedforward_volts": dict(zip(self.loop.io.joint_names, ff.volts))}
-
     # -- controllers ------------------------------------------------------------------------
     def controller_list(self, args):
-        return {"active": self.loop.controller.name, "available": self._controllers}
+        return {"active": self.view.controller.name, "available": self._controllers}
 
     @staticmethod
     def _describe_controllers(plugins: dict[str, str]) -> list[dict]:
@@ -379,32 +321,25 @@ class Commands:
         return available
 
     def controller_get(self, args):
-        c = self.loop.controller
+        c = self.view.controller
         return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
 
     def controller_switch(self, request):
         """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless)."""
 
         def finish(new):
-            self.loop.switch_controller(new)
-            return {"active": new.name, "params": new.get_params(), "cycle": self.loop.cycle}
+            self.loop.switch(new)
+            return {"active": new.name, "params": new.get_params(), "cycle": self.view.cycle}
 
-        return self._off_loop(finish, planner.build_controller, self.loop.context, self.loop.controller_plugins,
+        return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
                               request)
 
     def controller_set(self, request):
         """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
-        c = self.loop.controller
+        c = self.view.controller
 
         def finish(prepared):
-            if self.loop.controller is not c:
-                raise CommandFailed(P.REFUSED, f"the controller changed to {self.loop.controller.name} while the "
-                                               f"change for {c.name} was prepared; nothing was applied",
-                                    {"reason": "overtaken"})
-            c.apply_params(prepared)
-            params = c.get_params()
-            self.loop.supervisor.events.append({"kind": "params", "controller": c.name, "params": params})
-            return {"name": c.name, "params": params, "cycle": self.loop.cycle}
+            return {"name": c.name, "params": self.loop.set_params(c, prepared), "cycle": self.view.cycle}
 
         return self._off_loop(finish, planner.prepare_change, type(c), c.context, c.given_options, c.get_params(),
                               request)
@@ -413,26 +348,28 @@ class Commands:
         """Build a candidate beside the loop and run it beside the active controller, unapplied."""
 
         def finish(candidate):
-            self.loop.start_shadow(candidate)
-            return {"shadow": candidate.name, "active": self.loop.controller.name, "cycle": self.loop.cycle}
+            self.loop.shadow(candidate)
+            return {"shadow": candidate.name, "active": self.view.controller.name, "cycle": self.view.cycle}
 
-        return self._off_loop(finish, planner.build_controller, self.loop.context, self.loop.controller_plugins,
+        return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
                               request)
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""
-        if self.loop.shadow is None:
-            raise CommandFailed(P.BAD_STATE, "no shadow run to commit: start one with controller.shadow")
-        return {**self.loop.commit_shadow(), "active": self.loop.controller.name, "cycle": self.loop.cycle}
+        summary = _in_state(self.loop.commit)
+        return {**summary, "active": self.view.controller.name, "cycle": self.view.cycle}
 
     def controller_discard(self, args):
         """End the shadow run without applying it; the run's comparison."""
-        if self.loop.shadow is None:
-            raise CommandFailed(P.BAD_STATE, "no shadow run to discard")
-        return self.loop.end_shadow("discard")
+        return _in_state(self.loop.discard)
 
 
-def _signed(events: list[dict], first: int, client: Identity) -> None:
-    """Record who asked in the events a request caused (those from ``first`` on)."""
-    for event in events[first:]:
-        event.setdefault("who", str(client))
+STATUS_FIELDS = catalog.COMMANDS["status"].result  # the reply's fields, in the catalog's order
+
+
+def _in_state(control):
+    """Call one of the loop's controls; a state it cannot act in is a ``bad_state`` error."""
+    try:
+        return control()
+    except StateError as exc:
+        raise CommandFailed(P.BAD_STATE, str(exc)) from None

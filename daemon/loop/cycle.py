@@ -23,9 +23,12 @@ from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.parts import LoopParts
-from daemon.loop.safety import State
+from daemon.loop.safety import State, StateError
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
+from daemon.loop.view import LoopView
+from daemon.wire import protocol as P
+from daemon.wire.arguments import CommandFailed
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
@@ -42,9 +45,10 @@ class ControlLoop:
         self.actuation = parts.actuation  # the joints' command interfaces
         self.context = parts.context
         self.supervisor = parts.supervisor
+        self.events = parts.supervisor.events  # the one event log (daemon.loop.events), drained each cycle
         self.controller_plugins = parts.controller_plugins  # name -> module:Class, from the daemon's configuration
         self.controller: Controller = parts.controller
-        self.shadow: ShadowRun | None = None
+        self.shadow_run: ShadowRun | None = None  # a candidate run beside the active controller
         self.tracking = parts.tracking
         # built before the loop runs, and copied when needed: a fallback never builds in a cycle
         self._fallback = parts.fallback
@@ -78,6 +82,7 @@ class ControlLoop:
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
         self._heartbeat_due = 0.0
+        self.view = LoopView(self)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -90,7 +95,7 @@ class ControlLoop:
             self.snapshot = snap
         except TransportError as exc:
             self.supervisor.trip(f"transport: {exc}")
-        self.hold_position()
+        self.hold()
         self.supervisor.started()
         self._deadline = self.clock.now() + self.period
         self._stats_due = self._deadline + self.stats_period
@@ -147,7 +152,7 @@ class ControlLoop:
 
     def shutdown(self, reason: str = "shutdown") -> None:
         """Safe outputs, then close the transport (on SIGTERM, SIGINT, or any exit)."""
-        self.supervisor.events.append({"kind": "shutdown", "cause": reason})
+        self.events.add({"kind": "shutdown", "cause": reason})
         self._write_safe()
         self._drain_events()
         self.io.transport.close()
@@ -239,11 +244,11 @@ class ControlLoop:
         lost = self.tracking.check(now, judged, self.angles)
         if lost is not None:
             self.controller_lost(lost)
-        if self.shadow is not None:
+        if self.shadow_run is not None:
             try:
-                self.shadow.step(state, reference, self.feed_forward.share(self.u))
+                self.shadow_run.step(state, reference, self.feed_forward.share(self.u))
             except Exception as exc:  # the candidate's failure ends its run, nothing more
-                self.end_shadow("failed", f"{type(exc).__name__}: {exc}")
+                self._end_shadow("failed", f"{type(exc).__name__}: {exc}")
 
     def replace_failed_controller(self, cause: str) -> None:
         """Trip to the safe state and put the hold controller in the failed one's place."""
@@ -252,20 +257,20 @@ class ControlLoop:
         hold = Hold(self.context)
         hold.reset(self._state(), self.feed_forward.share(self.u))
         self.controller = hold
-        self.supervisor.events.append({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
-                                       "params": hold.get_params()})
+        self.events.add({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
+                         "params": hold.get_params()})
 
     def controller_lost(self, cause: str) -> None:
         """The tracking rule fired: the fallback controller takes over and holds the arm where
         it is, or (no fallback configured, or the fallback itself lost the joint) a trip."""
         lost, spare = self.controller.name, self._fallback
         if spare is not None and lost != spare.name:
-            self.supervisor.events.append({"kind": "tracking", "controller": lost, "cause": cause,
-                                           "action": "fallback", "to": spare.name})
-            self.switch_controller(copy.deepcopy(spare), f"fallback: {lost}: {cause}")
-            self.hold_position()
+            self.events.add({"kind": "tracking", "controller": lost, "cause": cause,
+                             "action": "fallback", "to": spare.name})
+            self.switch(copy.deepcopy(spare), f"fallback: {lost}: {cause}")
+            self.hold()
             return
-        self.supervisor.events.append({"kind": "tracking", "controller": lost, "cause": cause, "action": "trip"})
+        self.events.add({"kind": "tracking", "controller": lost, "cause": cause, "action": "trip"})
         self.supervisor.trip(f"controller {lost}: {cause}")
 
     def _write_command(self) -> None:
@@ -288,23 +293,113 @@ class ControlLoop:
         self.p_head, self.p_rod = list(self.io.safe_pressures[0]), list(self.io.safe_pressures[1])
 
     def _drain_events(self) -> None:
-        events = self.supervisor.events
-        if events:
-            if self.telemetry is not None:
-                for ev in events:
-                    self.telemetry.event(self, ev)
-            events.clear()
+        if self.events.pending:
+            self.events.drain(self._publish_event if self.telemetry is not None else None)
 
-    # -- changes, applied at a cycle boundary (called from command handling) --------------
-    def hold_position(self) -> None:
+    def _publish_event(self, event: dict) -> None:
+        self.telemetry.event(self, event)
+
+    # -- the controls: the only ways a command changes the loop, each taking effect at a --
+    # -- cycle boundary (handlers call them at the end of a cycle; estop acts at once)    --
+    def enable(self) -> None:
+        """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is."""
+        self.supervisor.enable()
+        self.u = list(self.actuation.neutral)
+        state = self._state()
+        self.controller.reset(state, self.u)
+        if self.shadow_run is not None:
+            self.shadow_run.controller.reset(state, self.u)
+        self.hold()
+
+    def disable(self) -> None:
+        self.supervisor.disable()
+
+    def estop(self, who: str = "") -> None:
+        """Latch the e-stop and write the safe outputs now, in this very cycle."""
+        self.supervisor.estop(who)
+        self._write_safe()
+        self._drain_events()
+
+    def reset(self) -> None:
+        faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)
+        self.supervisor.reset(faults)
+
+    def hold(self) -> None:
+        """Hold the present position (an abort): any reference running ends ``cut``."""
         self.set_trajectory(HoldPosition(self.angles), "hold")
 
-    def reference_remaining(self) -> float:
-        """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""
-        if self.trajectory.duration <= 0.0:
-            return 0.0
-        return max(self.trajectory.duration - (self.clock.now() - self.trajectory_t0), 0.0)
+    def require_enabled(self) -> None:
+        """Refuse (``bad_state``, reason ``state``) unless the arm is enabled."""
+        if not self.supervisor.enabled:
+            raise CommandFailed(P.BAD_STATE, f"the arm is {self.state.value}: enable it first",
+                                {"reason": "state", "state": self.state.value})
 
+    def install(self, plan) -> None:
+        """Install a planner's plan (daemon.planner.plans.Plan), unless it was overtaken: made
+        against another reference generation or set-point (an abort, e-stop, another reference),
+        refused ``bad_state`` reason ``overtaken``; or the arm is no longer enabled."""
+        if plan.generation != self.trajectory_generation or list(self.reference[0]) != list(plan.start):
+            raise CommandFailed(P.BAD_STATE, "the reference changed while this was planned (an abort, a reset, "
+                                             "another command): nothing was started", {"reason": "overtaken"})
+        self.require_enabled()
+        self.set_trajectory(plan.trajectory, plan.name, plan.record, plan.stiffness)
+
+    def set_load(self, load) -> None:
+        """Feed ``load`` (controllers.known_load, or None) forward from the next cycle."""
+        self.feed_forward.change(load, self.controller, self.reference[0])
+        if self.supervisor.enabled:  # bumplessly: the applied sum does not jump
+            self.controller.reset(self._state(),
+                                  self.feed_forward.share(self.u))
+        self.events.add({"kind": "load", "action": "set" if load else "clear",
+                         **(load.describe() if load else {})})
+
+    def switch(self, new: Controller, cause: str = "switch") -> None:
+        """Swap in a controller built and validated beforehand; bumpless via reset()."""
+        new.reset(self._state(), self.feed_forward.share(self.u))
+        old = self.controller.name
+        self.controller = new
+        self.tracking.clear()
+        self.events.add({"kind": "controller", "from": old, "to": new.name, "cause": cause,
+                         "params": new.get_params()})
+
+    def set_params(self, controller: Controller, prepared) -> dict:
+        """Apply a parameter change prepared for ``controller``; refused (``refused``, reason
+        ``overtaken``) if another controller became active meanwhile. The parameters now."""
+        if self.controller is not controller:
+            raise CommandFailed(P.REFUSED, f"the controller changed to {self.controller.name} while the change for "
+                                           f"{controller.name} was prepared; nothing was applied",
+                                {"reason": "overtaken"})
+        controller.apply_params(prepared)
+        params = controller.get_params()
+        self.events.add({"kind": "params", "controller": controller.name, "params": params})
+        return params
+
+    def shadow(self, candidate: Controller) -> None:
+        """Run ``candidate`` beside the active controller from the next cycle (replacing any
+        shadow run already going); it starts from the present state and output."""
+        if self.shadow_run is not None:
+            self._end_shadow("replaced", f"by {candidate.name}")
+        candidate.reset(self._state(), self.feed_forward.share(self.u))
+        self.shadow_run = ShadowRun(candidate, self.actuation.width)
+        self.events.add({"kind": "shadow", "action": "start", "controller": candidate.name})
+
+    def commit(self) -> dict:
+        """Make the shadow candidate the active controller, bumplessly (reset from the measured
+        state and the output in force, as any switch); the run's comparison."""
+        if self.shadow_run is None:
+            raise StateError("no shadow run to commit: start one with controller.shadow")
+        candidate = self.shadow_run.controller
+        summary = self._end_shadow("commit")
+        self.switch(candidate, "shadow commit")
+        return summary
+
+    def discard(self) -> dict:
+        """End the shadow run without applying it; the run's comparison."""
+        if self.shadow_run is None:
+            raise StateError("no shadow run to discard")
+        return self._end_shadow("discard")
+
+    # -- what the controls are built on ---------------------------------------------------
     def set_trajectory(self, trajectory: Trajectory, name: str, record: str | None = None,
                        stiffness: list[float] | None = None) -> None:
         """Install a reference from the next cycle on (with a new stiffness set-point [N m/rad]
@@ -327,10 +422,16 @@ class ControlLoop:
         if getattr(trajectory, "open_loop", False):
             self.open_loop = OpenLoopRun(trajectory, self.trajectory_t0, self.io.joint_names[trajectory.joint])
         if self._reference_running:
-            self.supervisor.events.append({"kind": "reference", "action": "start", "name": name,
-                                           "generation": self.trajectory_generation,
-                                           "duration_s": trajectory.duration, "record": record,
-                                           "signal": getattr(trajectory, "definition", None)})
+            self.events.add({"kind": "reference", "action": "start", "name": name,
+                             "generation": self.trajectory_generation,
+                             "duration_s": trajectory.duration, "record": record,
+                             "signal": getattr(trajectory, "definition", None)})
+
+    def reference_remaining(self) -> float:
+        """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""
+        if self.trajectory.duration <= 0.0:
+            return 0.0
+        return max(self.trajectory.duration - (self.clock.now() - self.trajectory_t0), 0.0)
 
     def _end_open_loop(self) -> None:
         """Feedback takes the excited joint back, bumplessly from the output in force; an
@@ -338,82 +439,19 @@ class ControlLoop:
         run, self.open_loop = self.open_loop, None
         self.controller.reset(self._state(), self.feed_forward.share(self.u))
         if run.ended and run.ended != "done":
-            self.supervisor.events.append({"kind": "experiment", "action": "abort", "joint": run.name,
-                                           "cause": run.ended})
-            self.hold_position()
+            self.events.add({"kind": "experiment", "action": "abort", "joint": run.name, "cause": run.ended})
+            self.hold()
 
     def _end_reference(self, cut: str = "") -> None:
         self._reference_running = False
-        self.supervisor.events.append({"kind": "reference", "action": "end", "name": self.trajectory_name,
-                                       "generation": self.trajectory_generation, "cut": cut})
+        self.events.add({"kind": "reference", "action": "end", "name": self.trajectory_name,
+                         "generation": self.trajectory_generation, "cut": cut})
 
-    def enable(self) -> None:
-        self.supervisor.enable()
-        self.u = list(self.actuation.neutral)
-        state = self._state()
-        self.controller.reset(state, self.u)
-        if self.shadow is not None:
-            self.shadow.controller.reset(state, self.u)
-        self.hold_position()
-
-    def disable(self) -> None:
-        self.supervisor.disable()
-
-    def estop(self, who: str = "", signed: str | None = None) -> None:
-        """Latch the e-stop and write the safe outputs now, in this very cycle; its events
-        (``estop``, ``state``) carry ``signed`` as ``who`` (the key that sent it) when given."""
-        first = len(self.supervisor.events)
-        self.supervisor.estop(who)
-        if signed is not None:
-            for event in self.supervisor.events[first:]:
-                event["who"] = signed
-        self._write_safe()
-        self._drain_events()
-
-    def reset(self) -> None:
-        faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)
-        self.supervisor.reset(faults)
-
-    def set_load(self, load) -> None:
-        """Feed ``load`` (controllers.known_load, or None) forward from the next cycle."""
-        self.feed_forward.change(load, self.controller, self.reference[0])
-        if self.supervisor.enabled:  # bumplessly: the applied sum does not jump
-            self.controller.reset(self._state(),
-                                  self.feed_forward.share(self.u))
-        self.supervisor.events.append({"kind": "load", "action": "set" if load else "clear",
-                                       **(load.describe() if load else {})})
-
-    def switch_controller(self, new: Controller, cause: str = "switch") -> None:
-        """Swap in a controller built and validated beforehand; bumpless via reset()."""
-        new.reset(self._state(), self.feed_forward.share(self.u))
-        old = self.controller.name
-        self.controller = new
-        self.tracking.clear()
-        self.supervisor.events.append({"kind": "controller", "from": old, "to": new.name, "cause": cause,
-                                       "params": new.get_params()})
-
-    def start_shadow(self, candidate: Controller) -> None:
-        """Run ``candidate`` beside the active controller from the next cycle (replacing any
-        shadow run already going); it starts from the present state and output."""
-        if self.shadow is not None:
-            self.end_shadow("replaced", f"by {candidate.name}")
-        candidate.reset(self._state(), self.feed_forward.share(self.u))
-        self.shadow = ShadowRun(candidate, self.actuation.width)
-        self.supervisor.events.append({"kind": "shadow", "action": "start", "controller": candidate.name})
-
-    def end_shadow(self, action: str, cause: str = "") -> dict:
+    def _end_shadow(self, action: str, cause: str = "") -> dict:
         """Stop the shadow run; its summary (also published as an event)."""
-        summary = self.shadow.summary()
-        self.shadow = None
-        self.supervisor.events.append({"kind": "shadow", "action": action, "cause": cause, **summary})
-        return summary
-
-    def commit_shadow(self) -> dict:
-        """Make the shadow candidate the active controller at this cycle boundary, bumplessly
-        (it is reset from the measured state and the output in force, as any switch)."""
-        candidate = self.shadow.controller
-        summary = self.end_shadow("commit")
-        self.switch_controller(candidate, "shadow commit")
+        summary = self.shadow_run.summary()
+        self.shadow_run = None
+        self.events.add({"kind": "shadow", "action": action, "cause": cause, **summary})
         return summary
 
     def _state(self) -> JointState:

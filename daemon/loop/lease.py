@@ -101,7 +101,7 @@ class Lease:
             self.unleased_since = now
         elif now - self.unleased_since > self.safety.unleased_grace_s:
             self.unleased_since = None
-            self.loop.supervisor.events.append(
+            self.loop.events.add(
                 {"kind": "unleased", "cause": f"the arm held {self.safety.unleased_grace_s:g} s with no client holding "
                                               f"the lease: disabled (rig file [safety] unleased_action)"})
             self.loop.disable()

@@ -29,8 +29,8 @@ class OpenLoopRun:
             return True
         if self.u_op is None:
             self.u_op = self.total / self.count if self.count else loop.u[j]
-            loop.supervisor.events.append({"kind": "experiment", "action": "open_loop", "joint": self.name,
-                                           "u_op_v": self.u_op, "angle_deg": math.degrees(loop.angles[j])})
+            loop.events.add({"kind": "experiment", "action": "open_loop", "joint": self.name,
+                             "u_op_v": self.u_op, "angle_deg": math.degrees(loop.angles[j])})
         if t >= x.duration:
             self.ended = "done"
             return False

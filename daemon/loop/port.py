@@ -115,10 +115,10 @@ class ZmqServer:
             self._until_check = MESSENGER_CHECK_CYCLES
             notice = self.messenger.check()
             if notice is not None:
-                loop.supervisor.events.append({"kind": "messenger", "cause": notice})
+                loop.events.add({"kind": "messenger", "cause": notice})
             notice = self.recorder.check() if self.recorder is not None else None
             if notice is not None:
-                loop.supervisor.events.append({"kind": "recorder", "cause": notice})
+                loop.events.add({"kind": "recorder", "cause": notice})
 
     def _complete(self) -> None:
         """Reply to deferred commands whose work is done (applying it at this boundary)."""

@@ -17,6 +17,7 @@ from hal.bounds import clip
 from hal.config import RigConfig
 
 from daemon.wire.states import State
+from daemon.loop.events import EventLog
 
 
 class StateError(RuntimeError):
@@ -29,7 +30,7 @@ class Supervisor:
         self.dt = dt
         self.state = State.STARTING
         self.cause = ""  # why the last trip happened
-        self.events: list[dict] = []  # state changes and trips, drained by the loop into telemetry
+        self.events = EventLog()  # the loop's one event log (state changes, trips and all the rest)
         cfg = rig.safety
         self._n_bad = cfg.bad_samples_to_trip
         self._bad_sensor = 0
@@ -44,7 +45,7 @@ class Supervisor:
     def _enter(self, state: State, cause: str = "") -> None:
         previous = self.state
         self.state = state
-        self.events.append({"kind": "state", "from": previous.value, "to": state.value, "cause": cause})
+        self.events.add({"kind": "state", "from": previous.value, "to": state.value, "cause": cause})
 
     def started(self) -> None:
         if self.state is State.STARTING:
@@ -56,14 +57,14 @@ class Supervisor:
             return False
         self.cause = cause
         self.trips += 1
-        self.events.append({"kind": "trip", "cause": cause})
+        self.events.add({"kind": "trip", "cause": cause})
         self._enter(State.FAULT, cause)
         return True
 
     def estop(self, who: str = "") -> None:
         if self.state is not State.ESTOP:
             self.cause = f"e-stop{' from ' + who if who else ''}"
-            self.events.append({"kind": "estop", "cause": self.cause})
+            self.events.add({"kind": "estop", "cause": self.cause})
             self._enter(State.ESTOP, self.cause)
 
     def enable(self) -> None:

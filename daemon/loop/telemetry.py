@@ -43,7 +43,7 @@ class Telemetry:
         if self._shape is None:
             self._start(loop.n, len(loop.io.last_volts), len(loop.u))
         snap = loop.snapshot
-        shadow_u = loop.shadow.u if loop.shadow is not None else None
+        shadow_u = loop.shadow_run.u if loop.shadow_run is not None else None
         self._row.pack_into(self._buf, HEADER.size + self._rows * self._row.size, loop.cycle,
                             snap.t if snap is not None else loop.clock.now(), *loop.angles, *loop.velocities,
                             *loop.reference[0], *loop.u, *loop.p_head, *loop.p_rod, *loop.io.last_volts,

@@ -62,11 +62,13 @@ def prepare_change(cls: type[Controller], context: ControllerContext, options: d
     return registry.prepare_change(cls, context, options, values, params)
 
 
-def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float]) -> Plan:
-    """The worker's entry point: decode and plan one motion request."""
+def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float], generation: int) -> Plan:
+    """The worker's entry point: decode and plan one motion request from ``setpoint``, the
+    loop's set-point in reference ``generation``."""
     args = P.decode_args(request)
     record = args.pop("record", False)  # a boolean: checked against the catalog by the messenger
     plan = PLANNERS[request["cmd"]](ctx, args, list(setpoint))
+    plan.generation = generation
     if record:
         plan.record = f"{time.strftime('%Y%m%d-%H%M%S')}-{request['cmd']}-{plan.name}"
     return plan

@@ -45,6 +45,8 @@ class Plan:
     start: tuple[float, ...]  # the set-point it was planned from [rad]
     record: str | None = None  # the name of the daemon's recording of it (``record: true``)
     stiffness: tuple[float, ...] | None = None  # a new stiffness set-point per joint [N m/rad] (``set``)
+    generation: int = -1  # the loop's reference generation it was planned against (-1: none); the
+    #                       loop installs it only if that is still the one in force (ControlLoop.install)
 
 
 def check_authority(ctx: PlanContext, what: str, reference: trajectory.Trajectory, fixed: str | None = None,
