@@ -76,6 +76,21 @@ def rss_mib(pid: int) -> float:
     return float("nan")
 
 
+def messenger_restarts(client: Client, at_least: int, limit_s: float = 60.0) -> int:
+    """The daemon's count of messenger restarts once it reaches ``at_least`` (or ``limit_s``
+    has passed): a killed messenger is back at its own pace, seconds on a busy machine, and
+    the next kill (or the final count) waits for it rather than hit a process not yet reaped."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        try:
+            seen = client.call("status", timeout=5.0)["telemetry"]["messenger_restarts"]
+        except TimeoutError:
+            seen = -1  # the request went down with the messenger: ask the new one
+        if seen >= at_least or time.monotonic() > deadline:
+            return seen
+        time.sleep(0.2)
+
+
 def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float) -> dict:
     stop = threading.Event()
     healthy = [Watch() for _ in range(3)]
@@ -117,7 +132,7 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
                 done["timeouts"] += 1  # a request in flight through a messenger kill
             except RemoteError:
                 done["refused"] += 1
-            if now >= next_kill:
+            if now >= next_kill and messenger_restarts(client, at_least=done["kills"]) >= done["kills"]:
                 pid = child_process(daemon_pid, "daemon.messenger.process")
                 if pid is not None:
                     os.kill(pid, signal.SIGKILL)
@@ -126,6 +141,7 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
                 next_kill += kill_every
             tick += 1
             time.sleep(2.0)
+        messenger_restarts(client, at_least=done["kills"])  # the last kill's restart, however slow
         status = client.call("status", timeout=10.0)
         rss["end"] = rss_mib(daemon_pid)
     finally:

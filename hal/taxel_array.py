@@ -69,7 +69,8 @@ class ContactSensorConfig:
     ``memory_ms`` and ``beta_memory_ms``: the estimator's memories (controllers.contact_force).
     ``source`` names where frames come from (:data:`FRAME_SOURCES` or ``module:Class``): ``"sim"``
     is the simulated pad, pressed by an impact at ``sim_impact_speed_m_s`` every
-    ``sim_impact_every_s`` (sim_backend.contact_patch)."""
+    ``sim_impact_every_s`` (sim_backend.contact_patch). ``open_timeout_s``: how long the daemon's
+    start waits for the sensor process's first estimate (a busy machine starts it slowly)."""
 
     source: str = "sim"
     rate_hz: float = 4000.0
@@ -81,6 +82,7 @@ class ContactSensorConfig:
     sim_impact_speed_m_s: float = 0.08
     sim_impact_every_s: float = 1.0
     seed: int = 0
+    open_timeout_s: float = 10.0
 
     def __post_init__(self):
         try:
@@ -101,6 +103,8 @@ class ContactSensorConfig:
                 f"must be within (0, 0.2] m/s, got {self.sim_impact_speed_m_s}")
         require(0.5 <= self.sim_impact_every_s <= 10.0, "sim_impact_every_s",
                 f"must be within 0.5-10 s (an impact lasts 0.5 s), got {self.sim_impact_every_s}")
+        require(0.0 < self.open_timeout_s <= 600.0, "open_timeout_s",
+                f"must be within (0, 600] s, got {self.open_timeout_s}")
 
     def calibration(self) -> "TaxelCalibration":
         def per_taxel(values):

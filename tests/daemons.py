@@ -13,15 +13,16 @@ from daemon.testing import daemons
 from daemon.testing.daemons import private_endpoints  # noqa: F401  (the tests' own import of it)
 from hal import config
 
-TOLERANT_STALL = "stall_after_s = 0.5  "
+TOLERANT_STALL = "stall_after_s = 5.0  "
 
 
 def tolerant_rig_text() -> str:
-    """The built-in rig with a stall limit of 0.5 s instead of its 50 ms. The test machine is
+    """The built-in rig with a stall limit of 5 s instead of its 50 ms. The test machine is
     a virtual one whose hypervisor stops even a SCHED_FIFO thread for up to 45 ms now and then
-    (cyclictest on the idle machine: docs/benchmarks.md, "CURVE on every socket"), so a real
-    daemon run for seconds trips now and then by the hypervisor's hand, as the rig file tells
-    it to; the tests about stalls set their own limits."""
+    (cyclictest on the idle machine: docs/benchmarks.md, "CURVE on every socket"), and the
+    daemons of a test run beside other work (two CPU hogs held a --no-rt loop for 1.3 s), so a
+    real daemon run for seconds would trip by the machine's hand, as the rig file tells it to;
+    the tests about stalls set their own limits (tests/test_stall.py, test_loop's stall tests)."""
     text = config.load().source.replace("stall_after_s = 0.05 ", TOLERANT_STALL)
     assert TOLERANT_STALL in text
     return text

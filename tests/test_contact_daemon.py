@@ -16,7 +16,8 @@ from sim_backend.contact_patch import Impact, ImpactReplay
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 
-SENSOR = "\n[contact_sensor]\nrate_hz = 4000.0\nsim_impact_speed_m_s = 0.11\nsim_impact_every_s = 1.0\ndead = [[2, 2]]\n"
+SENSOR = ("\n[contact_sensor]\nrate_hz = 4000.0\nsim_impact_speed_m_s = 0.11\nsim_impact_every_s = 1.0\ndead = [[2, 2]]\n"
+          "open_timeout_s = 60.0\n")  # a busy machine starts the sensor process slowly: not this test's subject
 
 
 @pytest.mark.slow  # long: kept out of the fast subset

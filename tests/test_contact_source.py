@@ -46,10 +46,11 @@ def test_the_simulated_pad_is_the_source_named_sim_and_the_default(tmp_path):
 
 
 def test_the_sensor_process_reads_frames_from_a_source_named_by_module_path():
-    sensor = ContactSensor(ContactSensorConfig(source=f"{__name__}:UntouchedPad", rate_hz=500.0), time.monotonic)
+    sensor = ContactSensor(ContactSensorConfig(source=f"{__name__}:UntouchedPad", rate_hz=500.0,
+                                                   open_timeout_s=60.0), time.monotonic)
     sensor.open()
     try:
-        end = time.monotonic() + 10.0
+        end = time.monotonic() + 60.0  # the frames are waited for; the bound only ends a hang
         while (sensor.latest() or {}).get("frames", 0) < 50 and time.monotonic() < end:
             time.sleep(0.02)
         latest = sensor.latest()

@@ -127,7 +127,7 @@ def test_a_stall_within_the_limit_is_not_read_as_speed():
     # The arm moves for the whole of a stall; its speed is the angle moved over the time
     # between the two samples. Divided by one period instead, a 45 ms stall mid-move read
     # as -63 deg/s and tripped the README's tour.
-    loop, _, _ = enabled_loop(rig_text=tolerant_rig_text())  # stall limit 0.5 s
+    loop, _, _ = enabled_loop(rig_text=tolerant_rig_text())  # stall limit 5 s: 45 ms is within it
     start = list(loop.angles)
     goal = [start[0] - math.radians(12.0), start[1]]
     loop.set_trajectory(trajectory.JointMove(start, goal, 1.5), "move")  # cubic: peak 12 deg/s

@@ -109,7 +109,7 @@ def test_the_messenger_dies_with_the_daemon(tmp_path):
         messenger = _wait_for_child(daemon.pid, "daemon.messenger.process")
         daemon.send_signal(signal.SIGKILL)
         daemon.wait(10)
-        end = time.monotonic() + 5.0
+        end = time.monotonic() + 30.0  # its end is waited for: a busy machine schedules it late
         while running(messenger) and time.monotonic() < end:
             time.sleep(0.05)
         assert not running(messenger)
@@ -141,7 +141,7 @@ def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path)
         assert sub.poll(60_000), "no telemetry from the daemon"
         os.killpg(daemon.pid, signal.SIGTERM)
         kinds = []
-        end = time.monotonic() + 10.0
+        end = time.monotonic() + 60.0  # the event is waited for; the bound only ends a hang
         while "shutdown" not in kinds and time.monotonic() < end:
             if sub.poll(100):
                 topic, payload = sub.recv_multipart()

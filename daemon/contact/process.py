@@ -31,7 +31,6 @@ COUNTERS = ("frames", "late_frames", "bad_frames", "contact_frames")
 HEAD = 3  # frame index, its time.monotonic(), whether an estimate follows; then FIELDS
 _ERROR_BYTES = 240
 LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whole estimate
-OPEN_TIMEOUT_S = 10.0
 
 
 def _shared() -> SharedMemory:
@@ -53,17 +52,18 @@ class ContactSensor:
         self._last_seq = 0
 
     def open(self) -> None:
-        """Start the worker and wait for its first estimate (the frames are made up front)."""
+        """Start the worker and wait for its first estimate (the frames are made up front),
+        up to the rig file's ``contact_sensor.open_timeout_s``."""
         self._shared = shared = _shared()
         self._process = Helper("daemon.contact.process:serve", (shared, self.config), name="the contact sensor",
                                pass_fds=(shared.fd,))
         self._finalizer = weakref.finalize(self, _stop, shared, self._process)
         try:
-            self._process.start(OPEN_TIMEOUT_S)
+            self._process.start(self.config.open_timeout_s)
         except HelperFailed as exc:
             reason = self.last_error() or str(exc)
             self.close()
-            raise TransportTimeout(f"contact_sensor: no frame within {OPEN_TIMEOUT_S:g} s of opening: {reason}") from None
+            raise TransportTimeout(f"contact_sensor: no frame within {self.config.open_timeout_s:g} s of opening: {reason}") from None
 
     def close(self) -> None:
         if self._process is not None:

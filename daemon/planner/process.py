@@ -11,8 +11,10 @@ thread only puts a job on a queue and later reads a finished future.
 The courier is created with the daemon, before the real-time set-up, so it and every worker
 it spawns keep the normal scheduling policy; the worker is a helper process
 (:class:`hal.process.Helper`: a fresh interpreter, never a fork of the loop's process), which
-drops any real-time policy it might have inherited, runs at nice 19 and dies with the
-daemon. It is started on the first job or by :meth:`Preparer.warm`, and started again
+drops any real-time policy it might have inherited, runs its builds at nice 19 and dies with
+the daemon (the warm-up at the daemon's start, before the loop runs, at the normal priority:
+at nice 19 beside two busy processes its imports took longer than the job limit and the
+daemon did not start). It is started on the first job or by :meth:`Preparer.warm`, and started again
 if it dies or overruns its time limit, which fails only the job it was doing. One job at a
 time: a second request while one is prepared is refused, so a flood of expensive requests
 cannot queue up work.
@@ -32,6 +34,7 @@ from multiprocessing.connection import Connection
 from hal.process import Child, Helper, HelperFailed
 
 DEFAULT_TIME_LIMIT_S = 30.0  # a build slower than this is taken as hung and its worker stopped
+BUILD_NICE = 19  # the worker's priority for every job but the warm-up
 
 
 class PreparationFailed(RuntimeError):
@@ -125,7 +128,7 @@ class _Worker:
         ours, theirs = socket.socketpair()
         self._conn = Connection(ours.detach())
         self._process = Helper("daemon.planner.process:serve", (theirs.fileno(),), name="the preparation worker",
-                               pass_fds=(theirs.fileno(),), nice=19, cpus=cpus)
+                               pass_fds=(theirs.fileno(),), nice=0, cpus=cpus)
         try:
             self._process.start(start_limit_s)
         except HelperFailed as exc:
@@ -161,9 +164,9 @@ class _Worker:
 
 # -- in the worker process ----------------------------------------------------------------
 def serve(child: Child, fd: int) -> None:
-    """The worker's main: answer jobs until the socket closes. Niced (by its handle) so the
-    courier, which holds the GIL while it unpickles, is never waiting for a CPU behind the
-    worker (the loop would wait for the courier)."""
+    """The worker's main: answer jobs until the socket closes. Every job but the warm-up at
+    nice 19, so the courier, which holds the GIL while it unpickles, is never waiting for a
+    CPU behind the worker (the loop would wait for the courier)."""
     conn = Connection(fd)
     child.ready()
     while True:
@@ -171,6 +174,8 @@ def serve(child: Child, fd: int) -> None:
             function, args = conn.recv()
         except (EOFError, OSError):
             return
+        if function is not _warm and os.getpriority(os.PRIO_PROCESS, 0) < BUILD_NICE:
+            os.setpriority(os.PRIO_PROCESS, 0, BUILD_NICE)
         try:
             reply = (True, function(*args))
         except Exception as exc:

@@ -2,7 +2,9 @@
 ports, and ZeroMQ peers that drive it a cycle at a time until their reply comes."""
 from __future__ import annotations
 
+import itertools
 import math
+import time
 
 import msgpack
 import zmq
@@ -91,11 +93,16 @@ def dealer(srv: ZmqServer, which: str = "command") -> zmq.Socket:
     return sock
 
 
-def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, max_cycles: int = 5000, each_cycle=None):
-    """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None).
+def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, limit_s: float = 120.0, each_cycle=None):
+    """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None
+    after ``limit_s`` of wall time: the reply is waited for, however busy the machine, e.g. a
+    build in the nice-19 planner beside two CPU hogs; 5000 cycles were too few there).
     ``each_cycle``, if given, is called after every cycle the exchange runs."""
     sock.send(payload)
-    for _ in range(max_cycles):
+    deadline = time.monotonic() + limit_s
+    for _ in itertools.count():
+        if time.monotonic() > deadline:
+            break
         loop.run(1)
         if each_cycle is not None:
             each_cycle()
