@@ -266,7 +266,9 @@ class Client:
         return self.call("record.list")
 
     @staticmethod
-    def _candidate(name: str, params: dict | None, design: str | None) -> dict:
+    def candidate(name: str, params: dict | None, design: str | None) -> dict:
+        """A controller.switch/shadow request's arguments, the design file read (scipy: slow to
+        import): make them before taking the lease, whose time to live may be shorter."""
         args = {"name": name, "params": params or {}}
         if design is not None:
             from controllers import lti_design  # here: it imports scipy (0.6 s), which pneumactl mostly needs not
@@ -275,11 +277,11 @@ class Client:
 
     def switch_controller(self, name: str, params: dict | None = None, design: str | None = None):
         """Switch controllers (bumpless); ``design`` is an LTI design file (.toml or .npz)."""
-        return self.call("controller.switch", self._candidate(name, params, design))
+        return self.call("controller.switch", self.candidate(name, params, design))
 
     def shadow(self, name: str, params: dict | None = None, design: str | None = None):
         """Run a candidate controller beside the active one, published but not applied."""
-        return self.call("controller.shadow", self._candidate(name, params, design))
+        return self.call("controller.shadow", self.candidate(name, params, design))
 
     def commit(self):
         return self.call("controller.commit")

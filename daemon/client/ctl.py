@@ -321,8 +321,9 @@ def run(client: Client, args):
         if args.action in ("switch", "shadow"):
             if not args.args:
                 raise SystemExit(f"controller {args.action} NAME [KEY=VALUE ...] [--design FILE]")
-            act = client.switch_controller if args.action == "switch" else client.shadow
-            return with_lease(client, lambda: act(args.args[0], key_values(args.args[1:]), args.design))
+            # the design read before the lease is taken: under load it can outlast the lease's time to live
+            request = client.candidate(args.args[0], key_values(args.args[1:]), args.design)
+            return with_lease(client, lambda: client.call(f"controller.{args.action}", request))
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "keys":
         return client.call("keys.reload", control=True)
