@@ -49,3 +49,25 @@ def test_the_published_parts_add_up_to_the_output(name, parts):
                 assert loop.u[j] == pytest.approx(total, abs=1e-9)
                 checked += 1
     assert checked > 400
+
+
+def test_a_plugins_unreadable_or_mismatched_internals_publish_nothing_and_numpy_values_are_numbers():
+    import numpy as np
+
+    loop, captured, _ = make_loop()
+    loop.enable()
+    pid = loop.controller
+    shapes = {"float32": lambda: [np.array([1.5, -2.0], dtype=np.float32)] * len(pid.internals),
+              "ragged": lambda: [[1.0, 2.0], [3.0]] + [[0.0, 0.0]] * (len(pid.internals) - 2),
+              "too few": lambda: [[1.0, 2.0]],
+              "raises": lambda: 1 / 0}
+    published = {}
+    for name, signals in shapes.items():
+        pid.internal_signals = signals
+        before = len(captured.of("internals"))
+        loop.run(20)
+        published[name] = captured.of("internals")[before:]
+    assert published["float32"] and all(m["signals"][pid.internals[0].name] == [1.5, -2.0]
+                                         for m in published["float32"])
+    assert not published["ragged"] and not published["too few"] and not published["raises"]
+    assert loop.state.value == "enabled"  # a plugin's bad signals never take the loop down

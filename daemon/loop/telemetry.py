@@ -15,7 +15,8 @@ The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's num
 fixed binary row (one ``struct`` call) and hands a batch of rows to ``send``; the messenger
 process (:mod:`daemon.messenger.process`) turns it into the msgpack message with
 :func:`daemon.wire.telemetry_rows.to_payload`.
-The rare ``event`` messages are packed by the loop and passed on as they are; a ``stats``
+``internals`` is packed the same way, as numbers behind the controller's layout. The rare
+``event`` messages are packed by the loop and passed on as they are; a ``stats``
 window is a small binary message that the messenger turns into percentiles.
 Sending never blocks: whatever ``send`` cannot take at once is dropped, never waited for.
 """
@@ -25,7 +26,14 @@ import math
 
 import msgpack
 
-from daemon.wire.telemetry_rows import HEADER, MODE_INDEX, row_format
+from daemon.wire.telemetry_rows import (
+    HEADER,
+    INTERNALS_HEADER,
+    MODE_INDEX,
+    internals_layout,
+    internals_values,
+    row_format,
+)
 
 
 class Telemetry:
@@ -37,6 +45,8 @@ class Telemetry:
         self._shape: tuple[int, int] | None = None
         self._rows = 0
         self._buf = bytearray()
+        self._internals_of = None  # the controller whose internals layout is packed in _layout
+        self._layout = b""
 
     def record(self, loop) -> None:
         """Pack this cycle's row into the batch; send the batch when it is full."""
@@ -59,14 +69,24 @@ class Telemetry:
 
     def internals(self, loop) -> None:
         """One sample of the active controller's internal signals (decimated: a few dozen
-        numbers once a batch). A plugin whose signals cannot be read publishes none."""
+        numbers once a batch), packed as numbers behind the controller's layout (packed once per
+        controller); the messenger makes the message. A plugin whose signals cannot be read, or
+        do not match its ``internals``, publishes none."""
         controller = loop.controller
+        if controller is not self._internals_of:
+            self._internals_of = controller
+            self._layout = internals_layout(controller.name, [spec.name for spec in controller.internals])
         try:
-            values = [[float(v) for v in row] for row in controller.internal_signals()]
+            values = controller.internal_signals()
+            rows, cols = len(values), len(values[0]) if values else 0
+            if rows != len(controller.internals) or any(len(row) != cols for row in values):
+                return
+            numbers = internals_values(rows * cols).pack(*[v for row in values for v in row])
         except Exception:  # a plugin's failure must never take the loop down
             return
-        self._publish(b"internals", {"cycle": loop.cycle, "t": loop.clock.now(), "controller": controller.name,
-                                     "signals": {spec.name: row for spec, row in zip(controller.internals, values)}})
+        self.seq[b"internals"] += 1
+        self._send(b"internals", INTERNALS_HEADER.pack(self.seq[b"internals"], loop.cycle, loop.clock.now(),
+                                                       len(self._layout), rows, cols) + self._layout + numbers)
 
     def contact(self, loop) -> None:
         """The array sensor's latest estimate (a dozen numbers; nothing before its first frame)."""

@@ -21,7 +21,7 @@ from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
-from daemon.wire.telemetry_rows import state_message
+from daemon.wire.telemetry_rows import internals_message, state_message
 
 
 class Relay:
@@ -241,7 +241,9 @@ class Relay:
                 columns = state_message(body) if topic == b"state" else None
                 if topic == b"stats":
                     body = msgpack.packb(summarise(self.stats, body))
-            except (struct.error, IndexError) as exc:
+                elif topic == b"internals":
+                    body = msgpack.packb(internals_message(body))
+            except (struct.error, IndexError, ValueError) as exc:
                 self._bad(tag, str(exc))
                 continue
             payload = msgpack.packb(columns) if columns is not None else body

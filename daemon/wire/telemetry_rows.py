@@ -57,6 +57,36 @@ def state_message(body: bytes) -> dict:
     return columns
 
 
+# An internals sample: seq, cycle, t [s], the layout's length, signals, joints; then the layout
+# (msgpack: the controller's name and its signals' names, packed once per controller) and the values.
+INTERNALS_HEADER = struct.Struct("<QqdHHH")
+
+
+def internals_layout(controller: str, signals: list[str]) -> bytes:
+    return msgpack.packb([controller, signals])
+
+
+@functools.lru_cache(maxsize=16)
+def internals_values(count: int) -> struct.Struct:
+    return struct.Struct(f"<{count}d")
+
+
+def internals_message(body: bytes) -> dict:
+    """The ``internals`` message (docs/protocol.md) of a sample from the loop's telemetry."""
+    seq, cycle, t, size, rows, cols = INTERNALS_HEADER.unpack_from(body)
+    start = INTERNALS_HEADER.size
+    controller, names = msgpack.unpackb(body[start:start + size])
+    if len(names) != rows:
+        raise IndexError(f"{rows} rows of internals for {len(names)} signals")
+    values = internals_values(rows * cols).unpack_from(body, start + size)
+    return {"cycle": cycle, "t": t, "controller": controller,
+            "signals": {name: list(values[i * cols:(i + 1) * cols]) for i, name in enumerate(names)}, "seq": seq}
+
+
 def to_payload(topic: bytes, body: bytes) -> bytes:
-    """What goes out on the PUB socket for what :class:`Telemetry` sent."""
-    return msgpack.packb(state_message(body)) if topic == b"state" else body
+    """What goes out on the PUB socket for what the loop's telemetry sent."""
+    if topic == b"state":
+        return msgpack.packb(state_message(body))
+    if topic == b"internals":
+        return msgpack.packb(internals_message(body))
+    return body
