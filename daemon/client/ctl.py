@@ -14,10 +14,15 @@ from daemon.client.client import ENDPOINT_VARIABLES, Client, KeyRefused, RemoteE
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
+ONE_SHOT_LEASE_S = 10.0  # a one-shot command's lease [s]: handed back at once, it only has to outlast a busy PC
+
+
 def with_lease(client: Client, fn):
     """One-shot commands take the lease, act, and hand it back (the arm keeps its state; if
-    it stays enabled, the daemon's note on what becomes of it is printed)."""
-    client.acquire_lease()
+    it stays enabled, the daemon's note on what becomes of it is printed). The lease is asked
+    for ``ONE_SHOT_LEASE_S``, not the rig's 2 s: nothing renews it between the two requests, and
+    on a loaded PC this process can be held longer than that between them."""
+    client.acquire_lease(ONE_SHOT_LEASE_S)
     try:
         return fn()
     finally:
