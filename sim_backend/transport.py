@@ -1,7 +1,9 @@
 """The simulated rig behind the transport contract: volts in, volts out, on a clock.
 
 Each :meth:`SimTransport.read` first advances the plant to the clock's present time in
-whole plant steps, then samples the sensors. Handed a virtual clock, the plant runs in
+whole plant steps, then samples the sensors; each write does the same before the new outputs
+take effect, so a command acts from when it arrives, never from the read before it (behind a
+wire the two can be milliseconds apart, which would otherwise shorten the plant's dead time). Handed a virtual clock, the plant runs in
 lockstep with the loop (deterministic, faster than real time); handed ``time.monotonic``,
 it runs in real time. Sensor volts come from the rig file's own calibrations read
 backwards, plus seeded noise and ADC quantisation; output volts go through DAC quantisation.
@@ -87,6 +89,7 @@ class SimTransport(Transport):
         if ("timeout", "") in self._faults:
             self._health.errors += 1
             raise TransportTimeout("sim: simulated transport timeout (injected fault)")
+        self._advance(self.clock())
         bits = self.options.dac_bits
         self._out = [quantise(v, ch.low, ch.high, bits) for v, ch in zip(values, self.outputs)]
 

@@ -170,3 +170,24 @@ def test_wall_contact_reads_on_the_force_sensor():
     assert pressed.force == pytest.approx(sim.arm.contact_force_n, abs=0.05)
     sim.io.tare_force()
     assert sim.io.read().force == pytest.approx(0.0, abs=0.05)
+
+
+def test_a_command_acts_from_when_it_is_written_not_from_the_read_before_it():
+    """Behind a wire the loop's write comes milliseconds after its read: the plant must have
+    run those milliseconds under the old outputs, or every dead time it shows is shorter."""
+    late, prompt = make_rig(), make_rig()
+    for sim in (late, prompt):
+        sim.io.read()
+        sim.clock.sleep_until(0.3)
+    prompt.io.read()  # the same instant as the write below, read first
+    for sim in (late, prompt):
+        sim.io.write_pressures(*sim.actuation.outputs([3.0, 0.0]))
+        sim.clock.sleep_until(0.45)
+        sim.io.read()
+    assert late.arm.joints[0]._k == prompt.arm.joints[0]._k == 450
+    head = [sim.arm.joints[0].p_head for sim in (late, prompt)]  # [Pa]
+    assert head[0] == pytest.approx(head[1], rel=1e-9)
+    resting = make_rig()
+    resting.clock.sleep_until(0.45)
+    resting.io.read()
+    assert abs(head[0] - resting.arm.joints[0].p_head) > 1e3  # the command did act within 150 ms [Pa]
