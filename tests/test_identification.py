@@ -6,11 +6,14 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize._numdiff import approx_derivative  # what least_squares(diff_step=) does: the polish's reference
 from scipy.signal import cont2discrete, lfilter, max_len_seq, tf2ss
 
 from controllers.base import ControllerContext
 from controllers.identification import frf, rigfile
-from controllers.identification.fit import Experiment, fit_joint, fit_percent
+from controllers.identification.data import on_the_period
+from controllers.identification.fit import Experiment, _Problem, fit_joint, fit_percent
+from controllers.identification.simulate import simulate, simulate_experiments
 from controllers.signals import PRBS, LogChirp, Multisine
 from daemon.wire.arguments import CommandFailed
 from daemon.wire.signals import recorded
@@ -75,6 +78,52 @@ def test_the_fit_recovers_the_simulated_plant_within_the_tolerances(joint, facto
     for name, miss in (("D", error("D")), ("Fs", error("Fs")), ("T_dly", result.params.T_dly - truth.T_dly)):
         stated = max(result.relative_std[name], result.population_std[name])  # relative; T_dly in s
         assert abs(miss) <= 3.0 * stated, name  # the uncertainty it states covers what it got wrong
+
+
+def test_the_fits_batched_evaluations_are_the_one_by_one_simulations():
+    """The fit simulates its experiments side by side as one population and its polish's
+    Jacobian columns in one call: what each member gets must be what simulating it alone
+    gives, and the Jacobian scipy's forward differences at the same steps."""
+    prior = IDENTIFIED["bottom"]
+    truth = prior.replace({"D": prior.D * 0.8, "T_dly": prior.T_dly * 1.25})
+    data = [run_joint(truth, prbs(1.0, 5, 0.1), 1), run_joint(truth, prbs(1.0, 4, 0.3), 2)]  # 3.1 s and 4.5 s
+    problem = _Problem(prior, data, 0.005)
+    points = np.random.default_rng(0).uniform(problem.bounds[:, 0], problem.bounds[:, 1], (5, len(problem.bounds)))
+    together = simulate_experiments([problem.rows(points, i) for i in (0, 1)], [d.lever for d in data],
+                                    [d.dt for d in data], 0.005, prior.alpha, prior.beta)
+    for i, d in enumerate(data):
+        for member, row in enumerate(problem.rows(points, i)):
+            alone = simulate(row, d.lever, d.dt, 0.005, prior.alpha, prior.beta)[0]
+            np.testing.assert_allclose(together[i][member], alone, rtol=0, atol=1e-12)
+    x = points[0]
+    scipys = approx_derivative(problem.residuals, x, rel_step=1e-3, method="2-point",
+                               bounds=(problem.bounds[:, 0], problem.bounds[:, 1]))
+    np.testing.assert_allclose(problem.jacobian(x), scipys, rtol=1e-9, atol=1e-9)
+
+
+def test_a_loop_that_ran_late_is_put_back_on_its_period_by_the_samples_times():
+    """Behind a slow wire the loop's cycles averaged 1.08 ms and a fifth of its samples were
+    stale repeats (the identify-over-Modbus recording): read as 1 ms apart, the rows make the
+    plant look 8 % faster. On the samples' own times, the angle and the commands in force
+    are where they were in time."""
+    rng = np.random.default_rng(3)
+    n, period = 5000, 0.001
+    cycle_t = np.cumsum(rng.uniform(0.0008, 0.00136, n))  # when each cycle ran [s]: 1.08 ms on average
+    fresh = rng.uniform(size=n) > 0.2
+    fresh[0] = True
+    sample_t = np.maximum.accumulate(np.where(fresh, cycle_t, 0.0))  # a stale row repeats the last fresh time
+    angle = np.sin(2.0 * np.pi * 0.7 * sample_t)  # [rad], as sampled
+    command = np.floor(cycle_t / 0.05)  # a command that steps every 50 ms of the cycles' time
+    grid, held, on_grid, base = on_the_period(sample_t, period, angle)
+    assert np.allclose(np.diff(grid), period)
+    assert grid[-1] == pytest.approx(sample_t[-1], abs=period)  # the span is wall time, not n periods
+    assert np.max(np.abs(on_grid - np.sin(2.0 * np.pi * 0.7 * grid))) < 1e-4
+    assert np.mean(command[held] == np.floor(grid / 0.05)) > 0.95  # off only within a cycle of each step
+    assert base["mean_period_s"] == pytest.approx(0.00108, rel=0.02) and base["stale_fraction"] == pytest.approx(0.2, abs=0.03)
+    assert base["lost_s"] == pytest.approx(sample_t[-1] - sample_t[0] - period * (n - 1))
+    steady = np.arange(n) * period  # a loop that kept its period: the rows as they are
+    grid, held, on_grid, _ = on_the_period(steady, period, np.sin(steady))
+    assert np.array_equal(held, np.arange(n)) and np.allclose(on_grid, np.sin(steady))
 
 
 def closed_loop(noise: float, seed: int = 0):

@@ -97,13 +97,33 @@ def _experiment(run, rig: config.RigConfig, joint: str, first: int, last: float,
         head_ref = ITV0051(jc.head).pressure(jc.head.bias_volts + info["u_op_v"])
     lever = prior.L * (prior.area_head * (data["p_head_pa"] - head_ref)
                        - prior.area_rod * (data["p_rod_pa"] - data["p_rod_pa"][0]))
-    y = np.degrees(data["angle_rad"] - data["angle_rad"][0])
-    dt = float(np.median(np.diff(t)))
+    period = float(run.describe.get("period_s") or np.median(np.diff(t)))
+    grid, held, angle, time_base = on_the_period(t, period, data["angle_rad"])
     if info["signal"]["side"] == "input":
         # the instrument of the joint input-output method [V]: the input-side signal as the
-        # planner built it, on the samples from the open-loop phase's first cycle
-        r = rebuild(info["signal"]).series(np.arange(len(rows)) * dt)
+        # planner built it, on the loop's clock from the open-loop phase's first cycle
+        r = rebuild(info["signal"]).series(grid - grid[0])
     else:
-        r = np.degrees(data["setpoint_rad"] - data["setpoint_rad"][0])  # [deg]
-    return Experiment(dt, lever, y, t - t[0], data["u_volts"], float(np.degrees(data["angle_rad"][0])),
-                      {**info, "joint": joint}, r)
+        r = np.degrees(data["setpoint_rad"] - data["setpoint_rad"][0])[held]  # [deg]
+    y = np.degrees(angle - angle[0])
+    return Experiment(period, lever[held], y, grid - grid[0], data["u_volts"][held], float(np.degrees(angle[0])),
+                      {**info, "joint": joint, "time_base": time_base}, r)
+
+
+def on_the_period(t: np.ndarray, period: float, angle: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The experiment on a uniform grid at the loop's ``period`` [s], by the samples' own times
+    ``t`` [s] (each row's input sweep): the fit's model steps at a fixed period, and a loop
+    that ran late (behind a slow wire, without real-time priority) stretches wall time under
+    its cycles, so rows read as one period apart would make the plant look faster than it is.
+    Rows whose sample repeats the one before (a stale sample, reused) are placed evenly between
+    the fresh ones. Returns the grid [s], each grid time's row (the commands in force then:
+    zero-order hold), the angle [rad] interpolated between fresh samples, and what was done."""
+    n = len(t)
+    fresh = np.flatnonzero(np.diff(t, prepend=-np.inf) > 0.0)
+    times = np.interp(np.arange(n), fresh, t[fresh])  # monotone: a stale row between its neighbours
+    grid = times[0] + period * np.arange(int((times[-1] - times[0]) / period + 1e-6) + 1)
+    held = np.clip(np.searchsorted(times, grid + 1e-6 * period, side="right") - 1, 0, n - 1)
+    span = float(times[-1] - times[0])
+    return grid, held, np.interp(grid, t[fresh], angle[fresh]), {
+        "period_s": period, "mean_period_s": span / max(n - 1, 1), "stale_fraction": 1.0 - len(fresh) / n,
+        "lost_s": span - period * (n - 1)}

@@ -29,12 +29,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import differential_evolution, least_squares, minimize_scalar
 
-from controllers.identification.simulate import FITTED, simulate
+from controllers.identification.simulate import FITTED, simulate, simulate_experiments
 from hal.identified import JointParams
 
 SPAN = {"D": 3.0, "K": 3.0, "T_ep": 3.0, "Fs": 2.5}  # factor either side of the prior
 MAX_DEAD_TIME_S = 0.3
+DIFF_STEP = 1e-3  # the polish's forward-difference step, relative to |x| in search coordinates
 SEARCH = ("D", "K", "T_ep", "T_dly", "Fs", "Fc_ratio", "c")  # c: one per estimation experiment
+C_SPAN = 2.0  # each experiment's held friction torque c is looked for within +-C_SPAN prior Fs [N m]
 
 
 @dataclass
@@ -101,8 +103,8 @@ class _Problem:
             else:  # Fc_ratio
                 lo.append(0.0)
                 hi.append(1.0)
-        lo += [-2 * prior.Fs] * len(data)
-        hi += [2 * prior.Fs] * len(data)
+        lo += [-C_SPAN * prior.Fs] * len(data)
+        hi += [C_SPAN * prior.Fs] * len(data)
         self.bounds = np.array([lo, hi]).T
 
     def rows(self, x: np.ndarray, experiment: int = 0) -> np.ndarray:
@@ -122,10 +124,9 @@ class _Problem:
 
     def errors(self, x: np.ndarray) -> np.ndarray:
         """Scaled output errors, all experiments end to end: (S, samples)."""
-        parts = []
-        for i, (d, target) in enumerate(zip(self.data, self.targets)):
-            y_hat = simulate(self.rows(x, i), d.lever, d.dt, self.step, self.prior.alpha, self.prior.beta)
-            parts.append(y_hat[:, :len(target)] - target)
+        angles = simulate_experiments([self.rows(x, i) for i in range(len(self.data))], [d.lever for d in self.data],
+                                      [d.dt for d in self.data], self.step, self.prior.alpha, self.prior.beta)
+        parts = [y_hat[:, :len(target)] - target for y_hat, target in zip(angles, self.targets)]
         return np.concatenate(parts, axis=1) / self.scale
 
     def cost(self, xt: np.ndarray) -> np.ndarray:
@@ -135,6 +136,19 @@ class _Problem:
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self.errors(x)[0]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """d residuals / d x by forward differences, every column's point simulated in one
+        vectorised call: the cost of one evaluation of the population rather than one per
+        parameter. The steps are scipy's for ``least_squares(diff_step=DIFF_STEP)``: relative
+        to |x| (sqrt(eps) max(1, |x|) where that is lost to rounding), turned inward at a bound."""
+        sign = np.where(x >= 0, 1.0, -1.0)
+        h = DIFF_STEP * sign * np.abs(x)
+        h = np.where((x + h) - x == 0.0, np.sqrt(np.finfo(float).eps) * sign * np.maximum(1.0, np.abs(x)), h)
+        outside = (x + h < self.bounds[:, 0]) | (x + h > self.bounds[:, 1])
+        h = np.where(outside, -h, h)
+        err = self.errors(np.vstack([x, x + np.diag(h)]))
+        return ((err[1:] - err[0]) / h[:, None]).T
 
     def params(self, x: np.ndarray) -> tuple[JointParams, list[float]]:
         row = self.rows(x)[0]
@@ -162,13 +176,13 @@ def fit_joint(estimation: list[Experiment], prior: JointParams, validation: list
     found = differential_evolution(problem.cost, problem.bounds, popsize=max(population // dims, 1), maxiter=generations,
                                    tol=tol, seed=seed, polish=False, vectorized=True, updating="deferred",
                                    init="sobol", callback=callback)
-    polished = least_squares(problem.residuals, found.x, bounds=(problem.bounds[:, 0], problem.bounds[:, 1]),
-                             x_scale="jac", diff_step=1e-3)
+    polished = least_squares(problem.residuals, found.x, jac=problem.jacobian,
+                             bounds=(problem.bounds[:, 0], problem.bounds[:, 1]), x_scale="jac")
     best = polished.x if 2 * polished.cost / problem.size <= found.fun else found.x
     params, c = problem.params(best)
     estimation_fit = [fit_percent(t, t + problem.scale * e) for t, e in
                       zip(problem.targets, np.split(problem.residuals(best), np.cumsum([len(t) for t in problem.targets])[:-1]))]
-    heldout = [heldout_fit(params, v, step) for v in validation]
+    heldout = [heldout_fit(params, v, step, C_SPAN * prior.Fs) for v in validation]
     return FitResult(params, c, estimation_fit, heldout, _relative_std(polished, problem.bounds),
                      _population_std(found),
                      time.perf_counter() - started, state["generation"], int(found.nfev + polished.nfev),
@@ -183,9 +197,11 @@ def predict(params: JointParams, data: Experiment, step: float, c: float) -> np.
     return simulate(row, data.lever, data.dt, step, params.alpha, params.beta)[0]
 
 
-def best_c(params: JointParams, data: Experiment, step: float) -> float:
-    """The start's held friction torque c [N m] within +-Fs that fits ``data`` best: an
-    initial condition of that experiment, not a model parameter."""
+def best_c(params: JointParams, data: Experiment, step: float, bound: float) -> float:
+    """The start's held friction torque c [N m] within +-``bound`` that fits ``data`` best: an
+    initial condition of that experiment, not a model parameter (the fit's own range for it,
+    +-C_SPAN prior Fs: bounded by the fitted Fs instead, a fit that trades static friction
+    against c is judged on a start it could not have chosen)."""
     m = max(int(round(step / data.dt)), 1)
     target = data.y[m::m]
 
@@ -193,14 +209,14 @@ def best_c(params: JointParams, data: Experiment, step: float) -> float:
         y_hat = predict(params, data, step, c)[:len(target)]
         return float(np.mean((y_hat - target[:len(y_hat)]) ** 2))
 
-    return float(minimize_scalar(cost, bounds=(-params.Fs, params.Fs), method="bounded", options={"xatol": 1e-4}).x)
+    return float(minimize_scalar(cost, bounds=(-bound, bound), method="bounded", options={"xatol": 1e-4}).x)
 
 
-def heldout_fit(params: JointParams, data: Experiment, step: float) -> float:
+def heldout_fit(params: JointParams, data: Experiment, step: float, c_bound: float) -> float:
     """[2-49] on data the fit did not see (only its start's c is chosen, :func:`best_c`)."""
     m = max(int(round(step / data.dt)), 1)
     target = data.y[m::m]
-    y_hat = predict(params, data, step, best_c(params, data, step))[:len(target)]
+    y_hat = predict(params, data, step, best_c(params, data, step, c_bound))[:len(target)]
     return fit_percent(target[:len(y_hat)], y_hat)
 
 

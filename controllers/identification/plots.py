@@ -55,16 +55,16 @@ def bode(path: Path, joint: str, measured: list[tuple[str, frf.Response]], model
 
 
 def time_overlay(path: Path, joint: str, runs: list[tuple[str, Experiment]], models: list[tuple[str, JointParams]],
-                 step: float) -> Path:
+                 step: float, c_bound: float) -> Path:
     """One panel per experiment: measured angle change [deg] and each model's simulation (from
-    the start's best held friction torque), the [2-49] Fit % in the legend."""
+    the start's best held friction torque within +-``c_bound`` [N m]), the [2-49] Fit % in the legend."""
     fig, axes = plt.subplots(len(runs), 1, figsize=(10, 3.2 * len(runs)), squeeze=False)
     for ax, (label, data) in zip(axes[:, 0], runs):
         m = max(int(round(step / data.dt)), 1)
         target, t = data.y[m::m], data.t[m::m]
         ax.plot(t, target, color="0.3", lw=1.0, label="measured")
         for (name, params), style in zip(models, ("tab:red", "tab:green")):
-            y_hat = predict(params, data, step, best_c(params, data, step))[:len(target)]
+            y_hat = predict(params, data, step, best_c(params, data, step, c_bound))[:len(target)]
             ax.plot(t[:len(y_hat)], y_hat, color=style, lw=1.0,
                     label=f"{name}: Fit {fit_percent(target[:len(y_hat)], y_hat):.1f} %")
         ax.set_title(label, fontsize=10)

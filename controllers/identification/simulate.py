@@ -82,6 +82,15 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
     return out.T
 
 
+def held_torque(params: np.ndarray, lever: np.ndarray, dt: float, step: float) -> np.ndarray:
+    """Torque [N m] per member held over each mechanics step (the mean of the step's
+    samples), shape (members, steps): K_mdl times the lever delayed and lagged."""
+    m = max(int(round(step / dt)), 1)
+    torque = params[:, 0:1] * delayed_lagged(lever, dt, params[:, 4], params[:, 5])
+    usable = (torque.shape[1] // m) * m
+    return torque[:, :usable].reshape(len(params), -1, m).mean(axis=2)
+
+
 def simulate(params: np.ndarray, lever: np.ndarray, dt: float, step: float, alpha: float,
              beta: float) -> np.ndarray:
     """Angle deviation [deg] on the step grid (every ``step / dt``-th sample from the first
@@ -89,7 +98,28 @@ def simulate(params: np.ndarray, lever: np.ndarray, dt: float, step: float, alph
     unit K_mdl] at the recording's period dt [s]."""
     params = np.atleast_2d(params)
     m = max(int(round(step / dt)), 1)
-    torque = params[:, 0:1] * delayed_lagged(lever, dt, params[:, 4], params[:, 5])
-    usable = (torque.shape[1] // m) * m
-    held = torque[:, :usable].reshape(len(params), -1, m).mean(axis=2)
-    return mechanics(params, held, m * dt, alpha, beta)
+    return mechanics(params, held_torque(params, lever, dt, step), m * dt, alpha, beta)
+
+
+def simulate_experiments(params: list[np.ndarray], levers: list[np.ndarray], dts: list[float], step: float,
+                         alpha: float, beta: float) -> list[np.ndarray]:
+    """:func:`simulate` for several experiments (``params[i]``'s rows on ``levers[i]`` at
+    ``dts[i]``), those with the same mechanics step run as one population: the mechanics'
+    loop over time costs per step, nearly whatever the members, so two experiments simulated
+    side by side cost the longer one's steps rather than both's. Each member is independent:
+    the results are :func:`simulate`'s, experiment by experiment."""
+    out: list[np.ndarray | None] = [None] * len(params)
+    groups: dict[float, list[int]] = {}
+    for i, dt in enumerate(dts):
+        groups.setdefault(max(int(round(step / dt)), 1) * dt, []).append(i)
+    for held_step, members in groups.items():
+        rows = [np.atleast_2d(params[i]) for i in members]
+        torques = [held_torque(r, levers[i], dts[i], step) for r, i in zip(rows, members)]
+        steps = max(t.shape[1] for t in torques)
+        padded = np.concatenate([np.pad(t, ((0, 0), (0, steps - t.shape[1]))) for t in torques])
+        angles = mechanics(np.concatenate(rows), padded, held_step, alpha, beta)
+        start = 0
+        for r, t, i in zip(rows, torques, members):
+            out[i] = angles[start:start + len(r), :t.shape[1]]
+            start += len(r)
+    return out

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from controllers.identification import data as experiments_of
 from controllers.identification import frf, plots, rigfile
-from controllers.identification.fit import fit_joint
+from controllers.identification.fit import C_SPAN, fit_joint
 from controllers.identification.simulate import FITTED
 from controllers.nominal import NominalJoint
 from daemon.recordings import mcap_log
@@ -201,6 +201,13 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
         raise SystemExit(f"{path}: an experiment was stopped: {aborted[0]}: lower the amplitude or widen the band")
     if len(found) < 2:
         raise SystemExit(f"{path}: {len(found)} experiment(s) on {joint}: two at least are needed (one held out)")
+    for e in found:
+        base = e.info["time_base"]
+        if base["lost_s"] > 0.01 * len(e.y) * e.dt:
+            print(f"note: the loop ran late during the {e.info['signal']['signal']} (a cycle every "
+                  f"{base['mean_period_s'] * 1e3:.3f} ms for {base['period_s'] * 1e3:g} ms, "
+                  f"{base['stale_fraction']:.0%} of its samples stale): it is analysed on the samples' own times",
+                  file=sys.stderr)
     estimation, held_out = found[:-1], found[-1:]
     rig = experiments_of.rig_of(run)
     prior = experiments_of.prior_of(rig, joint)
@@ -214,7 +221,8 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
                       [(f"identified (held-out Fit {result.heldout_fit_percent[0]:.1f} %)", result.params),
                        ("prior (rig file)", prior)], THESIS_BAND_HZ)
     overlay = plots.time_overlay(out / f"time-{joint}.png", joint, list(zip(labels, found))[::-1],
-                                 [("identified", result.params), ("prior", prior)], result.settings["step_s"])
+                                 [("identified", result.params), ("prior", prior)], result.settings["step_s"],
+                                 C_SPAN * prior.Fs)
     name = f"{joint}-identified"
     provenance = (f"pneumactl identify {time.strftime('%Y-%m-%d %H:%M:%S')}: {Path(path).name} "
                   f"(rig {run.describe['rig']['hash'][:12]}), fitted on "
@@ -228,6 +236,7 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
               "figures": [str(bode), str(overlay)], **result.summary(),
               "prior": {n: getattr(prior, n) for n in FITTED}, "units": {n: UNITS[n] for n in FITTED},
               "experiments": [e.info["signal"] for e in found],
+              "time_base": [e.info["time_base"] for e in found],
               "coherence_thesis_band": {"min": float(min(coherent)) if len(coherent) else None,
                                         "mean": float(sum(coherent) / len(coherent)) if len(coherent) else None}}
     (out / "report.json").write_text(json.dumps(report, indent=2))
