@@ -8,11 +8,10 @@ import subprocess
 import sys
 import time
 
-import msgpack
 import pytest
 import zmq
 
-from daemon.wire import keys
+from daemon.wire import keys, routed
 from daemon.wire import protocol as P
 from daemon.client.client import Client, KeyRefused, RemoteError
 from tests.daemons import free_tcp_ports, real_daemon
@@ -244,7 +243,15 @@ def test_a_request_never_makes_the_daemon_open_a_file(lab):
             alice.release_lease()
 
 
-def test_identity_bytes_round_trip():
+def test_a_routed_request_carries_who_sent_it_and_its_envelope_to_the_loop():
+    """The messenger decodes a request once and hands the loop who sent it, its envelope and
+    where its arguments lie; the loop's decoding of the arguments reads the same bytes."""
+    body = P.encode_request("r-7", "set", {"angles_deg": [120.0, -90.0]}, "L1")
     for identity in (keys.ANONYMOUS, keys.Identity("alice", "operator"), keys.Identity("b" * 64, "observer")):
-        packed = keys.pack_identity(identity) + msgpack.packb({"v": 1})
-        assert keys.unpack_identity(packed) == (identity, 2 + len(identity.name))
+        for request in (P.decode_request(body), P.decode_request(P.encode_request(3, "ping", None, None))):
+            who, routed_request = routed.unpack(routed.pack(identity, request))
+            assert who == identity
+            assert {k: routed_request[k] for k in ("id", "cmd", "lease")} == {k: request[k] for k in ("id", "cmd", "lease")}
+            assert P.decode_args(routed_request) == P.decode_args(request)
+    assert P.decode_args(routed.unpack(routed.pack(keys.ANONYMOUS, P.decode_request(body)))[1]) == {
+        "angles_deg": [120.0, -90.0]}

@@ -3,9 +3,9 @@ the lease.
 
 Handlers run at the end of a cycle in the loop's thread, so whatever they change takes
 effect at the next cycle boundary, and each does bounded work whatever its arguments: the
-envelope is decoded with ``args`` skipped (:func:`daemon.wire.protocol.decode_request`); the
-messenger has already checked the command, its socket and its arguments against the catalog
-(:mod:`daemon.wire.catalog`), so a loop command's few small arguments are only decoded here;
+messenger has already decoded the envelope and checked the command, its socket and its
+arguments against the catalog (:mod:`daemon.wire.catalog`, :mod:`daemon.wire.routed`), so a
+loop command's few small arguments are only decoded here;
 anything whose cost grows with the request or the rig is handed to the worker process beside
 the loop (:class:`~daemon.planner.process.Preparer`) with a deferred reply:
 
@@ -80,21 +80,18 @@ class Commands:
         self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
 
     # -- entry points -----------------------------------------------------------------------
-    def handle_payload(self, payload: bytes, control: bool = False, client: Identity = ANONYMOUS,
-                       start: int = 0) -> bytes | Deferred:
-        """Decode, run and encode one request (at ``start`` in ``payload``, from ``client``);
-        every failure becomes an error reply. Work done off the loop comes back as a Deferred:
-        see :meth:`complete`."""
+    def handle_request(self, request: dict, control: bool = False, client: Identity = ANONYMOUS) -> bytes | Deferred:
+        """Run and encode one request from ``client``, its envelope decoded and checked by the
+        messenger (:mod:`daemon.wire.routed`); every failure becomes an error reply. Work done
+        off the loop comes back as a Deferred: see :meth:`complete`."""
         self.requests += 1
         self.client = client
         with self.loop.events.signed(str(client)):
-            return self._handle_payload(payload, control, start)
+            return self._handle_request(request, control)
 
-    def _handle_payload(self, payload: bytes, control: bool, start: int) -> bytes | Deferred:
-        request_id = None
+    def _handle_request(self, request: dict, control: bool) -> bytes | Deferred:
+        request_id = request["id"]
         try:
-            request = P.decode_request(payload, start)
-            request_id = request["id"]
             result = self.handle(request, control)
             if isinstance(result, Deferred):
                 result.request_id, result.client = request_id, self.client

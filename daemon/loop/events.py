@@ -4,8 +4,6 @@ it, and the cycle drains them to telemetry. A common cycle adds none, so the dra
 test of an empty list."""
 from __future__ import annotations
 
-from contextlib import contextmanager
-
 
 class EventLog:
     def __init__(self):
@@ -19,14 +17,10 @@ class EventLog:
             event.setdefault("who", self._who)
         self.pending.append(event)
 
-    @contextmanager
-    def signed(self, who: str):
-        """Sign with ``who`` every event added inside this block (one request's handling)."""
-        outer, self._who = self._who, who
-        try:
-            yield
-        finally:
-            self._who = outer
+    def signed(self, who: str) -> "_Signed":
+        """Sign with ``who`` every event added inside this ``with`` block (one request's
+        handling). A plain context object, not a generator: it runs for every request."""
+        return _Signed(self, who)
 
     def drain(self, publish) -> None:
         """Hand each pending event to ``publish`` (or drop them, given None), oldest first."""
@@ -35,3 +29,16 @@ class EventLog:
             for event in events:
                 publish(event)
         events.clear()
+
+
+class _Signed:
+    __slots__ = ("log", "who", "outer")
+
+    def __init__(self, log: EventLog, who: str):
+        self.log, self.who, self.outer = log, who, None
+
+    def __enter__(self) -> None:
+        self.outer, self.log._who = self.log._who, self.who
+
+    def __exit__(self, *exc) -> None:
+        self.log._who = self.outer

@@ -9,8 +9,8 @@ that is full refuses: the message is dropped and counted (``telemetry_dropped``,
 ``reply_failures``), never waited for. Frames over ``protocol.MAX_MESSAGE_BYTES`` are refused
 by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
 
-Each request arrives with who sent it (a few bytes the messenger puts first:
-:func:`daemon.wire.keys.pack_identity`). Which clients may connect at all is the messenger's
+Each request arrives with who sent it and its envelope, decoded once by the messenger
+(:mod:`daemon.wire.routed`). Which clients may connect at all is the messenger's
 (CURVE, :mod:`daemon.messenger.guard`); :func:`security` says what a daemon's endpoints and keys add up
 to, and refuses to bind past loopback with nobody's key checked unless told ``insecure``.
 """
@@ -23,7 +23,7 @@ import tempfile
 
 from daemon.wire import protocol as P
 from daemon.loop.commands import Commands
-from daemon.wire.keys import unpack_identity
+from daemon.wire import routed
 from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.planner.process import Deferred
 from daemon.recorder.process import RecorderProcess, write_metadata
@@ -76,6 +76,7 @@ class ZmqServer:
         self.reply_failures = 0
         self.telemetry_dropped = 0
         self._until_check = MESSENGER_CHECK_CYCLES
+        self._messenger_alive = True  # started above
         self._replied = False
 
     def attach(self, loop, preparer=None) -> None:
@@ -94,7 +95,9 @@ class ZmqServer:
             self.telemetry_dropped += 1
 
     def telemetry_health(self) -> dict:
-        return {"messenger_running": self.messenger.alive, "messenger_restarts": self.messenger.restarts,
+        """As of the messenger's last look (once a second: a request that reaches the loop came
+        through a messenger, so a status never waits on a process table)."""
+        return {"messenger_running": self._messenger_alive, "messenger_restarts": self.messenger.restarts,
                 "dropped": self.telemetry_dropped}
 
     def poll(self, loop) -> None:
@@ -114,6 +117,7 @@ class ZmqServer:
         if self._until_check <= 0:
             self._until_check = MESSENGER_CHECK_CYCLES
             notice = self.messenger.check()
+            self._messenger_alive = self.messenger.alive
             if notice is not None:
                 loop.events.add({"kind": "messenger", "cause": notice})
             notice = self.recorder.check() if self.recorder is not None else None
@@ -138,11 +142,12 @@ class ZmqServer:
                 return
             token, payload = entry
             try:
-                client, start = unpack_identity(payload)
-            except (IndexError, ValueError):  # only the messenger writes these: a bug, answered as one
-                self._reply(token, P.encode_error(None, P.INTERNAL, "the request reached the loop without who sent it"))
+                client, request = routed.unpack(payload)
+            except Exception:  # only the messenger writes these (msgpack raises several types): a bug, answered as one
+                self._reply(token, P.encode_error(None, P.INTERNAL, "the request reached the loop without its "
+                                                                    "envelope or who sent it"))
                 continue
-            reply = self.commands.handle_payload(payload, control, client, start)
+            reply = self.commands.handle_request(request, control, client)
             if isinstance(reply, Deferred):
                 self._waiting.append((token, reply))
             else:

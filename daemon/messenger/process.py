@@ -28,7 +28,7 @@ so); subscribers see the loss in ``seq``.
 
 With a key directory (``--keys``), every socket speaks CURVE and admits allowed client keys
 only (:mod:`daemon.messenger.guard`); each request goes to the loop with who sent it
-(:func:`daemon.wire.keys.pack_identity`), and SIGHUP or a ``keys.reload`` request (answered here,
+(:mod:`daemon.wire.routed`), and SIGHUP or a ``keys.reload`` request (answered here,
 never by the loop) reads the allow-list again.
 """
 from __future__ import annotations

@@ -15,7 +15,8 @@ import zmq
 from daemon.wire import catalog, protocol
 from daemon.wire.arguments import CommandFailed
 from daemon.messenger.guard import Guard
-from daemon.wire.keys import ANONYMOUS, OPERATOR, pack_identity
+from daemon.wire import routed
+from daemon.wire.keys import ANONYMOUS, OPERATOR
 from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.wire.ring import Ring, RingError
@@ -115,7 +116,7 @@ class Relay:
                 self._answer_stalled(sock, envelope, request["id"], "refused without reaching the loop: nothing was done")
                 continue
             token = next(self._tokens)
-            ring.put(token, pack_identity(identity) + body)
+            ring.put(token, routed.pack(identity, request))
             if self.stalled_since is not None:  # a control request: kept for the loop, answered now
                 self._answer_stalled(sock, envelope, request["id"], "queued: it takes effect if the loop resumes")
             else:

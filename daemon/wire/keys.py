@@ -235,20 +235,6 @@ class AllowList:
         return self._by_name.get(name)
 
 
-# -- who sent a request, from the messenger to the loop --------------------------------------
-def pack_identity(identity: Identity) -> bytes:
-    """The few bytes the messenger puts before each request in the loop's ring: role, name
-    length, name."""
-    name = identity.name.encode()
-    return bytes((ROLES.index(identity.role), len(name))) + name
-
-
-def unpack_identity(entry: bytes) -> tuple[Identity, int]:
-    """(identity, where the request starts) from a ring entry."""
-    role, length = entry[0], entry[1]
-    return Identity(entry[2:2 + length].decode(), ROLES[role]), 2 + length
-
-
 def secure_client(sock: zmq.Socket, key_file: str, server_key_file: str | None = None) -> None:
     """Make a client socket speak CURVE with the key pair in ``key_file`` (a NAME.key_secret)
     to the daemon whose public key is in ``server_key_file`` (a server.key), or in the key
