@@ -7,6 +7,7 @@ import msgpack
 import pytest
 import zmq
 
+from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.loop.safety import State
 from daemon.testing.loop import call, dealer, exchange, make_loop, ok, run_seconds
@@ -30,6 +31,7 @@ def test_ping_status_describe(daemon):
     assert ok(loop, sock, "ping")["pong"] is True
     status = ok(loop, sock, "status")
     assert status["state"] == "idle" and set(status["joints"]) == {"bottom", "middle"}
+    assert set(status) == set(catalog.COMMANDS["status"].result)  # every documented field, nothing else
     describe = ok(loop, sock, "describe")
     assert [j["name"] for j in describe["joints"]] == ["bottom", "middle"]
     assert describe["rig"]["hash"] == loop.rig.hash

@@ -9,6 +9,7 @@ import math
 class LoopView:
     def __init__(self, loop):
         self._loop = loop
+        self._commands_of: list[list[tuple[str, int]]] | None = None  # per joint: (command, its index in u)
 
     # -- what the loop runs on (fixed once it is built) -----------------------------------
     @property
@@ -105,10 +106,13 @@ class LoopView:
         ``u_volts``; a muscle pair's pressures [Pa] and brake [N m], its stiffness set-point
         and measured pressures)."""
         loop = self._loop
-        name = loop.io.joint_names[i]
+        if self._commands_of is None:  # the command interfaces are fixed once the loop is built
+            self._commands_of = [[(c.name, k) for k, c in enumerate(loop.actuation.commands) if c.joint == joint]
+                                 for joint in loop.io.joint_names]
         out = {"angle_deg": math.degrees(loop.angles[i]), "setpoint_deg": math.degrees(loop.reference[0][i]),
                "velocity_deg_s": math.degrees(loop.velocities[i])}
-        commands = {c.name: loop.u[k] for k, c in enumerate(loop.actuation.commands) if c.joint == name}
+        u = loop.u
+        commands = {name: u[k] for name, k in self._commands_of[i]}
         if "v_mv" in commands:
             out["u_volts"] = commands["v_mv"]
         else:
