@@ -377,3 +377,11 @@ def test_refusals_carry_data_naming_the_argument(daemon):
     assert swing["data"]["angle_deg"] in (pytest.approx(math.degrees(middle) - 45.0),
                                           pytest.approx(math.degrees(middle) + 45.0))
     assert not lo <= swing["data"]["angle_deg"] <= hi
+
+
+def test_a_reply_packed_once_is_the_reply_packed_per_request():
+    """describe's large, fixed result is packed at start-up and spliced into each reply: the
+    bytes a client gets are those of packing it with the reply."""
+    result = {"rig": {"source": "x" * 20000}, "joints": [{"name": "bottom", "limits": [0.0, 180.0]}], "n": None}
+    for request_id in (1, "r-42", None):
+        assert P.encode_result(request_id, P.Packed.of(result)) == P.encode_result(request_id, result)

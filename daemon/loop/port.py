@@ -83,7 +83,7 @@ class ZmqServer:
         self.commands = Commands(loop, preparer, self.security)
         loop.server = self
         loop.stats = LoopStats(self.stats_banks)  # counted where the messenger summarises them
-        write_metadata(self._rings_dir, self.commands.describe({}), self.commands.controller_get({}))
+        write_metadata(self._rings_dir, self.commands.described, self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
                                             self.recording["min_free_mb"])

@@ -119,7 +119,18 @@ def decode_args(request: dict) -> dict:
                             request["id"]) from None
 
 
+class Packed(bytes):
+    """A result packed as msgpack once (a large reply that never changes: ``describe``), which
+    :func:`encode_result` splices in rather than packing it again per request."""
+
+    @classmethod
+    def of(cls, result) -> "Packed":
+        return cls(msgpack.packb(result))
+
+
 def encode_result(request_id, result) -> bytes:
+    if isinstance(result, Packed):  # "result" is the map's last key: its packed nil (0xc0) is the last byte
+        return msgpack.packb({"v": VERSION, "id": request_id, "ok": True, "result": None})[:-1] + result
     return msgpack.packb({"v": VERSION, "id": request_id, "ok": True, "result": result})
 
 
