@@ -19,16 +19,25 @@ TEST_PLUGINS = {name: f"tests.plugins:{name}" for name in ("Raising", "DiesWhenB
 
 
 @pytest.fixture
-def moving():
-    """Enabled, the lease held, halfway along the translation path under PID."""
+def enabled():
+    """Enabled under PID at rest, the lease held: for what needs the loop and its worker
+    running but not the arm moving (refusals, parameter changes, the worker's failures)."""
     loop, captured, srv = make_loop(server=True, plugins=TEST_PLUGINS)
     sock = dealer(srv)
     lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
     ok(loop, sock, "enable", lease=lease)
-    ok(loop, sock, "path", {"name": "translation", "approach_s": 6.0}, lease=lease)
-    run_seconds(loop, 12.0)
     yield loop, captured, sock, lease
     srv.close()
+
+
+@pytest.fixture
+def moving(enabled):
+    """As ``enabled``, and halfway along the translation path: for what a swap does to a moving
+    arm (its 12 s of cycles are the costly part of a test's set-up)."""
+    loop, _, sock, lease = enabled
+    ok(loop, sock, "path", {"name": "translation", "approach_s": 6.0}, lease=lease)
+    run_seconds(loop, 12.0)
+    return enabled
 
 
 def assert_bumpless(loop, captured, cycle):
@@ -54,8 +63,8 @@ def test_a_switch_is_built_off_the_loop_and_replied_once_it_is_in_force(moving):
     assert switch[-1]["to"] == "smc" and switch[-1]["cause"] == "switch"
 
 
-def test_a_second_build_while_one_is_prepared_is_refused_as_busy(moving):
-    loop, _, sock, lease = moving
+def test_a_second_build_while_one_is_prepared_is_refused_as_busy(enabled):
+    loop, _, sock, lease = enabled
     sock.send(P.encode_request(1, "controller.switch", {"name": "smc"}, lease))
     sock.send(P.encode_request(2, "controller.switch", {"name": "sac"}, lease))
     replies = {}
@@ -71,8 +80,8 @@ def test_a_second_build_while_one_is_prepared_is_refused_as_busy(moving):
     assert loop.controller.name == "smc" and loop.state.value == "enabled"
 
 
-def test_a_controller_that_cannot_be_built_is_refused_and_the_active_one_stays(moving):
-    loop, _, sock, lease = moving
+def test_a_controller_that_cannot_be_built_is_refused_and_the_active_one_stays(enabled):
+    loop, _, sock, lease = enabled
     for args, code, text in (({"name": "nope"}, P.BAD_ARGS, "nope"),
                              ({"name": "smc", "params": {"eps": -1}}, P.BAD_ARGS, "eps"),
                              ({"name": "lti"}, P.BAD_ARGS, "option 'design' is required"),
@@ -123,8 +132,8 @@ def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(mov
     assert ("shadow", "start") in kinds and ("shadow", "commit") in kinds
 
 
-def test_a_failing_shadow_ends_its_own_run_and_nothing_else(moving):
-    loop, captured, sock, lease = moving
+def test_a_failing_shadow_ends_its_own_run_and_nothing_else(enabled):
+    loop, captured, sock, lease = enabled
     ok(loop, sock, "controller.shadow", {"name": "Raising"}, lease)
     run_seconds(loop, 0.1)
     assert loop.shadow_run is None and loop.controller.name == "pid" and loop.state.value == "enabled"
@@ -143,8 +152,8 @@ def test_a_discarded_shadow_run_reports_its_comparison_and_changes_nothing(movin
     assert loop.shadow_run is None and loop.controller.get_params()["Kp"] != [60.0, 60.0]
 
 
-def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):
-    loop, _, sock, lease = moving
+def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(enabled):
+    loop, _, sock, lease = enabled
     ok(loop, sock, "controller.switch", {"name": "smc"}, lease)
     result = ok(loop, sock, "controller.set", {"params": {"eps": [2.0, 1.0]}}, lease)
     assert result["params"]["eps"] == [2.0, 1.0] and loop.controller.get_params()["eps"] == [2.0, 1.0]
@@ -158,11 +167,11 @@ def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(moving):
                                           ("HangsWhenBuilt", "took longer than 2 s"),
                                           ("UnsendableWhenBuilt", "could not be sent back")])
 @pytest.mark.slow  # long: kept out of the fast subset
-def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_works(moving, plugin, text,
+def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_works(enabled, plugin, text,
                                                                                       monkeypatch):
     """The build runs in a worker process: whatever it does there, the loop keeps its
     controller and its period, the request gets a clear refusal and the next switch works."""
-    loop, _, sock, lease = moving
+    loop, _, sock, lease = enabled
     preparer = loop.server.commands.preparer
     preparer.warm().result(timeout=120)  # a worker up and warm: the limit below times the build alone
     if plugin == "HangsWhenBuilt":
@@ -178,10 +187,10 @@ def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_w
     assert loop.stats.overruns_total == 0
 
 
-def test_a_parameter_change_for_a_controller_built_from_options_is_derived_by_its_twin(moving):
+def test_a_parameter_change_for_a_controller_built_from_options_is_derived_by_its_twin(enabled):
     """The worker rebuilds the running controller from its class, options and current values
     and derives the change there; what comes back is applied to the running one."""
-    loop, _, sock, lease = moving
+    loop, _, sock, lease = enabled
     design = lti_design.read_file(lti_design.EXAMPLE)
     ok(loop, sock, "controller.switch", {"name": "lti", "options": {"design": design}}, lease)
     running = loop.controller
@@ -192,10 +201,10 @@ def test_a_parameter_change_for_a_controller_built_from_options_is_derived_by_it
 
 @pytest.mark.parametrize("name, module", [("tests.planted:Anything", "tests.planted"), ("this:Controller", "this"),
                                           ("controllers.pid:PID", None)])
-def test_a_request_never_chooses_a_module_to_import(moving, name, module):
+def test_a_request_never_chooses_a_module_to_import(enabled, name, module):
     """A request names a registered controller; a module:Class path, even one that exists,
     is refused, and its module is never imported in the worker that builds controllers."""
-    loop, _, sock, lease = moving
+    loop, _, sock, lease = enabled
     for cmd in ("controller.switch", "controller.shadow"):
         reply = call(loop, sock, cmd, {"name": name}, lease)
         assert reply["error"]["code"] == P.BAD_ARGS and "daemon's own configuration" in reply["error"]["message"]

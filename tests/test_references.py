@@ -221,3 +221,22 @@ def test_a_plan_overtaken_while_it_is_prepared_is_discarded_not_started(armed, o
     assert loop.trajectory_name == "hold"
     loop.run(100)
     assert loop.trajectory_name == "hold" and loop.reference_remaining() == 0.0
+
+
+@pytest.mark.parametrize("name", ["translation", "circle"])
+def test_a_cartesian_paths_rates_move_its_tip_along_the_path(name):
+    """The loop's per-cycle sample: the joint rates are those the arm's Jacobian maps onto
+    the tip's velocity along the path, and the angles' own derivative."""
+    rig = config.load()
+    lengths = rig.arm.link_lengths_m
+    make = {"translation": trajectory.translation, "circle": trajectory.circle}[name]
+    path = make(lengths, rig.arm.elbow, len(rig.joints), 20.0)
+    h = 1e-4
+    for t in (0.5, 5.0, 10.0, 17.3):
+        q, qd, _ = path.sample(t)
+        (a, c), (b, d) = kinematics.jacobian(q[:2], lengths[:2])
+        (x0, y0), (x1, y1) = path.tip(t - h), path.tip(t + h)
+        tip_velocity = ((x1 - x0) / (2 * h), (y1 - y0) / (2 * h))
+        assert (a * qd[0] + b * qd[1], c * qd[0] + d * qd[1]) == pytest.approx(tip_velocity, rel=1e-6, abs=1e-9)
+        ahead, behind = path.sample(t + h)[0], path.sample(t - h)[0]
+        assert qd == pytest.approx([(p - m) / (2 * h) for p, m in zip(ahead, behind)], rel=1e-5, abs=1e-9)
