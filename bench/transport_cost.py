@@ -27,6 +27,7 @@ import msgpack
 from bench import wires
 from bench.common import header, leased_daemon, percentiles
 from daemon.client.client import RemoteError
+from daemon.testing.ports import free_tcp_port
 from hal import serial_frames as F
 
 
@@ -102,14 +103,14 @@ def floors() -> dict[str, dict[str, float]]:
     finally:
         os.close(slave)
         os.close(master)
-    port = wires.free_port()
+    port = free_tcp_port()
     with echo(TCP_ECHO, str(port)):
         while not wires.listening(port):
             time.sleep(0.02)
         with socket.create_connection(("127.0.0.1", port)) as sock:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             out["tcp (modbus)"] = round_trips(sock.sendall, lambda: sock.recv(4096), 25)  # a function-23 request
-    port = wires.free_port()
+    port = free_tcp_port()
     with echo(UDP_ECHO, str(port)), socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         time.sleep(0.5)
         sock.connect(("127.0.0.1", port))

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from daemon import assembly
 from daemon.loop.clock import MonotonicClock, VirtualClock
 from daemon.loop.cycle import ControlLoop
+from daemon.testing.ports import free_tcp_port
 from hal import config
 
 
@@ -27,12 +28,6 @@ class Wire:
     ready: Callable[[], bool] | None = None
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def listening(port: int) -> bool:
     with socket.socket() as s:
         return s.connect_ex(("127.0.0.1", port)) == 0
@@ -40,7 +35,7 @@ def listening(port: int) -> bool:
 
 def wires(tmp: str) -> dict[str, Wire]:
     """Every built-in wire, on fresh endpoints (a link under ``tmp``, a free port, a group)."""
-    link, port, rtu_port = os.path.join(tmp, "bridge"), free_port(), free_port()
+    link, port, rtu_port = os.path.join(tmp, "bridge"), free_tcp_port(), free_tcp_port()
     group = f"239.74.{os.getpid() % 250 + 1}.{int(time.time()) % 250 + 1}"
     py = [sys.executable, "-m"]
     return {

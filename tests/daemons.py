@@ -3,7 +3,6 @@ on private ipc endpoints; and the check that the daemon answering is the test's 
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import time
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 from daemon.client.client import ENDPOINT_VARIABLES, Client
 from daemon.testing import daemons
 from daemon.testing.daemons import private_endpoints  # noqa: F401  (the tests' own import of it)
+from daemon.testing.ports import free_tcp_ports  # noqa: F401  (the tests' own import of it)
 from hal import config
 
 TOLERANT_STALL = "stall_after_s = 5.0  "
@@ -50,19 +50,6 @@ def running(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
-
-
-def free_tcp_ports(n: int = 3) -> list[int]:
-    """``n`` loopback ports nobody listens on now (the kernel's choice; none of 5560-5562 while
-    tests/conftest.py holds those)."""
-    sockets = [socket.socket() for _ in range(n)]
-    try:
-        for s in sockets:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in sockets]
-    finally:
-        for s in sockets:
-            s.close()
 
 
 def endpoint_env(eps: dict[str, str], **extra: str) -> dict[str, str]:

@@ -78,13 +78,18 @@ def test_the_telemetry_published_meanwhile_matches_its_schema(daemon):
     _, _, sub = daemon
     seen = {"state": 0, "stats": 0, "event": 0, "internals": 0}
     validators = {topic: schema("telemetry", topic) for topic in seen}
-    end = time.monotonic() + 2.0  # what the cases' run left queued, and a little more
-    while time.monotonic() < end and sub.poll(200):
+    # everything the cases' run left queued: read until a state sample from after now (its `t`
+    # is on this machine's monotonic clock), however long a starved reader takes to get there
+    started = time.monotonic()
+    caught_up, end = False, started + 120.0
+    while not caught_up and time.monotonic() < end and sub.poll(5000):
         topic, body = sub.recv_multipart()
-        topic = topic.decode()
+        topic, message = topic.decode(), msgpack.unpackb(body, raw=False)
         if topic != "state" or seen["state"] < 100:  # every event and stats window, a sample of the state stream
-            validators[topic].validate(msgpack.unpackb(body, raw=False))
+            validators[topic].validate(message)
+        caught_up = topic == "state" and message["t"][-1] >= started
         seen[topic] += 1
+    assert caught_up, seen
     assert seen["state"] > 100 and seen["stats"] and seen["event"] > 20, seen  # internals: only while enabled
 
 

@@ -12,7 +12,8 @@ from importlib import resources
 
 import pytest
 
-from bench.wires import free_port, listening
+from bench.wires import listening
+from daemon.testing.ports import free_tcp_port
 from daemon.client.client import Client
 from hal import config
 from hal.identified import IDENTIFIED
@@ -56,7 +57,7 @@ def test_identify_over_modbus_writes_a_rig_file_and_figures_the_daemon_then_runs
     plant = tmp_path / "plant.toml"
     plant.write_text(resources.files("hal").joinpath("sim_2joint.toml").read_text()
                      + f"\n[transport.options.joints.bottom]\noverrides = {{{overrides}}}\n")
-    port = free_port()
+    port = free_tcp_port()
     peer = start_peer("sim_backend.modbus_peer", "--port", str(port), "--config", str(plant),
                       ready=lambda: listening(port))
     try:

@@ -10,7 +10,8 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from bench.wires import free_port, listening
+from bench.wires import listening
+from daemon.testing.ports import free_tcp_port
 from hal.errors import TransportError
 from tests.wirehelpers import (
     move_and_track,
@@ -32,7 +33,7 @@ def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exch
     """3 s of moving. pymodbus's RTU client polls for its reply every millisecond or more,
     so an RTU exchange takes about 16 ms here (docs/benchmarks.md): fewer samples, the same
     tracking within the margin."""
-    port = free_port()
+    port = free_tcp_port()
     proc = peer(port, "--framer", "socket" if framing == "tcp" else "rtu")
     # One transaction may take tens of ms when this VM stalls, as RELAXED (tests/wirehelpers.py)
     # allows for the stale limit: 150 ms here, against the 50 ms default.
@@ -46,7 +47,7 @@ def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exch
 
 
 def test_a_killed_server_trips_the_loop_with_the_reason_and_a_new_one_recovers_after_reset():
-    port = free_port()
+    port = free_tcp_port()
     peers = [peer(port)]
     # a transaction may take 150 ms on a busy machine (as the tracking test above allows)
     loop, _ = wire_loop("modbus", {"port": port, "reopen_every_s": 0.1, "timeout_s": 0.15})
@@ -64,7 +65,7 @@ def test_a_killed_server_trips_the_loop_with_the_reason_and_a_new_one_recovers_a
 
 
 def test_exception_replies_are_counted_and_the_loop_carries_on():
-    port = free_port()
+    port = free_tcp_port()
     proc = peer(port, "--exception-every", "25")
     try:
         loop, _ = wire_loop("modbus", {"port": port})
@@ -82,14 +83,14 @@ def test_no_server_at_start_is_a_clear_error():
     # leaves a busy machine time to start the worker and have its connect refused (two CPU
     # hogs took more than 1 s to start it).
     with pytest.raises(TransportError, match="cannot connect to 127.0.0.1"):
-        wire_loop("modbus", {"port": free_port(), "open_timeout_s": 5.0})
+        wire_loop("modbus", {"port": free_tcp_port(), "open_timeout_s": 5.0})
 
 
 @pytest.mark.slow  # long: kept out of the fast subset
 def test_the_dead_man_command_writes_the_safe_state_through_modbus():
     """``pneumad safe-state`` (systemd's stop hook) over Modbus: a fresh process, its own
     exchange worker, and the safe outputs in the module's registers when it exits."""
-    port = free_port()
+    port = free_tcp_port()
     proc = peer(port)
     try:
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=1.0)
@@ -122,7 +123,7 @@ time.sleep(600)
 def test_a_daemon_killed_hard_leaves_no_worker_writing_over_the_dead_man():
     """SIGKILL the process that owns a Modbus transport: its exchange worker goes with it,
     so the safe state the dead-man command writes afterwards stays written."""
-    port = free_port()
+    port = free_tcp_port()
     proc = peer(port)
     try:
         holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(port)], stdout=subprocess.PIPE, text=True)
@@ -155,7 +156,7 @@ def test_a_transport_dropped_without_close_takes_its_worker_with_it():
     from hal.transport import create_transport
     from tests.daemons import running
 
-    port = free_port()
+    port = free_tcp_port()
     proc = peer(port)
     try:
         rig = config.with_transport(config.load(), "modbus", {"port": port})

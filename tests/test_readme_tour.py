@@ -152,7 +152,7 @@ def test_the_readme_keys_example_runs_as_written(tmp_path):
     assert len(lines) == 4 and " --keys " in lines[2] and "--key alice.key_secret" in lines[3]
     # The README's ports are the lab daemon's: the test's daemon takes free ones, and Alice's
     # line reaches it through the environment, as a laptop's shell would set it.
-    ports = dict(zip(("5560", "5561", "5562"), map(str, free_tcp_ports())))
+    ports = dict(zip(("5560", "5561", "5562"), map(str, free_tcp_ports(3))))
     daemon_line = re.sub(r":(556[0-2])\b", lambda m: ":" + ports[m.group(1)], lines[2])
     assert daemon_line.count("tcp://0.0.0.0:") == 3 and not re.search(r":556[0-2]\b", daemon_line)
     env = endpoint_env({name: f"tcp://127.0.0.1:{ports[default]}" for name, default in

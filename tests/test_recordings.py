@@ -13,6 +13,7 @@ import pytest
 from mcap.reader import make_reader
 
 from controllers.trajectory import JointMove
+from daemon.client.client import Client
 from daemon.recordings import mcap_log, reading as recording
 from daemon.testing.loop import dealer, make_loop, ok
 
@@ -154,10 +155,12 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
     import sys
     from pathlib import Path
 
-    from tests.daemons import real_daemon
+    from tests.daemons import real_daemon, wait_for_own_daemon
     root = Path(__file__).resolve().parents[1]
     daemon, eps = real_daemon(tmp_path)
     try:
+        with Client(**eps) as client:  # serving (the example, as a user would, runs against a daemon that is)
+            wait_for_own_daemon(client, daemon)
         out = subprocess.run([sys.executable, str(root / "examples" / "step_experiment.py"), "--out",
                               str(tmp_path / "step"), "--seconds", "6", *sum(([f"--{k}", v] for k, v in eps.items()), [])],
                              cwd=root, capture_output=True, text=True, timeout=120)

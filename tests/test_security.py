@@ -188,7 +188,7 @@ def test_pneumactl_takes_a_key_file_and_reports_a_refusal(lab):
 
 
 def test_binding_past_loopback_without_keys_is_refused_unless_insecure(tmp_path):
-    port, control, telemetry = free_tcp_ports()
+    port, control, telemetry = free_tcp_ports(3)
     exposed = [f"tcp://0.0.0.0:{port}", f"tcp://127.0.0.1:{control}", f"tcp://127.0.0.1:{telemetry}"]
     args = [sys.executable, "-m", "daemon.main", "run", "--no-rt", "--command", exposed[0], "--control", exposed[1],
             "--telemetry", exposed[2]]

@@ -61,6 +61,11 @@ class KeyRefused(ConnectionError):
 _HANDSHAKE_EVENTS = (zmq.EVENT_HANDSHAKE_FAILED_AUTH | zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL
                      | zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL | zmq.EVENT_HANDSHAKE_SUCCEEDED)
 
+# each monitor's own inproc name: pyzmq's default names it by the socket's descriptor, which a
+# new socket reuses while a closed one's monitor may still hold the name (closing is done by
+# libzmq's reaper thread, late on a busy machine): "Address already in use"
+_MONITORS = itertools.count(1)
+
 
 class Client:
     def __init__(self, command: str | None = None, control: str | None = None,
@@ -87,7 +92,7 @@ class Client:
         sock = self.context.socket(zmq.DEALER)
         sock.setsockopt(zmq.LINGER, 0)
         self._secure(sock)
-        self._monitors[endpoint] = sock.get_monitor_socket(_HANDSHAKE_EVENTS)
+        self._monitors[endpoint] = sock.get_monitor_socket(_HANDSHAKE_EVENTS, f"inproc://client-handshakes.{next(_MONITORS)}")
         sock.connect(endpoint)
         return sock
 
