@@ -20,7 +20,6 @@ to 10 / 15 V/s, bottom / middle). Units: rad in, V out.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import cont2discrete
 
 from controllers.base import Controller, JointState, ParamSpec, Reference, SignalSpec
 from controllers.nominal import NominalJoint
@@ -81,6 +80,8 @@ class DisturbanceObserver:
         self.models = models
         self.delay = [m.delay_steps(dt) for m in models]
         self.u_off = [m.input_offset for m in models]
+        from scipy.signal import cont2discrete  # here, off the loop: at module level it cost
+        # the loop's process 1-2 s of every daemon start
         self._filters = []
         for m, t in zip(models, tau):
             plant_den = [m.J * m.T_ep, m.J + m.D * m.T_ep, m.D + m.K * m.T_ep, m.K]  # (J s^2 + D s + K)(T_ep s + 1)

@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import cont2discrete
 
 from controllers.base import ParamError
 
@@ -75,6 +74,8 @@ class DiscreteDesign:
 
 def discretise(a, b, c, d, dt: float, method: str = "bilinear"):
     """(A, B, C, D) of x' = A x + B e, u = C x + D e sampled at dt [s] by ``method``."""
+    from scipy.signal import cont2discrete  # here, off the loop: at module level it cost
+    # the loop's process 1-2 s of every daemon start
     ad, bd, cd, dd, _ = cont2discrete((a, b, c, d), dt, method=method)
     return ad, bd, cd, dd
 

@@ -22,7 +22,6 @@ from abc import abstractmethod
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.signal import max_len_seq
 
 from controllers.profile import Profile
 from controllers.trajectory import Sample, Trajectory
@@ -109,6 +108,8 @@ class LogChirp(Excitation):
 
 class PRBS(Excitation):
     def __init__(self, base, joint: int, amplitude: float, order: int, bit_s: float, periods: int = 1):
+        from scipy.signal import max_len_seq  # here, off the loop: at module level it cost
+        # the loop's process 1-2 s of every daemon start
         self.bits = max_len_seq(order)[0].astype(np.uint8).tobytes()  # compact: one byte a bit
         super().__init__(base, joint, len(self.bits) * bit_s * periods)
         self.amplitude, self.bit_s = amplitude, bit_s

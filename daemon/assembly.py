@@ -9,6 +9,7 @@ Everything is built before the loop runs: nothing here runs in a cycle.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future
 from contextlib import contextmanager
 
 from controllers import registry
@@ -144,13 +145,13 @@ def messenger(args) -> Iterator[ZmqServer]:
 
 
 @contextmanager
-def planner() -> Iterator[Preparer]:
-    """The planner worker, spawned and warmed, closed on the way out. It has imported the
-    controllers before the transport opens: a process starting beside a running wire
-    delayed its replies."""
+def planner() -> Iterator[tuple[Preparer, Future]]:
+    """The planner worker, spawned, and its warm-up under way: the caller starts the messenger
+    meanwhile (the two start-ups side by side, not one after the other) and waits on the
+    future before the transport opens (a process starting beside a running wire delayed its
+    replies). Closed on the way out."""
     preparer = Preparer()
     try:
-        preparer.warm().result(timeout=120)
-        yield preparer
+        yield preparer, preparer.warm()
     finally:
         preparer.close()

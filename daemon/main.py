@@ -57,13 +57,13 @@ def cmd_run(args) -> int:
     rig, plugins = assembly.rig_of(args), assembly.controller_plugins(args.controller_plugin)  # bad ones: exit 2, nothing bound
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
-    with assembly.messenger(args) as server:
+    with assembly.planner() as (preparer, warming), assembly.messenger(args) as server:
         # systemctl reload: the messenger reads its allow-list again.
         signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
-        with assembly.planner() as preparer:
-            loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish)
-            server.attach(loop, preparer)
-            return _run_loop(args, loop, server)
+        warming.result(timeout=120)
+        loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish)
+        server.attach(loop, preparer)
+        return _run_loop(args, loop, server)
 
 
 def _run_loop(args, loop: ControlLoop, server: ZmqServer) -> int:

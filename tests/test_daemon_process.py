@@ -106,7 +106,7 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         assert notify_socket.wait_count("WATCHDOG=1", since, 3) >= 3  # every 100 ms while healthy
 
         with Client(**eps, timeout=5.0) as c:
-            c.acquire_lease()
+            c.acquire_lease(ttl_s=30.0)  # renewed each second below; the rig's 2 s ran out beside a busy machine
             c.enable()
             c.set(angles_deg=[130.0, -88.0], duration_s=3.0)
             for _ in range(4):

@@ -22,12 +22,24 @@ def daemon():
     srv.close()
 
 
+@pytest.fixture(scope="module")
+def served():
+    """One loop and server for the first tests of this module, whose requests are refused or
+    only read, and which hand back what they took (a lease, an enabled arm): a server's
+    start spared each. They run one after the other, so the messenger never sees this loop
+    stand still (it answers for a loop that has not cycled for ``loop_stall_s``)."""
+    loop, captured, srv = make_loop(server=True)
+    loop.run(100)
+    yield loop, captured, srv
+    srv.close()
+
+
 def leased(loop, sock):
     return ok(loop, sock, "lease.acquire")["lease"]
 
 
-def test_ping_status_describe(daemon):
-    loop, _, srv = daemon
+def test_ping_status_describe(served):
+    loop, _, srv = served
     sock = dealer(srv)
     assert ok(loop, sock, "ping")["pong"] is True
     status = ok(loop, sock, "status")
@@ -39,8 +51,8 @@ def test_ping_status_describe(daemon):
     assert {c["name"] for c in describe["controllers"]} >= {"pid", "hold"}
 
 
-def test_reply_carries_the_request_id_and_works_for_req_clients(daemon):
-    loop, _, srv = daemon
+def test_reply_carries_the_request_id_and_works_for_req_clients(served):
+    loop, _, srv = served
     req = zmq.Context.instance().socket(zmq.REQ)
     req.setsockopt(zmq.LINGER, 0)
     req.connect(srv.endpoints["command"])
@@ -61,8 +73,8 @@ def test_reply_carries_the_request_id_and_works_for_req_clients(daemon):
     (msgpack.packb({"v": 1, "id": 1, "cmd": "ping", "args": {"x": [[[[]]]] * 5000}}), P.BAD_MESSAGE),
     (msgpack.packb({"v": 1, "id": 1, "cmd": "set", "args": {"angles_deg": ["a", 1]}}), P.NO_LEASE),
 ])
-def test_bad_messages_get_clear_errors(daemon, payload, code):
-    loop, _, srv = daemon
+def test_bad_messages_get_clear_errors(served, payload, code):
+    loop, _, srv = served
     sock = dealer(srv)
     cycle = loop.cycle
     reply = exchange(loop, sock, payload)
@@ -82,15 +94,35 @@ def test_bad_messages_get_clear_errors(daemon, payload, code):
     ({"angles_deg": [120.0, -80.0], "duration_s": -1}, P.BAD_ARGS, "duration_s"),
     ({"angles_deg": [120.0, -80.0], "speed": 3}, P.BAD_ARGS, "unknown argument 'speed'"),
 ])
-def test_bad_set_points_are_refused_with_reasons(daemon, args, code, words):
-    loop, _, srv = daemon
+def test_bad_set_points_are_refused_with_reasons(served, args, code, words):
+    loop, _, srv = served
     sock = dealer(srv)
     lease = leased(loop, sock)
-    ok(loop, sock, "enable", lease=lease)
-    reference = list(loop.reference[0])
-    reply = call(loop, sock, "set", args, lease)
-    assert not reply["ok"] and reply["error"]["code"] == code and words in reply["error"]["message"]
-    assert loop.reference[0] == reference and loop.state is State.ENABLED
+    try:
+        ok(loop, sock, "enable", lease=lease)
+        reference = list(loop.reference[0])
+        reply = call(loop, sock, "set", args, lease)
+        assert not reply["ok"] and reply["error"]["code"] == code and words in reply["error"]["message"]
+        assert loop.reference[0] == reference and loop.state is State.ENABLED
+    finally:  # handed back as found
+        ok(loop, sock, "disable", lease=lease)
+        ok(loop, sock, "lease.release", lease=lease)
+
+
+def test_control_socket_serves_only_safety_commands(served):
+    loop, _, srv = served
+    control = dealer(srv, "control")
+    reply = call(loop, control, "controller.switch", {"name": "hold"})
+    assert reply["error"]["code"] == P.UNKNOWN_COMMAND and "control socket" in reply["error"]["message"]
+
+
+def test_huge_frames_are_refused_and_the_daemon_goes_on(served):
+    loop, _, srv = served
+    big = dealer(srv)
+    big.send(b"x" * (P.MAX_MESSAGE_BYTES + 1))
+    loop.run(200)
+    assert not big.poll(50)  # ZeroMQ dropped the peer; no reply, no crash
+    assert ok(loop, dealer(srv), "ping")["pong"]
 
 
 def test_a_client_without_the_lease_cannot_move_the_arm(daemon):
@@ -179,22 +211,6 @@ def _until(condition, limit_s: float = 120.0) -> bool:
     while not condition() and time.monotonic() < deadline:
         time.sleep(0.001)
     return condition()
-
-
-def test_control_socket_serves_only_safety_commands(daemon):
-    loop, _, srv = daemon
-    control = dealer(srv, "control")
-    reply = call(loop, control, "controller.switch", {"name": "hold"})
-    assert reply["error"]["code"] == P.UNKNOWN_COMMAND and "control socket" in reply["error"]["message"]
-
-
-def test_huge_frames_are_refused_and_the_daemon_goes_on(daemon):
-    loop, _, srv = daemon
-    big = dealer(srv)
-    big.send(b"x" * (P.MAX_MESSAGE_BYTES + 1))
-    loop.run(200)
-    assert not big.poll(50)  # ZeroMQ dropped the peer; no reply, no crash
-    assert ok(loop, dealer(srv), "ping")["pong"]
 
 
 def test_controller_list_switch_and_params(daemon):
@@ -294,7 +310,6 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     import re
     from pathlib import Path
 
-    from daemon.wire import catalog
 
     docs = Path(__file__).resolve().parents[1] / "docs"
     text = (docs / "protocol.md").read_text()

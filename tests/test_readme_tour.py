@@ -9,7 +9,9 @@ touched; its daemon is on private endpoints that the lines reach through ``PNEUM
 ``PNEUMAD_CONTROL`` and ``PNEUMAD_TELEMETRY``, so a daemon on the default endpoints (the lab's
 own) is never spoken to. Before a motion line the test waits for
 the reference in force to end, as a user would (a motion command while another runs is
-refused by design); ``watch`` is left with Ctrl-C after a moment.
+refused by design); ``watch`` is left with Ctrl-C after a moment. The lines that only read
+the tour's own recording (``export``, ``plot``) run beside the lines after them, as a user
+could in another terminal; each still has to exit 0.
 """
 import json
 import os
@@ -31,6 +33,7 @@ from tests.daemons import (endpoint_env, free_tcp_ports, private_endpoints, tole
 ROOT = Path(__file__).resolve().parents[1]
 BIN = str(Path(sys.executable).parent) + "/"
 MOTION = ("set", "path", "waypoints", "steps", "excite")
+FILES_ONLY = ("export", "plot")  # lines that read a finished recording and never speak to the daemon
 
 pytestmark = pytest.mark.slow
 
@@ -67,75 +70,6 @@ def start_daemon(tmp_path: Path, cwd: Path) -> tuple[subprocess.Popen, dict[str,
                                str(tolerant_rig(tmp_path)), "--record-dir", str(tmp_path / "recordings"),
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=cwd)
     return daemon, eps
-
-
-def test_the_readme_tour_runs_as_written(tmp_path):
-    lines = tour_lines()
-    assert len(lines) >= 15 and any(" watch" in line for line in lines)
-    work = tour_directory(tmp_path)
-    daemon, eps = start_daemon(tmp_path, work)
-    env = endpoint_env(eps, PYTHONUNBUFFERED="1")
-    try:
-        with Client(**eps, timeout=5.0) as client:
-            wait_for_own_daemon(client, daemon)
-            for line in lines:
-                command = line.replace(".venv/bin/", BIN, 1)
-                words = line.split()
-                if words[1] in MOTION:
-                    wait_for_reference_end(client)
-                if words[1] == "watch":
-                    # Ctrl-C as a terminal sends it. A test run started in the background by a
-                    # script has SIGINT ignored, and children inherit that (a shell cannot undo
-                    # it): give the command the default action a terminal's would have.
-                    proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=work, env=env,
-                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                            preexec_fn=restore_sigint)
-                    time.sleep(2.0)
-                    proc.send_signal(signal.SIGINT)
-                    out, err = proc.communicate(timeout=10)
-                    assert proc.returncode == 0 and "cycle" in out, (line, out, err)
-                    continue
-                done = subprocess.run(["bash", "-c", command], cwd=work, capture_output=True, text=True, timeout=120,
-                                      env=env)
-                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
-                state = client.status()["state"]
-                expected = {"enable": "enabled", "estop": "estop", "reset": "idle", "disable": "idle"}.get(words[1])
-                assert expected in (None, state), (line, state)
-                assert state != "fault", (line, client.status()["cause"])
-            assert client.status()["trips"] == 0
-            # the daemon's own recording of the translation, whole
-            recorded, = (tmp_path / "recordings").glob("*-path-translation.mcap")
-            cycles = [m["cycle"] for m in mcap_log.read(recorded).messages["state"]]
-            assert len(cycles) > 20_000 and cycles == list(range(cycles[0], cycles[0] + len(cycles)))
-            # the notebook lines, on the recording the tour made
-            text = (ROOT / "README.md").read_text()
-            snippet = "\n".join(line.strip() for line in text.splitlines()
-                                 if "from daemon import recordings" in line or "recordings.load(" in line)
-            done = subprocess.run([sys.executable, "-c", snippet + "\nassert len(data['middle.angle_rad']) > 1000"],
-                                  cwd=work, capture_output=True, text=True, timeout=60)
-            assert done.returncode == 0, (snippet, done.stderr)
-            assert {"run.mcap", "run.csv", "plots"} <= {p.name for p in work.iterdir()}
-    finally:
-        daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=10)
-
-
-def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tmp_path):
-    """The environment the tour's lines run in takes ``pneumactl`` to the test's daemon: its
-    ping names that daemon (pid and the instance drawn at its start), and so does status."""
-    work = tour_directory(tmp_path)
-    daemon, eps = start_daemon(tmp_path, work)
-    try:
-        with Client(**eps, timeout=5.0) as client:
-            ours = wait_for_own_daemon(client, daemon)
-        for what in ("ping", "status"):
-            done = subprocess.run(["bash", "-c", f"{BIN}pneumactl {what}"], cwd=work, env=endpoint_env(eps),
-                                  capture_output=True, text=True, timeout=60)
-            assert done.returncode == 0, done.stderr
-            assert json.loads(done.stdout)["daemon"] == ours and ours["pid"] == daemon.pid
-    finally:
-        daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=10)
 
 
 def restore_sigint() -> None:
@@ -204,3 +138,90 @@ def test_the_readme_identify_section_runs_as_written(tmp_path):
     assert json.loads((out / "report.json").read_text())["heldout_fit_percent"][0] > 80.0
     done = subprocess.run(["bash", "-c", lines[2]], cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and "model 'bottom-identified'" in done.stdout, done.stderr
+
+
+@pytest.fixture(scope="module")
+def tour(tmp_path_factory):
+    """The tour's daemon in its working directory, started once for the last two tests of this
+    module: the check of who answers the tour's lines (which changes nothing), then the tour."""
+    tmp_path = tmp_path_factory.mktemp("tour")
+    work = tour_directory(tmp_path)
+    daemon, eps = start_daemon(tmp_path, work)
+    try:
+        yield tmp_path, work, daemon, eps
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        daemon.wait(timeout=10)
+
+
+def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tour):
+    """The environment the tour's lines run in takes ``pneumactl`` to the test's daemon: its
+    ping names that daemon (pid and the instance drawn at its start), and so does status."""
+    _, work, daemon, eps = tour
+    with Client(**eps, timeout=5.0) as client:
+        ours = wait_for_own_daemon(client, daemon)
+    for what in ("ping", "status"):
+        done = subprocess.run(["bash", "-c", f"{BIN}pneumactl {what}"], cwd=work, env=endpoint_env(eps),
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        assert json.loads(done.stdout)["daemon"] == ours and ours["pid"] == daemon.pid
+
+
+def test_the_readme_tour_runs_as_written(tour):
+    lines = tour_lines()
+    assert len(lines) >= 15 and any(" watch" in line for line in lines)
+    tmp_path, work, daemon, eps = tour
+    env = endpoint_env(eps, PYTHONUNBUFFERED="1")
+    beside = []  # (line, process) of the FILES_ONLY lines
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
+            for line in lines:
+                command = line.replace(".venv/bin/", BIN, 1)
+                words = line.split()
+                if words[1] in MOTION:
+                    wait_for_reference_end(client)
+                if words[1] == "watch":
+                    # Ctrl-C as a terminal sends it. A test run started in the background by a
+                    # script has SIGINT ignored, and children inherit that (a shell cannot undo
+                    # it): give the command the default action a terminal's would have.
+                    proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=work, env=env,
+                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                            preexec_fn=restore_sigint)
+                    time.sleep(2.0)
+                    proc.send_signal(signal.SIGINT)
+                    out, err = proc.communicate(timeout=10)
+                    assert proc.returncode == 0 and "cycle" in out, (line, out, err)
+                    continue
+                if words[1] in FILES_ONLY:
+                    beside.append((line, subprocess.Popen(["bash", "-c", command], cwd=work, env=env, text=True,
+                                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)))
+                    continue
+                done = subprocess.run(["bash", "-c", command], cwd=work, capture_output=True, text=True, timeout=120,
+                                      env=env)
+                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
+                state = client.status()["state"]
+                expected = {"enable": "enabled", "estop": "estop", "reset": "idle", "disable": "idle"}.get(words[1])
+                assert expected in (None, state), (line, state)
+                assert state != "fault", (line, client.status()["cause"])
+            assert client.status()["trips"] == 0
+            for line, proc in beside:
+                out, err = proc.communicate(timeout=120)
+                assert proc.returncode == 0, f"{line}\n{out}\n{err}"
+            # the daemon's own recording of the translation, whole
+            recorded, = (tmp_path / "recordings").glob("*-path-translation.mcap")
+            cycles = [m["cycle"] for m in mcap_log.read(recorded).messages["state"]]
+            assert len(cycles) > 20_000 and cycles == list(range(cycles[0], cycles[0] + len(cycles)))
+            # the notebook lines, on the recording the tour made
+            text = (ROOT / "README.md").read_text()
+            snippet = "\n".join(line.strip() for line in text.splitlines()
+                                 if "from daemon import recordings" in line or "recordings.load(" in line)
+            done = subprocess.run([sys.executable, "-c", snippet + "\nassert len(data['middle.angle_rad']) > 1000"],
+                                  cwd=work, capture_output=True, text=True, timeout=60)
+            assert done.returncode == 0, (snippet, done.stderr)
+            assert {"run.mcap", "run.csv", "plots"} <= {p.name for p in work.iterdir()}
+    finally:
+        for _, proc in beside:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()

@@ -35,6 +35,25 @@ def stop(daemon, client):
     daemon.wait(10)
 
 
+@pytest.fixture(scope="module")
+def shared(tmp_path_factory):
+    """One daemon for the tests that leave it as they found it (a recording they started has
+    ended, a recorder they killed has been replaced): a daemon start spared each."""
+    daemon, eps, client = start(tmp_path_factory.mktemp("shared"))
+    client.close()
+    yield daemon, eps
+    daemon.terminate()
+    daemon.wait(10)
+
+
+@pytest.fixture
+def daemon(shared):
+    """The shared daemon, with a client of the test's own."""
+    daemon, eps = shared
+    with Client(**eps, timeout=5.0) as client:
+        yield daemon, eps, client
+
+
 def recorder_pid(daemon) -> int:
     """The daemon's recorder process."""
     pid = child_process(daemon.pid, "daemon.recorder.process")
@@ -71,6 +90,20 @@ def finished(client, name, timeout=40.0) -> str:
             return os.path.join(listing["directory"], name + ".mcap")
         time.sleep(0.2)
     raise AssertionError(f"{name} never ended")
+
+
+def holding(path, states: int, timeout=30.0) -> None:
+    """Wait until the recording being written at ``path`` holds more than ``states`` state
+    samples in its complete chunks."""
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            if len(mcap_log.read(path).messages.get("state", [])) > states:
+                return
+        except (OSError, ValueError):  # not there yet, or its first chunk not yet written
+            pass
+        assert time.monotonic() < end, f"{path} never held {states} states"
+        time.sleep(0.1)
 
 
 def test_a_recorded_path_loses_nothing_while_a_client_is_stalled(tmp_path):
@@ -121,58 +154,24 @@ def test_a_recorded_path_loses_nothing_while_a_client_is_stalled(tmp_path):
         assert [a.name for a in reader.iter_attachments()] == ["rig.toml"]
 
 
-def test_record_start_stop_list_as_documented_and_refusals(tmp_path):
-    daemon, eps, client = start(tmp_path)
-    try:
-        started = client.record_start("by-hand")
-        schema("results", "record.start").validate(started)
-        again = client.record_start("by-hand", seconds=5.0)  # the name is taken: a suffix, said in the reply
-        assert again["name"] == "by-hand-2"
-        listing = client.record_list()  # (5 s: a busy machine's listing came after a 0.5 s one had ended)
-        schema("results", "record.list").validate(listing)
-        assert {a["name"] for a in listing["active"]} == {"by-hand", "by-hand-2"}
-        finished(client, "by-hand-2")  # it ends by its own limit
-        stopped = client.record_stop()  # the one still running by request
-        schema("results", "record.stop").validate(stopped)
-        assert stopped["name"] == "by-hand" and stopped["messages"] > 50 and stopped["gaps"] == 0
-        assert "record.stop" in stopped["cause"]
-        files = {f["name"] for f in client.record_list()["files"]}
-        assert {"by-hand", "by-hand-2"} <= files
-        assert len(mcap_log.read(stopped["file"]).messages["state"]) > 500
-        for args, code, words in (({}, "bad_state", "no recording started by record.start"),
-                                  ({"name": "nope"}, "bad_state", "no recording named")):
-            with pytest.raises(RemoteError) as err:
-                client.call("record.stop", args)
-            assert err.value.code == code and words in str(err.value)
-        with pytest.raises(RemoteError) as err:  # not a name at all: the catalog's argument check says so
-            client.call("record.stop", {"name": 7})
-        assert err.value.code == "bad_args" and err.value.data["argument"] == "name", err.value
-        for args, argument in (({"name": "../x"}, "name"), ({"name": ""}, "name"), ({"seconds": -1}, "seconds"),
-                               ({"seconds": float("nan")}, "seconds"), ({"colour": 1}, "colour")):
-            with pytest.raises(RemoteError) as err:
-                client.call("record.start", args)
-            assert err.value.code == "bad_args" and err.value.data["argument"] == argument, err.value
-        assert not os.path.exists(tmp_path / "x.mcap")
-        assert client.status()["trips"] == 0
-    finally:
-        stop(daemon, client)
-
-
 def test_a_daemon_without_a_recording_directory_or_disk_says_so(tmp_path):
-    daemon, eps, client = start(tmp_path / "a", "--record-dir", "none")
+    options = {"a": ("--record-dir", "none"), "b": ("--record-min-free-mb", "1e12")}  # b: more than any disk has
+    for name in options:
+        (tmp_path / name).mkdir()
+    daemons = {name: real_daemon(tmp_path / name, *o) for name, o in options.items()}  # started side by side
+    clients = {name: Client(**eps, timeout=5.0) for name, (_, eps) in daemons.items()}
     try:
+        for name, (daemon, _) in daemons.items():
+            wait_for_own_daemon(clients[name], daemon)
         with pytest.raises(RemoteError) as err:
-            client.record_start()
+            clients["a"].record_start()
         assert err.value.code == "bad_state" and err.value.data["reason"] == "no_recorder"
-    finally:
-        stop(daemon, client)
-    daemon, eps, client = start(tmp_path / "b", "--record-min-free-mb", "1e12")  # more than any disk has
-    try:
         with pytest.raises(RemoteError) as err:
-            client.record_start()
+            clients["b"].record_start()
         assert err.value.code == "bad_state" and "nearly full" in str(err.value)
     finally:
-        stop(daemon, client)
+        for name, (daemon, _) in daemons.items():
+            stop(daemon, clients[name])
 
 
 def test_a_write_error_ends_the_recording_with_an_event_and_the_loop_runs_on(tmp_path):
@@ -199,12 +198,46 @@ def test_a_write_error_ends_the_recording_with_an_event_and_the_loop_runs_on(tmp
         stop(daemon, client)
 
 
-def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(tmp_path):
-    daemon, eps, client = start(tmp_path)
+def test_record_start_stop_list_as_documented_and_refusals(daemon):
+    _, _, client = daemon
+    started = client.record_start("by-hand")
+    schema("results", "record.start").validate(started)
+    again = client.record_start("by-hand", seconds=5.0)  # the name is taken: a suffix, said in the reply
+    assert again["name"] == "by-hand-2"
+    listing = client.record_list()  # (5 s: a busy machine's listing came after a 0.5 s one had ended)
+    schema("results", "record.list").validate(listing)
+    assert {a["name"] for a in listing["active"]} == {"by-hand", "by-hand-2"}
+    finished(client, "by-hand-2")  # it ends by its own limit
+    stopped = client.record_stop()  # the one still running by request
+    schema("results", "record.stop").validate(stopped)
+    assert stopped["name"] == "by-hand" and stopped["messages"] > 50 and stopped["gaps"] == 0
+    assert "record.stop" in stopped["cause"]
+    files = {f["name"] for f in client.record_list()["files"]}
+    assert {"by-hand", "by-hand-2"} <= files
+    assert len(mcap_log.read(stopped["file"]).messages["state"]) > 500
+    for args, code, words in (({}, "bad_state", "no recording started by record.start"),
+                              ({"name": "nope"}, "bad_state", "no recording named")):
+        with pytest.raises(RemoteError) as err:
+            client.call("record.stop", args)
+        assert err.value.code == code and words in str(err.value)
+    with pytest.raises(RemoteError) as err:  # not a name at all: the catalog's argument check says so
+        client.call("record.stop", {"name": 7})
+    assert err.value.code == "bad_args" and err.value.data["argument"] == "name", err.value
+    for args, argument in (({"name": "../x"}, "name"), ({"name": ""}, "name"), ({"seconds": -1}, "seconds"),
+                           ({"seconds": float("nan")}, "seconds"), ({"colour": 1}, "colour")):
+        with pytest.raises(RemoteError) as err:
+            client.call("record.start", args)
+        assert err.value.code == "bad_args" and err.value.data["argument"] == argument, err.value
+    assert not os.path.exists(os.path.join(os.path.dirname(listing["directory"]), "x.mcap"))
+    assert client.status()["trips"] == 0
+
+
+def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(daemon):
+    daemon, eps, client = daemon
     sub = events(eps)
     try:
         started = client.record_start("cut-short")
-        time.sleep(1.5)
+        holding(started["file"], 100)
         os.kill(recorder_pid(daemon), signal.SIGKILL)
         restarted = wait_event(sub, lambda e: e["kind"] == "recorder")
         assert "restarted" in restarted["cause"]
@@ -220,4 +253,3 @@ def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(tmp_pat
         assert finished(client, again["name"]) and len(mcap_log.read(again["file"]).messages["state"]) > 100
     finally:
         sub.close()
-        stop(daemon, client)

@@ -9,7 +9,6 @@ import sys
 from daemon.wire import keys
 from daemon.wire.catalog import COMMANDS
 
-from daemon.recordings import mcap_log, reading as recording
 from daemon.client.client import ENDPOINT_VARIABLES, Client, KeyRefused, RemoteError, read_waypoints
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -35,6 +34,7 @@ def record(client: Client, path: str, seconds: float) -> int:
     """Record the telemetry to ``path`` as MCAP (:mod:`daemon.recordings.mcap_log`); a disk that fills or
     fails ends it with a clear error (exit 1), the file readable up to its last complete chunk."""
     from daemon.client.progress import recording_bar  # rich: only for the progress display
+    from daemon.recordings import mcap_log  # mcap and numpy: only for a recording
     try:
         with recording_bar(path, seconds) as progress:
             written, lost = mcap_log.record(client, path, seconds, progress)
@@ -211,7 +211,8 @@ def main(argv=None) -> int:
                 for written in plots.plot_runs(args.files, args.out):
                     print(written)
                 return 0
-            rows = recording.export_csv(args.file, args.csv)
+            from daemon.recordings import reading  # mcap and numpy: only for a recording
+            rows = reading.export_csv(args.file, args.csv)
         except (OSError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1

@@ -41,6 +41,7 @@ import zmq
 
 from daemon.messenger.guard import Guard
 from daemon.messenger.shared import (
+    CLOSE_LINGER_MS,
     END,
     STALL_S,
     TOPICS,
@@ -54,7 +55,6 @@ from hal.process import Child, Helper, HelperFailed
 
 __all__ = ["END", "STALL_S", "TOPICS", "Heartbeat", "Messenger", "MessengerError", "create_rings"]  # the loop's side
 RING_BYTES = {"telemetry": 1 << 20, "control": 1 << 20, "command": 1 << 20, "replies": 1 << 20}
-CLOSE_LINGER_MS = 500  # how long the last messages may take to leave at exit
 log = logging.getLogger("pneumad")
 
 

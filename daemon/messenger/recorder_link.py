@@ -14,6 +14,7 @@ import time
 
 import zmq
 
+from daemon.messenger.shared import CLOSE_LINGER_MS
 from daemon.wire import protocol
 from daemon.recorder.process import CONTROL, FEED, FEED_HWM, MESSENGER_ID, endpoint
 
@@ -76,6 +77,10 @@ class Recorder:
                     {"reason": "recorder_unavailable"}))
 
     def close(self) -> None:
+        """The feed's last messages may take CLOSE_LINGER_MS to leave: the loop's END among
+        them, on which the recorder finishes its files (dropped at once, the daemon's stop
+        waited 5 s for the recorder, then stopped it with SIGTERM)."""
+        self.feed_socket.setsockopt(zmq.LINGER, CLOSE_LINGER_MS)
         self.feed_socket.close()
         self.control.close()
 

@@ -21,6 +21,7 @@ ROUTER_HWM = 1000
 IDLE_POLL_MS = 2  # telemetry waits at most this long in the ring [ms]
 OWED_LIMIT_S = 60.0  # a reply owed this long is forgotten (the loop always answers sooner)
 STALL_S = 0.5  # a loop whose cycle count has not moved for this long is answered for [s] (default)
+CLOSE_LINGER_MS = 500  # how long the last messages may take to leave at exit
 _BEAT = struct.Struct("<Q")
 
 reloads: list[int] = []  # SIGHUPs not yet acted on (in the messenger process)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import cont2discrete, lfilter
 
 from controllers.experiment import InputExperiment
 from daemon.wire.catalog import MAX_DURATION_S
@@ -139,6 +138,8 @@ def centring_gains(model, crossover_hz: float) -> tuple[float, float]:
 def predicted_excursion(model, u: np.ndarray) -> float:
     """The largest |angle change| [rad] the nominal linear model [2-50] (friction and dead time
     aside) predicts for V_MV changes u [V] on PREDICTION_STEP_S, from rest."""
+    from scipy.signal import cont2discrete, lfilter  # here, off the loop: at module level it cost
+    # the loop's process 1-2 s of every daemon start
     den = np.polymul([model.J, model.D, model.K], [model.T_ep, 1.0])
     num_d, den_d, _ = cont2discrete(([model.kt], den), PREDICTION_STEP_S, method="zoh")
     y = lfilter(np.ravel(num_d), den_d, u)

@@ -188,7 +188,10 @@ def serve(child: Child, fd: int) -> None:
 
 
 def _warm() -> None:
-    """Import every built-in controller (and numpy, scipy with them)."""
+    """Import every built-in controller (and numpy, scipy with them), and scipy.signal, which
+    they import only where they build."""
+    import scipy.signal  # noqa: F401
+
     from controllers import registry
     for name in registry.available():
         try:
