@@ -310,7 +310,6 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     import re
     from pathlib import Path
 
-
     docs = Path(__file__).resolve().parents[1] / "docs"
     text = (docs / "protocol.md").read_text()
     commands_table = text.split("## Commands", 1)[1].split("\n\n", 2)[1]
