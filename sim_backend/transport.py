@@ -66,6 +66,7 @@ class SimTransport(Transport):
         self._seq = 0
         self._t0 = clock()
         self._steps = 0
+        self._next_step_t = self._t0 + self.options.step_s * (1.0 - 1e-6)  # when another plant step is due [s]
 
     @classmethod
     def from_config(cls, rig: RigConfig, clock: Callable[[], float]) -> "SimTransport":
@@ -89,7 +90,9 @@ class SimTransport(Transport):
         if ("timeout", "") in self._faults:
             self._health.errors += 1
             raise TransportTimeout("sim: simulated transport timeout (injected fault)")
-        self._advance(self.clock())
+        now = self.clock()
+        if now >= self._next_step_t:  # the common case in process: the read of this cycle brought it up to date
+            self._advance(now)
         bits = self.options.dac_bits
         self._out = [quantise(v, ch.low, ch.high, bits) for v, ch in zip(values, self.outputs)]
 
@@ -109,6 +112,7 @@ class SimTransport(Transport):
         for _ in range(due):
             self.arm.step(self._out)
         self._steps += max(due, 0)
+        self._next_step_t = self._t0 + h * (self._steps + 1 - 1e-6)
 
     def _sample(self) -> tuple[float, ...]:
         arm, rng, sigma, bits = self.arm, self._rng, self.options.adc_noise_volts, self.options.adc_bits
