@@ -172,11 +172,7 @@ class CartesianPath(Trajectory):
         tx, ty = self.shape.tangent(s)
         rate = ds / self.duration
         vx, vy = tx * rate, ty * rate
-        # the 2-link case of kinematics.jacobian written out (the loop samples this 3 times a
-        # cycle): columns (a, c) and (b, d) are d(tip)/d(angle) of the bottom and middle joints
-        phi = q[0] + q[1]
-        b, d = -self.l2 * math.sin(phi), self.l2 * math.cos(phi)
-        a, c = -(self.l1 * math.sin(q[0]) + self.l2 * math.sin(phi)), self.l1 * math.cos(q[0]) + d
+        (a, c), (b, d) = kinematics.jacobian_2link(q[0], q[1], self.l1, self.l2)  # columns: (dx, dy) per joint
         det = a * d - b * c
         return q, [(d * vx - b * vy) / det, (-c * vx + a * vy) / det]
 

@@ -35,6 +35,14 @@ def jacobian(angles: Sequence[float], lengths: Sequence[float]) -> list[tuple[fl
     return columns
 
 
+def jacobian_2link(q1: float, q2: float, l1: float, l2: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """:func:`jacobian` of a 2-link arm written out (the loop samples a Cartesian path's rates
+    three times a cycle): the columns (dx, dy) [m/rad] of the bottom and the middle joint."""
+    phi = q1 + q2
+    dx2, dy2 = -l2 * math.sin(phi), l2 * math.cos(phi)
+    return (-(l1 * math.sin(q1) + l2 * math.sin(phi)), l1 * math.cos(q1) + dy2), (dx2, dy2)
+
+
 def inverse_2link(x: float, y: float, l1: float, l2: float, elbow: int = -1) -> tuple[float, float]:
     """Joint angles [rad] reaching (x, y) [m] by the law of cosines [2-9..2-14].
 
