@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import differential_evolution, least_squares, minimize_scalar
 
-from controllers.identification.simulate import FITTED, simulate, simulate_experiments
+from controllers.identification.simulate import FITTED, samples_per_step, simulate, simulate_experiments
 from hal.identified import JointParams
 
 SPAN = {"D": 3.0, "K": 3.0, "T_ep": 3.0, "Fs": 2.5}  # factor either side of the prior
@@ -88,7 +88,7 @@ class _Problem:
 
     def __init__(self, prior: JointParams, data: list[Experiment], step: float):
         self.prior, self.data, self.step = prior, data, step
-        self.m = [max(int(round(step / d.dt)), 1) for d in data]
+        self.m = [samples_per_step(step, d.dt) for d in data]
         self.targets = [d.y[m::m] for d, m in zip(data, self.m)]
         self.scale = max(float(np.std(np.concatenate(self.targets))), 1e-6)
         self.size = sum(len(t) for t in self.targets)
@@ -202,7 +202,7 @@ def best_c(params: JointParams, data: Experiment, step: float, bound: float) -> 
     initial condition of that experiment, not a model parameter (the fit's own range for it,
     +-C_SPAN prior Fs: bounded by the fitted Fs instead, a fit that trades static friction
     against c is judged on a start it could not have chosen)."""
-    m = max(int(round(step / data.dt)), 1)
+    m = samples_per_step(step, data.dt)
     target = data.y[m::m]
 
     def cost(c):
@@ -214,7 +214,7 @@ def best_c(params: JointParams, data: Experiment, step: float, bound: float) -> 
 
 def heldout_fit(params: JointParams, data: Experiment, step: float, c_bound: float) -> float:
     """[2-49] on data the fit did not see (only its start's c is chosen, :func:`best_c`)."""
-    m = max(int(round(step / data.dt)), 1)
+    m = samples_per_step(step, data.dt)
     target = data.y[m::m]
     y_hat = predict(params, data, step, best_c(params, data, step, c_bound))[:len(target)]
     return fit_percent(target[:len(y_hat)], y_hat)

@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from controllers.identification import frf  # noqa: E402
 from controllers.identification.fit import Experiment, best_c, fit_percent, predict  # noqa: E402
+from controllers.identification.simulate import samples_per_step  # noqa: E402
 from hal.identified import JointParams  # noqa: E402
 
 COHERENT = 0.8  # points with coherence below this are drawn faint
@@ -60,7 +61,7 @@ def time_overlay(path: Path, joint: str, runs: list[tuple[str, Experiment]], mod
     the start's best held friction torque within +-``c_bound`` [N m]), the [2-49] Fit % in the legend."""
     fig, axes = plt.subplots(len(runs), 1, figsize=(10, 3.2 * len(runs)), squeeze=False)
     for ax, (label, data) in zip(axes[:, 0], runs):
-        m = max(int(round(step / data.dt)), 1)
+        m = samples_per_step(step, data.dt)
         target, t = data.y[m::m], data.t[m::m]
         ax.plot(t, target, color="0.3", lw=1.0, label="measured")
         for (name, params), style in zip(models, ("tab:red", "tab:green")):

@@ -82,10 +82,16 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
     return out.T
 
 
+def samples_per_step(step: float, dt: float) -> int:
+    """How many recorded samples (period dt [s]) one mechanics step of ``step`` [s] holds: the
+    simulation's grid, which every comparison with the data (y[m::m]) must share."""
+    return max(int(round(step / dt)), 1)
+
+
 def held_torque(params: np.ndarray, lever: np.ndarray, dt: float, step: float) -> np.ndarray:
     """Torque [N m] per member held over each mechanics step (the mean of the step's
     samples), shape (members, steps): K_mdl times the lever delayed and lagged."""
-    m = max(int(round(step / dt)), 1)
+    m = samples_per_step(step, dt)
     torque = params[:, 0:1] * delayed_lagged(lever, dt, params[:, 4], params[:, 5])
     usable = (torque.shape[1] // m) * m
     return torque[:, :usable].reshape(len(params), -1, m).mean(axis=2)
@@ -97,7 +103,7 @@ def simulate(params: np.ndarray, lever: np.ndarray, dt: float, step: float, alph
     step on) for each row of ``params``; ``lever`` = L (A_H dP_set,H - A_L dP_set,L) [N m per
     unit K_mdl] at the recording's period dt [s]."""
     params = np.atleast_2d(params)
-    m = max(int(round(step / dt)), 1)
+    m = samples_per_step(step, dt)
     return mechanics(params, held_torque(params, lever, dt, step), m * dt, alpha, beta)
 
 
@@ -111,7 +117,7 @@ def simulate_experiments(params: list[np.ndarray], levers: list[np.ndarray], dts
     out: list[np.ndarray | None] = [None] * len(params)
     groups: dict[float, list[int]] = {}
     for i, dt in enumerate(dts):
-        groups.setdefault(max(int(round(step / dt)), 1) * dt, []).append(i)
+        groups.setdefault(samples_per_step(step, dt) * dt, []).append(i)
     for held_step, members in groups.items():
         rows = [np.atleast_2d(params[i]) for i in members]
         torques = [held_torque(r, levers[i], dts[i], step) for r, i in zip(rows, members)]

@@ -77,7 +77,7 @@ class Commands:
         self.view = loop.view  # what the handlers read; they change the loop only through its controls
         self._controllers = self._describe_controllers(self.view.controller_plugins)
         self.described = self._build_describe()  # what describe answers, packed once: it is large and never changes
-        self._describe = P.Packed.of(self.described)
+        self._describe_packed = P.Packed.of(self.described)
         self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
 
     # -- entry points -----------------------------------------------------------------------
@@ -184,7 +184,7 @@ class Commands:
         return fields
 
     def describe(self, args):
-        return self._describe  # 10-16 KiB: packing it per request cost a cycle ~100 us
+        return self._describe_packed  # 10-16 KiB: packing it per request cost a cycle ~100 us
 
     def _build_describe(self) -> dict:
         view, rig = self.view, self.view.rig
