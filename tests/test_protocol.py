@@ -128,6 +128,19 @@ def test_huge_frames_are_refused_and_the_daemon_goes_on(served):
     assert ok(loop, dealer(srv), "ping")["pong"]
 
 
+def test_a_ring_entry_without_its_routed_header_is_answered_as_a_bug_and_the_loop_goes_on(served):
+    """Only the messenger writes the loop's rings (daemon.wire.routed); an entry that is not
+    one (a bug, a stranger in the daemon's memory) is answered as an internal error, handled
+    as no request, and the loop serves the next."""
+    loop, _, srv = served
+    handled, state = srv.commands.requests, loop.supervisor.state
+    for junk in (b"", b"\x05\x00junk", b"\x02\x00\x91\x01" + P.encode_request(1, "ping")):
+        assert srv.rings["command"].put(10**9, junk)
+        loop.run(2)
+    assert srv.commands.requests == handled and loop.supervisor.state == state
+    assert ok(loop, dealer(srv), "ping")["pong"]
+
+
 def test_a_client_without_the_lease_cannot_move_the_arm(daemon):
     loop, _, srv = daemon
     owner, intruder = dealer(srv), dealer(srv)
