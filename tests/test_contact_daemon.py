@@ -61,19 +61,26 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
     # frames, and a touch's first few estimates then come from a track of a handful of frames).
     # A track starts again after any frame estimated as no contact, published or not.
     memory_frames = sensor.beta_memory_ms / 1e3 * sensor.rate_hz
-    checked, track_start, no_contact_frames = 0, None, None
+    # Beta's noise grows as the square root of the frames passed over (with a quarter of the
+    # frames it doubles: tests/test_contact_force.py), so its 5 % at every frame widens by
+    # that factor over the frames since the message before.
+    checked, track_start, no_contact_frames, before = 0, None, None, None
     for m in messages:
         if m["contact"] is None or m["frames"] - m["contact_frames"] != no_contact_frames:
             track_start, no_contact_frames = m["contact_frames"], m["frames"] - m["contact_frames"]
-        if m["contact"] is None:
+        before, previous = m, before
+        if m["contact"] is None or previous is None:
             continue
+        spanned, estimated = m["frame"] - previous["frame"], m["frames"] - previous["frames"]
+        widened = {"beta": np.sqrt(spanned / max(estimated, 1))}
         true = truth.truth(m["frame"])
         assert true is not None, f"frame {m['frame']}: a contact reported where the pad had none"
         track_frames = m["contact_frames"] - track_start
         if true.b >= 2.5 * PAD_M / TAXELS and track_frames >= memory_frames:
             found = m["contact"]
             for name in ("a", "b", "p_max", "beta", "force_n"):
-                assert found[name] == pytest.approx(getattr(true, name), rel=0.05), (m["frame"], name)
+                assert found[name] == pytest.approx(getattr(true, name), rel=0.05 * widened.get(name, 1.0)), \
+                    (m["frame"], name, f"{estimated} of {spanned} frames estimated")
             for name, sd in (("a", "a_sd"), ("b", "b_sd"), ("p_max", "p_max_sd"), ("beta", "beta_sd"),
                              ("force_n", "force_sd_n")):  # its own 1 sigma, believable
                 assert 0 < found[sd] and abs(found[name] - getattr(true, name)) < 5 * found[sd], (m["frame"], name)
