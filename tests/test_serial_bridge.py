@@ -1,13 +1,17 @@
 """The serial DAQ bridge against the simulated rig behind a real pseudo-terminal, in its own
 process (python -m sim_backend.serial_peer): tracking as in-process, a peer killed mid-move
 tripping the loop to the safe state, recovery after it returns and a reset, corrupted
-replies counted, a missing bridge refused at start."""
+replies counted, a missing bridge refused at start, a bridge slow to answer at start waited for."""
 import os
 import threading
 import time
+import tty
+from dataclasses import replace
 
 import pytest
 
+from daemon import assembly
+from daemon.loop.clock import MonotonicClock
 from hal import config, serial_bridge
 from hal import serial_frames as F
 from hal.errors import TransportError
@@ -166,3 +170,42 @@ def test_a_reply_that_arrives_between_two_looks_at_the_port_is_not_a_lost_device
         os.close(slave)
         if master is not None:
             os.close(master)
+
+
+def test_a_bridge_that_answers_the_starts_safe_write_late_is_asked_again_and_the_loop_starts():
+    """A sample is as old as the request it answers. The loop's start writes the safe outputs
+    and waits for a fresh sample; a bridge that answers that first request late (busy at
+    power-up, a loaded host) is asked again every period, and its first prompt answer starts
+    the loop (the late answer alone could never be fresh: the loop went to fault)."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    bridge = BridgePeer(config.load(), master)
+    rig = config.with_transport(config.load(), "serial", {"port": os.ttyname(slave)})
+    rig = replace(rig, safety=replace(rig.safety, stale_after_s=0.05))
+    serving, done = threading.Event(), threading.Event()
+    serving.set()
+
+    def serve():
+        while not done.is_set():
+            if serving.is_set():
+                bridge.serve(lambda: done.is_set() or not serving.is_set())
+            else:
+                time.sleep(0.001)
+    server = threading.Thread(target=serve)
+    server.start()
+    loop = assembly.build_loop(rig, MonotonicClock(0.0), 0.001, "pid", contact=False)  # opened: one exchange
+    try:
+        serving.clear()  # the bridge is busy ...
+        time.sleep(0.1)  # (the sample of the opening exchange is stale by now)
+        threading.Timer(0.3, serving.set).start()  # ... for six stale limits more, then answers promptly
+        answered = bridge.replies
+        loop.start()
+        assert loop.supervisor.state == "idle", loop.supervisor.cause
+        assert bridge.replies > answered + 1  # asked again while it was busy
+    finally:
+        loop.shutdown()
+        done.set()
+        serving.set()
+        server.join()
+        os.close(slave)
+        os.close(master)

@@ -106,7 +106,10 @@ class ControlLoop:
         """A sample no older than the stale limit. A transport across a wire answers the
         safe outputs just written a moment later, and its last sample may date from when it
         was opened, before the daemon's set-up: wait for a fresh one, a period at a time,
-        for at most START_WAIT_S (this is start-up, not a cycle)."""
+        for at most START_WAIT_S (this is start-up, not a cycle). The safe outputs are written
+        again each period: a sample is as old as the request it answers, so a bridge that
+        answered the first request late (busy at power-up, or on a loaded host) would
+        otherwise never give one fresh enough."""
         limit, clock = self.rig.safety.stale_after_s, self.clock
         give_up = clock.now() + START_WAIT_S
         while True:
@@ -118,6 +121,7 @@ class ControlLoop:
                 raise TransportError(f"no fresh sample within {START_WAIT_S:g} s of start "
                                      f"(the last is {(now - snap.t) * 1e3:.0f} ms old)")
             clock.sleep_until(now + self.period)
+            self._write_safe()
 
     def run(self, cycles: int | None = None) -> None:
         """Run until :meth:`stop` (or for ``cycles`` cycles); :meth:`shutdown` leaves the outputs safe."""
