@@ -1,0 +1,174 @@
+"""The loop's named controls: the only ways a command changes what the loop does (enable,
+disable, estop, reset, hold, install, set_load, switch, set_params, shadow, commit, discard),
+each taking effect at a cycle boundary: the handlers call them at the end of a cycle; estop
+writes the safe outputs at once. The loop's own turns (a fallback taking over, an
+experiment's end) go through them too.
+
+A base of :class:`daemon.loop.cycle.ControlLoop`, whose state they change: kept apart from the
+cycle so that each reads as one thing (ros2_control's explicit switch semantics).
+"""
+from __future__ import annotations
+
+from controllers.base import Controller
+from controllers.trajectory import Hold as HoldPosition
+from controllers.trajectory import Trajectory
+from daemon.loop.open_loop import OpenLoopRun
+from daemon.loop.safety import StateError
+from daemon.loop.shadow import ShadowRun
+from daemon.wire import protocol as P
+from daemon.wire.arguments import CommandFailed
+
+
+class LoopControls:
+    def enable(self) -> None:
+        """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is."""
+        self.supervisor.enable()
+        self.u = list(self.actuation.neutral)
+        state = self._state()
+        self.controller.reset(state, self.u)
+        if self.shadow_run is not None:
+            self.shadow_run.controller.reset(state, self.u)
+        self.hold()
+
+    def disable(self) -> None:
+        self.supervisor.disable()
+
+    def estop(self, who: str = "") -> None:
+        """Latch the e-stop and write the safe outputs now, in this very cycle."""
+        self.supervisor.estop(who)
+        self._write_safe()
+        self._drain_events()
+
+    def reset(self) -> None:
+        faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)
+        self.supervisor.reset(faults)
+
+    def hold(self) -> None:
+        """Hold the present position (an abort): any reference running ends ``cut``."""
+        self.set_trajectory(HoldPosition(self.angles), "hold")
+
+    def require_enabled(self) -> None:
+        """Refuse (``bad_state``, reason ``state``) unless the arm is enabled."""
+        if not self.supervisor.enabled:
+            raise CommandFailed(P.BAD_STATE, f"the arm is {self.state.value}: enable it first",
+                                {"reason": "state", "state": self.state.value})
+
+    def install(self, plan) -> None:
+        """Install a planner's plan (daemon.planner.plans.Plan), unless it was overtaken: made
+        against another reference generation or set-point (an abort, e-stop, another reference),
+        refused ``bad_state`` reason ``overtaken``; or the arm is no longer enabled."""
+        if plan.generation != self.trajectory_generation or list(self.reference[0]) != list(plan.start):
+            raise CommandFailed(P.BAD_STATE, "the reference changed while this was planned (an abort, a reset, "
+                                             "another command): nothing was started", {"reason": "overtaken"})
+        self.require_enabled()
+        self.set_trajectory(plan.trajectory, plan.name, plan.record, plan.stiffness)
+
+    def set_load(self, load) -> None:
+        """Feed ``load`` (controllers.known_load, or None) forward from the next cycle."""
+        self.feed_forward.change(load, self.controller, self.reference[0])
+        if self.supervisor.enabled:  # bumplessly: the applied sum does not jump
+            self.controller.reset(self._state(),
+                                  self.feed_forward.share(self.u))
+        self.events.add({"kind": "load", "action": "set" if load else "clear",
+                         **(load.describe() if load else {})})
+
+    def switch(self, new: Controller, cause: str = "switch") -> None:
+        """Swap in a controller built and validated beforehand; bumpless via reset()."""
+        new.reset(self._state(), self.feed_forward.share(self.u))
+        old = self.controller.name
+        self.controller = new
+        self.tracking.clear()
+        self.events.add({"kind": "controller", "from": old, "to": new.name, "cause": cause,
+                         "params": new.get_params()})
+
+    def set_params(self, controller: Controller, prepared) -> dict:
+        """Apply a parameter change prepared for ``controller``; refused (``refused``, reason
+        ``overtaken``) if another controller became active meanwhile. The parameters now."""
+        if self.controller is not controller:
+            raise CommandFailed(P.REFUSED, f"the controller changed to {self.controller.name} while the change for "
+                                           f"{controller.name} was prepared; nothing was applied",
+                                {"reason": "overtaken"})
+        controller.apply_params(prepared)
+        params = controller.get_params()
+        self.events.add({"kind": "params", "controller": controller.name, "params": params})
+        return params
+
+    def shadow(self, candidate: Controller) -> None:
+        """Run ``candidate`` beside the active controller from the next cycle (replacing any
+        shadow run already going); it starts from the present state and output."""
+        if self.shadow_run is not None:
+            self._end_shadow("replaced", f"by {candidate.name}")
+        candidate.reset(self._state(), self.feed_forward.share(self.u))
+        self.shadow_run = ShadowRun(candidate, self.actuation.width)
+        self.events.add({"kind": "shadow", "action": "start", "controller": candidate.name})
+
+    def commit(self) -> dict:
+        """Make the shadow candidate the active controller, bumplessly (reset from the measured
+        state and the output in force, as any switch); the run's comparison."""
+        if self.shadow_run is None:
+            raise StateError("no shadow run to commit: start one with controller.shadow")
+        candidate = self.shadow_run.controller
+        summary = self._end_shadow("commit")
+        self.switch(candidate, "shadow commit")
+        return summary
+
+    def discard(self) -> dict:
+        """End the shadow run without applying it; the run's comparison."""
+        if self.shadow_run is None:
+            raise StateError("no shadow run to discard")
+        return self._end_shadow("discard")
+
+    # -- what the controls are built on ---------------------------------------------------
+    def set_trajectory(self, trajectory: Trajectory, name: str, record: str | None = None,
+                       stiffness: list[float] | None = None) -> None:
+        """Install a reference from the next cycle on (with a new stiffness set-point [N m/rad]
+        per joint, NaN: the controller's own, where ``stiffness`` is given). One that runs for a
+        time has ``reference`` events at its start and end (a recording bound to it, ``record``,
+        follows them); one replaced before its end ends ``cut``."""
+        if stiffness is not None:
+            self.stiffness = list(stiffness)
+        if self._reference_running:
+            self._end_reference(cut=f"replaced by {name}")
+        if self.open_loop is not None:
+            self.open_loop.ended = ""
+            self._end_open_loop()
+        self.trajectory, self.trajectory_name = trajectory, name
+        self.trajectory_generation += 1
+        self.trajectory_t0 = self.clock.now() + self.period  # sampled from the next cycle on
+        self.reference = trajectory.sample(0.0)
+        self.tracking.clear()
+        self._reference_running = trajectory.duration > 0.0 or record is not None  # a recorded step: its response
+        if getattr(trajectory, "open_loop", False):
+            self.open_loop = OpenLoopRun(trajectory, self.trajectory_t0, self.io.joint_names[trajectory.joint])
+        if self._reference_running:
+            self.events.add({"kind": "reference", "action": "start", "name": name,
+                             "generation": self.trajectory_generation,
+                             "duration_s": trajectory.duration, "record": record,
+                             "signal": getattr(trajectory, "definition", None)})
+
+    def reference_remaining(self) -> float:
+        """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""
+        if self.trajectory.duration <= 0.0:
+            return 0.0
+        return max(self.trajectory.duration - (self.clock.now() - self.trajectory_t0), 0.0)
+
+    def _end_open_loop(self) -> None:
+        """Feedback takes the excited joint back, bumplessly from the output in force; an
+        experiment that left its band is cut, the arm held where it is."""
+        run, self.open_loop = self.open_loop, None
+        self.controller.reset(self._state(), self.feed_forward.share(self.u))
+        if run.ended and run.ended != "done":
+            self.events.add({"kind": "experiment", "action": "abort", "joint": run.name, "cause": run.ended})
+            self.hold()
+
+    def _end_reference(self, cut: str = "") -> None:
+        self._reference_running = False
+        self.events.add({"kind": "reference", "action": "end", "name": self.trajectory_name,
+                         "generation": self.trajectory_generation, "cut": cut})
+
+    def _end_shadow(self, action: str, cause: str = "") -> dict:
+        """Stop the shadow run; its summary (also published as an event)."""
+        summary = self.shadow_run.summary()
+        self.shadow_run = None
+        self.events.add({"kind": "shadow", "action": action, "cause": cause, **summary})
+        return summary
