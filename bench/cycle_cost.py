@@ -39,7 +39,7 @@ def main() -> None:
     clock = VirtualClock()
     server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
     try:
-        loop = loop_from_args(parser().parse_args(["run"]), clock, server.publish)
+        loop = loop_from_args(parser().parse_args(["run"]), clock, server.publish, server.stats_banks)
         server.attach(loop)
         gc.collect()
         gc.freeze()

@@ -20,7 +20,9 @@ from daemon.loop.feed_forward import LoadFeedForward
 from daemon.loop.parts import LoopParts
 from daemon.loop.port import ZmqServer
 from daemon.loop.safety import Supervisor
+from daemon.loop.stats import LoopStats
 from daemon.loop.telemetry import Telemetry
+from daemon.wire.loop_stats import StatsBanks
 from daemon.loop.tracking import TrackingGuard
 from daemon.planner.process import Preparer
 from daemon.service import realtime
@@ -98,8 +100,9 @@ def open_rig(rig: config.RigConfig, now: Callable[[], float], drivers: PressureD
 
 def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: str | None = None,
                plugins: dict[str, str] | None = None, publish: Publish | None = None,
-               contact: bool = True) -> ControlLoop:
-    """The loop on ``rig``, its transport open; telemetry to ``publish`` if given; the rig's
+               contact: bool = True, stats_banks: StatsBanks | None = None) -> ControlLoop:
+    """The loop on ``rig``, its transport open; telemetry to ``publish`` if given, its timing
+    counted into ``stats_banks`` if given (a port's, which its messenger summarises); the rig's
     contact sensor's process started when it has one and ``contact`` (an in-process loop on
     a virtual clock leaves it out: its frames come in real time). Each regulator's driver
     is built once, for the I/O and the command interfaces both."""
@@ -115,13 +118,13 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
             io.transport.close()
             raise
     return ControlLoop(io, clock, parts, telemetry=Telemetry(publish) if publish is not None else None,
-                       contact_sensor=sensor)
+                       contact_sensor=sensor, stats=LoopStats(stats_banks) if stats_banks is not None else None)
 
 
-def loop_from_args(args, clock, publish: Publish | None = None) -> ControlLoop:
+def loop_from_args(args, clock, publish: Publish | None = None, stats_banks: StatsBanks | None = None) -> ControlLoop:
     """:func:`build_loop` with ``pneumad``'s options (run, latency)."""
     return build_loop(rig_of(args), clock, args.period, args.controller, controller_plugins(args.controller_plugin),
-                      publish)
+                      publish, stats_banks=stats_banks)
 
 
 def realtime_setup(args) -> list[str]:

@@ -61,7 +61,8 @@ def cmd_run(args) -> int:
         # systemctl reload: the messenger reads its allow-list again.
         signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
         warming.result(timeout=120)
-        loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish)
+        loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish,
+                                   stats_banks=server.stats_banks)
         server.attach(loop, preparer)
         return _run_loop(args, loop, server)
 

@@ -34,8 +34,10 @@ from hal.rig import RigIO, Snapshot
 START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
 
 class ControlLoop(LoopControls):
-    def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None):
-        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`)."""
+    def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None,
+                 stats: LoopStats | None = None):
+        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`);
+        its timing counted into ``stats`` (default: banks of its own, for a loop without a messenger)."""
         self.io = io
         self.rig = io.config
         self.clock = clock
@@ -54,7 +56,7 @@ class ControlLoop(LoopControls):
         self.telemetry = telemetry
         self.server = server
         self.contact_sensor = contact_sensor  # daemon.contact.process: the latest contact estimate, or None
-        self.stats = LoopStats()
+        self.stats = stats if stats is not None else LoopStats()
         self.cycle = 0
         self.stop_requested = False
         self.trajectory: Trajectory = HoldPosition([0.0] * self.n)

@@ -28,7 +28,6 @@ from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger,
 from daemon.planner.process import Deferred
 from daemon.recorder.process import RecorderProcess, write_metadata
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
-from daemon.loop.stats import LoopStats
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
 from hal.errors import ConfigError
@@ -82,7 +81,8 @@ class ZmqServer:
     def attach(self, loop, preparer=None) -> None:
         self.commands = Commands(loop, preparer, self.security)
         loop.server = self
-        loop.stats = LoopStats(self.stats_banks)  # counted where the messenger summarises them
+        if loop.stats.banks is not self.stats_banks:
+            raise ValueError("the loop counts its timing elsewhere: build it with this port's stats_banks")
         write_metadata(self._rings_dir, self.commands.described, self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],

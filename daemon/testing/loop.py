@@ -57,10 +57,11 @@ class Captured:
 
 
 def virtual_loop(rig: config.RigConfig, controller: str = "pid", publish=None,
-                 plugins: dict[str, str] | None = None) -> ControlLoop:
+                 plugins: dict[str, str] | None = None, stats_banks=None) -> ControlLoop:
     """The loop on ``rig`` on a fresh virtual clock (not started): it cycles only when run,
     as fast as the machine goes. No contact-sensor process: its frames come in real time."""
-    return assembly.build_loop(rig, VirtualClock(), 0.001, controller, plugins, publish, contact=False)
+    return assembly.build_loop(rig, VirtualClock(), 0.001, controller, plugins, publish, contact=False,
+                               stats_banks=stats_banks)
 
 
 def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid", loop_stall_s: float = 60.0,
@@ -73,7 +74,7 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s) if server else None
     captured = Captured()
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
-    loop = virtual_loop(rig, controller, send, plugins)
+    loop = virtual_loop(rig, controller, send, plugins, srv.stats_banks if srv is not None else None)
     if srv is not None:
         srv.attach(loop, shared_preparer())
     captured.follow(loop, beside_messenger=srv is not None)
