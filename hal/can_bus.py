@@ -70,6 +70,7 @@ class CanTransport(Transport):
 
     def __init__(self, rig, options: CanOptions, clock: Callable[[], float]):
         super().__init__()
+        self.open_timeout_s = options.open_timeout_s
         self.options = options
         self.clock = clock
         self.inputs, self.outputs, _ = rig_channels(rig)

@@ -66,6 +66,7 @@ class SerialBridgeTransport(Transport):
         super().__init__()
         self.options = options
         self.clock = clock
+        self.open_timeout_s = options.open_timeout_s
         self.inputs, self.outputs, _ = rig_channels(rig)
         self._port: serial.Serial | None = None
         self._reader = F.FrameReader()

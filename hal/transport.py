@@ -70,6 +70,7 @@ class Transport(ABC):
     inputs: tuple[Channel, ...] = ()
     outputs: tuple[Channel, ...] = ()
     rate_hz: float = 1000.0  # the sweep rate the backend can sustain
+    open_timeout_s: float = 1.0  # how long the rig may take to answer, at opening and at the loop's start [s]
 
     def __init__(self):
         self._health = TransportHealth()

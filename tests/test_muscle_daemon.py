@@ -42,8 +42,10 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
     peer = start_peer("sim_backend.serial_peer", "--config", str(rig), "--link", str(link),
                       ready=lambda: os.path.exists(link))
     eps = private_endpoints(tmp_path)  # the lines reach it through the environment, never the default ports
+    # the bridge may take seconds to answer on a loaded machine (two CPU hogs held the peer 6 s)
     daemon = subprocess.Popen([BIN + "pneumad", "--no-rt", "--config", str(rig), "--transport", "serial",
-                               "--transport-option", f"port={link}", "--record-dir", str(tmp_path / "rec"),
+                               "--transport-option", f"port={link}", "--transport-option", "open_timeout_s=30",
+                               "--record-dir", str(tmp_path / "rec"),
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=tmp_path)
     try:
         with Client(**eps, timeout=5.0) as client:

@@ -31,7 +31,6 @@ from daemon.loop.view import LoopView
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
-START_WAIT_S = 1.0  # how long start() waits for a fresh first sample [s]
 
 class ControlLoop(LoopControls):
     def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None,
@@ -106,21 +105,22 @@ class ControlLoop(LoopControls):
     def _first_reading(self) -> Snapshot:
         """A sample no older than the stale limit. A transport across a wire answers the
         safe outputs just written a moment later, and its last sample may date from when it
-        was opened, before the daemon's set-up: wait for a fresh one, a period at a time,
-        for at most START_WAIT_S (this is start-up, not a cycle). The safe outputs are written
-        again each period: a sample is as old as the request it answers, so a bridge that
-        answered the first request late (busy at power-up, or on a loaded host) would
-        otherwise never give one fresh enough."""
+        was opened, before the daemon's set-up: wait for a fresh one, a period at a time, for
+        at most the transport's ``open_timeout_s`` (this is start-up, not a cycle). The safe
+        outputs are written again each period: a sample is as old as the request it answers,
+        so a bridge that answered the first request late (busy at power-up, or on a loaded
+        host) would otherwise never give one fresh enough."""
         limit, clock = self.rig.safety.stale_after_s, self.clock
-        give_up = clock.now() + START_WAIT_S
+        wait_s = self.io.transport.open_timeout_s
+        give_up = clock.now() + wait_s
         while True:
             snap = self.io.read()
             now = clock.now()
             if now - snap.t <= limit:
                 return snap
             if now >= give_up:
-                raise TransportError(f"no fresh sample within {START_WAIT_S:g} s of start "
-                                     f"(the last is {(now - snap.t) * 1e3:.0f} ms old)")
+                raise TransportError(f"no fresh sample within {wait_s:g} s of start (the last is "
+                                     f"{(now - snap.t) * 1e3:.0f} ms old; a slow rig: transport option open_timeout_s)")
             clock.sleep_until(now + self.period)
             self._write_safe()
 
