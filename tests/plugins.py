@@ -127,6 +127,16 @@ class HangsWhenBuilt(_BuildsBadly):
         time.sleep(3600)
 
 
+class SlowToBuild(_BuildsBadly):
+    """Its build takes longer than a one-shot command's lease (pneumactl's 10 s), then refuses."""
+
+    name = "slow_to_build"
+
+    def derive(self, values):
+        time.sleep(12.0)
+        raise ValueError("slow_to_build: took its time, and refuses")
+
+
 class UnsendableWhenBuilt(_BuildsBadly):
     """Its design holds something that cannot leave the process it was made in."""
 

@@ -1,11 +1,15 @@
 """An arm left enabled with nobody holding the lease: the rig file's policy, on the real loop
-(virtual clock) over real sockets."""
+(virtual clock) over real sockets; and pneumactl's one-shot lease against a real daemon."""
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
+from daemon.client.client import Client
 from daemon.loop.safety import State
 from daemon.testing.loop import dealer, make_loop, ok, run_seconds
+from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
 
 RIG = (Path(__file__).resolve().parents[1] / "hal" / "sim_2joint.toml").read_text()
 
@@ -86,3 +90,28 @@ def test_releasing_the_lease_of_an_idle_arm_says_nothing_more():
         assert ok(loop, sock, "lease.release", lease=lease) == {}
     finally:
         srv.close()
+
+
+@pytest.mark.slow  # long: kept out of the fast subset
+def test_a_one_shot_pneumactl_command_keeps_the_lease_while_its_work_outlasts_it(tmp_path):
+    """pneumactl's one-shot commands renew the lease they took until they hand it back: a
+    controller build slower than the one-shot lease (10 s) ends with the build's own answer,
+    the enabled arm is not tripped by a lapsed lease, and the lease is handed back."""
+    daemon, eps = real_daemon(tmp_path, "--controller-plugin", "slow_to_build=tests.plugins:SlowToBuild")
+    env = endpoint_env(eps)
+
+    def pneumactl(*args):
+        return subprocess.run([sys.executable, "-m", "daemon.client.ctl", *args], env=env, capture_output=True,
+                              text=True, timeout=300)
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
+            assert pneumactl("enable").returncode == 0
+            done = pneumactl("controller", "switch", "slow_to_build")
+            assert done.returncode == 1 and "took its time, and refuses" in done.stderr, done.stderr
+            status = client.status()
+            assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
+            assert not status["lease_held"]  # handed back
+    finally:
+        daemon.terminate()
+        daemon.wait(10)

@@ -321,16 +321,25 @@ class Client:
             self.lease = None
 
     def keep_lease(self, every_s: float = 0.5) -> None:
-        """Renew the lease from a background thread until close()."""
+        """Renew the lease from a background thread until close() or the lease is handed
+        back, through sockets of its own (the lease is the key's, not the socket's): a renewal
+        never waits behind a request in progress, and a deferred one can take seconds."""
         self._keeping.set()
 
         def renew():
-            while self._keeping.is_set() and self.lease is not None:
-                try:
-                    self.renew_lease()
-                except (RemoteError, TimeoutError):
-                    pass
-                time.sleep(every_s)
+            renewer = Client(**self.endpoints, timeout=self.timeout, context=self.context, key_file=self.key_file,
+                             server_key_file=self.server_key_file)
+            try:
+                while self._keeping.is_set() and self.lease is not None:
+                    renewer.lease = self.lease
+                    try:
+                        renewer.renew_lease()
+                    except (RemoteError, TimeoutError):
+                        pass
+                    time.sleep(every_s)
+            finally:
+                renewer.lease = None  # the owner hands it back
+                renewer.close()
 
         self._keeper = threading.Thread(target=renew, name="pneumad-lease", daemon=True)
         self._keeper.start()

@@ -13,15 +13,18 @@ from daemon.client.client import ENDPOINT_VARIABLES, Client, KeyRefused, RemoteE
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
-ONE_SHOT_LEASE_S = 10.0  # a one-shot command's lease [s]: handed back at once, it only has to outlast a busy PC
+ONE_SHOT_LEASE_S = 10.0  # a one-shot command's lease [s], renewed every second until it is handed back
 
 
 def with_lease(client: Client, fn):
     """One-shot commands take the lease, act, and hand it back (the arm keeps its state; if
-    it stays enabled, the daemon's note on what becomes of it is printed). The lease is asked
-    for ``ONE_SHOT_LEASE_S``, not the rig's 2 s: nothing renews it between the two requests, and
-    on a loaded PC this process can be held longer than that between them."""
+    it stays enabled, the daemon's note on what becomes of it is printed). The lease is
+    renewed while the command runs: a command whose work is done beside the loop (a
+    controller built at nice 19, a plan) can take longer than any fixed lease on a busy PC,
+    and a lapsed lease trips an enabled arm. It is asked for ``ONE_SHOT_LEASE_S``, not the
+    rig's 2 s: on a loaded PC this process can be held longer than that between renewals."""
     client.acquire_lease(ONE_SHOT_LEASE_S)
+    client.keep_lease(every_s=1.0)
     try:
         return fn()
     finally:
