@@ -213,6 +213,7 @@ def test_stale_transport_data_trips():
     assert loop.state is State.ENABLED
     sup.check(loop.angles, [0.0, 0.0], (), sample_age=0.012)
     assert loop.state is State.FAULT and "stale" in sup.cause and "12.0 ms old" in sup.cause
+    assert "stale_after_s" in sup.cause and "pneumad latency" in sup.cause  # where to look, and what to run
 
 
 def test_a_joint_moving_too_fast_trips_after_consecutive_samples():
