@@ -85,7 +85,7 @@ class Client:
         self._lock = threading.Lock()
         self.lease: str | None = None
         self._keeper: threading.Thread | None = None
-        self._keeping = threading.Event()
+        self._stop_keeping = threading.Event()  # set: the keeper thread stops at once, not after its sleep
         self._deferred_timeout: float | None = None  # from describe, on the first deferred command
 
     def _dealer(self, endpoint: str) -> zmq.Socket:
@@ -114,7 +114,7 @@ class Client:
                           f"revoked), or the daemon's public key given is not that daemon's")
 
     def close(self) -> None:
-        self._keeping.clear()
+        self._stop_keeping.set()
         if self._keeper is not None:
             self._keeper.join()
         for sock in self._sockets.values():
@@ -319,24 +319,25 @@ class Client:
             return self.call("lease.release")
         finally:
             self.lease = None
+            self._stop_keeping.set()
 
     def keep_lease(self, every_s: float = 0.5) -> None:
         """Renew the lease from a background thread until close() or the lease is handed
         back, through sockets of its own (the lease is the key's, not the socket's): a renewal
         never waits behind a request in progress, and a deferred one can take seconds."""
-        self._keeping.set()
+        self._stop_keeping = stop = threading.Event()
 
         def renew():
             renewer = Client(**self.endpoints, timeout=self.timeout, context=self.context, key_file=self.key_file,
                              server_key_file=self.server_key_file)
             try:
-                while self._keeping.is_set() and self.lease is not None:
+                while not stop.is_set() and self.lease is not None:
                     renewer.lease = self.lease
                     try:
                         renewer.renew_lease()
                     except (RemoteError, TimeoutError):
                         pass
-                    time.sleep(every_s)
+                    stop.wait(every_s)
             finally:
                 renewer.lease = None  # the owner hands it back
                 renewer.close()
