@@ -91,7 +91,10 @@ def messenger_restarts(client: Client, at_least: int, limit_s: float = 60.0) -> 
         time.sleep(0.2)
 
 
-def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float) -> dict:
+def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float, min_kills: int = 0) -> dict:
+    """Drive the daemon for ``seconds``, killing its messenger every ``kill_every`` once the last
+    kill's restart is done, and on past ``seconds`` until ``min_kills`` kills have been made (a
+    loaded machine restarts a messenger slowly), for at most ten times ``seconds``; the report."""
     stop = threading.Event()
     healthy = [Watch() for _ in range(3)]
     slow = Watch(delay_s=0.05)
@@ -109,7 +112,8 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
         client.enable()
         start = time.monotonic()
         next_kill, tick = start + kill_every, 0
-        while (now := time.monotonic()) - start < seconds:
+        while ((now := time.monotonic()) - start < seconds
+               or (done["kills"] < min_kills and now - start < 10 * seconds)):
             if "mark" not in rss and now - start >= seconds / 6:
                 rss["mark"] = rss_mib(daemon_pid)
             try:

@@ -13,11 +13,13 @@ pytestmark = pytest.mark.slow
 def test_a_short_soak_loses_nothing_outside_the_messenger_kills_and_trips_nothing(tmp_path):
     daemon, eps = real_daemon(tmp_path)
     try:
-        report = soak(daemon.pid, eps, seconds=12.0, kill_every=4.0)
+        # on past 12 s until two kills: a busy machine restarts a messenger slowly, and the next
+        # kill waits for that restart
+        report = soak(daemon.pid, eps, seconds=12.0, kill_every=4.0, min_kills=2)
     finally:
         daemon.terminate()
         daemon.wait(10)
-    assert report["trips"] == 0, report["cause"]
+    assert report["trips"] == 0, report["trip_causes"]
     assert report["kills"] >= 2 and report["messenger_restarts"] == report["kills"]
     assert report["healthy_gaps_outside_kills"] == [0, 0, 0], report
     assert min(report["healthy_messages"]) > 500 and report["slow_messages"] > 50
