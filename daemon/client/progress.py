@@ -60,10 +60,15 @@ def _poll(client: Client, show) -> dict:
 
 
 def _recording_file(client: Client, name: str) -> str | None:
-    """The file of the daemon's recording ``name`` once it is finished (None if it never appeared)."""
+    """The file of the daemon's recording ``name`` once it is finished (None if it never appeared).
+    A listing not answered in the client's time is asked again: the recorder answers it after
+    closing the file, late on a loaded PC (beside two CPU hogs, more than 2 s)."""
     end = time.monotonic() + RECORDING_WAIT_S
     while time.monotonic() < end:
-        listing = client.record_list()
+        try:
+            listing = client.record_list()
+        except TimeoutError:
+            continue
         if not any(a["name"] == name for a in listing["active"]) and any(f["name"] == name for f in listing["files"]):
             return f"{listing['directory']}/{name}.mcap"
         time.sleep(POLL_S)
