@@ -225,8 +225,8 @@ def test_a_build_starved_of_cpu_by_busy_processes_is_not_taken_as_hung():
     and a build of 50 ms of CPU takes seconds. The time limit counts the build's own time, not
     its waits for a CPU: the build finishes and is not refused as hung."""
     cpu = min(os.sched_getaffinity(0))
-    preparer = Preparer(cpus={cpu})  # the worker on the busy CPU
     hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{cpu}}})\nwhile True: pass"])
+    preparer = Preparer(cpus={cpu})  # the worker on the busy CPU
     try:
         preparer.warm().result(timeout=120)  # (its imports take more than the limit below)
         preparer.time_limit_s = 1.0
