@@ -127,16 +127,6 @@ class Helper:
     def pid(self) -> int | None:
         return self._proc.pid if self._proc is not None else None
 
-    def waited_for_cpu_s(self) -> float:
-        """How long the child's main thread has waited, runnable, for a CPU [s] (the kernel's
-        /proc/PID/schedstat); 0.0 where the kernel does not keep it. What a time limit on the
-        child's work leaves out: a busy machine's delay is not the work's."""
-        try:
-            with open(f"/proc/{self._proc.pid}/schedstat") as f:
-                return int(f.read().split()[1]) * 1e-9
-        except (OSError, ValueError, IndexError, AttributeError):
-            return 0.0
-
     def exitcode(self) -> int | None:
         """The child's exit code (negative: the signal that ended it); None while it runs."""
         return self._proc.poll() if self._proc is not None else None

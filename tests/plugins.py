@@ -149,12 +149,3 @@ class UnsendableWhenBuilt(_BuildsBadly):
 def imported(module: str) -> bool:
     """Whether ``module`` was ever imported in this process (asked of a worker by a test)."""
     return module in sys.modules
-
-
-def burn_cpu(seconds: float) -> float:
-    """A job for the planner's worker: ``seconds`` of its own CPU time, however long the
-    machine takes to give it that; the wall time it took."""
-    started, cpu = time.monotonic(), time.process_time()
-    while time.process_time() - cpu < seconds:
-        pass
-    return time.monotonic() - started
