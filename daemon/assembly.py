@@ -22,10 +22,10 @@ from daemon.loop.port import ZmqServer
 from daemon.loop.safety import Supervisor
 from daemon.loop.stats import LoopStats
 from daemon.loop.telemetry import Telemetry
-from daemon.wire.loop_stats import StatsBanks
 from daemon.loop.tracking import TrackingGuard
 from daemon.planner.process import Preparer
 from daemon.service import realtime
+from daemon.wire.loop_stats import StatsBanks
 from hal import config
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
@@ -118,7 +118,7 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
             io.transport.close()
             raise
     return ControlLoop(io, clock, parts, telemetry=Telemetry(publish) if publish is not None else None,
-                       contact_sensor=sensor, stats=LoopStats(stats_banks) if stats_banks is not None else None)
+                       contact_sensor=sensor, stats=LoopStats(stats_banks))
 
 
 def loop_from_args(args, clock, publish: Publish | None = None, stats_banks: StatsBanks | None = None) -> ControlLoop:
