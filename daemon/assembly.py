@@ -17,13 +17,14 @@ from controllers.base import ControllerContext
 from daemon.contact.process import ContactSensor
 from daemon.loop.cycle import ControlLoop
 from daemon.loop.feed_forward import LoadFeedForward
+from daemon.messenger.shared import STALL_S
 from daemon.loop.parts import LoopParts
 from daemon.loop.port import ZmqServer
 from daemon.loop.safety import Supervisor
 from daemon.loop.stats import LoopStats
 from daemon.loop.telemetry import Telemetry
 from daemon.loop.tracking import TrackingGuard
-from daemon.planner.process import Preparer
+from daemon.planner.process import DEFAULT_TIME_LIMIT_S, Preparer
 from daemon.service import realtime
 from daemon.wire.loop_stats import StatsBanks
 from hal import config
@@ -133,14 +134,22 @@ def realtime_setup(args) -> list[str]:
     return realtime.setup(None if args.no_rt else args.rt_priority, args.cpus, not args.no_rt, idle_latency)
 
 
+def stall_watch_s(rig: config.RigConfig) -> float:
+    """How long the messenger lets the loop go without a cycle before it answers for it
+    (``loop_stalled``) [s]: 0.5 s, or twice the rig's own ``[safety] stall_after_s`` where that
+    is longer. A loop woken late trips itself at ``stall_after_s`` and cycles on; the messenger
+    must not refuse requests for a pause the rig file allows."""
+    return max(STALL_S, 2.0 * rig.safety.stall_after_s)
+
+
 @contextmanager
-def messenger(args) -> Iterator[ZmqServer]:
+def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
     """The messenger's sockets from ``pneumad run``'s options, closed on the way out. Made
     before the real-time set-up: the messenger keeps normal priority and every CPU."""
     recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
                                                          "min_free_mb": args.record_min_free_mb}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
-                       recording=recording, plotjuggler=args.plotjuggler)
+                       recording=recording, plotjuggler=args.plotjuggler, loop_stall_s=stall_watch_s(rig))
     try:
         yield server
     finally:
@@ -148,12 +157,12 @@ def messenger(args) -> Iterator[ZmqServer]:
 
 
 @contextmanager
-def planner() -> Iterator[tuple[Preparer, Future]]:
+def planner(time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> Iterator[tuple[Preparer, Future]]:
     """The planner worker, spawned, and its warm-up under way: the caller starts the messenger
     meanwhile (the two start-ups side by side, not one after the other) and waits on the
     future before the transport opens (a process starting beside a running wire delayed its
     replies). Closed on the way out."""
-    preparer = Preparer()
+    preparer = Preparer(time_limit_s)
     try:
         yield preparer, preparer.warm()
     finally:

@@ -17,6 +17,7 @@ from daemon.loop.clock import MonotonicClock
 from daemon.loop.cycle import ControlLoop
 from daemon.loop.port import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
 from daemon.messenger.process import MessengerError
+from daemon.planner.process import DEFAULT_TIME_LIMIT_S
 from daemon.service import realtime
 from daemon.service.notify import Notifier
 from hal.errors import ConfigError, TransportError
@@ -57,7 +58,7 @@ def cmd_run(args) -> int:
     rig, plugins = assembly.rig_of(args), assembly.controller_plugins(args.controller_plugin)  # bad ones: exit 2, nothing bound
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
-    with assembly.planner() as (preparer, warming), assembly.messenger(args) as server:
+    with assembly.planner(args.prepare_limit_s) as (preparer, warming), assembly.messenger(args, rig) as server:
         # systemctl reload: the messenger reads its allow-list again.
         signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
         warming.result(timeout=120)
@@ -131,6 +132,14 @@ def cmd_latency(args) -> int:
     return qualify(args)
 
 
+def _positive(text: str) -> float:
+    """An argparse type: a number of seconds above zero."""
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be above 0, not {text}")
+    return value
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pneumad", description=__doc__)
     sub = p.add_subparsers(dest="command_name", required=True)
@@ -173,6 +182,10 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--command", default=DEFAULT_COMMAND, help=f"command endpoint (default {DEFAULT_COMMAND})")
     run.add_argument("--control", default=DEFAULT_CONTROL, help=f"control endpoint (default {DEFAULT_CONTROL})")
     run.add_argument("--telemetry", default=DEFAULT_TELEMETRY, help=f"telemetry endpoint (default {DEFAULT_TELEMETRY})")
+    run.add_argument("--prepare-limit-s", type=_positive, default=DEFAULT_TIME_LIMIT_S,
+                     help="a plan or controller build beside the loop that takes longer than this [s] is taken as "
+                          f"hung and stopped (default {DEFAULT_TIME_LIMIT_S:g}; builds run at nice 19, so a PC busy "
+                          "with other work may need more); clients read it from describe")
     run.add_argument("--stats-period", type=float, default=1.0, help="window of the stats telemetry [s] (default 1)")
     run.add_argument("--keys", default=None, metavar="DIR",
                      help="CURVE key directory (pneumad keys init): every client must hold an allowed key")

@@ -52,3 +52,17 @@ def test_check_builds_the_controller_and_opens_nothing(capsys):
     assert "transport serial, controller pid" in out and "joint bottom" in out
     assert main.main(["--check", "--controller", "no-such-controller"]) == 2
     assert main.main(["--check", "--transport-option", "port=x"]) == 2  # an option for no --transport
+
+
+def test_the_messenger_waits_out_the_pause_the_rig_file_allows_before_answering_for_the_loop(tmp_path):
+    # a rig whose loop may wake up to 0.5 s late (it trips itself then, and cycles on): the
+    # messenger must not refuse requests as `loop_stalled` before the loop's own limit has come
+    slow = tmp_path / "slow.toml"
+    slow.write_text(config.load().source.replace("stall_after_s = 0.05", "stall_after_s = 0.5"))
+    endpoints = [f"--{name}=ipc://{tmp_path}/{name}" for name in ("command", "control", "telemetry")]
+    for rig_file, watch_s in ((None, 0.5), (slow, 1.0)):
+        args = main.parser().parse_args(["run", *endpoints, "--record-dir", "none"]
+                                        + ([] if rig_file is None else ["--config", str(rig_file)]))
+        rig = assembly.rig_of(args)
+        with assembly.messenger(args, rig) as server:
+            assert server.messenger.stall_s == watch_s

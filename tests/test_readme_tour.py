@@ -77,12 +77,18 @@ def restore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+def section_lines(title: str) -> list[str]:
+    """The command lines of README.md's section ``title`` (those starting ``.venv/bin/``),
+    comments stripped, ``.venv/bin/`` made this interpreter's bin directory."""
+    section = (ROOT / "README.md").read_text().split(f"## {title}", 1)[1].split("\n## ", 1)[0]
+    return [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
+            for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
+
+
 def test_the_readme_keys_example_runs_as_written(tmp_path):
     """The "From a laptop: keys" lines, in a fresh directory: keys made, a daemon on every
     interface with them, and Alice's key answered by name."""
-    section = (ROOT / "README.md").read_text().split("## From a laptop: keys", 1)[1].split("\n## ", 1)[0]
-    lines = [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
-             for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
+    lines = section_lines("From a laptop: keys")
     assert len(lines) == 4 and " --keys " in lines[2] and "--key alice.key_secret" in lines[3]
     # The README's ports are the lab daemon's: the test's daemon takes free ones, and Alice's
     # line reaches it through the environment, as a laptop's shell would set it.
@@ -110,34 +116,6 @@ def test_the_readme_keys_example_runs_as_written(tmp_path):
     finally:
         daemon.terminate()
         daemon.wait(10)
-
-
-def test_the_readme_identify_section_runs_as_written(tmp_path):
-    """The "Identifying a joint" lines, in a fresh directory, against a real daemon on the
-    built-in rig: the experiments, the fit, the figures and the rig file, which the daemon
-    then takes."""
-    section = (ROOT / "README.md").read_text().split("## Identifying a joint", 1)[1].split("\n## ", 1)[0]
-    lines = [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
-             for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
-    assert [line.split()[1] for line in lines] == ["enable", "identify", "--no-rt"]
-    daemon, eps = start_daemon(tmp_path, tmp_path)
-    try:
-        with Client(**eps, timeout=5.0) as client:
-            wait_for_own_daemon(client, daemon)
-            for line in lines[:2]:
-                done = subprocess.run(["bash", "-c", line], cwd=tmp_path, env=endpoint_env(eps), capture_output=True,
-                                      text=True, timeout=600)
-                assert done.returncode == 0, (line, done.stderr[-3000:])
-            assert client.status()["trips"] == 0
-    finally:
-        daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=10)
-    out = tmp_path / "identified"
-    assert {p.name for p in out.iterdir()} >= {"rig.toml", "report.json", "experiments.mcap", "bode-bottom.png",
-                                               "time-bottom.png"}
-    assert json.loads((out / "report.json").read_text())["heldout_fit_percent"][0] > 80.0
-    done = subprocess.run(["bash", "-c", lines[2]], cwd=tmp_path, capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0 and "model 'bottom-identified'" in done.stdout, done.stderr
 
 
 @pytest.fixture(scope="module")

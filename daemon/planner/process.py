@@ -149,7 +149,8 @@ class _Worker:
         try:
             if not self._conn.poll(time_limit_s):
                 raise PreparationFailed(f"the preparation took longer than {time_limit_s:g} s and was stopped; "
-                                        f"nothing was applied")
+                                        f"nothing was applied (a PC busy with other work: pneumad run "
+                                        f"--prepare-limit-s)")
             return self._conn.recv()
         except (EOFError, OSError):
             code = self._process.join(1.0)
