@@ -22,7 +22,7 @@ SENSOR = ("\n[contact_sensor]\nrate_hz = 4000.0\nsim_impact_speed_m_s = 0.11\nsi
           "open_timeout_s = 60.0\n")  # a busy machine starts the sensor process slowly: not this test's subject
 
 
-@pytest.mark.slow  # long: kept out of the fast subset
+@pytest.mark.slow(seconds=12)
 def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulated_impacts(tmp_path):
     rig_path = tmp_path / "rig.toml"
     rig_path.write_text(tolerant_rig_text() + SENSOR)

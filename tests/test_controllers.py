@@ -37,7 +37,7 @@ def test_translation_path_tracks_within_the_labs_targets(name):
     assert max(result.joint_max) < 3.0 and result.tip_max < 3.5, result
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=20)
 @pytest.mark.parametrize("name", HELD_TO_THE_LABS_TARGETS)
 def test_circle_at_the_shortest_feasible_period_tracks_within_the_targets(name):
     loop = S.make_loop(name)

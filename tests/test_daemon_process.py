@@ -93,7 +93,7 @@ def notify_socket(tmp_path):
     listener.close()
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=13)
 def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
     eps = endpoints(tmp_path)
     rig = rig_file(tmp_path)

@@ -56,7 +56,7 @@ def series(signal, seconds: float) -> np.ndarray:
     ("bottom", {}, 1.0),  # the seed's own values, recovered
     ("middle", {"K_mdl": 1.3, "D": 0.75, "Fs": 0.8, "T_dly": 1.3}, 3.0),  # a perturbed plant, not told
 ])
-@pytest.mark.slow  # long: kept out of the fast subset
+@pytest.mark.slow(seconds=50)
 def test_the_fit_recovers_the_simulated_plant_within_the_tolerances(joint, factors, amplitude):
     prior = IDENTIFIED[joint]
     truth = prior.replace({k: getattr(prior, k) * f for k, f in factors.items()})
@@ -223,7 +223,7 @@ def test_the_identified_model_written_to_a_rig_file_is_what_the_controllers_desi
     assert config.parse(again).joint_models["bottom-identified"].D == 0.3
 
 
-@pytest.mark.slow  # long: kept out of the fast subset
+@pytest.mark.slow(seconds=10)
 def test_a_controller_rebuilt_on_the_plants_model_tracks_it_better_than_on_the_stale_one(tmp_path):
     """The loop closes: a model table written to the rig file is what the model-based
     controllers design against. On a plant weaker and slower than the built-in model (gain

@@ -27,7 +27,7 @@ from tests.daemons import endpoint_env, real_daemon, tolerant_rig_text, wait_for
 from tests.test_readme_tour import section_lines
 from tests.wirehelpers import start_peer, stop_peer
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.slow(seconds=120)  # its wall time on a 2-core machine: tests/conftest.py orders by it
 
 TRUTH = {"D": 0.8, "T_dly": 1.25}  # the plant's bottom joint: factors on the built-in values
 

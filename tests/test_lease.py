@@ -92,7 +92,7 @@ def test_releasing_the_lease_of_an_idle_arm_says_nothing_more():
         srv.close()
 
 
-@pytest.mark.slow  # long: kept out of the fast subset
+@pytest.mark.slow(seconds=16)
 def test_a_one_shot_pneumactl_command_keeps_the_lease_while_its_work_outlasts_it(tmp_path):
     """pneumactl's one-shot commands renew the lease they took until they hand it back: a
     controller build slower than the one-shot lease (10 s) ends with the build's own answer,

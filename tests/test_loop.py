@@ -43,7 +43,7 @@ def test_pid_tracks_the_translation_path():
     assert abs(final[0]) < 1.0 and abs(final[1]) < 3.0
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=15)
 def test_pid_tracks_the_circle_at_a_feasible_period():
     # at the thesis's 20 s the circle needs 13.9 deg/s of the middle joint, which has about 3.3
     loop, captured, _ = enabled_loop()

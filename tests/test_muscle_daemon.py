@@ -34,7 +34,7 @@ def relaxed_rig(tmp_path):
     return path
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=14)
 def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(tmp_path):
     lines = readme_lines()
     assert any("--stiffness" in line for line in lines)

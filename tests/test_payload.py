@@ -100,7 +100,7 @@ def test_a_dither_cut_short_or_a_window_half_seen_is_an_error_not_a_mean():
         payload_routine.window_mean(late, 24.0, "bottom")
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=50)
 def test_the_dithered_balance_torques_carry_the_payloads_moment():
     """The routine's measurement on the simulated arm (vertical plane, the rig's noise and
     friction), through the loop: each joint's loaded minus unloaded balance torque against

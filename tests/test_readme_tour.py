@@ -145,6 +145,7 @@ def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tour):
         assert json.loads(done.stdout)["daemon"] == ours and ours["pid"] == daemon.pid
 
 
+@pytest.mark.slow(seconds=65)
 def test_the_readme_tour_runs_as_written(tour):
     lines = tour_lines()
     assert len(lines) >= 15 and any(" watch" in line for line in lines)

@@ -106,6 +106,7 @@ def holding(path, states: int, timeout=30.0) -> None:
         time.sleep(0.1)
 
 
+@pytest.mark.slow(seconds=35)
 def test_a_recorded_path_loses_nothing_while_a_client_is_stalled(tmp_path):
     daemon, eps, client = start(tmp_path)
     stalled = zmq.Context.instance().socket(zmq.SUB)  # subscribed, and never reads until the end

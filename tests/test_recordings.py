@@ -152,7 +152,7 @@ def test_plot_writes_the_figures_of_one_run_and_of_an_overlay(tmp_path, session)
     assert all(p.stat().st_size > 10_000 for p in one + both)
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=16)
 def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp_path):
     import subprocess
     import sys

@@ -10,6 +10,7 @@ from tests.daemons import real_daemon
 pytestmark = pytest.mark.slow
 
 
+@pytest.mark.slow(seconds=16)
 def test_a_short_soak_loses_nothing_outside_the_messenger_kills_and_trips_nothing(tmp_path):
     daemon, eps = real_daemon(tmp_path)
     try:
