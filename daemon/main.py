@@ -20,15 +20,28 @@ from daemon.messenger.process import MessengerError
 from daemon.planner.process import DEFAULT_TIME_LIMIT_S
 from daemon.service import realtime
 from daemon.service.notify import Notifier
+from hal import config
 from hal.errors import ConfigError, TransportError
+from hal.rig import RigIO
+from hal.taxel_array import load_frame_source
+from hal.transport import create_transport
 
 log = logging.getLogger("pneumad")
 
 
 def check_config(args) -> int:
-    """``pneumad --check``: the rig file read and validated, the starting controller built on
-    it (with the joints' models), a summary printed; nothing opened, nothing moved."""
+    """``pneumad --check``: what a start would refuse, found without opening anything: the rig
+    file read and validated, its transport built (its backend and options; a transport is
+    built before it is opened, so nothing is touched) and the devices on its channels, the
+    contact sensor's frame source found, the starting controller built on it (with the joints'
+    models); a summary printed."""
     rig = assembly.rig_of(args)
+    RigIO(rig, create_transport(rig, time.monotonic))
+    if rig.contact_sensor is not None:
+        try:
+            load_frame_source(rig.contact_sensor.source)
+        except LookupError as exc:
+            raise ConfigError(f"contact_sensor.source: {exc}") from None
     assembly.loop_parts(rig, args.period, args.controller, assembly.controller_plugins(args.controller_plugin))
     print(f"{rig.origin}: rig {rig.rig.name!r} ({rig.hash[:12]}), transport {rig.transport.backend}, "
           f"controller {assembly.starting_controller(args.controller, rig)}")
@@ -147,7 +160,8 @@ def parser() -> argparse.ArgumentParser:
     def common(sp):
         sp.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
         sp.add_argument("--config", default=None,
-                        help="rig file, or a built-in rig name (sim, sim-3joint); default: the simulated 2-joint rig")
+                        help=f"rig file, or a built-in rig name ({', '.join(config.BUILTIN_RIGS)}); default: the "
+                             "simulated 2-joint rig")
         sp.add_argument("--transport", default=None,
                         help="reach the rig through this backend instead of its file's (sim, serial, modbus, can, "
                              "or module:Class)")

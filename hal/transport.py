@@ -77,7 +77,8 @@ class Transport(ABC):
 
     @classmethod
     def from_config(cls, rig, clock: Callable[[], float]) -> "Transport":
-        """Build from a :class:`hal.config.RigConfig`; backends validate ``rig.transport.options``."""
+        """Build from a :class:`hal.config.RigConfig`; backends validate ``rig.transport.options``.
+        Building touches no wire (``pneumad --check`` builds and never opens): :meth:`open` does."""
         raise NotImplementedError(f"{cls.__name__} cannot be built from a rig file")
 
     def open(self) -> None:

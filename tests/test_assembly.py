@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+import pytest
+
 from daemon import assembly, main
 from daemon.loop.clock import VirtualClock
 from hal import config
@@ -45,13 +47,33 @@ def test_the_loop_runs_on_the_parts_the_assembler_built():
         loop.shutdown("test")
 
 
-def test_check_builds_the_controller_and_opens_nothing(capsys):
+def test_the_help_names_every_built_in_rig(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "400")  # an option a line: no name broken at its hyphen
+    with pytest.raises(SystemExit):
+        main.main(["run", "--help"])
+    config_help = next(line for line in capsys.readouterr().out.splitlines() if line.lstrip().startswith("--config CONFIG"))
+    assert all(name in config_help for name in config.BUILTIN_RIGS)
+
+
+def test_check_builds_the_controller_and_opens_nothing(capsys, caplog, tmp_path):
     # a serial transport to a port that does not exist: --check never opens it
     assert main.main(["--check", "--transport", "serial", "--transport-option", "port=/nonexistent/pneumad"]) == 0
     out = capsys.readouterr().out
     assert "transport serial, controller pid" in out and "joint bottom" in out
     assert main.main(["--check", "--controller", "no-such-controller"]) == 2
     assert main.main(["--check", "--transport-option", "port=x"]) == 2  # an option for no --transport
+    # what the start would refuse, --check refuses: a backend's name, its options, a frame source
+    builtin = config.load().source
+    for rig_text, problem in ((builtin.replace('backend = "sim"', 'backend = "simm"', 1), "unknown backend 'simm'"),
+                              (builtin + '\n[contact_sensor]\nsource = "pad9"\n', "contact_sensor.source: unknown")):
+        rig = tmp_path / "rig.toml"
+        rig.write_text(rig_text)
+        caplog.clear()
+        assert main.main(["--check", "--config", str(rig)]) == 2
+        assert problem in caplog.text
+    caplog.clear()
+    assert main.main(["--check", "--transport", "serial", "--transport-option", "prot=/dev/ttyACM0"]) == 2
+    assert "transport.options.prot: unknown key" in caplog.text
 
 
 def test_the_messenger_waits_out_the_pause_the_rig_file_allows_before_answering_for_the_loop(tmp_path):
