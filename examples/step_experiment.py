@@ -33,7 +33,8 @@ def main() -> int:
     with Client(**endpoints, timeout=5.0) as c:
         c.acquire_lease()
         c.keep_lease()
-        c.enable()
+        if c.status()["state"] != "enabled":  # a daemon left enabled (e.g. by the README's snippet) is used as it is
+            c.enable()
         start = c.status()["joints"]
         target = [j["angle_deg"] for j in start.values()]
         target[0] += args.step_deg

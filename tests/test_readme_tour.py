@@ -195,8 +195,12 @@ def test_the_readme_tour_runs_as_written(tour):
             text = (ROOT / "README.md").read_text()
             snippet = "\n".join(line.strip() for line in text.splitlines()
                                  if "from daemon import recordings" in line or "recordings.load(" in line)
-            done = subprocess.run([sys.executable, "-c", snippet + "\nassert len(data['middle.angle_rad']) > 1000"],
-                                  cwd=work, capture_output=True, text=True, timeout=60)
+            shown = re.findall(r'data\["([^"]+)"\]', snippet)  # every key its comment shows is in the recording
+            assert "middle.angle_rad" in shown
+            check = f"\nmissing = [k for k in {shown!r} if k not in data]\nassert not missing, missing" \
+                    "\nassert len(data['middle.angle_rad']) > 1000"
+            done = subprocess.run([sys.executable, "-c", snippet + check], cwd=work, capture_output=True, text=True,
+                                  timeout=60)
             assert done.returncode == 0, (snippet, done.stderr)
             assert {"run.mcap", "run.csv", "plots"} <= {p.name for p in work.iterdir()}
     finally:

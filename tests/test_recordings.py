@@ -164,6 +164,9 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
     try:
         with Client(**eps) as client:  # serving (the example, as a user would, runs against a daemon that is)
             wait_for_own_daemon(client, daemon)
+            client.acquire_lease()  # and left enabled, as the README's Python snippet leaves it
+            client.enable()
+            client.release_lease()
         out = subprocess.run([sys.executable, str(root / "examples" / "step_experiment.py"), "--out",
                               str(tmp_path / "step"), "--seconds", "6", *sum(([f"--{k}", v] for k, v in eps.items()), [])],
                              cwd=root, capture_output=True, text=True, timeout=120)
