@@ -5,6 +5,7 @@ schemas (docs/schemas), none reaches planning code in the loop's process (that w
 ``internal``), and none trips the loop. The telemetry published meanwhile is checked against
 its schema too. How long the loop took is bench/command_stall.py's to measure, not a test's."""
 import itertools
+import os
 import time
 
 import msgpack
@@ -62,6 +63,13 @@ def test_a_build_may_take_as_long_as_the_daemon_was_started_with_and_describe_sa
     client, _, _ = daemon
     assert client.describe()["deferred_timeout_s"] == 600.0  # --prepare-limit-s, which the client's wait follows
     assert client.deferred_timeout() > 600.0
+
+
+def test_status_says_how_the_loop_is_scheduled(daemon):
+    client, _, _ = daemon
+    # a daemon started --no-rt: normal scheduling, every CPU this test may use
+    assert client.status()["scheduling"] == {"policy": "SCHED_OTHER", "priority": 0,
+                                             "cpus": sorted(os.sched_getaffinity(0))}
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.label for c in CASES])

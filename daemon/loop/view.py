@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+from daemon.service import realtime
+
 
 class LoopView:
     def __init__(self, loop):
@@ -96,6 +98,7 @@ class LoopView:
             "faults": list(snap.faults) if snap is not None else [],
             "trips": loop.supervisor.trips,
             "overruns_total": loop.stats.overruns_total,
+            "scheduling": realtime.describe(),  # the loop thread's, as the system granted it
             "load": self.load(),
             "transport": vars(loop.io.transport.health()),
             "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
