@@ -8,7 +8,7 @@ import pytest
 
 from daemon.client.client import Client
 from daemon.loop.safety import State
-from daemon.testing.loop import dealer, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
 from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
 
 RIG = (Path(__file__).resolve().parents[1] / "hal" / "sim_2joint.toml").read_text()
@@ -80,6 +80,35 @@ def test_the_hold_policy_keeps_an_unleased_arm_enabled(enabled_then_released):
     assert released["unleased"]["action"] == "hold"
     run_seconds(loop, 3.0)
     assert loop.state is State.ENABLED and ok(loop, sock, "status")["unleased_disable_in_s"] is None
+
+
+@pytest.mark.parametrize("enabled_then_released", [("disable", 60.0)], indirect=True)
+def test_the_unleased_note_is_first_once_an_enabled_period(enabled_then_released):
+    loop, _, sock, released = enabled_then_released
+    assert released["unleased"]["first"]
+    for _ in range(2):  # one-shot commands after it: each hands the lease back, and is told again, not first
+        lease = ok(loop, sock, "lease.acquire")["lease"]
+        assert not ok(loop, sock, "lease.release", lease=lease)["unleased"]["first"]
+    lease = ok(loop, sock, "lease.acquire")["lease"]
+    ok(loop, sock, "disable", lease=lease)
+    ok(loop, sock, "enable", lease=lease)
+    assert ok(loop, sock, "lease.release", lease=lease)["unleased"]["first"]  # a new enabled period
+
+
+def test_a_refused_lease_says_who_holds_it_and_whether_they_keep_renewing_it():
+    loop, _, srv = make_loop(server=True)
+    try:
+        holder, other = dealer(srv), dealer(srv)
+        lease = ok(loop, holder, "lease.acquire", {"ttl_s": 2.0})["lease"]
+        refused = call(loop, other, "lease.acquire")
+        assert refused["error"]["code"] == "lease_held" and "unless they renew it" in refused["error"]["message"]
+        run_seconds(loop, 1.5)
+        ok(loop, holder, "lease.renew", lease=lease)
+        run_seconds(loop, 0.5)
+        message = call(loop, other, "lease.acquire")["error"]["message"]
+        assert "keeps renewing it (last 0.5 s ago, 1 renewal so far)" in message and "2 s" in message, message
+    finally:
+        srv.close()
 
 
 def test_releasing_the_lease_of_an_idle_arm_says_nothing_more():

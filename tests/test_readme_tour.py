@@ -152,6 +152,7 @@ def test_the_readme_tour_runs_as_written(tour):
     tmp_path, work, daemon, eps = tour
     env = endpoint_env(eps, PYTHONUNBUFFERED="1")
     beside = []  # (line, process) of the FILES_ONLY lines
+    notes = 0  # the unleased arm's note, which the one-shot lines after `enable` would each have printed
     try:
         with Client(**eps, timeout=5.0) as client:
             wait_for_own_daemon(client, daemon)
@@ -179,11 +180,13 @@ def test_the_readme_tour_runs_as_written(tour):
                 done = subprocess.run(["bash", "-c", command], cwd=work, capture_output=True, text=True, timeout=120,
                                       env=env)
                 assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
+                notes += done.stderr.count("note: the arm stays enabled")
                 state = client.status()["state"]
                 expected = {"enable": "enabled", "estop": "estop", "reset": "idle", "disable": "idle"}.get(words[1])
                 assert expected in (None, state), (line, state)
                 assert state != "fault", (line, client.status()["cause"])
             assert client.status()["trips"] == 0
+            assert notes == 1  # told once, by the line that enabled the arm
             for line, proc in beside:
                 out, err = proc.communicate(timeout=120)
                 assert proc.returncode == 0, f"{line}\n{out}\n{err}"

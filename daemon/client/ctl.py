@@ -18,7 +18,8 @@ ONE_SHOT_LEASE_S = 10.0  # a one-shot command's lease [s], renewed every second 
 
 def with_lease(client: Client, fn):
     """One-shot commands take the lease, act, and hand it back (the arm keeps its state; if
-    it stays enabled, the daemon's note on what becomes of it is printed). The lease is
+    it stays enabled, the daemon's note on what becomes of it is printed, the first time in
+    that enabled period only). The lease is
     renewed while the command runs: a command whose work is done beside the loop (a
     controller built at nice 19, a plan) can take longer than any fixed lease on a busy PC,
     and a lapsed lease trips an enabled arm. It is asked for ``ONE_SHOT_LEASE_S``, not the
@@ -29,7 +30,7 @@ def with_lease(client: Client, fn):
         return fn()
     finally:
         released = client.release_lease()
-        if released and "unleased" in released:
+        if released and "unleased" in released and released["unleased"]["first"]:
             print(f"note: {released['unleased']['note']}", file=sys.stderr)
 
 

@@ -28,6 +28,8 @@ class Lease:
         self.ttl = self.safety.lease_ttl_s  # the default a client may shorten or lengthen
         self.ttl_active = self.ttl
         self.unleased_since: float | None = None  # since when an enabled arm has held with no lease holder
+        self._told_enable = 0  # the enabled period (Supervisor.enables) whose unleased note was given
+        self.renewals, self.renewed_at = 0, 0.0  # the holder's renewals of this lease, the last one's time [s]
 
     @property
     def held(self) -> bool:
@@ -38,30 +40,43 @@ class Lease:
             raise CommandFailed(P.FORBIDDEN, f"key {client} is an observer: it may read, watch and e-stop, never "
                                              f"take the lease", {"reason": "role", "role": OBSERVER})
         if self.token is not None:
-            raise CommandFailed(P.LEASE_HELD, f"another client holds the lease for up to "
-                                              f"{self.expires - self.loop.clock.now():.1f} s more",
+            now = self.loop.clock.now()
+            who = f"key {self.holder.name!r}" if self.holder.name else "another client"
+            if self.renewals:
+                keeping = (f"and keeps renewing it (last {now - self.renewed_at:.1f} s ago, "
+                           f"{self.renewals} renewal{'s' if self.renewals != 1 else ''} so far): "
+                           f"it is theirs until they release it or stop renewing for {self.ttl_active:g} s")
+            else:
+                keeping = f"for up to {self.expires - now:.1f} s more unless they renew it"
+            raise CommandFailed(P.LEASE_HELD, f"{who} holds the lease {keeping}",
                                 {"reason": "held", "holder": self.holder.name})
         self.token, self.holder, self.ttl_active = secrets.token_hex(16), client, ttl
         self.expires = self.loop.clock.now() + ttl
+        self.renewals = 0
         return {"lease": self.token, "ttl_s": ttl}
 
     def renew(self) -> dict:
-        self.expires = self.loop.clock.now() + self.ttl_active
+        self.renewed_at = self.loop.clock.now()
+        self.renewals += 1
+        self.expires = self.renewed_at + self.ttl_active
         return {"ttl_s": self.ttl_active}
 
     def release(self) -> dict:
         """Hand the lease back; a client that leaves the arm enabled is told what will become
-        of it."""
+        of it, and whether this is the first time in this enabled period (``first``: one-shot
+        commands each hand the lease back, and their user is told once)."""
         self.token, self.unleased_since = None, None
-        if not self.loop.supervisor.enabled:
+        supervisor = self.loop.supervisor
+        if not supervisor.enabled:
             return {}
+        first, self._told_enable = self._told_enable != supervisor.enables, supervisor.enables
         if self.safety.unleased_action == "hold":
             note = 'the arm stays enabled with no client holding the lease (rig file: unleased_action = "hold")'
         else:
             note = (f"the arm stays enabled with no client holding the lease: it is disabled once it has held "
                     f"{self.safety.unleased_grace_s:g} s with none (rig file [safety] unleased_grace_s)")
         return {"unleased": {"action": self.safety.unleased_action, "grace_s": self.safety.unleased_grace_s,
-                             "note": note}}
+                             "note": note, "first": first}}
 
     def check(self, token, client: Identity) -> None:
         """Refuse a command that needs the lease unless ``client`` holds it with ``token``."""

@@ -40,6 +40,7 @@ class Supervisor:
         self._p_max = rig.limits.max_pressure_mpa * 1e6
         self._dp = rig.limits.max_pressure_rate_mpa_s * 1e6 * dt  # per-cycle step limit [Pa]
         self.trips = 0
+        self.enables = 0  # times the arm was enabled: tells one enabled period from the next
 
     # -- state changes --------------------------------------------------------------------
     def _enter(self, state: State, cause: str = "") -> None:
@@ -72,6 +73,7 @@ class Supervisor:
             raise StateError(f"cannot enable from {self.state.value}"
                              + (f" ({self.cause}); reset first" if self.state in (State.FAULT, State.ESTOP) else ""))
         self._bad_sensor = self._bad_speed = 0
+        self.enables += 1
         self._enter(State.ENABLED, "enabled")
 
     def disable(self) -> None:
