@@ -47,8 +47,10 @@ EXTERNAL_FILTER_HZ = 5.0  # the external-torque estimate's low-pass
 
 
 def _stiffness_param(default_nm_deg: float) -> ParamSpec:
-    return ParamSpec("stiffness", "N m/rad", 0.05 * DEG, 3.0 * DEG, (default_nm_deg * DEG,),
-                     "joint stiffness when the set-point gives none (0.3 N m/deg)")
+    """In N m/deg, the unit ``set --stiffness`` and the protocol's ``stiffness_nm_deg`` take (a
+    user compares the two numbers); turned to N m/rad where the control law uses it."""
+    return ParamSpec("stiffness", "N m/deg", 0.05, 3.0, (default_nm_deg,),
+                     "joint stiffness when the set-point gives none")
 
 
 BRAKE_PARAMS = (
@@ -83,8 +85,9 @@ class MuscleController(Controller):
         return None
 
     def stiffness_setpoint(self, reference: Reference, j: int) -> float:
+        """K_d [N m/rad]: the reference's, else the ``stiffness`` parameter's [N m/deg]."""
         k = reference.stiffness[j] if len(reference.stiffness) > j else math.nan
-        return k if k == k else self.p("stiffness")[j]
+        return k if k == k else self.p("stiffness")[j] * DEG
 
     def brake(self, j: int, w: float) -> float:
         return self.p("brake_linear")[j] * abs(w) + self.p("brake_quadratic")[j] * w * w

@@ -138,6 +138,22 @@ def test_a_plant_weaker_than_the_model_still_reaches_its_set_point():
     assert loop.supervisor.enabled and abs(loop.angles[0] / DEG - 60.0) < 1.0
 
 
+@pytest.mark.parametrize("name", ["muscle_eq", "muscle_pid"])
+def test_the_stiffness_parameter_is_in_the_unit_the_set_point_takes(name):
+    """``controller set stiffness=0.5`` and ``set --stiffness 0.5`` both mean 0.5 N m/deg: the
+    same valve commands follow from either."""
+    by_parameter = make_loop(name, {"stiffness": [0.5]}, rig="sim-muscle")
+    by_set_point = make_loop(name, rig="sim-muscle")
+    specs = {p["name"]: p for p in by_parameter.controller.describe()["params"]}
+    assert specs["stiffness"]["unit"] == "N m/deg" and by_parameter.controller.p("stiffness") == (0.5,)
+    by_parameter.set_trajectory(JointMove(list(by_parameter.reference[0]), [50 * DEG], 1.0), "move")
+    by_set_point.set_trajectory(JointMove(list(by_set_point.reference[0]), [50 * DEG], 1.0), "move",
+                                stiffness=[0.5 / DEG])  # the set command's N m/deg, in N m/rad inside
+    by_parameter.run(1500)
+    by_set_point.run(1500)
+    assert by_parameter.u == pytest.approx(by_set_point.u, rel=1e-9)
+
+
 def test_a_broken_pressure_sensor_trips_and_the_valves_vent_with_the_brake_on():
     loop = make_loop("muscle_eq", rig="sim-muscle")
     loop.set_trajectory(JointMove(list(loop.reference[0]), [45 * DEG], 1.0), "move")

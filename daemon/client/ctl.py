@@ -80,6 +80,9 @@ def motion(client: Client, args):
         excite = client.excite_input if args.input else client.excite
         send = lambda: excite(args.signal, args.joint, args.amplitude, record=record, **settings)  # noqa: E731
     result = with_lease(client, send)
+    if "stretched_from_s" in result:
+        print(f"note: the {result['path']} path's {result['stretched_from_s']:g} s is beyond this rig; it runs in the "
+              f"shortest it can follow, {result['duration_s']:g} s (--duration sets it)", file=sys.stderr)
     if not args.wait:
         return result
     from daemon.client.progress import follow  # rich: only for the progress display
