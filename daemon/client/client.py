@@ -54,6 +54,22 @@ class RemoteError(RuntimeError):
         self.code, self.message, self.data = code, message, data
 
 
+class Interrupted(Exception):
+    """Ctrl-C in a client routine. Its message says in one line what the routine left running
+    on the daemon (and the command that stops it) or what it stopped; pneumactl prints it and
+    exits 130, as a shell does for SIGINT."""
+
+
+def abort_started(client: "Client", what: str) -> str:
+    """Abort the reference a client routine started (it holds the lease) and say so: the
+    sentence an :class:`Interrupted` routine ends with."""
+    try:
+        client.abort()
+    except (RemoteError, TimeoutError) as exc:
+        return f"{what} could not be aborted ({exc}): `pneumactl abort` stops it"
+    return f"{what} was aborted: the arm holds where it is, enabled"
+
+
 class KeyRefused(ConnectionError):
     """The daemon would not complete the CURVE handshake with this client."""
 

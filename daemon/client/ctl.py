@@ -9,7 +9,7 @@ import sys
 from daemon.wire import keys
 from daemon.wire.catalog import COMMANDS
 
-from daemon.client.client import ENDPOINT_VARIABLES, Client, KeyRefused, RemoteError, read_waypoints
+from daemon.client.client import ENDPOINT_VARIABLES, Client, Interrupted, KeyRefused, RemoteError, read_waypoints
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
@@ -42,6 +42,9 @@ def record(client: Client, path: str, seconds: float) -> int:
     try:
         with recording_bar(path, seconds) as progress:
             written, lost = mcap_log.record(client, path, seconds, progress)
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted: the recording to {path} ended at Ctrl-C, whole up to there "
+                          f"(it was made here: nothing runs on in the daemon)") from None
     except OSError as exc:
         print(f"error: recording to {path} stopped: {exc.strerror or exc} (the file is readable up to its last "
               f"complete chunk)", file=sys.stderr)
@@ -235,6 +238,12 @@ def main(argv=None) -> int:
         return 2
     try:
         result = run(client, args)
+    except Interrupted as exc:
+        print(exc, file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:  # a one-shot command: its request was sent or not, and the lease handed back
+        print("interrupted: `pneumactl status` shows what the daemon is doing", file=sys.stderr)
+        return 130
     except KeyRefused as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

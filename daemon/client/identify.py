@@ -28,7 +28,7 @@ from daemon.recordings import mcap_log
 from daemon.recordings import reading as recording
 from daemon.wire import protocol as P
 from daemon.wire.signals import recorded
-from daemon.client.client import Client, RemoteError
+from daemon.client.client import Client, Interrupted, RemoteError, abort_started
 from hal import config
 from hal.identified import UNITS
 
@@ -103,6 +103,9 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
                             u_op)
             _wait(client, reply["duration_s"], f"{signal} on {joint}")
             _wait_for_rest(client, joint)  # each experiment starts at rest: the fit assumes it
+    except (KeyboardInterrupt, Interrupted):  # it stops what it started: the experiment running
+        raise Interrupted(f"interrupted: identification stopped; {abort_started(client, 'the experiment running')}; "
+                          f"the experiments so far are in {path}; nothing was fitted") from None
     finally:
         stop.set()
         recorder.join(5.0)

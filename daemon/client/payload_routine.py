@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from controllers.payload import PayloadEstimate, Posture, identify
+from daemon.client.client import Interrupted, abort_started
 from hal import config
 from hal.config import RigConfig
 from hal.regulator import ITV0051
@@ -244,12 +245,19 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
         print(f"posture {k} of {n} at {', '.join(f'{a:.1f}' for a in target)} deg: torques "
               f"{', '.join(f'{t:.3f}' for t in torques)} N m", file=sys.stderr, flush=True)
 
-    readings = measure(client_arm(client, rig), rig, targets, show)
-    if unloaded:
-        save_reference(reference, rig, targets, readings)
-        return {"reference": str(reference), "postures_deg": targets,
-                "torques_nm": [r.torques_nm for r in readings]}
-    found = estimate(rig, before, readings).as_dict()
-    if apply:
-        found["applied"] = client.set_load(found["mass_kg"], found["com_mm"])
-    return found
+    try:  # the lease handed back at the end (a lapsed one trips the enabled arm)
+        try:
+            readings = measure(client_arm(client, rig), rig, targets, show)
+        except (KeyboardInterrupt, Interrupted):  # it stops what it started: the move or dither running
+            raise Interrupted(f"interrupted: the payload routine stopped; "
+                              f"{abort_started(client, 'its move or dither')}; nothing was stored or applied") from None
+        if unloaded:
+            save_reference(reference, rig, targets, readings)
+            return {"reference": str(reference), "postures_deg": targets,
+                    "torques_nm": [r.torques_nm for r in readings]}
+        found = estimate(rig, before, readings).as_dict()
+        if apply:
+            found["applied"] = client.set_load(found["mass_kg"], found["com_mm"])
+        return found
+    finally:
+        client.release_lease()

@@ -5,7 +5,8 @@ of it, followed until both have ended (``pneumactl ... --wait``), and a recordin
 In a terminal a rich progress bar (the reference's name, elapsed / total, time left, the
 arm's state); piped, a line every ``LINE_EVERY_S``. It follows ``status`` on the control
 socket, so it works for any client that may read, and stops early with the cause when the
-arm leaves ``enabled`` (a trip, an e-stop).
+arm leaves ``enabled`` (a trip, an e-stop). Ctrl-C leaves it with one line (:class:`Interrupted`):
+what runs on in the daemon and the command that stops it; following is all it stops.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from contextlib import contextmanager
 
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-from daemon.client.client import Client
+from daemon.client.client import Client, Interrupted
 
 POLL_S = 0.2
 LINE_EVERY_S = 5.0
@@ -25,33 +26,54 @@ RECORDING_WAIT_S = 15.0  # a recording ends a few seconds after its reference (t
 def follow(client: Client, total_s: float, recording: str | None = None) -> dict:
     """Until the reference ends (or the arm stops being enabled), then until ``recording``
     has been written; what happened: ``{ended, state, cause, recording_file}``."""
-    status = _track(client, max(total_s, 1e-3))
+    seen: dict = {}  # the last status polled, and when
+    try:
+        status = _track(client, max(total_s, 1e-3), seen)
+    except KeyboardInterrupt:
+        raise Interrupted(_left_running(seen, recording)) from None
     outcome = {"ended": status["state"] == "enabled", "state": status["state"], "cause": status.get("cause", "")}
     if recording:
-        outcome["recording_file"] = _recording_file(client, recording)
+        try:
+            outcome["recording_file"] = _recording_file(client, recording)
+        except KeyboardInterrupt:
+            raise Interrupted(f"interrupted: the reference has ended; the daemon finishes its recording {recording} "
+                              f"(`pneumactl record.list` lists it)") from None
     return outcome
 
 
-def _track(client: Client, total_s: float) -> dict:
+def _left_running(seen: dict, recording: str | None) -> str:
+    """What a Ctrl-C while following leaves running, from the last status seen."""
+    status = seen.get("status")
+    if status is None or status["state"] != "enabled" or status["reference_remaining_s"] <= 0.0:
+        return "interrupted: nothing was left running" + (
+            f" (the daemon finishes its recording {recording})" if recording else "")
+    left = max(status["reference_remaining_s"] - (time.monotonic() - seen["at"]), 0.0)
+    recorded = f", recorded by the daemon as {recording}" if recording else ""
+    return (f"interrupted: {status['reference'] or 'the reference'} runs on in the daemon (about {left:.0f} s left"
+            f"{recorded}); `pneumactl abort` stops it and holds the arm where it is")
+
+
+def _track(client: Client, total_s: float, seen: dict) -> dict:
     if sys.stderr.isatty():
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s"),
                       TimeRemainingColumn(), TextColumn("{task.fields[state]}"), transient=False) as bar:
             task = bar.add_task("reference", total=total_s, state="")
             return _poll(client, lambda name, done, state: bar.update(task, description=name, completed=done,
-                                                                         state=state))
+                                                                         state=state), seen)
     last = [0.0]
 
     def line(name, done, state):
         if time.monotonic() - last[0] >= LINE_EVERY_S:
             last[0] = time.monotonic()
             print(f"{name}: {done:.1f} of {total_s:.1f} s ({state})", file=sys.stderr, flush=True)
-    return _poll(client, line)
+    return _poll(client, line, seen)
 
 
-def _poll(client: Client, show) -> dict:
+def _poll(client: Client, show, seen: dict) -> dict:
     start = time.monotonic()
     while True:
         status = client.call("status", control=True)
+        seen.update(status=status, at=time.monotonic())
         left = status["reference_remaining_s"]
         show(status["reference"] or "hold", time.monotonic() - start, status["state"])
         if status["state"] != "enabled" or left <= 0.0:

@@ -158,7 +158,8 @@ def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int,
     """Record a daemon's telemetry for ``seconds`` (or until the event ``stop`` is set) through
     ``client`` (a :class:`daemon.client.client.Client`) to ``path``; (messages, messages lost). An
     OSError (a full disk) propagates, the file readable up to its last complete chunk.
-    ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second."""
+    ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second.
+    Ctrl-C (KeyboardInterrupt) ends it early with the file finished, then goes on up."""
     describe, controller = client.describe(), client.controller()
     sub = client.subscribe((b"state", b"stats", b"event", b"internals", b"contact"))
     time.sleep(0.2)  # let the subscription reach the publisher
@@ -166,12 +167,16 @@ def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int,
         with open(path, "wb") as f:
             rec = McapRecording(f, describe, controller)
             start = time.monotonic()
-            while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()):
-                item = sub.receive(0.5)
-                if item is not None:
-                    rec.write(*item)
-                if progress is not None:
-                    progress(time.monotonic() - start, rec.messages, sub.lost)
+            try:
+                while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()):
+                    item = sub.receive(0.5)
+                    if item is not None:
+                        rec.write(*item)
+                    if progress is not None:
+                        progress(time.monotonic() - start, rec.messages, sub.lost)
+            except KeyboardInterrupt:  # Ctrl-C: the file finished, whole, up to here
+                rec.finish()
+                raise
             rec.finish()
     finally:
         sub.close()

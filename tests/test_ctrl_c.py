@@ -1,0 +1,100 @@
+"""Ctrl-C in pneumactl's long commands (issue: a 15-line traceback, and nothing said about what
+kept running): each ends with one line and exit 130. Following a reference (``--wait``) stops
+only the following, and says what runs on and the command that stops it; a recording made
+here ends with its file whole; a client-side routine (``identify``) stops what it started."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from daemon.client.client import Client
+from daemon.recordings import mcap_log
+from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
+from tests.test_readme_tour import restore_sigint
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("ctrl-c")
+    proc, eps = real_daemon(tmp_path)
+    client = Client(**eps, timeout=5.0)
+    try:
+        wait_for_own_daemon(client, proc)
+        yield client, eps, tmp_path
+    finally:
+        client.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def interrupted(eps, tmp_path, *args: str, when) -> subprocess.CompletedProcess:
+    """``pneumactl ARGS``, sent SIGINT (a terminal's Ctrl-C) once ``when(stderr_lines)`` holds
+    (what it has printed so far: a piped progress line says it is following)."""
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.client.ctl", *args], cwd=tmp_path, env=endpoint_env(eps),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=restore_sigint)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(proc.stderr.readline, "")), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 120.0
+    while not when(lines):
+        assert proc.poll() is None, (proc.returncode, lines)
+        assert time.monotonic() < deadline, ("the command never reached the point to interrupt", lines)
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(60)
+    reader.join(10)  # stderr read to its end by the reader alone
+    out = proc.stdout.read()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, "".join(lines))
+
+
+def one_line(done: subprocess.CompletedProcess) -> str:
+    assert done.returncode == 130, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
+    return done.stderr.strip().splitlines()[-1]
+
+
+def test_ctrl_c_while_following_a_path_says_what_runs_on_and_how_to_stop_it(daemon):
+    client, eps, tmp_path = daemon
+    assert subprocess.run([sys.executable, "-m", "daemon.client.ctl", "enable"], env=endpoint_env(eps)).returncode == 0
+    done = interrupted(eps, tmp_path, "path", "translation", "--wait",
+                       when=lambda printed: any("translation:" in line for line in printed))  # following it
+    line = one_line(done)
+    assert "runs on in the daemon" in line and "`pneumactl abort`" in line, line
+    status = client.status()
+    assert status["state"] == "enabled" and status["reference_remaining_s"] > 0.0  # following was all it stopped
+    client.call("abort", control=True)
+
+
+def test_ctrl_c_while_recording_here_ends_the_file_whole(daemon):
+    _, eps, tmp_path = daemon
+    path = tmp_path / "cut.mcap"
+    done = interrupted(eps, tmp_path, "record", str(path), "--seconds", "60",
+                       when=lambda _: path.exists() and path.stat().st_size > 50_000)
+    assert "ended at Ctrl-C, whole up to there" in one_line(done)
+    contents = mcap_log.read(path)
+    assert not contents.truncated and len(contents.messages["state"]) > 10
+
+
+def test_ctrl_c_during_identify_aborts_the_experiment_it_started(daemon):
+    client, eps, tmp_path = daemon
+    if client.status()["state"] != "enabled":
+        assert subprocess.run([sys.executable, "-m", "daemon.client.ctl", "enable"],
+                              env=endpoint_env(eps)).returncode == 0
+    client.call("abort", control=True)  # whatever an earlier test left running
+
+    def exciting(printed) -> bool:  # following its first experiment, an input-side excitation
+        return any("-input:" in line for line in printed) and client.status()["reference_remaining_s"] > 1.0
+
+    done = interrupted(eps, tmp_path, "identify", "bottom", "--quick", "--out", str(tmp_path / "identified"),
+                       when=exciting)
+    line = one_line(done)
+    assert "identification stopped" in line and "was aborted" in line and "nothing was fitted" in line, line
+    status = client.status()
+    assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0 and not status["lease_held"]
