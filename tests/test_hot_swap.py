@@ -132,6 +132,21 @@ def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(mov
     assert ("shadow", "start") in kinds and ("shadow", "commit") in kinds
 
 
+def test_a_commit_past_a_shadow_run_far_from_the_active_controller_needs_force(moving):
+    """A candidate that would have commanded more than half V_MV's range away from PID (a gain
+    4000 times the thesis's: it saturates) is not committed without a word."""
+    loop, _, sock, lease = moving
+    ok(loop, sock, "controller.shadow", {"name": "pid", "params": {"Kp": [10000.0, 10000.0]}}, lease)
+    run_seconds(loop, 2.0)
+    refused = call(loop, sock, "controller.commit", {}, lease)["error"]
+    assert refused["code"] == P.REFUSED and refused["data"]["reason"] == "shadow_difference", refused
+    span = loop.context.u_max[0] - loop.context.u_min[0]
+    assert refused["data"]["max_diff"] > refused["data"]["limit"] == pytest.approx(0.5 * span)
+    assert "--force" in refused["message"] and loop.shadow_run is not None  # the run goes on: discard or force
+    assert ok(loop, sock, "controller.commit", {"force": True}, lease)["active"] == "pid"
+    assert loop.shadow_run is None and loop.controller.p("Kp") == (10000.0, 10000.0)
+
+
 def test_a_failing_shadow_ends_its_own_run_and_nothing_else(enabled):
     loop, captured, sock, lease = enabled
     ok(loop, sock, "controller.shadow", {"name": "Raising"}, lease)

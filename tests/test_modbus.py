@@ -35,10 +35,11 @@ def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exch
     tracking within the margin."""
     port = free_tcp_port()
     proc = peer(port, "--framer", "socket" if framing == "tcp" else "rtu")
-    # One transaction may take tens of ms when this VM stalls, as RELAXED (tests/wirehelpers.py)
-    # allows for the stale limit: 150 ms here, against the 50 ms default.
+    # One transaction may take hundreds of ms when this machine is busy (beside two CPU hogs an
+    # RTU reply took more than 150 ms): waited for up to RELAXED's stale limit (tests/wirehelpers.py),
+    # 1 s, against the rig's 50 ms. What is checked is the tracking and that nothing was lost.
     options = {"port": port} if framing == "tcp" else {"mode": "rtu", "device": f"socket://127.0.0.1:{port}"}
-    options["timeout_s"] = 0.15
+    options["timeout_s"] = 1.0
     try:
         health = tracks_like_in_process(wire_loop("modbus", options)[0])
     finally:

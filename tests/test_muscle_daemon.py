@@ -24,11 +24,12 @@ def readme_lines() -> list[str]:
 
 def relaxed_rig(tmp_path):
     """sim-muscle with this shared machine's stalls tolerated (tests.daemons says why) and a
-    wire's sample age up to 0.5 s (a loaded machine held the peer 180 ms; what this test
-    checks is the README's commands, not the machine's latency)."""
+    wire's sample age up to 1 s, the rig file's most (a loaded machine held the peer 180 ms,
+    and beside two CPU hogs the arm tripped between two lines at 0.5 s; what this test checks is
+    the README's commands, not the machine's latency)."""
     text = config.load("sim-muscle").source
-    text = text.replace("stall_after_s = 0.05", "stall_after_s = 0.5").replace("stale_after_s = 0.005",
-                                                                                  "stale_after_s = 0.5")
+    text = text.replace("stall_after_s = 0.05", "stall_after_s = 5.0").replace("stale_after_s = 0.005",
+                                                                                  "stale_after_s = 1.0")
     path = tmp_path / "muscle.toml"
     path.write_text(text)
     return path
@@ -57,7 +58,7 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
             for line in lines:
                 done = subprocess.run(["bash", "-c", line.replace(".venv/bin/", BIN, 1)], cwd=tmp_path,
                                       env=endpoint_env(eps), capture_output=True, text=True, timeout=60)
-                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}"
+                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
                 status = client.status()
                 assert status["state"] == "enabled", (line, status["cause"])
                 if line.split()[1] == "set":  # a step: give it the chapter's slowest settling and more

@@ -304,8 +304,8 @@ class Client:
         """Run a candidate controller beside the active one, published but not applied."""
         return self.call("controller.shadow", self.candidate(name, params, design))
 
-    def commit(self):
-        return self.call("controller.commit")
+    def commit(self, force: bool = False):
+        return self.call("controller.commit", {"force": True} if force else None)
 
     def discard(self):
         return self.call("controller.discard")

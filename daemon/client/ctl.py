@@ -178,6 +178,7 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
     c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
     c.add_argument("--design", default=None, help="LTI design file (.toml or .npz) for lti and lti_dob")
+    c.add_argument("--force", action="store_true", help=f"commit: {_help('controller.commit', 'force')}")
     r = sub.add_parser("record", help="record telemetry to an MCAP file (Foxglove, PlotJuggler open it)")
     r.add_argument("file")
     r.add_argument("--seconds", type=float, default=10.0)
@@ -338,8 +339,10 @@ def run(client: Client, args):
             return client.controllers()
         if args.action == "get":
             return client.controller()
-        if args.action in ("commit", "discard"):
-            return with_lease(client, getattr(client, args.action))
+        if args.action == "commit":
+            return with_lease(client, lambda: client.commit(args.force))
+        if args.action == "discard":
+            return with_lease(client, client.discard)
         if args.action in ("switch", "shadow"):
             if not args.args:
                 raise SystemExit(f"controller {args.action} NAME [KEY=VALUE ...] [--design FILE]")

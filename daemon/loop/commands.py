@@ -355,7 +355,7 @@ class Commands:
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""
-        summary = _in_state(self.loop.commit)
+        summary = _in_state(lambda: self.loop.commit(args.get("force", False)))
         return {**summary, "active": self.view.controller.name, "cycle": self.view.cycle}
 
     def controller_discard(self, args):

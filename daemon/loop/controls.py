@@ -18,6 +18,8 @@ from daemon.loop.shadow import ShadowRun
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
 
+SHADOW_COMMIT_MAX = 0.5  # a shadow run's largest difference, as a fraction of a command's range, a commit needs force past
+
 
 class LoopControls:
     def enable(self) -> None:
@@ -102,15 +104,37 @@ class LoopControls:
         self.shadow_run = ShadowRun(candidate, self.actuation.width)
         self.events.add({"kind": "shadow", "action": "start", "controller": candidate.name})
 
-    def commit(self) -> dict:
+    def commit(self, force: bool = False) -> dict:
         """Make the shadow candidate the active controller, bumplessly (reset from the measured
-        state and the output in force, as any switch); the run's comparison."""
+        state and the output in force, as any switch); the run's comparison. A candidate that at
+        some cycle of the run commanded more than ``SHADOW_COMMIT_MAX`` of a command's range away
+        from the active controller is refused unless ``force``: the comparison is what a shadow run
+        is for, and a commit through one that large (a sign, a unit, a design for another plant)
+        must not go without a word. Candidates of another kind differ too (SMC+DOB from PID by 4.6
+        V of V_MV's 10 V while tracking the translation), which is why the bar is half the range."""
         if self.shadow_run is None:
             raise StateError("no shadow run to commit: start one with controller.shadow")
+        if not force:
+            self._check_shadow_agrees(self.shadow_run.summary())
         candidate = self.shadow_run.controller
         summary = self._end_shadow("commit")
         self.switch(candidate, "shadow commit")
         return summary
+
+    def _check_shadow_agrees(self, summary: dict) -> None:
+        """``refused`` (reason ``shadow_difference``) where the run's largest difference on some
+        command exceeds its share of that command's range."""
+        for command, largest, rms in zip(self.actuation.commands, summary["max_diff_volts"], summary["rms_diff_volts"]):
+            limit = SHADOW_COMMIT_MAX * (command.high - command.low)
+            if largest > limit:
+                raise CommandFailed(
+                    P.REFUSED, f"{summary['controller']} would have commanded up to {largest:.3g} {command.unit} away "
+                               f"from {self.controller.name} on {command.joint}'s {command.name} (RMS {rms:.3g} "
+                               f"{command.unit}) over the shadow run, more than {SHADOW_COMMIT_MAX:.0%} of its range "
+                               f"({limit:.3g} {command.unit}): a commit would change what the arm does; commit with "
+                               f"force: true (pneumactl controller commit --force) if that is meant",
+                    {"reason": "shadow_difference", "joint": command.joint, "command": command.name,
+                     "max_diff": largest, "rms_diff": rms, "limit": limit, "unit": command.unit})
 
     def discard(self) -> dict:
         """End the shadow run without applying it; the run's comparison."""

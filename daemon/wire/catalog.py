@@ -240,8 +240,9 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             lease=True, deferred=True, errors=(P.REFUSED,)),
     Command("controller.shadow", "planner", "run a candidate beside the active controller, unapplied",
             ("shadow", "active", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
-    Command("controller.commit", "loop", "make the shadow candidate active", (*_COMPARISON, "active", "cycle"),
-            lease=True, errors=(P.BAD_STATE,)),
+    Command("controller.commit", "loop", "make the shadow candidate active", (*_COMPARISON, "active", "cycle"), (
+        Arg("force", "boolean", "commit though the candidate commanded more than half a command's range away from the active controller in the shadow run",
+            default=False),), lease=True, errors=(P.BAD_STATE, P.REFUSED)),
     Command("controller.discard", "loop", "end the shadow run", _COMPARISON, lease=True, errors=(P.BAD_STATE,)),
     Command("load.set", "loop", "feed a known payload forward", ("load", "cycle"), (
         Arg("mass_kg", "number", "the payload's mass", 0.0, 1000.0, "kg", required=True),
