@@ -55,6 +55,23 @@ class Raising(Controller):
         return [0.0] * self.context.n
 
 
+class Contrary(Controller):
+    """Commands each joint's rail furthest from what was applied the cycle before: a candidate
+    as wrong as a sign error (at least half the range away from the active controller, always)."""
+
+    name = "contrary"
+
+    def reset(self, state, last_output):
+        self.last = list(last_output)
+
+    def applied(self, u):
+        self.last = list(u)
+
+    def step(self, state, reference):
+        ctx = self.context
+        return [hi if u - lo < hi - u else lo for u, lo, hi in zip(self.last, ctx.u_min, ctx.u_max)]
+
+
 class ReturnsNaN(Controller):
     """Returns NaN on its 5th step."""
 

@@ -79,6 +79,10 @@ class Commands:
         self.described = self._build_describe()  # what describe answers, packed once: it is large and never changes
         self._describe_packed = P.Packed.of(self.described)
         self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
+        # Parameters clients set, per controller name: a switch back to one carries them (and says so)
+        self._set_before: dict[str, dict] = {}
+        self._active_as = self.view.controller.name  # the name the active controller was switched in by
+        self._shadow_set: tuple[str, dict] | None = None  # a shadow candidate's name and parameters, till its commit
 
     # -- entry points -----------------------------------------------------------------------
     def handle_request(self, request: dict, control: bool = False, client: Identity = ANONYMOUS) -> bytes | Deferred:
@@ -324,21 +328,28 @@ class Commands:
         return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
 
     def controller_switch(self, request):
-        """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless)."""
+        """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless);
+        the parameters set on it before are carried (``carried`` says which)."""
 
-        def finish(new):
+        def finish(built):
+            new, name, carried, given = built
             self.loop.switch(new)
-            return {"active": new.name, "params": new.get_params(), "cycle": self.view.cycle}
+            self._active_as = name
+            self._set_before[name] = {**carried, **given}
+            return {"active": new.name, "params": new.get_params(), "carried": carried, "cycle": self.view.cycle}
 
         return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
-                              request)
+                              request, self._set_before)
 
     def controller_set(self, request):
         """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
-        c = self.view.controller
+        c, name = self.view.controller, self._active_as
 
-        def finish(prepared):
-            return {"name": c.name, "params": self.loop.set_params(c, prepared), "cycle": self.view.cycle}
+        def finish(result):
+            prepared, given = result
+            params = self.loop.set_params(c, prepared)
+            self._set_before[name] = {**self._set_before.get(name, {}), **given}
+            return {"name": c.name, "params": params, "cycle": self.view.cycle}
 
         return self._off_loop(finish, planner.prepare_change, type(c), c.context, c.given_options, c.get_params(),
                               request)
@@ -346,21 +357,29 @@ class Commands:
     def controller_shadow(self, request):
         """Build a candidate beside the loop and run it beside the active controller, unapplied."""
 
-        def finish(candidate):
+        def finish(built):
+            candidate, name, carried, given = built
             self.loop.shadow(candidate)
-            return {"shadow": candidate.name, "active": self.view.controller.name, "cycle": self.view.cycle}
+            self._shadow_set = (name, {**carried, **given})
+            return {"shadow": candidate.name, "active": self.view.controller.name, "carried": carried,
+                    "cycle": self.view.cycle}
 
         return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
-                              request)
+                              request, self._set_before)
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""
         summary = _in_state(lambda: self.loop.commit(args.get("force", False)))
+        if self._shadow_set is not None:  # the candidate's name and parameters are the active ones now
+            self._active_as, self._set_before[self._shadow_set[0]] = self._shadow_set
+            self._shadow_set = None
         return {**summary, "active": self.view.controller.name, "cycle": self.view.cycle}
 
     def controller_discard(self, args):
         """End the shadow run without applying it; the run's comparison."""
-        return _in_state(self.loop.discard)
+        summary = _in_state(self.loop.discard)
+        self._shadow_set = None
+        return summary
 
 
 def _in_state(control):

@@ -43,23 +43,30 @@ def _number(cmd: str, args: dict, key: str, default: float | None = None) -> flo
     return number(args, key, spec.low, spec.high, spec.default if default is None else default)
 
 
-def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict) -> Controller:
-    """``controller.switch`` / ``controller.shadow``: the named controller, built and validated.
-    The name must be registered (a built-in, an entry point, or one of the daemon's
-    configured ``plugins``): a request never names a module to import."""
+def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict,
+                     set_before: dict[str, dict]) -> tuple[Controller, str, dict, dict]:
+    """``controller.switch`` / ``controller.shadow``: the named controller, built and validated,
+    with the parameters clients set on it before (``set_before[name]``, what the daemon kept)
+    under those the request gives: (controller, name, carried, given). The name must be
+    registered (a built-in, an entry point, or one of the daemon's configured ``plugins``): a
+    request never names a module to import."""
     args = P.decode_args(request)  # checked against the catalog by the messenger
-    return registry.build(args["name"], context, args.get("params", {}), args.get("options", {}), plugins=plugins,
-                          paths=False)
+    name, given = args["name"], args.get("params", {})
+    carried = {k: v for k, v in set_before.get(name, {}).items() if k not in given}
+    controller = registry.build(name, context, {**carried, **given}, args.get("options", {}), plugins=plugins,
+                                paths=False)
+    return controller, name, carried, given
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,
                    request: dict):
-    """``controller.set``: the running controller's change, derived whole by a twin."""
+    """``controller.set``: the running controller's change, derived whole by a twin; and the
+    parameters the request set (which a later switch back to it carries)."""
     args = P.decode_args(request)
     params = args["params"]  # a map: checked against the catalog by the messenger
     if not params:
         raise bad_args("'params' must name at least one parameter", "params")
-    return registry.prepare_change(cls, context, options, values, params)
+    return registry.prepare_change(cls, context, options, values, params), params
 
 
 def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float], generation: int) -> Plan:

@@ -234,15 +234,16 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("controller.list", "loop", "the controllers this daemon can run", ("active", "available")),
     Command("controller.get", "loop", "the active controller's parameters", ("name", "params", "spec")),
     Command("controller.switch", "planner", "build a controller beside the loop and swap it in",
-            ("active", "params", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
+            ("active", "params", "carried", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
     Command("controller.set", "planner", "change the active controller's parameters", ("name", "params", "cycle"), (
         Arg("params", "map", "parameter name -> a number (all joints) or a list (one per joint)", required=True),),
             lease=True, deferred=True, errors=(P.REFUSED,)),
     Command("controller.shadow", "planner", "run a candidate beside the active controller, unapplied",
-            ("shadow", "active", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
+            ("shadow", "active", "carried", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
     Command("controller.commit", "loop", "make the shadow candidate active", (*_COMPARISON, "active", "cycle"), (
-        Arg("force", "boolean", "commit though the candidate commanded more than half a command's range away from the active controller in the shadow run",
-            default=False),), lease=True, errors=(P.BAD_STATE, P.REFUSED)),
+        Arg("force", "boolean", "commit though the candidate's output was more than 40 % of a command's range "
+            "(RMS) away from the active controller's in the shadow run", default=False),), lease=True,
+            errors=(P.BAD_STATE, P.REFUSED)),
     Command("controller.discard", "loop", "end the shadow run", _COMPARISON, lease=True, errors=(P.BAD_STATE,)),
     Command("load.set", "loop", "feed a known payload forward", ("load", "cycle"), (
         Arg("mass_kg", "number", "the payload's mass", 0.0, 1000.0, "kg", required=True),
