@@ -116,3 +116,26 @@ def test_the_dithered_balance_torques_carry_the_payloads_moment():
             measured = after.torques_nm[j] - before.torques_nm[j]
             assert measured == pytest.approx(-moment[j], abs=0.002), (j, measured, -moment[j])
             assert abs(moment[j]) > 0.04  # a moment the test can see, beyond its tolerance
+
+
+def test_the_routines_estimate_counts_the_dithers_the_daemon_runs():
+    """The estimate printed before a run that takes minutes: its dither per joint is the one
+    the daemon plans for the routine's request, and each posture adds its unhurried move."""
+    from daemon.testing.loop import dealer, make_loop, ok
+    loop, _, srv = make_loop(server=True)
+    try:
+        sock = dealer(srv)
+        lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+        ok(loop, sock, "enable", lease=lease)
+        for joint in loop.rig.joints:
+            planned = ok(loop, sock, "excite", payload_routine.dither_args(loop.rig, joint.name), lease)["duration_s"]
+            assert payload_routine.dither_s(loop.rig, joint.name) == pytest.approx(planned, abs=0.01)
+            ok(loop, sock, "abort", lease=lease)
+    finally:
+        srv.close()
+    rig = config.load()
+    targets = payload_routine.postures(rig)
+    here = [j.neutral_deg for j in rig.joints]
+    estimates = payload_routine.posture_estimates_s(rig, targets, here)
+    dithers = sum(payload_routine.dither_s(rig, j.name) for j in rig.joints)
+    assert len(estimates) == len(targets) and all(e > dithers + payload_routine.REST_S for e in estimates)

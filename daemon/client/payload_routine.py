@@ -46,6 +46,7 @@ DITHER_FS = 2.0  # the dither's V_MV amplitude over the joint's breakaway V_MV (
 DITHER_MAX_V = 2.2  # ... and at most this [V]: the middle joint's range keeps room for its load
 DITHER_HZ = 0.5
 DITHER_S = 42.0  # the dither's length after its settling [s]
+REST_S = 2.0  # what coming to rest after a move adds, in the routine's estimate [s]
 AVERAGED_S = 24.0  # the mean is taken over this [s] (whole periods) ending END_GUARD_S before the
 #                    dither does; the bottom joint's balance (0.85 N m per volt) then matches the
 #                    payload's moment to about 0.2 mN m (the mass hangs on it: 1 mN m is about 1 g)
@@ -105,6 +106,25 @@ def dither_args(rig: RigConfig, joint: str) -> dict:
             "amplitude_v": round(min(DITHER_FS * params.Fs / params.torque_per_volt, DITHER_MAX_V), 3),
             "f0_hz": DITHER_HZ, "f1_hz": 2 * DITHER_HZ, "components": 1, "period_s": 1.0 / DITHER_HZ,
             "periods": int(DITHER_S * DITHER_HZ), "settle_s": 2.0, "band_deg": 5.0, "centre_hz": CENTRE_HZ}
+
+
+def dither_s(rig: RigConfig, joint: str) -> float:
+    """How long the daemon runs ``joint``'s dither [s]: its settling and its whole periods."""
+    args = dither_args(rig, joint)
+    return args["settle_s"] + args["periods"] * args["period_s"]
+
+
+def posture_estimates_s(rig: RigConfig, targets: list[list[float]], here_deg: list[float]) -> list[float]:
+    """What each posture should take [s] through :func:`client_arm`: its unhurried move (the
+    pace ``identify`` moves at), ``REST_S`` to come to rest, and a dither per joint. A move the
+    daemon slows, or a joint slow to rest, takes longer."""
+    from daemon.client.identify import move_duration
+
+    out = []
+    for target in targets:
+        out.append(move_duration(target, here_deg) + REST_S + sum(dither_s(rig, j.name) for j in rig.joints))
+        here_deg = target
+    return out
 
 
 def postures(rig: RigConfig) -> list[list[float]]:
@@ -238,12 +258,20 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
     if client.status()["state"] != "enabled":
         raise SystemExit("the arm is not enabled: `pneumactl enable` first (the routine moves it)")
     targets, before = (postures(rig), None) if unloaded else load_reference(reference, rig)
+    names = [j.name for j in rig.joints]
+    here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
+    estimates = posture_estimates_s(rig, targets, here)
+    print(f"payload identify: {len(targets)} postures, each a move and a {dither_s(rig, names[0]):.0f} s dither per "
+          f"joint: about {sum(estimates) / 60:.0f} min (Ctrl-C stops it)", file=sys.stderr, flush=True)
     client.acquire_lease()
     client.keep_lease()
+    started = time.monotonic()
 
     def show(k, n, target, torques):
+        left = sum(estimates[k:])
         print(f"posture {k} of {n} at {', '.join(f'{a:.1f}' for a in target)} deg: torques "
-              f"{', '.join(f'{t:.3f}' for t in torques)} N m", file=sys.stderr, flush=True)
+              f"{', '.join(f'{t:.3f}' for t in torques)} N m ({(time.monotonic() - started) / 60:.1f} min in, "
+              f"about {left / 60:.1f} min left)", file=sys.stderr, flush=True)
 
     try:  # the lease handed back at the end (a lapsed one trips the enabled arm)
         try:
