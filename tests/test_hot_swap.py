@@ -180,6 +180,13 @@ def test_parameters_set_on_a_controller_come_back_with_it_and_the_switch_says_so
     assert loop.controller.p("Kp") == (40.0, 40.0) and loop.controller.p("Ti") == (1.5, 2.5)
     shadow = ok(loop, sock, "controller.shadow", {"name": "pid"}, lease)
     assert shadow["carried"] == {"Kp": 40.0, "Ti": [1.5, 2.5]}  # a candidate starts from them too
+    ok(loop, sock, "controller.discard", {}, lease)
+    assert ok(loop, sock, "controller.switch", {"name": "pid"}, lease)["reset"] == {}  # the same controller
+    # a switch to another controller that has a parameter of the same name says it starts it afresh
+    ok(loop, sock, "controller.switch", {"name": "smc", "params": {"switch_volts": [2.0, 2.5]}}, lease)
+    other = ok(loop, sock, "controller.switch", {"name": "sac"}, lease)
+    assert other["reset"] == {"switch_volts": {"was": [2.0, 2.5], "now": list(loop.controller.p("switch_volts"))}}
+    assert loop.controller.p("switch_volts") != (2.0, 2.5)
 
 
 def test_a_parameter_change_is_derived_off_the_loop_and_applied_whole(enabled):

@@ -61,6 +61,8 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
                 assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
                 status = client.status()
                 assert status["state"] == "enabled", (line, status["cause"])
+                if " controller switch " in line:  # the brake damping set on muscle_eq: not dropped silently
+                    assert "note: brake_linear was set to 0.05 on the controller replaced" in done.stderr, done.stderr
                 if line.split()[1] == "set":  # a step: give it the chapter's slowest settling and more
                     time.sleep(2.5)
                     target = float(line.split()[2])

@@ -348,7 +348,16 @@ def run(client: Client, args):
                 raise SystemExit(f"controller {args.action} NAME [KEY=VALUE ...] [--design FILE]")
             # the design read before the lease is taken: under load it can outlast the lease's time to live
             request = client.candidate(args.args[0], key_values(args.args[1:]), args.design)
-            return with_lease(client, lambda: client.call(f"controller.{args.action}", request))
+            result = with_lease(client, lambda: client.call(f"controller.{args.action}", request))
+            for key, values in result.get("reset", {}).items():  # the user's setting, not silently dropped
+                was = values["was"]
+                print(f"note: {key} was set to {was} on the controller replaced; {result['active']} starts it at "
+                      f"{values['now']} (`pneumactl controller set {key}={json.dumps(was)}` sets it again)",
+                      file=sys.stderr)
+            for key, value in result.get("carried", {}).items():
+                print(f"note: {key} = {value}, as set on {result.get('active', result.get('shadow'))} before",
+                      file=sys.stderr)
+            return result
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "keys":
         return client.call("keys.reload", control=True)

@@ -332,14 +332,15 @@ class Commands:
         the parameters set on it before are carried (``carried`` says which)."""
 
         def finish(built):
-            new, name, carried, given = built
+            new, name, carried, given, reset = built
             self.loop.switch(new)
             self._active_as = name
             self._set_before[name] = {**carried, **given}
-            return {"active": new.name, "params": new.get_params(), "carried": carried, "cycle": self.view.cycle}
+            return {"active": new.name, "params": new.get_params(), "carried": carried, "reset": reset,
+                    "cycle": self.view.cycle}
 
         return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
-                              request, self._set_before)
+                              request, self._set_before, self._active_as)
 
     def controller_set(self, request):
         """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
@@ -358,14 +359,14 @@ class Commands:
         """Build a candidate beside the loop and run it beside the active controller, unapplied."""
 
         def finish(built):
-            candidate, name, carried, given = built
+            candidate, name, carried, given, _ = built
             self.loop.shadow(candidate)
             self._shadow_set = (name, {**carried, **given})
             return {"shadow": candidate.name, "active": self.view.controller.name, "carried": carried,
                     "cycle": self.view.cycle}
 
         return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
-                              request, self._set_before)
+                              request, self._set_before, self._active_as)
 
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""

@@ -44,18 +44,32 @@ def _number(cmd: str, args: dict, key: str, default: float | None = None) -> flo
 
 
 def build_controller(context: ControllerContext, plugins: dict[str, str], request: dict,
-                     set_before: dict[str, dict]) -> tuple[Controller, str, dict, dict]:
+                     set_before: dict[str, dict], active_as: str) -> tuple[Controller, str, dict, dict, dict]:
     """``controller.switch`` / ``controller.shadow``: the named controller, built and validated,
     with the parameters clients set on it before (``set_before[name]``, what the daemon kept)
-    under those the request gives: (controller, name, carried, given). The name must be
-    registered (a built-in, an entry point, or one of the daemon's configured ``plugins``): a
-    request never names a module to import."""
+    under those the request gives: (controller, name, carried, given, reset). ``reset``: the
+    parameters set on the active controller (``active_as``) that the new one also has, at
+    another value (``{name: {was, now}}``): a switch to another controller starts from its own
+    values, and says which of the user's it leaves. The name must be registered (a built-in, an
+    entry point, or one of the daemon's configured ``plugins``): a request never names a
+    module to import."""
     args = P.decode_args(request)  # checked against the catalog by the messenger
     name, given = args["name"], args.get("params", {})
     carried = {k: v for k, v in set_before.get(name, {}).items() if k not in given}
     controller = registry.build(name, context, {**carried, **given}, args.get("options", {}), plugins=plugins,
                                 paths=False)
-    return controller, name, carried, given
+    now = controller.get_params()
+    reset = {}
+    if name != active_as:
+        for key, was in set_before.get(active_as, {}).items():
+            if key in now and list(controller.p(key)) != list(_per_joint(was, context.n)):
+                reset[key] = {"was": was, "now": now[key]}
+    return controller, name, carried, given, reset
+
+
+def _per_joint(value, n: int) -> list:
+    """A parameter as a request gives it (one number for every joint, or one per joint)."""
+    return list(value) if isinstance(value, list) else [value] * n
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,

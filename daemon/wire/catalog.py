@@ -234,7 +234,8 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("controller.list", "loop", "the controllers this daemon can run", ("active", "available")),
     Command("controller.get", "loop", "the active controller's parameters", ("name", "params", "spec")),
     Command("controller.switch", "planner", "build a controller beside the loop and swap it in",
-            ("active", "params", "carried", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
+            ("active", "params", "carried", "reset", "cycle"), _BUILD, lease=True, deferred=True,
+            errors=(P.REFUSED,)),
     Command("controller.set", "planner", "change the active controller's parameters", ("name", "params", "cycle"), (
         Arg("params", "map", "parameter name -> a number (all joints) or a list (one per joint)", required=True),),
             lease=True, deferred=True, errors=(P.REFUSED,)),
