@@ -38,12 +38,15 @@ Publish = Callable[[bytes, bytes], None]  # a telemetry sink: (topic, payload)
 
 def rig_of(args) -> config.RigConfig:
     """The rig ``pneumad``'s options name: ``--config`` (a file or a built-in rig), its
-    transport replaced by ``--transport`` (with its ``--transport-option KEY=VALUE``) if given."""
+    transport replaced by ``--transport`` (with its ``--transport-option KEY=VALUE``) if given,
+    and ``[safety]`` values by ``--safety KEY=VALUE``."""
     rig = config.load(args.config)
     if args.transport:
         rig = config.with_transport(rig, args.transport, dict(map(config.parse_option, args.transport_option)))
     elif args.transport_option:
         raise ConfigError("--transport-option needs --transport")
+    if args.safety:
+        rig = config.with_safety(rig, dict(config.parse_option(text, "--safety") for text in args.safety))
     return rig
 
 

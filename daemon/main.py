@@ -56,6 +56,8 @@ def check_config(args) -> int:
         print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, model "
               + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
                  if params is not None else "none"))
+    print(f"  safety: input stale after {rig.safety.stale_after_s * 1e3:g} ms, a cycle woken {rig.safety.stall_after_s * 1e3:g} "
+          f"ms late trips")
     print(f"  arm: links {', '.join(f'{l:g}' for l in rig.arm.link_lengths_mm)} mm, gravity in its plane "
           f"({', '.join(f'{g:g}' for g in rig.arm.gravity_m_s2)}) m/s^2")
     if rig.contact_sensor is not None:
@@ -167,6 +169,9 @@ def parser() -> argparse.ArgumentParser:
                              "or module:Class)")
         sp.add_argument("--transport-option", action="append", default=[], metavar="KEY=VALUE",
                         help="an option of that backend, repeatable: e.g. port=/tmp/pneumad-bridge")
+        sp.add_argument("--safety", action="append", default=[], metavar="KEY=VALUE",
+                        help="replace a value of the rig file's [safety] for this run, repeatable, checked as the "
+                             "file's own: e.g. stale_after_s=0.05 across a wire on a PC without real-time scheduling")
 
     def timing(sp):
         sp.add_argument("--period", type=float, default=0.001, help="loop period [s] (default 0.001)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import math
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -339,12 +339,26 @@ def with_transport(rig: RigConfig, backend: str, options: dict[str, Any]) -> Rig
     return changed
 
 
-def parse_option(text: str) -> tuple[str, Any]:
+def with_safety(rig: RigConfig, changes: dict[str, Any]) -> RigConfig:
+    """The rig with some ``[safety]`` values replaced, checked as the file's own are (``pneumad
+    --safety KEY=VALUE``: e.g. a PC without real-time scheduling, which cannot keep a 5 ms stale
+    limit across a wire). The source text records the override, so the rig's hash tells them
+    apart."""
+    current = {f.name: getattr(rig.safety, f.name) for f in fields(SafetyConfig) if f.init}
+    safety = build(SafetyConfig, {**current, **changes}, "safety")
+    changed = replace(rig, safety=safety)
+    note = "\n# overridden on the command line: [safety] " + ", ".join(f"{k} = {v!r}" for k, v in changes.items()) + "\n"
+    object.__setattr__(changed, "source", rig.source + note)
+    object.__setattr__(changed, "origin", rig.origin)
+    return changed
+
+
+def parse_option(text: str, what: str = "transport option") -> tuple[str, Any]:
     """``KEY=VALUE`` with VALUE read as a TOML value (a number, true, a quoted string, an
     array), or else as a plain string: ``port=/dev/ttyACM0``, ``baudrate=921600``."""
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
-        raise ConfigError(f"transport option {text!r}: expected KEY=VALUE")
+        raise ConfigError(f"{what} {text!r}: expected KEY=VALUE")
     try:
         return key.strip(), tomllib.loads(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:

@@ -105,8 +105,8 @@ class Supervisor:
         self._bad_sensor = 0
         if sample_age > self.rig.safety.stale_after_s:
             self.trip(f"transport data is stale: last sample {sample_age * 1e3:.1f} ms old "
-                      f"(limit {self.rig.safety.stale_after_s * 1e3:.1f} ms: the rig file's [safety] stale_after_s; "
-                      f"'pneumad latency' measures what this PC keeps)")
+                      f"(limit {self.rig.safety.stale_after_s * 1e3:.1f} ms: the rig file's [safety] stale_after_s, "
+                      f"or pneumad --safety stale_after_s=...; 'pneumad latency' measures what this PC keeps)")
             return
         if self.state is not State.ENABLED:
             return
