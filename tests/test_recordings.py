@@ -158,15 +158,23 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
     import sys
     from pathlib import Path
 
-    from tests.daemons import real_daemon, wait_for_own_daemon
+    from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
     root = Path(__file__).resolve().parents[1]
     daemon, eps = real_daemon(tmp_path)
     try:
         with Client(**eps) as client:  # serving (the example, as a user would, runs against a daemon that is)
             wait_for_own_daemon(client, daemon)
-            client.acquire_lease()  # and left enabled, as the README's Python snippet leaves it
-            client.enable()
-            client.release_lease()
+        # the README's Python snippet first, as written (its client finds the daemon through the
+        # environment): it leaves the arm enabled and the translation running, which a user stops
+        readme = (root / "README.md").read_text().split("From Python:", 1)[1].split("\n\n", 2)[1]
+        snippet = "\n".join(line[4:] for line in readme.splitlines())
+        assert "c.enable()" in snippet and "Client()" in snippet
+        done = subprocess.run([sys.executable, "-c", snippet], cwd=tmp_path, env=endpoint_env(eps),
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0 and "'cycle'" in done.stdout, (snippet, done.stderr)
+        with Client(**eps) as client:
+            assert client.status()["state"] == "enabled" and client.status()["reference"] == "translation"
+            client.call("abort", control=True)
         out = subprocess.run([sys.executable, str(root / "examples" / "step_experiment.py"), "--out",
                               str(tmp_path / "step"), "--seconds", "6", *sum(([f"--{k}", v] for k, v in eps.items()), [])],
                              cwd=root, capture_output=True, text=True, timeout=120)
