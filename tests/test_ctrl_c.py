@@ -98,3 +98,22 @@ def test_ctrl_c_during_identify_aborts_the_experiment_it_started(daemon):
     assert "identification stopped" in line and "was aborted" in line and "nothing was fitted" in line, line
     status = client.status()
     assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0 and not status["lease_held"]
+
+
+def test_ctrl_c_during_payload_identify_aborts_its_move_and_stores_nothing(daemon):
+    client, eps, tmp_path = daemon
+    if client.status()["state"] != "enabled":
+        assert subprocess.run([sys.executable, "-m", "daemon.client.ctl", "enable"],
+                              env=endpoint_env(eps)).returncode == 0
+    client.call("abort", control=True)  # whatever an earlier test left running
+    reference = tmp_path / "unloaded.json"
+
+    def moving(printed) -> bool:  # it said how long it will take, and its first move runs
+        return any("payload identify:" in line for line in printed) and client.status()["reference_remaining_s"] > 0.5
+
+    done = interrupted(eps, tmp_path, "payload", "identify", "--unloaded", "--reference", str(reference), when=moving)
+    line = one_line(done)
+    assert "payload routine stopped" in line and "was aborted" in line and "nothing was stored" in line, line
+    assert not reference.exists()
+    status = client.status()
+    assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0 and not status["lease_held"]
