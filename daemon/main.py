@@ -56,8 +56,9 @@ def check_config(args) -> int:
         print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, model "
               + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
                  if params is not None else "none"))
-    print(f"  safety: input stale after {rig.safety.stale_after_s * 1e3:g} ms, a cycle woken {rig.safety.stall_after_s * 1e3:g} "
-          f"ms late trips")
+    safety = rig.safety
+    print(f"  safety: input stale after {safety.stale_after_s * 1e3:g} ms, a cycle woken "
+          f"{safety.stall_after_s * 1e3:g} ms late trips")
     print(f"  arm: links {', '.join(f'{l:g}' for l in rig.arm.link_lengths_mm)} mm, gravity in its plane "
           f"({', '.join(f'{g:g}' for g in rig.arm.gravity_m_s2)}) m/s^2")
     if rig.contact_sensor is not None:

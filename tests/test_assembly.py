@@ -51,7 +51,8 @@ def test_the_help_names_every_built_in_rig(capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "400")  # an option a line: no name broken at its hyphen
     with pytest.raises(SystemExit):
         main.main(["run", "--help"])
-    config_help = next(line for line in capsys.readouterr().out.splitlines() if line.lstrip().startswith("--config CONFIG"))
+    lines = capsys.readouterr().out.splitlines()
+    config_help = next(line for line in lines if line.lstrip().startswith("--config CONFIG"))
     assert all(name in config_help for name in config.BUILTIN_RIGS)
 
 

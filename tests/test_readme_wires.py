@@ -67,9 +67,9 @@ def test_the_readme_wire_lines_run_as_written(wire, tmp_path):
             time.sleep(0.1)
         eps = private_endpoints(tmp_path)
         endpoints = sum(([f"--{k}", v] for k, v in eps.items()), [])
-        daemon = subprocess.Popen(["bash", "-c", "exec " + daemon_line + " " + " ".join(
-            [*LOADED, *WIRE_LOADED.get(wire, []), "--record-dir", str(tmp_path / "rec"), "--transport-option", "open_timeout_s=30", *endpoints])],
-                                  cwd=tmp_path)
+        ours = [*LOADED, *WIRE_LOADED.get(wire, []), "--record-dir", str(tmp_path / "rec"),
+                "--transport-option", "open_timeout_s=30", *endpoints]
+        daemon = subprocess.Popen(["bash", "-c", "exec " + daemon_line + " " + " ".join(ours)], cwd=tmp_path)
         env = endpoint_env(eps)
         enabled_at = 0.0
         with Client(**eps, timeout=5.0) as client:
