@@ -119,7 +119,10 @@ def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(mov
         assert status["shadow"]["max_diff_volts"][j] == pytest.approx(max(diffs), abs=1e-12)
         rms = math.sqrt(sum(d * d for d in diffs) / len(diffs))
         assert status["shadow"]["rms_diff_volts"][j] == pytest.approx(rms, rel=1e-9)
-    committed = ok(loop, sock, "controller.commit", {}, lease)
+    # SMC+DOB's output is 0.3-6 V RMS from a PID that saturates on the middle joint, depending on
+    # the part of the path the run saw (on a busy machine the run starts later along it): past
+    # 40 % of the range a commit needs force, which is what a user is told; here it is given
+    committed = ok(loop, sock, "controller.commit", {"force": True}, lease)
     assert committed["active"] == "smc_dob" and committed["cycles"] >= len(rows)
     assert_bumpless(loop, captured, committed["cycle"])
     run_seconds(loop, 3.0)
