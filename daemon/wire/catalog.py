@@ -242,7 +242,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("controller.shadow", "planner", "run a candidate beside the active controller, unapplied",
             ("shadow", "active", "carried", "cycle"), _BUILD, lease=True, deferred=True, errors=(P.REFUSED,)),
     Command("controller.commit", "loop", "make the shadow candidate active", (*_COMPARISON, "active", "cycle"), (
-        Arg("force", "boolean", "commit though the candidate's output was more than 40 % of a command's range "
+        Arg("force", "boolean", "commit though the candidate's output was more than half a command's range "
             "(RMS) away from the active controller's in the shadow run", default=False),), lease=True,
             errors=(P.BAD_STATE, P.REFUSED)),
     Command("controller.discard", "loop", "end the shadow run", _COMPARISON, lease=True, errors=(P.BAD_STATE,)),
