@@ -54,6 +54,15 @@ def interrupted(eps, tmp_path, *args: str, when) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, "".join(lines))
 
 
+def enabled_and_still(client: Client, eps) -> None:
+    """The arm enabled (by pneumactl, as a user would) with nothing running: whatever an earlier
+    test left running is aborted."""
+    if client.status()["state"] != "enabled":
+        assert subprocess.run([sys.executable, "-m", "daemon.client.ctl", "enable"],
+                              env=endpoint_env(eps)).returncode == 0
+    client.call("abort", control=True)
+
+
 def one_line(done: subprocess.CompletedProcess) -> str:
     assert done.returncode == 130, done.stderr
     assert "Traceback" not in done.stderr, done.stderr
@@ -84,10 +93,7 @@ def test_ctrl_c_while_recording_here_ends_the_file_whole(daemon):
 
 def test_ctrl_c_during_identify_aborts_the_experiment_it_started(daemon):
     client, eps, tmp_path = daemon
-    if client.status()["state"] != "enabled":
-        assert subprocess.run([sys.executable, "-m", "daemon.client.ctl", "enable"],
-                              env=endpoint_env(eps)).returncode == 0
-    client.call("abort", control=True)  # whatever an earlier test left running
+    enabled_and_still(client, eps)
 
     def exciting(printed) -> bool:  # following its first experiment, an input-side excitation
         return any("-input:" in line for line in printed) and client.status()["reference_remaining_s"] > 1.0
@@ -102,10 +108,7 @@ def test_ctrl_c_during_identify_aborts_the_experiment_it_started(daemon):
 
 def test_ctrl_c_during_payload_identify_aborts_its_move_and_stores_nothing(daemon):
     client, eps, tmp_path = daemon
-    if client.status()["state"] != "enabled":
-        assert subprocess.run([sys.executable, "-m", "daemon.client.ctl", "enable"],
-                              env=endpoint_env(eps)).returncode == 0
-    client.call("abort", control=True)  # whatever an earlier test left running
+    enabled_and_still(client, eps)
     reference = tmp_path / "unloaded.json"
 
     def moving(printed) -> bool:  # it said how long it will take, and its first move runs
