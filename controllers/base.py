@@ -245,7 +245,7 @@ class Controller(ABC):
             if spec is None:
                 raise ParamError(f"{self.name}: unknown parameter {key!r} (known: {', '.join(specs) or 'none'})",
                                  parameter=key, allowed=list(specs))
-            values = raw if isinstance(raw, (list, tuple)) else [raw] * n
+            values = joint_values(raw, n)
             if len(values) != n:
                 raise ParamError(f"{self.name}.{key}: expected {n} values (one per joint), got {len(values)}",
                                  parameter=key)
@@ -288,6 +288,12 @@ class Controller(ABC):
         return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
                 "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options],
                 "internals": [s.describe() for s in cls.internals]}
+
+
+def joint_values(raw, n: int) -> list:
+    """A parameter as a request gives it, one value per joint: a list as it is, one number for
+    all ``n`` joints."""
+    return list(raw) if isinstance(raw, (list, tuple)) else [raw] * n
 
 
 def _per_joint(default: tuple[float, ...], n: int) -> tuple[float, ...]:

@@ -17,13 +17,13 @@ from controllers.base import ControllerContext
 from daemon.contact.process import ContactSensor
 from daemon.loop.cycle import ControlLoop
 from daemon.loop.feed_forward import LoadFeedForward
-from daemon.messenger.shared import STALL_S
 from daemon.loop.parts import LoopParts
 from daemon.loop.port import ZmqServer
 from daemon.loop.safety import Supervisor
 from daemon.loop.stats import LoopStats
 from daemon.loop.telemetry import Telemetry
 from daemon.loop.tracking import TrackingGuard
+from daemon.messenger.shared import STALL_S
 from daemon.planner.process import DEFAULT_TIME_LIMIT_S, Preparer
 from daemon.service import realtime
 from daemon.wire.loop_stats import StatsBanks

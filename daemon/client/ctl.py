@@ -355,7 +355,7 @@ def run(client: Client, args):
                       f"{values['now']} (`pneumactl controller set {key}={json.dumps(was)}` sets it again)",
                       file=sys.stderr)
             for key, value in result.get("carried", {}).items():
-                print(f"note: {key} = {value}, as set on {result.get('active', result.get('shadow'))} before",
+                print(f"note: {key} = {value}, as set on {result.get('shadow', result.get('active'))} before",
                       file=sys.stderr)
             return result
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))

@@ -22,7 +22,7 @@ import time
 from collections.abc import Sequence
 
 from controllers import registry, trajectory
-from controllers.base import Controller, ControllerContext
+from controllers.base import Controller, ControllerContext, joint_values
 from controllers.profile import first_outside_limits
 from daemon.planner import excitation
 from daemon.planner.plans import Plan, PlanContext, check_authority
@@ -62,14 +62,9 @@ def build_controller(context: ControllerContext, plugins: dict[str, str], reques
     reset = {}
     if name != active_as:
         for key, was in set_before.get(active_as, {}).items():
-            if key in now and list(controller.p(key)) != list(_per_joint(was, context.n)):
+            if key in now and now[key] != joint_values(was, context.n):
                 reset[key] = {"was": was, "now": now[key]}
     return controller, name, carried, given, reset
-
-
-def _per_joint(value, n: int) -> list:
-    """A parameter as a request gives it (one number for every joint, or one per joint)."""
-    return list(value) if isinstance(value, list) else [value] * n
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict, values: dict,
