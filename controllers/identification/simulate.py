@@ -12,10 +12,12 @@ as deviations from the operating point where the experiment started at rest:
 inside the friction band, so its value is unknown and fitted). The pressure path is linear,
 so it is filtered at the recording's rate (1 ms) for every member at once; the mechanics are
 stepped at a coarser ``step`` [s] (exact zero-order hold of the 2x2 linear part, the same
-Karnopp stick rule as the simulator in :mod:`sim_backend.joint_model`), vectorised over the
-population: one Python loop over time, numpy over the members.
+Karnopp stick rule as the simulator in :mod:`sim_backend.joint_model`), member by member in a
+loop compiled by numba.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy.linalg import expm
@@ -48,7 +50,7 @@ def delayed_lagged(q: np.ndarray, dt: float, t_ep: np.ndarray, t_dly: np.ndarray
 def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float, beta: float) -> np.ndarray:
     """Joint angle deviation y [deg] at the end of each step, for per-member torque [N m] of
     shape (members, steps) held over each step. ``params`` columns follow FITTED + NUISANCE."""
-    k_mdl, J, D, K, _, _, Fs, Fc, vs, c = params.T
+    _, J, D, K, _, _, Fs, Fc, vs, c = np.asarray(params, dtype=float).T
     members, steps = torque.shape
     a = np.zeros((members, 2, 2))
     a[:, 0, 1] = 1.0
@@ -58,28 +60,57 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
     block[:, :2, :2] = a * step
     block[:, 1, 2] = step / J
     e = expm(block)
-    p11, p12, p21, p22 = e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1]
-    g1, g2 = e[:, 0, 2], e[:, 1, 2]  # response of (y, w) to one N m held over the step
-    th, w = np.zeros(members), np.zeros(members)
-    out = np.empty((steps, members))
-    slope = Fs - Fc
-    sharp = beta / vs
-    inv_vs, inv_g2 = 1.0 / vs, 1.0 / g2
-    tau_all = np.ascontiguousarray((torque + c[:, None]).T)  # a row a step
-    for k in range(steps):
-        tau = tau_all[k]
-        th_lin = p11 * th + p12 * w + g1 * tau
-        w_lin = p21 * th + p22 * w + g2 * tau
-        f_slip = (Fc + slope * np.exp(-np.power(np.abs(w) * inv_vs, alpha))) * np.tanh(sharp * w)
-        slipping = (w_lin - g2 * f_slip) * w > 0.0  # moving on, the same way
-        hold = w_lin * inv_g2  # the torque that would stop it this step
-        sticks = ~slipping & (np.abs(hold) <= Fs)
-        f = np.where(slipping, f_slip, np.where(sticks, hold, np.copysign(Fs, hold)))
-        new_th = np.where(sticks & (w == 0.0), th, th_lin - g1 * f)  # stuck all step: not a hair of motion
-        w = np.where(sticks, 0.0, w_lin - g2 * f)
-        th = new_th
-        out[k] = th
-    return out.T
+    # per member: the 2x2 transition, then the response of (y, w) to one N m held over the step
+    coefficients = np.ascontiguousarray(np.column_stack([e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1],
+                                                         e[:, 0, 2], e[:, 1, 2], Fs, Fc, vs]))
+    out = np.empty((members, steps))
+    _stepper()(coefficients, np.ascontiguousarray(torque + c[:, None], dtype=float), float(alpha), float(beta), out)
+    return out
+
+
+def _step_members(coefficients, torque, alpha, beta, out):  # pragma: no cover (runs compiled)
+    """The mechanics' time loop for every member: exact zero-order hold of the linear part,
+    friction [2-45] held over the step, Karnopp's stick rule (as :mod:`sim_backend.joint_model`).
+    Plain loops over floats, for numba to compile: one member's step is a few arithmetic
+    operations, which numpy's per-call cost would multiply by forty."""
+    members, steps = torque.shape
+    for m in range(members):
+        p11, p12, p21, p22, g1, g2, fs, fc, vs = coefficients[m]
+        slope, sharp, inv_vs, inv_g2 = fs - fc, beta / vs, 1.0 / vs, 1.0 / g2
+        th = 0.0
+        w = 0.0
+        for k in range(steps):
+            tau = torque[m, k]
+            th_lin = p11 * th + p12 * w + g1 * tau
+            w_lin = p21 * th + p22 * w + g2 * tau
+            f_slip = (fc + slope * math.exp(-(abs(w) * inv_vs) ** alpha)) * math.tanh(sharp * w)
+            slipping = (w_lin - g2 * f_slip) * w > 0.0  # moving on, the same way
+            hold = w_lin * inv_g2  # the torque that would stop it this step
+            sticks = not slipping and abs(hold) <= fs
+            if slipping:
+                f = f_slip
+            elif sticks:
+                f = hold
+            else:
+                f = math.copysign(fs, hold)
+            if not (sticks and w == 0.0):  # stuck all step: not a hair of motion
+                th = th_lin - g1 * f
+            w = 0.0 if sticks else w_lin - g2 * f
+            out[m, k] = th
+
+
+_compiled = None
+
+
+def _stepper():
+    """:func:`_step_members` compiled by numba, once a process (about a second), on first use:
+    importing this module (the client's identify does, for FITTED) stays cheap."""
+    global _compiled
+    if _compiled is None:
+        import numba
+
+        _compiled = numba.njit(cache=False)(_step_members)
+    return _compiled
 
 
 def samples_per_step(step: float, dt: float) -> int:
