@@ -17,7 +17,6 @@ import math
 import random
 from collections.abc import Callable, Sequence
 
-from hal.bounds import clip
 from hal.config import RigConfig
 from hal.errors import ConfigError, TransportTimeout
 from hal.force_sensor import ASFS
@@ -32,10 +31,22 @@ from sim_backend.plant import SimArm
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
 
 
-def quantise(value: float, low: float, high: float, bits: int) -> float:
-    """The value a converter with ``bits`` over ``low..high`` [V] represents (clipped)."""
-    lsb = (high - low) / ((1 << bits) - 1)
-    return low + round((clip(value, low, high) - low) / lsb) * lsb
+def converter(low: float, high: float, bits: int) -> tuple[float, float, float]:
+    """(low, high, lsb) [V] of a converter with ``bits`` over ``low..high``: what
+    :func:`quantise` takes, worked out once rather than every sample."""
+    return low, high, (high - low) / ((1 << bits) - 1)
+
+
+def quantise(value: float, low: float, high: float, lsb: float) -> float:
+    """The value a converter over ``low..high`` [V] with step ``lsb`` represents (clipped)."""
+    return low + round(((low if value < low else high if value > high else value) - low) / lsb) * lsb
+
+
+def linear(volts_for) -> tuple[float, float]:
+    """(offset [V], slope [V per unit]) of a sensor read backwards, ``volts_for(quantity)``,
+    which is linear: the sensor's own calibration, evaluated once rather than every sample."""
+    offset = volts_for(0.0)
+    return offset, volts_for(1.0) - offset
 
 
 class SimTransport(Transport):
@@ -61,6 +72,9 @@ class SimTransport(Transport):
         if not muscle_rig:
             for i, j in enumerate(rig.joints):
                 self._out[2 * i], self._out[2 * i + 1] = j.head.bias_volts, j.rod.bias_volts
+        self._adc = [converter(ch.low, ch.high, options.adc_bits) for ch in self.inputs]
+        self._dac = [converter(ch.low, ch.high, options.dac_bits) for ch in self.outputs]
+        self._sensing = [self._sensed(what, i) for what, i in self._sources]
         self._faults: dict[tuple[str, str], dict] = {}
         self._last = [0.0] * len(self.inputs)
         self._seq = 0
@@ -93,8 +107,7 @@ class SimTransport(Transport):
         now = self.clock()
         if now >= self._next_step_t:  # the common case in process: the read of this cycle brought it up to date
             self._advance(now)
-        bits = self.options.dac_bits
-        self._out = [quantise(v, ch.low, ch.high, bits) for v, ch in zip(values, self.outputs)]
+        self._out = [quantise(v, *dac) for v, dac in zip(values, self._dac)]
 
     @property
     def output_volts(self) -> tuple[float, ...]:
@@ -114,27 +127,40 @@ class SimTransport(Transport):
         self._steps += max(due, 0)
         self._next_step_t = self._t0 + h * (self._steps + 1 - 1e-6)
 
+    def _sensed(self, what: str, i: int) -> tuple[str, int, float, float]:
+        """How input ``what`` of joint ``i`` reads the plant: (quantity, joint, offset [V],
+        slope [V per unit]), from the rig file's calibrations read backwards (all linear)."""
+        if what == "angle":  # the plant's angle is in degrees
+            pot = self._pots[i]
+            return ("angle", i, *linear(lambda deg: self._vsup * pot.ratio_for(math.radians(deg))))
+        if what == "supply":
+            return ("supply", 0, self._vsup, 0.0)
+        if what in ("pressure_a", "pressure_b"):
+            return (what, i, *linear(self._pressure_sensors[(what, i)].volts_for))
+        return ("force", 0, *linear(self._force.volts_for))
+
     def _sample(self) -> tuple[float, ...]:
-        arm, rng, sigma, bits = self.arm, self._rng, self.options.adc_noise_volts, self.options.adc_bits
+        arm, gauss, sigma = self.arm, self._rng.gauss, self.options.adc_noise_volts
+        joints, faults = arm.joints, self._faults
         out = []
-        for idx, ((what, i), ch) in enumerate(zip(self._sources, self.inputs)):
+        for idx, ((what, i, offset, slope), adc) in enumerate(zip(self._sensing, self._adc)):
             if what == "angle":
-                v = self._vsup * self._pots[i].ratio_for(math.radians(arm.joints[i].th))
+                v = offset + slope * joints[i].th
             elif what == "supply":
-                v = self._vsup
-            elif what in ("pressure_a", "pressure_b"):
-                v = self._pressure_sensors[(what, i)].volts_for(arm.chamber_gauge(i, what == "pressure_b"))
+                v = offset
+            elif what == "force":
+                v = offset + slope * arm.contact_force_n
             else:
-                v = self._force.volts_for(arm.contact_force_n)
+                v = offset + slope * arm.chamber_gauge(i, what == "pressure_b")
             s = sigma
-            if self._faults:
-                fault_v, s = self._apply_faults(ch.name, idx, v, s)
+            if faults:
+                fault_v, s = self._apply_faults(self.inputs[idx].name, idx, v, s)
                 if fault_v is not None:
                     out.append(fault_v)
                     continue
             if s > 0.0:
-                v += rng.gauss(0.0, s)
-            out.append(quantise(v, ch.low, ch.high, bits))
+                v += gauss(0.0, s)
+            out.append(quantise(v, *adc))
         self._last = out
         return tuple(out)
 

@@ -8,7 +8,7 @@ import pytest
 
 from hal.errors import CommandError, ConfigError, TransportTimeout
 from hal.kinematics import jacobian
-from sim_backend.transport import SimTransport, quantise
+from sim_backend.transport import SimTransport, converter, quantise
 from daemon.testing.simrig import DT, make_rig
 
 
@@ -40,8 +40,8 @@ def test_adc_resolution_is_applied():
     lsb = 10.0 / 255
     for v in run(sim, 0.05)[-1].volts:
         assert abs(v / lsb - round(v / lsb)) < 1e-9
-    assert quantise(3.3, 0.0, 10.0, 8) == pytest.approx(round(3.3 / lsb) * lsb)
-    assert quantise(12.0, 0.0, 10.0, 8) == 10.0
+    assert quantise(3.3, *converter(0.0, 10.0, 8)) == pytest.approx(round(3.3 / lsb) * lsb)
+    assert quantise(12.0, *converter(0.0, 10.0, 8)) == 10.0
 
 
 def test_dac_resolution_is_applied():
