@@ -1,0 +1,231 @@
+"""The serial bridge's firmware (firmware/serial-bridge), built here for this machine and
+driven by a real daemon over a pseudo-terminal, its board's converters bound to the simulated
+rig's plant (sim_backend.firmware_plant): tracking a move as the in-process rig does, bytes
+injected on the line (resynchronisation inside rejected bytes, a corrupted outputs frame
+never applied), corrupted replies in the daemon's counters, the dead-man when the daemon is
+killed, a query; and the C core's own unit tests.
+
+The build goes into a directory of pytest's (``make host BUILD=...``): nothing is written into
+the checkout. Without gcc or make the tests are skipped, saying so (.ci/run installs both)."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from daemon.client.client import Client
+from hal import config
+from hal import serial_frames as F
+from hal.transport import volts_to_counts
+from sim_backend import firmware_plant
+from tests.daemons import real_daemon, wait_for_own_daemon
+from tests.wirehelpers import MOVE_DEG, MOVE_S, move_and_track, wire_loop
+
+ROOT = Path(__file__).resolve().parents[1]
+FIRMWARE = ROOT / "firmware" / "serial-bridge"
+DEADMAN_US = 20_000  # docs/serial-bridge.md: 20 ms without outputs, the safe outputs
+WAIT_S = 60.0  # every event is waited for; the bound only ends a hang
+
+pytestmark = pytest.mark.skipif(not (shutil.which("gcc") and shutil.which("make")),
+                                reason="the firmware's host build needs gcc and make (.ci/run installs them)")
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory) -> Path:
+    """``make host`` into a directory of the test session's: warning-free (-Werror) or failed."""
+    out = tmp_path_factory.mktemp("firmware-build")
+    done = subprocess.run(["make", "-C", str(FIRMWARE), "host", f"BUILD={out}"], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "warning" not in (done.stdout + done.stderr).lower()
+    return out
+
+
+class Bridge:
+    """The firmware's host build on a link under the test's directory, its plant served from a
+    thread of this process."""
+
+    def __init__(self, build: Path, link: Path, *options: str):
+        self.link = link
+        self.proc, self.plant = firmware_plant.start(str(build / "bridge-host"), config.load(), str(link), *options)
+        self._done = threading.Event()
+        self._server = threading.Thread(target=self.plant.serve, args=(self._done.is_set,), daemon=True)
+        self._server.start()
+        wait_until(lambda: link.exists() or self.proc.poll() is not None, "the firmware to come up")
+        assert self.proc.poll() is None, f"the firmware exited with {self.proc.returncode}: {self.plant.refused}"
+
+    def stop(self) -> dict:
+        """Stop the firmware: its counters (its last line)."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+        out, _ = self.proc.communicate(timeout=WAIT_S)
+        self._done.set()
+        self._server.join(WAIT_S)
+        self.plant.sock.close()
+        assert self.proc.returncode == 0, out
+        return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.fixture
+def bridges(build, tmp_path):
+    """Start bridges with ``bridges(*options)``; each is stopped at the end."""
+    started = []
+
+    def start(*options: str) -> Bridge:
+        started.append(Bridge(build, tmp_path / f"bridge{len(started)}", *options))
+        return started[-1]
+    yield start
+    for bridge in started:
+        if bridge.proc.poll() is None:
+            bridge.stop()
+
+
+def wait_until(condition, what: str) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        assert time.monotonic() < deadline, f"waited {WAIT_S} s for {what}"
+        time.sleep(0.002)
+
+
+class Daemon:
+    """A real daemon (private endpoints, stall-tolerant rig) on the bridge's link, the arm enabled."""
+
+    def __init__(self, tmp_path: Path, link: Path):
+        self.proc, eps = real_daemon(tmp_path, "--transport", "serial", "--transport-option", f"port={link}",
+                                     "--transport-option", "open_timeout_s=30", "--safety", "stale_after_s=1.0")
+        self.client = Client(**eps, timeout=10.0)
+        wait_for_own_daemon(self.client, self.proc)
+        self.client.acquire_lease()
+        self.client.keep_lease()
+        self.client.enable()
+
+    def close(self, kill: bool = False) -> None:
+        if self.proc.poll() is None:
+            self.client.close()
+            self.proc.send_signal(signal.SIGKILL if kill else signal.SIGTERM)
+        self.proc.wait(WAIT_S)
+
+
+@pytest.fixture
+def daemons(tmp_path):
+    started = []
+
+    def start(link: Path) -> Daemon:
+        started.append(Daemon(tmp_path / f"daemon{len(started)}", link))
+        return started[-1]
+    yield start
+    for daemon in started:
+        daemon.close()
+
+
+@pytest.fixture(autouse=True)
+def _daemon_dirs(tmp_path):
+    for i in range(2):
+        (tmp_path / f"daemon{i}").mkdir()
+
+
+def test_the_core_passes_its_unit_tests(build):
+    """Frames, CRC check value 0x29B1, resynchronisation, and the bridge's rules on a fake
+    board and clock (firmware/serial-bridge/test/test_core.c)."""
+    done = subprocess.run([str(build / "test-core")], capture_output=True, text=True, timeout=WAIT_S)
+    assert done.returncode == 0, done.stdout
+    passed, failed = map(int, re.search(r"^(\d+) passed, (\d+) failed$", done.stdout, re.M).groups())
+    assert failed == 0 and passed >= 30, done.stdout
+
+
+def test_a_layout_that_is_not_the_rig_files_is_refused(bridges):
+    """The board table's three-joint entry against the two-joint rig: the plant refuses it and
+    the firmware exits, naming the counts, before any daemon could talk to it."""
+    with pytest.raises(AssertionError, match="exited with 2"):
+        bridges("--layout", "cylinder-3")
+
+
+def test_a_query_is_answered_and_changes_no_output_nor_feeds_the_dead_man(bridges):
+    """This test plays the host: a query (no payload) is answered with the rig's inputs under
+    its seq and moves nothing; outputs move the rig; queries alone then let the dead-man
+    write the safe outputs 20 ms after the last outputs."""
+    bridge = bridges()
+    rig = bridge.plant.rig
+    fd = os.open(bridge.link, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    reader = F.FrameReader()
+    try:
+        def ask(seq: int, counts=()) -> F.Frame:
+            os.write(fd, F.encode(F.OUTPUTS, seq, counts))
+            got = []
+
+            def answered():
+                try:
+                    got.extend(reader.feed(os.read(fd, 4096)))
+                except BlockingIOError:
+                    pass
+                return got
+            wait_until(answered, f"the answer to seq {seq}")
+            return got[0]
+
+        reply = ask(0xBEEF)
+        assert reply.kind == F.INPUTS and reply.seq == 0xBEEF and len(reply.counts) == rig.n_in
+        supply = reply.counts[2]  # ai6, the potentiometers' 5 V supply: half the 0..10 V span
+        assert abs(supply - 32768) < 100, reply.counts
+        assert [u.counts for u in bridge.plant.updates] == [bridge.plant.safe_counts]  # its start, nothing since
+        driven = (40000, 30000, 40000, 30000)
+        assert ask(1, driven).seq == 1 and bridge.plant.updates[-1].counts == driven
+        assert rig.sim.output_volts == pytest.approx([c * 10 / 65535 for c in driven], abs=1e-6)
+        seq = 2
+        while bridge.plant.updates[-1].counts == driven:  # queries only, as fast as they are answered
+            assert ask(seq).seq == seq
+            seq += 1
+        last, safe = bridge.plant.updates[-2], bridge.plant.updates[-1]
+        assert safe.counts == bridge.plant.safe_counts and seq > 3
+        assert (safe.t_us - last.t_us) % 2**32 > DEADMAN_US
+    finally:
+        os.close(fd)
+    counters = bridge.stop()
+    assert counters["queries"] == seq - 1 and counters["deadman"] == 1 and counters["crc_errors"] == 0
+
+
+@pytest.mark.slow(seconds=12)
+def test_a_daemon_tracks_a_move_through_the_firmware_as_in_process(bridges, daemons):
+    """The move the serial peer's test makes (tests/wirehelpers.py), through the real daemon
+    and the real firmware: the largest joint errors agree with the same move in process on the
+    virtual clock within 0.5 deg and what late samples explain (a sample ``g`` old leaves the
+    controller up to ``g`` behind a reference at the move's top speed, 1.5 offset / duration)."""
+    bridge = bridges()
+    daemon = daemons(bridge.link)
+    client = daemon.client
+    subscription = client.subscribe((b"state",))
+    try:
+        time.sleep(0.2)  # holding, as the in-process move holds 200 cycles
+        start = [j["setpoint_deg"] for j in client.status()["joints"].values()]
+        moved = client.set(angles_deg=[a + d for a, d in zip(start, MOVE_DEG)], duration_s=MOVE_S)
+        end_cycle = moved["cycle"] + int((MOVE_S + 1.0) * 1000)
+        worst, times, cycle = [0.0, 0.0], [], 0
+        while cycle < end_cycle:
+            got = subscription.receive(timeout=WAIT_S)
+            assert got is not None, "no state message"
+            rows = got[1]
+            for cycle, t, errors in zip(rows["cycle"], rows["t"], rows["error_rad"]):
+                if moved["cycle"] <= cycle < end_cycle:
+                    worst = [max(w, abs(math.degrees(e))) for w, e in zip(worst, errors)]
+                    times.append(t)
+        status = client.status()
+    finally:
+        subscription.close()
+    assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
+    counters = status["transport"]["counters"]
+    assert counters["crc_errors"] == counters["unexpected_seq"] == counters["wrong_replies"] == 0, counters
+    in_process = move_and_track(wire_loop(None, virtual=True)[0])
+    late = max(b - a for a, b in zip(times, times[1:]))  # the longest a sample stood for the next
+    allowed = [0.5 + 1.5 * d / MOVE_S * late for d in MOVE_DEG]
+    assert all(abs(w - p) < a for w, p, a in zip(worst, in_process, allowed)), (worst, in_process, late)
+    daemon.close()
+    firmware = bridge.stop()
+    assert firmware["replies"] > 3000 and firmware["crc_errors"] == firmware["refused"] == 0, firmware
