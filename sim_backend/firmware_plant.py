@@ -21,7 +21,6 @@ the firmware's own, and every DAC update is kept (``updates``) for what a test c
 from __future__ import annotations
 
 import argparse
-import os
 import select
 import signal
 import socket

@@ -60,10 +60,15 @@ class Bridge:
         self._done = threading.Event()
         self._server = threading.Thread(target=self.plant.serve, args=(self._done.is_set,), daemon=True)
         self._server.start()
-        wait_until(lambda: link.exists() or self.proc.poll() is not None, "the firmware to come up")
-        assert self.proc.poll() is None, f"the firmware exited with {self.proc.returncode}: {self.plant.refused}"
+        try:
+            wait_until(lambda: link.exists() or self.proc.poll() is not None, "the firmware to come up")
+            assert self.proc.poll() is None, f"the firmware exited with {self.proc.returncode}: {self.plant.refused}"
+        except BaseException:
+            self.proc.kill()
+            self.stop(check=False)
+            raise
 
-    def stop(self) -> dict:
+    def stop(self, check: bool = True) -> dict:
         """Stop the firmware: its counters (its last line)."""
         if self.proc.poll() is None:
             self.proc.terminate()
@@ -71,6 +76,8 @@ class Bridge:
         self._done.set()
         self._server.join(WAIT_S)
         self.plant.sock.close()
+        if not check:
+            return {}
         assert self.proc.returncode == 0, out
         return json.loads(out.strip().splitlines()[-1])
 
@@ -86,14 +93,14 @@ def bridges(build, tmp_path):
     yield start
     for bridge in started:
         if bridge.proc.poll() is None:
-            bridge.stop()
+            bridge.stop(check=False)
 
 
-def wait_until(condition, what: str) -> None:
+def wait_until(condition, what: str, every_s: float = 0.002) -> None:
     deadline = time.monotonic() + WAIT_S
     while not condition():
         assert time.monotonic() < deadline, f"waited {WAIT_S} s for {what}"
-        time.sleep(0.002)
+        time.sleep(every_s)
 
 
 class Daemon:
@@ -103,10 +110,14 @@ class Daemon:
         self.proc, eps = real_daemon(tmp_path, "--transport", "serial", "--transport-option", f"port={link}",
                                      "--transport-option", "open_timeout_s=30", "--safety", "stale_after_s=1.0")
         self.client = Client(**eps, timeout=10.0)
-        wait_for_own_daemon(self.client, self.proc)
-        self.client.acquire_lease()
-        self.client.keep_lease()
-        self.client.enable()
+        try:
+            wait_for_own_daemon(self.client, self.proc)
+            self.client.acquire_lease()
+            self.client.keep_lease()
+            self.client.enable()
+        except BaseException:
+            self.close(kill=True)
+            raise
 
     def close(self, kill: bool = False) -> None:
         if self.proc.poll() is None:
@@ -229,3 +240,91 @@ def test_a_daemon_tracks_a_move_through_the_firmware_as_in_process(bridges, daem
     daemon.close()
     firmware = bridge.stop()
     assert firmware["replies"] > 3000 and firmware["crc_errors"] == firmware["refused"] == 0, firmware
+
+
+def noise_bundle(i: int) -> bytes:
+    """What the test writes into the line between the daemon's frames (one write: a pty
+    never splits it): a header claiming 64 bytes whose 72 bytes hide a query (seq 0xF000 + i)
+    that only a resynchronisation inside rejected bytes finds; an impossible header; an
+    outputs frame at full scale with a flipped bit, which must never reach the regulators."""
+    query = F.encode(F.OUTPUTS, 0xF000 + i, [])
+    swallowing = F.SYNC + bytes([F.OUTPUTS, 0, 0, F.MAX_PAYLOAD]) + query
+    swallowing += bytes(F.OVERHEAD + F.MAX_PAYLOAD - len(swallowing))  # zeros, its "crc" too
+    assert F.crc16(swallowing[2:-2]) != 0  # so it fails its CRC
+    impossible = F.SYNC + bytes([0x07, 0, 0, 2])
+    corrupted = bytearray(F.encode(F.OUTPUTS, 0xE000 + i, [65535] * 4))
+    corrupted[8] ^= 0x01
+    bundle = swallowing + impossible + bytes(corrupted)
+    assert bundle.count(F.SYNC) == 4  # no stray sync pattern to count differently
+    return bundle
+
+
+@pytest.mark.slow(seconds=5)
+def test_bytes_injected_on_the_line_are_rejected_and_the_frames_inside_them_found(bridges, daemons):
+    """The test writes noise bundles into the line beside the daemon: the firmware rejects
+    each part, counting it, applies none, and answers the query hidden in each, which the
+    daemon counts as a reply to no request of its own; its own exchanges go on untouched."""
+    bridge = bridges()
+    daemon = daemons(bridge.link)
+    before = daemon.client.status()["transport"]["counters"]["unexpected_seq"]
+    n = 20
+    fd = os.open(bridge.link, os.O_WRONLY | os.O_NOCTTY)
+    try:
+        for i in range(n):
+            os.write(fd, noise_bundle(i))
+            time.sleep(0.01)
+    finally:
+        os.close(fd)
+    wait_until(lambda: daemon.client.status()["transport"]["counters"]["unexpected_seq"] >= before + n,
+               "the answers to the hidden queries", every_s=0.05)
+    status = daemon.client.status()
+    counters = status["transport"]["counters"]
+    assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
+    assert counters["crc_errors"] == counters["bad_headers"] == counters["wrong_replies"] == 0, counters
+    daemon.close()
+    firmware = bridge.stop()
+    assert firmware["crc_errors"] == 2 * n and firmware["bad_headers"] == n, firmware
+    assert firmware["queries"] >= n and firmware["refused"] == 0, firmware
+    assert all(u.counts != (65535,) * 4 for u in bridge.plant.updates)
+
+
+@pytest.mark.slow(seconds=5)
+def test_corrupted_replies_are_counted_by_the_daemon_which_carries_on(bridges, daemons):
+    """The firmware flips a bit in every 20th reply (as the serial peer's --corrupt-every):
+    the daemon drops each on its CRC, counts it, and holds the arm on the good ones."""
+    bridge = bridges("--corrupt-every", "20")
+    daemon = daemons(bridge.link)
+    wait_until(lambda: daemon.client.status()["transport"]["counters"]["crc_errors"] >= 25, "corrupted replies",
+               every_s=0.05)
+    status = daemon.client.status()
+    counters = status["transport"]["counters"]
+    assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
+    assert counters["wrong_replies"] == 0 and counters["discarded_bytes"] >= 14 * counters["crc_errors"], counters
+    daemon.close()
+    firmware = bridge.stop()
+    assert 25 <= counters["crc_errors"] <= firmware["corrupted"] == firmware["replies"] // 20, (counters, firmware)
+
+
+@pytest.mark.slow(seconds=5)
+def test_the_firmware_writes_the_safe_outputs_20_ms_after_the_daemon_is_killed(bridges, daemons):
+    """SIGKILL: the daemon writes nothing more. The firmware's dead-man writes the rig file's
+    safe outputs once, at its first look past 20 ms after the last outputs (by its own clock:
+    the look before was not past it), so within 20 ms and one frame on a machine that lets it
+    look that often; and nothing after."""
+    bridge = bridges()
+    daemon = daemons(bridge.link)
+    plant = bridge.plant
+    assert plant.safe_counts == tuple(volts_to_counts(plant.rig.safe_volts, plant.rig.sim.outputs))
+    wait_until(lambda: len(plant.updates) > 100 and plant.updates[-1].counts != plant.safe_counts, "outputs",
+               every_s=0.05)
+    daemon.close(kill=True)
+    wait_until(lambda: plant.updates[-1].counts == plant.safe_counts, "the safe outputs")
+    time.sleep(0.1)
+    updates = list(plant.updates)
+    last, safe = updates[-2], updates[-1]
+    assert last.counts != safe.counts == plant.safe_counts  # nothing after the safe outputs
+    delay_us = (safe.t_us - last.t_us) % 2**32
+    looked_us = (safe.t_us - safe.gap_us - last.t_us) % 2**32
+    assert looked_us <= DEADMAN_US < delay_us, (looked_us, delay_us, safe.gap_us)
+    assert plant.rig.sim.output_volts == pytest.approx(plant.rig.safe_volts, abs=1e-3)
+    assert bridge.stop()["deadman"] >= 1  # and any a stall of the daemon's caused before
