@@ -87,11 +87,13 @@ class FirmwarePlant:
             self.sock.send(self._hello(msg))
 
     def _hello(self, msg: bytes) -> bytes:
-        n_in, n_out = msg[1], msg[2]
-        safe = struct.unpack_from(f"<{n_out}H", msg, 3) if len(msg) >= 3 + 2 * n_out else ()
-        self.layout = msg[3 + 2 * n_out:].decode(errors="replace")
+        n_in, n_out = (msg[1], msg[2]) if len(msg) >= 3 else (-1, -1)
+        safe = struct.unpack_from(f"<{n_out}H", msg, 3) if n_out >= 0 and len(msg) >= 3 + 2 * n_out else None
+        self.layout = msg[3 + 2 * max(n_out, 0):].decode(errors="replace")
         rig = (self.rig.n_in, self.rig.n_out)
-        if (n_in, n_out) != rig:
+        if safe is None:
+            self.refused = f"a hello of {len(msg)} bytes does not say what it carries"
+        elif (n_in, n_out) != rig:
             self.refused = f"it carries {n_in} inputs and {n_out} outputs, the rig file {rig[0]} and {rig[1]}"
         elif any(abs(a - b) > 1 for a, b in zip(safe, self.safe_counts)):
             self.refused = f"its safe outputs are {list(safe)} counts, the rig file's safe_mpa {list(self.safe_counts)}"

@@ -106,8 +106,8 @@ def wait_until(condition, what: str, every_s: float = 0.002) -> None:
 class Daemon:
     """A real daemon (private endpoints, stall-tolerant rig) on the bridge's link, the arm enabled."""
 
-    def __init__(self, tmp_path: Path, link: Path):
-        self.proc, eps = real_daemon(tmp_path, "--transport", "serial", "--transport-option", f"port={link}",
+    def __init__(self, directory: Path, link: Path):
+        self.proc, eps = real_daemon(directory, "--transport", "serial", "--transport-option", f"port={link}",
                                      "--transport-option", "open_timeout_s=30", "--safety", "stale_after_s=1.0")
         self.client = Client(**eps, timeout=10.0)
         try:
@@ -131,17 +131,13 @@ def daemons(tmp_path):
     started = []
 
     def start(link: Path) -> Daemon:
-        started.append(Daemon(tmp_path / f"daemon{len(started)}", link))
+        directory = tmp_path / f"daemon{len(started)}"
+        directory.mkdir()
+        started.append(Daemon(directory, link))
         return started[-1]
     yield start
     for daemon in started:
         daemon.close()
-
-
-@pytest.fixture(autouse=True)
-def _daemon_dirs(tmp_path):
-    for i in range(2):
-        (tmp_path / f"daemon{i}").mkdir()
 
 
 def test_the_core_passes_its_unit_tests(build):
@@ -259,7 +255,7 @@ def noise_bundle(i: int) -> bytes:
     return bundle
 
 
-@pytest.mark.slow(seconds=5)
+@pytest.mark.slow(seconds=7)
 def test_bytes_injected_on_the_line_are_rejected_and_the_frames_inside_them_found(bridges, daemons):
     """The test writes noise bundles into the line beside the daemon: the firmware rejects
     each part, counting it, applies none, and answers the query hidden in each, which the
@@ -288,7 +284,7 @@ def test_bytes_injected_on_the_line_are_rejected_and_the_frames_inside_them_foun
     assert all(u.counts != (65535,) * 4 for u in bridge.plant.updates)
 
 
-@pytest.mark.slow(seconds=5)
+@pytest.mark.slow(seconds=7)
 def test_corrupted_replies_are_counted_by_the_daemon_which_carries_on(bridges, daemons):
     """The firmware flips a bit in every 20th reply (as the serial peer's --corrupt-every):
     the daemon drops each on its CRC, counts it, and holds the arm on the good ones."""
