@@ -100,14 +100,16 @@ class FirmwarePlant:
         return b"E" + self.refused.encode() if self.refused else b"K"
 
 
-def start(firmware: str, rig, link: str, *options: str) -> tuple[subprocess.Popen, FirmwarePlant]:
+def start(firmware: str, rig, link: str, *options: str,
+          stdout=subprocess.PIPE) -> tuple[subprocess.Popen, FirmwarePlant]:
     """Start the firmware's host build on ``link`` with ``options`` (``--layout``,
     ``--corrupt-every``), bound to a plant of ``rig``; serve the plant (``serve``) for it to
-    come up. Its stdout is a pipe: a line when it is up, its counters as JSON when it ends."""
+    come up. It prints a line when it is up and its counters as JSON when it ends, to
+    ``stdout`` (by default a pipe; None: this process's)."""
     ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
     try:
         proc = subprocess.Popen([firmware, "--link", link, "--plant-fd", str(theirs.fileno()), *options],
-                                pass_fds=[theirs.fileno()], stdout=subprocess.PIPE, text=True)
+                                pass_fds=[theirs.fileno()], stdout=stdout, text=True)
     except OSError:
         ours.close()
         raise
@@ -126,7 +128,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     rig = config.load(args.config)
     proc, plant = start(args.firmware, rig, args.link, "--layout", args.layout,
-                        "--corrupt-every", str(args.corrupt_every))
+                        "--corrupt-every", str(args.corrupt_every), stdout=None)
     stopping = []
     signal.signal(signal.SIGTERM, lambda *_: stopping.append(1))
     signal.signal(signal.SIGINT, lambda *_: stopping.append(1))
@@ -135,9 +137,8 @@ def main(argv=None) -> int:
         plant.serve(lambda: bool(stopping) or proc.poll() is not None)
     finally:
         if proc.poll() is None:
-            proc.terminate()
-        out, _ = proc.communicate(timeout=10)
-        sys.stdout.write(out)
+            proc.terminate()  # it prints its counters
+        proc.wait(timeout=10)
         plant.sock.close()
     if plant.refused:
         print(f"firmware plant: layout {plant.layout} refused: {plant.refused}", file=sys.stderr)

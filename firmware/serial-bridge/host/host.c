@@ -119,8 +119,10 @@ static void adc_sample(void *ctx)
     uint8_t msg[2 * FRAME_MAX_CHANNELS + 1] = {'S'};
     plant_send(h, msg, 1);
     size_t n = plant_receive(h, msg, sizeof msg);
+    if (n != 2u * h->layout->n_in)
+        return;  /* the plant is gone (this process ends after this poll): the last sample stands */
     for (unsigned ch = 0; ch < h->layout->n_in; ch++)
-        h->sampled[ch] = 2 * ch + 1 < n ? (uint16_t)(msg[2 * ch] | (msg[2 * ch + 1] << 8)) : 0;
+        h->sampled[ch] = (uint16_t)(msg[2 * ch] | (msg[2 * ch + 1] << 8));
 }
 
 static uint16_t adc_read(void *ctx, unsigned channel)
