@@ -85,3 +85,13 @@ def test_the_approach_path_boundary_and_the_tip_paths_start_and_direction():
     start = [line for line in tip.get_lines() if line.get_label() == "a start"][0]
     assert math.hypot(x0 - start.get_xdata()[0], y0 - start.get_ydata()[0]) < math.hypot(
         x1 - start.get_xdata()[0], y1 - start.get_ydata()[0])
+
+
+def test_the_payload_noise_figure_says_why_the_papers_figures_are_scaled():
+    from bench import payload
+    rows = [(level, 1.0, 1.0, 0.001) for level in sorted(payload.PAPER_NOISE)]
+    fig = payload.figure(rows, 0.4, 0.2 / 3.0, 0.2)
+    caption = " ".join(t.get_text() for t in fig.texts)
+    assert "reach, 0.20 m / 0.50 m = x0.40" in caption and "capacity, 0.2 kg / 3 kg = x0.067" in caption
+    legend = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
+    assert all("ratio" in label for label in legend if "paper" in label)
