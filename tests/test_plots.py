@@ -95,3 +95,12 @@ def test_the_payload_noise_figure_says_why_the_papers_figures_are_scaled():
     assert "reach, 0.20 m / 0.50 m = x0.40" in caption and "capacity, 0.2 kg / 3 kg = x0.067" in caption
     legend = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
     assert all("ratio" in label for label in legend if "paper" in label)
+
+
+def test_runs_a_figure_cannot_tell_apart_are_merged_and_say_by_how_much():
+    a = [[0.0, 1.0], [1.0, 2.0], [2.0, 3.0]]
+    near = [[0.0, 1.0], [1.005, 2.0], [2.0, 3.0]]  # 0.5 % of the first column's range
+    far = [[0.0, 1.0], [1.5, 2.0], [2.0, 3.0]]
+    assert plots.merge_identical(["pid", "lti", "smc"], [a, near, far], within=0.01) == [
+        ("pid ≈ lti (within 1% of the range)", 0), ("smc", 2)]
+    assert plots.merge_identical(["pid", "lti"], [a, near]) == [("pid", 0), ("lti", 1)]  # exact unless asked

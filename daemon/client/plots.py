@@ -46,19 +46,38 @@ def _column(run: recording.Run, joint: str, key: str) -> np.ndarray:
     return np.array([s["joints"][joint][key] for s in run.samples], dtype=float)
 
 
-def merge_identical(labels: list[str], arrays: list) -> list[tuple[str, int]]:
+def merge_identical(labels: list[str], arrays: list, within: float = 0.0) -> list[tuple[str, int]]:
     """Runs whose data are identical, drawn once: (label, index of the run to draw), the label
-    naming every run it stands for ("pid = lti (identical)")."""
+    naming every run it stands for ("pid = lti (identical)"). ``within`` > 0: runs whose every
+    column differs by at most this fraction of its range, which a figure cannot tell apart
+    (one line would hide the other), are merged too, and the label says so
+    ("pid ≈ lti (within 1 % of the range)")."""
     groups: list[list[int]] = []
     for i, a in enumerate(arrays):
         for group in groups:
-            b = arrays[group[0]]
-            if np.shape(a) == np.shape(b) and np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True):
+            if _same(np.asarray(arrays[group[0]], dtype=float), np.asarray(a, dtype=float), within):
                 group.append(i)
                 break
         else:
             groups.append([i])
-    return [(" = ".join(labels[i] for i in g) + (" (identical)" if len(g) > 1 else ""), g[0]) for g in groups]
+    merged = []
+    for g in groups:
+        exact = all(np.array_equal(np.asarray(arrays[g[0]]), np.asarray(arrays[i]), equal_nan=True) for i in g)
+        note = "" if len(g) == 1 else " (identical)" if exact else f" (within {within:.0%} of the range)"
+        merged.append(((" = " if exact else " ≈ ").join(labels[i] for i in g) + note, g[0]))
+    return merged
+
+
+def _same(a: np.ndarray, b: np.ndarray, within: float) -> bool:
+    if a.shape != b.shape:
+        return False
+    if np.array_equal(a, b, equal_nan=True):
+        return True
+    if within <= 0 or a.size == 0:
+        return False
+    a2, b2 = a.reshape(len(a), -1), b.reshape(len(b), -1)
+    span = np.nanmax(a2, axis=0) - np.nanmin(a2, axis=0)
+    return bool(np.all(np.nanmax(np.abs(a2 - b2), axis=0) <= within * np.maximum(span, 1e-12)))
 
 
 def _distinct(runs):
@@ -138,13 +157,13 @@ def _tip(runs) -> plt.Figure | None:
             y = lengths[0] * np.sin(q1) + lengths[1] * np.sin(q1 + q2)
             ax.plot(x, y, style, color=colour, lw=1.0 if what == "reference" else 1.4, label=f"{label} {what}")
             if what == "reference":
-                _start_and_direction(ax, x, y, _time(run), path_starts(run), colour, label)
+                start_and_direction(ax, x, y, _time(run), path_starts(run), colour, label)
         drawn = True
     ax.set_aspect("equal", adjustable="datalim")
     return _finish(fig, ax, drawn, "x [mm]", "y [mm]", "tip path in the workspace (forward kinematics of the first two joints)")
 
 
-def _start_and_direction(ax, x, y, t, starts: list[float], colour, label: str) -> None:
+def start_and_direction(ax, x, y, t, starts: list[float], colour, label: str) -> None:
     """The reference's start (a circle), where the path begins after its approach (a square),
     and arrows along it, so a reader sees where it starts and which way it runs."""
     ax.plot(x[:1], y[:1], "o", color=colour, ms=7, mfc="none", mew=1.6, label=f"{label} start")
