@@ -12,6 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from mcap.reader import make_reader
+
+from daemon import recordings as recording
+from daemon.client import plots
 from daemon.client.client import Client
 from daemon.loop.port import foxglove_address
 from daemon.recordings import layout
@@ -171,6 +175,42 @@ def test_a_stalled_client_loses_only_its_own_messages(fox):
     assert len(window) > 1000 and set(window) <= set(seen)  # every cycle reached the healthy client
     gaps = [b - a for a, b in zip(stalled_seen, stalled_seen[1:])]
     assert stalled_seen and max(gaps) > 0.5e9, "the stalled client lost nothing: it never stalled"
+
+
+def test_a_recording_made_by_the_daemon_has_the_live_streams_channels_and_old_readers_read_it(fox):
+    """The same topics, encodings, schema names and schemas as the live stream advertises, and
+    recording.load / export / plot (which read the /pneumad/<topic> channels) still work."""
+    client, port = fox
+    client.record_stop() if client.record_list()["active"] else None
+    started = client.record_start(name="fox", seconds=1.0)
+    deadline = time.monotonic() + 60.0
+    while any(a["name"] == "fox" for a in client.record_list()["active"]):
+        assert time.monotonic() < deadline, "the recording did not end"
+        time.sleep(0.2)
+    path = Path(started["file"])
+    fc = FoxgloveClient(port)
+    try:
+        advertised = fc.advertised([JOINT_STATES, TRACKING, LOG], limit_s=30.0)
+    finally:
+        fc.close()
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        recorded = {c.topic: (c, summary.schemas[c.schema_id]) for c in summary.channels.values()}
+        counts = summary.statistics.channel_message_counts
+        joint_states_recorded = counts[recorded[JOINT_STATES][0].id]
+    for topic, ad in advertised.items():
+        channel, schema = recorded[topic]
+        assert (channel.message_encoding, schema.name, schema.encoding) == (ad["encoding"], ad["schemaName"],
+                                                                            ad["schemaEncoding"]), topic
+        data = base64.b64decode(ad["schema"]) if ad["schemaEncoding"] == "protobuf" else ad["schema"].encode()
+        assert json.loads(schema.data) == json.loads(data) if ad["schemaEncoding"] == "jsonschema" else \
+            schema.data == data, topic
+    data = recording.load(path)
+    assert joint_states_recorded == len(data["t"]) > 500  # a JointStates a cycle, as the state stream
+    out = path.parent / "fox-plots"
+    assert any(p.name.endswith("-joints.png") for p in plots.plot_runs([path], out))
+    assert recording.export_csv(path, path.parent / "fox.csv") == len(data["t"])
 
 
 def test_foxglove_listens_on_loopback_unless_insecure():

@@ -22,7 +22,15 @@ import sys
 
 import foxglove
 
-from daemon.recordings.channels import CONTACT, CONTROLLER, LOOP, Frames, json_schemas, protobuf_schemas
+from daemon.recordings.channels import (
+    CONTACT,
+    CONTROLLER,
+    LOOP,
+    Frames,
+    json_schemas,
+    protobuf_schemas,
+    schema_name,
+)
 
 BACKLOG = 20_000  # messages queued per client before the oldest are dropped (about 3 s of every channel)
 
@@ -46,7 +54,10 @@ class FoxgloveStream:
                 return False
             self._frames = Frames(describe)
             for topic, schema in json_schemas(describe).items():
-                self.channels[topic] = foxglove.Channel(topic, schema=schema, context=self.context)
+                self.channels[topic] = foxglove.Channel(
+                    topic, schema=foxglove.Schema(name=schema_name(topic), encoding="jsonschema",
+                                                  data=json.dumps(schema).encode()),
+                    message_encoding="json", context=self.context)
             for topic, (name, data) in protobuf_schemas().items():
                 self.channels[topic] = foxglove.Channel(
                     topic, schema=foxglove.Schema(name=name, encoding="protobuf", data=data),

@@ -83,6 +83,11 @@ def json_schemas(describe: dict) -> dict[str, dict]:
     }
 
 
+def schema_name(topic: str) -> str:
+    """A JSON channel's schema name, live and recorded: ``pneumad.tracking`` for ``/pneumad/tracking``."""
+    return "pneumad." + topic.rsplit("/", 1)[-1]
+
+
 def protobuf_schemas() -> dict[str, tuple[str, bytes]]:
     """The Foxglove-standard channels: topic -> (schema name, FileDescriptorSet)."""
     return {topic: (cls.get_schema().name, cls.get_schema().data) for topic, cls in _PROTOBUF.items()}
