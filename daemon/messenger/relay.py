@@ -63,7 +63,8 @@ class Relay:
         """Until the telemetry ring's END, or until the parent is gone."""
         last_check = time.monotonic()
         while True:
-            ready = dict(self.poller.poll(IDLE_POLL_MS))
+            stream_busy = self.foxglove is not None and self.foxglove.busy
+            ready = dict(self.poller.poll(0 if stream_busy else IDLE_POLL_MS))
             for name in ("control", "command"):  # control first: an e-stop overtakes a flood
                 if self.sockets[name] in ready:
                     self._take_requests(name)
@@ -75,6 +76,8 @@ class Relay:
             if not self._publish():
                 self._send_replies()  # the loop's last answers, then stop
                 return
+            if self.foxglove is not None:
+                self.foxglove.work()  # a slice of the Foxglove stream's encoding, then the sockets again
             if reloads:
                 reloads.clear()
                 self._reload_keys()

@@ -131,15 +131,16 @@ class Frames:
         self._reference: tuple[float, float, float] | None = None  # start, approach end, end [s]
         self._started: dict[int, float] = {}  # reference generation -> start [s]
 
-    def state(self, m: dict, wanted=None) -> list[tuple[str, int, bytes]]:
+    def state(self, m: dict, wanted=None, rows=None) -> list[tuple[str, int, bytes]]:
         """Per cycle of a ``state`` batch: joint states, tracking, commands, pressures, tip
-        (``wanted``: only these topics, e.g. those a client subscribed to; None: all)."""
+        (``wanted``: only these topics, e.g. those a client subscribed to; None: all; ``rows``:
+        only these cycles of the batch, by index; None: all)."""
         makers = [(topic, make) for topic, make in ((JOINT_STATES, self._joint_states), (TRACKING, self._tracking),
                                                    (COMMANDS, self._commands_in_force), (PRESSURES, self._pressures),
                                                    (TIP, self._tip_position))
                   if wanted is None or topic in wanted]
         out = []
-        for i in range(len(m["cycle"])):
+        for i in range(len(m["cycle"])) if rows is None else rows:
             stamp = ns(m["t"][i])
             for topic, make in makers:
                 data = make(m, i)
