@@ -69,7 +69,8 @@ def build(describe: dict) -> fl.Layout:
             paths=[fl.PlotSeries(value=f"{TIP}.y_mm", x_value_path=f"{TIP}.x_mm", label="tip", enabled=True),
                    fl.PlotSeries(value=f"{TIP}.setpoint_y_mm", x_value_path=f"{TIP}.setpoint_x_mm", label="set-point",
                                  line_style="dashed", enabled=True)],
-            x_axis_val="custom", x_axis_label="x [mm]", y_axis_label="y [mm]", show_legend=True))
+            x_axis_val="custom", x_axis_path=fl.PlotXAxisPath(value=f"{TIP}.x_mm", enabled=True), time_range="all",
+            x_axis_label="x [mm]", y_axis_label="y [mm]", show_legend=True))
         tabs.append(fl.TabItem(title="tip path", content=_with_events(tip)))
     loop = fl.SplitContainer(direction="column", items=[
         fl.SplitItem(content=_plot("loop timing (per stats window)", [
