@@ -4,6 +4,11 @@ and a step disturbance torque per joint. The LTI controllers run the shipped exa
 controllers/designs/pi_thesis.toml (the thesis's PI as matrices).
 
     python -m bench.compare_controllers > docs/controllers-table.md   # and docs/images/compare-*.png
+    python -m bench.compare_controllers --figures-only                # the translation runs and figures alone
+
+Controllers whose translation runs a figure cannot tell apart (pid and lti, the same PI: within
+1 % of each signal's range) are drawn once, named together in the legend ("pid ≈ lti"), never
+one line hidden under another; every other run has a line style of its own.
 """
 from __future__ import annotations
 
@@ -15,9 +20,29 @@ from pathlib import Path
 import numpy as np
 
 from bench import scenarios as S
+from daemon.client.plots import merge_identical, start_and_direction
 
 CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 STEPS_DEG = (10.0, 5.0)  # bottom, middle
+STYLES = ("-", "--", "-.", (0, (5, 1, 1, 1, 1, 1)), (0, (3, 1)), (0, (8, 2)))  # a line style per run drawn
+
+
+def translation(name: str, loop=None) -> dict:
+    """The 15 s translation, every 20th cycle kept for the figures."""
+    loop = loop or S.make_loop(name, options=S.example_options(name))
+    trace = {"t": [], "ref": [], "q": [], "u": []}
+
+    def keep(lp, i):  # every 20th cycle of the translation, for the figures
+        if i % 20 == 0:
+            trace["t"].append(i * lp.period)
+            trace["ref"].append(list(lp.reference[0][:2]))
+            trace["q"].append(list(lp.angles[:2]))
+            trace["u"].append(list(lp.u[:2]))
+
+    result = S.run_path(loop, S.make_path(loop, "translation", 15.0), keep)
+    middle = loop.actuation.commands[1]
+    return {"name": name, "translation": result, "trace": trace, "lengths": list(loop.rig.arm.link_lengths_m),
+            "u_limits": (middle.low, middle.high)}
 
 
 def evaluate(name: str) -> dict:
@@ -28,18 +53,7 @@ def evaluate(name: str) -> dict:
 
     loop = fresh()
     circle_s = S.shortest_feasible(loop, "circle")
-    out = {"name": name, "circle_s": circle_s}
-    trace = {"t": [], "ref": [], "q": [], "u": []}
-
-    def keep(lp, i):  # every 20th cycle of the translation, for the figures
-        if i % 20 == 0:
-            trace["t"].append(i * lp.period)
-            trace["ref"].append(list(lp.reference[0][:2]))
-            trace["q"].append(list(lp.angles[:2]))
-            trace["u"].append(list(lp.u[:2]))
-
-    out["translation"] = S.run_path(loop, S.make_path(loop, "translation", 15.0), keep)
-    out["trace"], out["lengths"] = trace, list(loop.rig.arm.link_lengths_m)
+    out = {"name": name, "circle_s": circle_s, **translation(name, loop)}
     out["circle"] = S.run_path(fresh(), S.make_path(loop, "circle", circle_s))
     out["steps"] = [S.step_response(fresh(), j, STEPS_DEG[j], 20.0) for j in range(2)]
     torques = [m.kt * 1.0 for m in loop.context.models]
@@ -84,7 +98,13 @@ def figures(results: list[dict], out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     fig_tip, ax_tip = plt.subplots(figsize=(9, 4.5))
     fig_err, (ax_err, ax_u) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
-    for r in results:
+    # pid and lti run the same PI (lti as matrices): their runs differ by 0.02 deg and 0.03 V, less
+    # than a line's width, so one would hide the other: drawn once, both named
+    drawn = merge_identical([r["name"] for r in results], [np.hstack([r["trace"]["q"], r["trace"]["u"]]) for r in results],
+                            within=0.01)
+    for k, (label, i) in enumerate(drawn):
+        r = results[i]
+        style = dict(color=f"C{k}", ls=STYLES[k % len(STYLES)], label=label)
         tr, (l1, l2) = r["trace"], r["lengths"][:2]
         ref, q = np.array(tr["ref"]), np.array(tr["q"])
 
@@ -92,11 +112,14 @@ def figures(results: list[dict], out_dir: Path) -> list[Path]:
             return (l1 * np.cos(a[:, 0]) + l2 * np.cos(a[:, 0] + a[:, 1])) * 1e3, \
                    (l1 * np.sin(a[:, 0]) + l2 * np.sin(a[:, 0] + a[:, 1])) * 1e3
         (rx, ry), (mx, my) = tip(ref), tip(q)
-        if r is results[0]:
-            ax_tip.plot(rx, ry, "k--", lw=1.0, label="reference")
-        ax_tip.plot(mx, my, lw=1.2, label=r["name"])
-        ax_err.plot(tr["t"], np.hypot(rx - mx, ry - my), lw=1.1, label=r["name"])
-        ax_u.plot(tr["t"], np.array(tr["u"])[:, 1], lw=1.0, label=r["name"])
+        if k == 0:
+            ax_tip.plot(rx, ry, "k", ls=(0, (1, 2)), lw=1.0, label="reference")
+            start_and_direction(ax_tip, rx, ry, np.array(tr["t"]), [], "k", "reference")
+        ax_tip.plot(mx, my, lw=1.2, **style)
+        ax_err.plot(tr["t"], np.hypot(rx - mx, ry - my), lw=1.1, **style)
+        ax_u.plot(tr["t"], np.array(tr["u"])[:, 1], lw=1.0, **style)
+    for v, text in zip(results[0]["u_limits"], ("V_MV limits", None)):
+        ax_u.axhline(v, color="0.5", ls="--", lw=1.0, label=text)
     ax_tip.set(xlabel="x [mm]", ylabel="y [mm]", title="translation, 15 s: the tip on the simulated rig")
     ax_err.set(ylabel="tip error [mm]", title="translation, 15 s")
     ax_u.set(xlabel="time from the path's start [s]", ylabel="middle joint V_MV [V]")
@@ -115,10 +138,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("controllers", nargs="*", default=CONTROLLERS)
     parser.add_argument("--figures", default="docs/images", help="directory for the PNG figures (default docs/images)")
+    parser.add_argument("--figures-only", action="store_true", help="the translation runs and the figures alone")
     args = parser.parse_args(argv)
     with multiprocessing.Pool(min(len(args.controllers), multiprocessing.cpu_count())) as pool:
-        results = pool.map(evaluate, args.controllers)
+        results = pool.map(translation if args.figures_only else evaluate, args.controllers)
     figures(results, Path(args.figures))
+    if args.figures_only:
+        return 0
     print(f"Produced by: python -m bench.compare_controllers {' '.join(args.controllers)}\n")
     print(table(results))
     return 0

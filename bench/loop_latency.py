@@ -1,6 +1,7 @@
 """The daemon's loop under its full workload, against cyclictest run at the same time.
 
 Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80] [--loop-cpu N] [--keys]
+                                    [--foxglove]
 
 Starts a real ``pneumad`` (simulated rig, PID enabled, SCHED_FIFO at --priority where
 permitted) and cyclictest at the same priority, then loads the daemon from this process:
@@ -15,11 +16,16 @@ other CPUs, so cyclictest then measures the CPUs that carry the load.
 
 --keys runs the daemon with CURVE keys (every socket encrypted and authenticated, every
 client of this bench holding an allowed key): the same figures, with CURVE's cost in them.
+
+--foxglove runs the daemon with its live Foxglove stream (``--foxglove 127.0.0.1:PORT``) and
+connects two Foxglove WebSocket clients subscribed to every channel, one reading everything,
+one stalled: the same figures with the stream's cost in them, and the messenger's CPU time.
 """
 from __future__ import annotations
 
 import argparse
 import math
+import multiprocessing
 import os
 import threading
 import time
@@ -30,6 +36,7 @@ import zmq
 from bench import cyclictest
 from bench.common import header, percentiles, secure, spawn_daemon, stats_subscriber, with_keys
 from daemon.client.client import Client
+from daemon.testing.ports import free_tcp_port
 
 
 def main() -> None:
@@ -39,6 +46,7 @@ def main() -> None:
     ap.add_argument("--priority", type=int, default=80)
     ap.add_argument("--loop-cpu", type=int, default=None, help="the loop alone on this CPU, the rest elsewhere")
     ap.add_argument("--keys", action="store_true", help="CURVE on every socket")
+    ap.add_argument("--foxglove", action="store_true", help="the live Foxglove stream, a reading and a stalled client")
     args = ap.parse_args()
     placement = ""
     daemon_options = ["--rt-priority", str(args.priority), "--stats-period", str(args.seconds)]
@@ -50,12 +58,23 @@ def main() -> None:
     if args.keys:
         daemon_options += with_keys()
         placement += "; CURVE keys on every socket"
+    port = None
+    if args.foxglove:
+        port = free_tcp_port()
+        daemon_options += ["--foxglove", f"127.0.0.1:{port}"]
+        placement += "; Foxglove stream, one client reading every channel and one stalled"
     header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled{placement}")
     daemon, eps = spawn_daemon(*daemon_options)
     ctx = zmq.Context.instance()
     try:
         client = Client(**eps, timeout=5.0)
-        client.ping()
+        for attempt in range(12):  # a daemon starting on a busy machine may take more than one 5 s ping
+            try:
+                client.ping()
+                break
+            except TimeoutError:
+                if attempt == 11:
+                    raise
         stats_sub = stats_subscriber(eps)
         stop = threading.Event()
         healthy = [Reader(ctx, eps["telemetry"], stop, keep=(i == 0)) for i in range(max(args.subscribers - 1, 0))]
@@ -64,10 +83,12 @@ def main() -> None:
         stalled.setsockopt(zmq.SUBSCRIBE, b"")
         if args.subscribers:
             stalled.connect(eps["telemetry"])
+        fox = foxglove_clients(port, stop) if port else None
         client.acquire_lease()
         client.keep_lease()
         client.enable()
         time.sleep(0.5)
+        messenger_cpu = MessengerCpu(daemon.pid)
         ct = cyclictest.start(args.seconds, args.priority)
         rtt, effects = [], []
         start = time.monotonic()
@@ -84,6 +105,7 @@ def main() -> None:
                 reply = client.set(angles_deg=target)
                 effects.append((reply["cycle"], math.radians(target[0])))
             time.sleep(0.004)
+        messenger_s = messenger_cpu.seconds()
         ct_result = cyclictest.result(ct) if ct else None
         stats = None
         if stats_sub.poll(int((args.seconds + 5) * 1e3)):
@@ -92,10 +114,99 @@ def main() -> None:
         for r in healthy:
             r.join()
         client.close()
+        if fox is not None:
+            fox[0].join()
+            fox[1].close()
     finally:
         daemon.terminate()
         daemon.wait(10)
     report(args, stats, ct_result, rtt, effects, healthy)
+    if messenger_s is not None:
+        print(f"messenger process CPU     : {messenger_s / args.seconds * 100:.1f} % of a core over the run")
+    if fox is not None:
+        print(f"Foxglove reading client   : {fox[0].messages} messages ({fox[0].messages / args.seconds:.0f}/s), "
+              f"one client stalled throughout")
+
+
+def foxglove_clients(port: int, stop: threading.Event):
+    """A Foxglove client reading every channel (a process of its own: its decoding would
+    otherwise take this process's GIL from the pings it times), and a stalled one."""
+    from daemon.testing.foxglove_client import FoxgloveClient
+    stalled = FoxgloveClient(port, stalled=True)
+    stalled.subscribe(list(stalled.advertised(TOPICS)))
+    return FoxgloveReader(port), stalled
+
+
+TOPICS = ("/joint_states", "/pneumad/tracking", "/pneumad/loop")
+
+
+class FoxgloveReader:
+    def __init__(self, port: int):
+        ctx = multiprocessing.get_context("spawn")
+        self.count, self.done = ctx.Value("q", 0), ctx.Event()
+        self.proc = ctx.Process(target=_read_foxglove, args=(port, self.count, self.done), daemon=True)
+        self.proc.start()
+
+    @property
+    def messages(self) -> int:
+        return self.count.value
+
+    def join(self) -> None:
+        self.done.set()
+        self.proc.join(10)
+
+    def close(self) -> None:
+        pass
+
+
+def _read_foxglove(port: int, count, done) -> None:
+    from daemon.testing.foxglove_client import FoxgloveClient
+    client = FoxgloveClient(port)
+    client.subscribe(list(client.advertised(TOPICS)))
+    n = 0
+    while not done.is_set():
+        if client.receive(0.2) is not None:
+            n += 1
+            if n % 100 == 0:
+                count.value = n
+    count.value = n
+    client.close()
+
+
+class MessengerCpu:
+    """The messenger process's CPU time [s] from /proc, from now on (None where unreadable)."""
+
+    def __init__(self, daemon_pid: int):
+        self.pid = next((p for p in _children(daemon_pid) if b"daemon.messenger.process:serve" in _cmdline(p)), None)
+        self.start = self._ticks()
+
+    def _ticks(self):
+        try:
+            with open(f"/proc/{self.pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            return int(fields[11]) + int(fields[12])  # utime, stime
+        except (OSError, TypeError, IndexError, ValueError):
+            return None
+
+    def seconds(self):
+        now = self._ticks()
+        return None if now is None or self.start is None else (now - self.start) / os.sysconf("SC_CLK_TCK")
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(p) for p in f.read().split()]
+    except OSError:
+        return []
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read()
+    except OSError:
+        return b""
 
 
 class Reader(threading.Thread):

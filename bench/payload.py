@@ -121,8 +121,24 @@ def noise_study(rig, targets, runs: int) -> list[tuple]:
     return rows
 
 
-def plot(path: str, rows: list[tuple], scale_l: float, scale_m: float) -> None:
-    """The noise study against the paper's, the paper's figures scaled to this arm."""
+def scale_note(scale_l: float, scale_m: float, reach_m: float) -> str:
+    """Why the paper's figures are scaled, and by what: the caption the figure carries."""
+    return (f"The paper's errors (dashed) are scaled to this arm: lengths by reach, {reach_m:.2f} m / "
+            f"{PAPER['reach_m']:.2f} m = x{scale_l:.2f}; mass by capacity, {CAPACITY_KG:g} kg / "
+            f"{PAPER['capacity_kg']:g} kg = x{scale_m:.3f}\n(an arm this size and strength carries and places "
+            f"proportionally less: bench/payload.py, docs/estimation.md)")
+
+
+def plot(path: str, rows: list[tuple], scale_l: float, scale_m: float, reach_m: float) -> None:
+    """Write :func:`figure` to ``path``."""
+    import matplotlib.pyplot as plt
+    fig = figure(rows, scale_l, scale_m, reach_m)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure(rows: list[tuple], scale_l: float, scale_m: float, reach_m: float):
+    """The noise study against the paper's, the paper's figures scaled to this arm, saying why."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -131,10 +147,10 @@ def plot(path: str, rows: list[tuple], scale_l: float, scale_m: float) -> None:
     for k, (name, style) in enumerate((("x (along the link)", "C0"), ("y (across)", "C1"))):
         ax_c.plot(levels, [r[1 + k] for r in rows], style + "o-", label=f"{name}, this arm")
         ax_c.plot(levels, [PAPER_NOISE[r[0]][k] * scale_l for r in rows], style + "s--", alpha=0.6,
-                  label=f"{name}, the paper's, scaled x{scale_l:.2f}")
+                  label=f"{name}, the paper's x{scale_l:.2f} (reach ratio)")
     ax_m.plot(levels, [r[3] * 1e3 for r in rows], "C2o-", label="this arm")
     ax_m.plot(levels, [PAPER_NOISE[r[0]][2] * scale_m * 1e3 for r in rows], "C2s--", alpha=0.6,
-              label=f"the paper's, scaled x{scale_m:.3f}")
+              label=f"the paper's x{scale_m:.3f} (capacity ratio)")
     ax_c.set_ylabel("centre of mass RMS error [mm]")
     ax_m.set_ylabel("mass RMS error [g]")
     for ax in (ax_c, ax_m):
@@ -142,9 +158,9 @@ def plot(path: str, rows: list[tuple], scale_l: float, scale_m: float) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle("Payload identification: error against torque noise (bench.payload; z is not identifiable here)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    fig.text(0.01, 0.01, scale_note(scale_l, scale_m, reach_m), fontsize=9, va="bottom")
+    return fig
 
 
 def main(argv=None) -> int:
@@ -172,7 +188,7 @@ def main(argv=None) -> int:
     for level, ex, ey, em in rows:
         print(f"| {level:.0%} | {ex:.2f} | {ey:.2f} | not identifiable | {em:.4f} |")
     if args.plot:
-        plot(args.plot, rows, scale_l, scale_m)
+        plot(args.plot, rows, scale_l, scale_m, sum(rig.arm.link_lengths_m))
         print(f"wrote {args.plot}")
     return 0
 

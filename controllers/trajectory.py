@@ -213,10 +213,12 @@ class Segmented(Trajectory):
 
 
 class Chain(Segmented):
-    """Trajectories one after another (e.g. an approach move, then a path)."""
+    """Trajectories one after another (e.g. an approach move, then a path); ``approach_s``:
+    where the approach ends and the path begins [s from the start], None if none."""
 
-    def __init__(self, parts: Sequence[Trajectory]):
+    def __init__(self, parts: Sequence[Trajectory], approach_s: float | None = None):
         self.parts = list(parts)
+        self.approach_s = approach_s
         super().__init__([p.duration for p in self.parts])
 
     def sample(self, t: float) -> Sample:

@@ -152,7 +152,8 @@ def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
     recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
                                                          "min_free_mb": args.record_min_free_mb}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
-                       recording=recording, plotjuggler=args.plotjuggler, loop_stall_s=stall_watch_s(rig))
+                       recording=recording, plotjuggler=args.plotjuggler,
+                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig))
     try:
         yield server
     finally:

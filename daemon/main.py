@@ -220,6 +220,10 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--plotjuggler", default=None, metavar="ENDPOINT",
                      help="also publish one msgpack row per cycle, with its own time field 't', for PlotJuggler's "
                           "ZMQ Subscriber (e.g. tcp://127.0.0.1:9872; docs/protocol.md, PlotJuggler)")
+    run.add_argument("--foxglove", default=None, metavar="HOST:PORT",
+                     help="also serve a live Foxglove WebSocket stream (e.g. 127.0.0.1:8765; loopback unless "
+                          "--insecure; docs/recordings.md, Live): joint states, set-points, commands, pressures, "
+                          "internals, loop timing, events; read-only")
     safe = sub.add_parser("safe-state", help="write the rig's safe state once and exit (dead-man path)")
     common(safe)
     lat = sub.add_parser("latency", help="qualify this PC: run the loop on the simulator and judge its latency")

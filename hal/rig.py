@@ -73,6 +73,10 @@ class RigIO:
         self._rod_idx = [transport.index(j.pressure_outputs[1].channel, output=True) for j in config.joints]
         self.brakes = [(MRBrake(j.brake), transport.index(j.brake.channel, output=True))
                        for j in config.joints if j.brake is not None]
+        # each joint's output channels (head, rod[, brake]), by name: what status says was written
+        self.joint_outputs = [tuple(ch for ch in (j.pressure_outputs[0].channel, j.pressure_outputs[1].channel,
+                                                  j.brake.channel if j.brake is not None else None) if ch)
+                              for j in config.joints]
         self._sensed = [(2 * i + side, PressureSensor(sensor), transport.index(sensor.channel, output=False),
                          f"{j.name} {'ab'[side]}") for i, j in enumerate(config.joints)
                         for side, sensor in enumerate((j.pressure_a, j.pressure_b)) if sensor is not None]

@@ -149,9 +149,10 @@ def test_a_recorded_path_loses_nothing_while_a_client_is_stalled(tmp_path):
     with open(path, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        topics = {c.topic for c in summary.channels.values()}
-        assert {"/pneumad/state", "/pneumad/event", "/pneumad/gap"} <= topics
-        assert {s.encoding for s in summary.schemas.values()} == {"jsonschema"}
+        topics = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+        assert {"/pneumad/state", "/pneumad/event", "/pneumad/gap"} <= set(topics)
+        assert {s.encoding for t, s in topics.items() if t.startswith("/pneumad/")} == {"jsonschema"}
+        assert topics["/joint_states"].name == "foxglove.JointStates"  # and the live stream's channels beside them
         assert [a.name for a in reader.iter_attachments()] == ["rig.toml"]
 
 

@@ -129,6 +129,24 @@ def test_an_earlier_pnrec_still_exports(tmp_path, session):
     assert rows == len(lines) - 1 >= 3000 and lines[0].startswith("cycle,t,bottom.angle_rad,middle.angle_rad")
 
 
+def test_an_mcap_from_before_the_foxglove_channels_reads_as_one_with_them(tmp_path, session, monkeypatch):
+    """recording.load, export and the plots read the /pneumad/<topic> channels alone: a file
+    written without the Foxglove channels (as earlier versions wrote it) gives the same."""
+    new, old = tmp_path / "new.mcap", tmp_path / "old.mcap"
+    write(new, session)
+    monkeypatch.setattr(mcap_log, "json_schemas", lambda describe: {})
+    monkeypatch.setattr(mcap_log, "protobuf_schemas", lambda: {})
+    monkeypatch.setattr(mcap_log.Frames, "of", lambda self, topic, message: [])
+    write(old, session)
+    with open(old, "rb") as f:
+        assert {c.topic for c in make_reader(f).get_summary().channels.values()} == {
+            mcap_log.channel(t) for t in mcap_log.TOPICS}  # nothing but the earlier channels
+    a, b = recording.load(old), recording.load(new)
+    assert set(a) == set(b) and all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
+    assert recording.export_csv(old, tmp_path / "old.csv") == recording.export_csv(new, tmp_path / "new.csv")
+    assert (tmp_path / "old.csv").read_text() == (tmp_path / "new.csv").read_text()
+
+
 def test_load_gives_numpy_columns_named_with_units(tmp_path, session):
     path = tmp_path / "run.mcap"
     write(path, session)

@@ -48,3 +48,35 @@ def test_an_output_bar_is_full_at_either_limit_and_marks_zero():
     full_high, full_low, zero = (str(_bar(u, -4.0, 6.0)) for u in (6.0, -4.0, 0.0))
     assert full_high.rstrip("]").endswith("█") and full_low.lstrip("[").startswith("█")
     assert zero.count("█") == 0 and zero.count("|") == 1
+
+
+def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_controllers_last_v_mv():
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    describe = ok(loop, sock, "describe")
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(10.0), loop.angles[1]], 1.0), "move")
+    loop.run(600)
+    moving = ok(loop, sock, "status")["joints"]["bottom"]
+    assert moving["output"] == "controller" and moving["u_volts"] == loop.u[0]
+    ok(loop, sock, "estop")
+    loop.run(50)
+    last_u = loop.u[0]
+    assert abs(last_u) > 0.05  # the controller's last V_MV is still there: what the old view showed
+    status = ok(loop, sock, "status")
+    srv.close()
+    bottom = status["joints"]["bottom"]
+    safe = dict(zip([o[0] for o in describe["transport"]["outputs"]], loop.io.safe_volts))
+    assert bottom["output"] == "safe state" and bottom["u_volts"] is None
+    assert bottom["written_volts"] and all(v == safe[ch] for ch, v in bottom["written_volts"].items())
+    view = View(describe)
+    for topic, message in captured.messages:
+        view.take(topic, message)
+    view.status = status
+    console = Console(record=True, width=140)
+    console.print(view.render())
+    text = console.export_text()
+    assert "safe state" in text and f"{last_u:+6.2f} V" not in text
+    written = "  ".join(f"{name} {v:.2f} V" for name, v in safe.items())
+    assert f"outputs written: {written}  (safe state)" in text

@@ -242,6 +242,8 @@ def client_arm(client, rig: RigConfig) -> Arm:
         rows = []
         while not rows or rows[-1][0] > END_GUARD_S:  # to the window's end, by the dither's clock
             s = client.status()
+            if s["joints"][joint]["u_volts"] is None:  # the safe state is written: no V_MV to balance
+                raise SystemExit(f"the arm left enabled during the dither ({s['state']}: {s['cause']}): no balance")
             rows.append((s["reference_remaining_s"], s["joints"][joint]["u_volts"], s["joints"][joint]["angle_deg"]))
             time.sleep(0.02)
         time.sleep(END_GUARD_S)  # the dither's end

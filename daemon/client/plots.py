@@ -6,6 +6,13 @@ overlay in the same figures, one colour per run (a controller comparison).
 Units on every axis: deg, V, MPa, mm, N, s (time from each run's first sample). The tip
 path is the forward kinematics of the first two joints [2-7] with the recording's own link
 lengths (``describe.arm``).
+
+Nothing misleads: V_MV is drawn only where the controller's output was written (not where the
+safe state was), between its limits drawn as lines; a path's approach/path boundary is marked
+(the ``reference`` start event's ``approach_s``); the tip path shows its start and direction;
+each internal signal's unit is the one its own controller declares; and runs whose results are
+identical are drawn once, named together in the legend ("pid = lti (identical)"), never one line
+hidden under another.
 """
 from __future__ import annotations
 
@@ -19,8 +26,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from daemon.recordings import reading as recording  # noqa: E402
+from daemon.recordings.channels import signal_units  # noqa: E402
 
 DEG = 180.0 / math.pi
+BOUNDARY = dict(color="0.35", ls=":", lw=1.2)  # the approach/path boundary
+LIMIT = dict(color="0.5", ls="--", lw=1.0)  # V_MV's limits
 
 
 def _label(path: Path, run: recording.Run) -> str:
@@ -36,6 +46,55 @@ def _column(run: recording.Run, joint: str, key: str) -> np.ndarray:
     return np.array([s["joints"][joint][key] for s in run.samples], dtype=float)
 
 
+def merge_identical(labels: list[str], arrays: list, within: float = 0.0) -> list[tuple[str, int]]:
+    """Runs whose data are identical, drawn once: (label, index of the run to draw), the label
+    naming every run it stands for ("pid = lti (identical)"). ``within`` > 0: runs whose every
+    column differs by at most this fraction of its range, which a figure cannot tell apart
+    (one line would hide the other), are merged too, and the label says so
+    ("pid ≈ lti (within 1 % of the range)")."""
+    groups: list[list[int]] = []
+    for i, a in enumerate(arrays):
+        for group in groups:
+            if _same(np.asarray(arrays[group[0]], dtype=float), np.asarray(a, dtype=float), within):
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    merged = []
+    for g in groups:
+        exact = all(np.array_equal(np.asarray(arrays[g[0]]), np.asarray(arrays[i]), equal_nan=True) for i in g)
+        note = "" if len(g) == 1 else " (identical)" if exact else f" (within {within:.0%} of the range)"
+        merged.append(((" = " if exact else " ≈ ").join(labels[i] for i in g) + note, g[0]))
+    return merged
+
+
+def _same(a: np.ndarray, b: np.ndarray, within: float) -> bool:
+    if a.shape != b.shape:
+        return False
+    if np.array_equal(a, b, equal_nan=True):
+        return True
+    if within <= 0 or a.size == 0:
+        return False
+    a2, b2 = a.reshape(len(a), -1), b.reshape(len(b), -1)
+    span = np.nanmax(a2, axis=0) - np.nanmin(a2, axis=0)
+    return bool(np.all(np.nanmax(np.abs(a2 - b2), axis=0) <= within * np.maximum(span, 1e-12)))
+
+
+def _distinct(runs):
+    """The runs to draw: identical ones (every joint's angle and V_MV) merged."""
+    arrays = [np.array([[s["joints"][j]["angle_rad"] for j in run.joints] + [s["joints"][j]["u_volts"] for j in run.joints]
+                        for s in run.samples]) for _, run in runs]
+    return [(label, runs[i][1]) for label, i in merge_identical([label for label, _ in runs], arrays)]
+
+
+def path_starts(run: recording.Run) -> list[float]:
+    """Where each path's approach ended and the path began [s from the run's first sample]:
+    the ``reference`` start events that carry ``approach_s`` (recordings before it: none)."""
+    t0, period = run.samples[0]["t"], run.describe.get("period_s", 0.001)
+    return [e["t"] + period + e["approach_s"] - t0 for e in run.messages.get("event", [])
+            if e.get("kind") == "reference" and e.get("action") == "start" and e.get("approach_s")]
+
+
 def _per_joint_figure(runs, title: str, ylabel: str, draw) -> plt.Figure:
     joints = runs[0][1].joints
     fig, axes = plt.subplots(len(joints), 1, figsize=(10, 3.2 * len(joints)), sharex=True, squeeze=False)
@@ -43,6 +102,8 @@ def _per_joint_figure(runs, title: str, ylabel: str, draw) -> plt.Figure:
         for colour, (label, run) in zip(plt.rcParams["axes.prop_cycle"].by_key()["color"] * 4, runs):
             if joint in run.joints:
                 draw(ax, joint, label, run, colour)
+        for k, t in enumerate(sorted({t for _, run in runs for t in path_starts(run)})):
+            ax.axvline(t, **BOUNDARY, label="approach ends, path begins" if k == 0 else None)
         ax.set_title(f"{joint} joint")
         ax.set_ylabel(ylabel)
         ax.grid(True, alpha=0.3)
@@ -64,7 +125,16 @@ def _errors(ax, joint, label, run, colour):
 
 
 def _outputs(ax, joint, label, run, colour):
-    ax.plot(_time(run), _column(run, joint, "u_volts"), color=colour, lw=1.2, label=f"{label} V_MV")
+    """V_MV where the controller's output was written (outside ``enabled`` the safe state was:
+    no V_MV is drawn there), and the joint's V_MV limits."""
+    u = _column(run, joint, "u_volts")
+    u[np.array([s["mode"] != "enabled" for s in run.samples])] = np.nan
+    ax.plot(_time(run), u, color=colour, lw=1.2, label=f"{label} V_MV")
+    spec = next((j for j in run.describe["joints"] if j["name"] == joint), {})
+    limits = [spec[k] for k in ("u_min_volts", "u_max_volts") if spec.get(k) is not None]
+    drawn = {line.get_label() for line in ax.get_lines()}
+    for k, v in enumerate(limits):
+        ax.axhline(v, **LIMIT, label="V_MV limits" if k == 0 and "V_MV limits" not in drawn else None)
 
 
 def _pressures(ax, joint, label, run, colour):
@@ -86,9 +156,31 @@ def _tip(runs) -> plt.Figure | None:
             x = lengths[0] * np.cos(q1) + lengths[1] * np.cos(q1 + q2)
             y = lengths[0] * np.sin(q1) + lengths[1] * np.sin(q1 + q2)
             ax.plot(x, y, style, color=colour, lw=1.0 if what == "reference" else 1.4, label=f"{label} {what}")
+            if what == "reference":
+                start_and_direction(ax, x, y, _time(run), path_starts(run), colour, label)
         drawn = True
     ax.set_aspect("equal", adjustable="datalim")
     return _finish(fig, ax, drawn, "x [mm]", "y [mm]", "tip path in the workspace (forward kinematics of the first two joints)")
+
+
+def start_and_direction(ax, x, y, t, starts: list[float], colour, label: str) -> None:
+    """The reference's start (a circle), where the path begins after its approach (a square),
+    and arrows along it, so a reader sees where it starts and which way it runs."""
+    ax.plot(x[:1], y[:1], "o", color=colour, ms=7, mfc="none", mew=1.6, label=f"{label} start")
+    for k, ts in enumerate(starts):
+        i = min(int(np.searchsorted(t, ts)), len(x) - 1)
+        ax.plot(x[i:i + 1], y[i:i + 1], "s", color=colour, ms=7, mfc="none", mew=1.6,
+                label=f"{label} path begins (approach ends)" if k == 0 else None)
+    step = np.hypot(np.diff(x), np.diff(y))
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    if along[-1] <= 0:
+        return
+    for f in (0.15, 0.4, 0.65, 0.9):  # arrows at fractions of the length drawn
+        i = min(int(np.searchsorted(along, f * along[-1])), len(x) - 2)
+        j = min(i + max(len(x) // 200, 1), len(x) - 1)
+        if (x[j], y[j]) != (x[i], y[i]):
+            ax.annotate("", xy=(x[j], y[j]), xytext=(x[i], y[i]),
+                        arrowprops=dict(arrowstyle="-|>", color=colour, lw=1.2, mutation_scale=16))
 
 
 def _force(runs) -> plt.Figure | None:
@@ -119,8 +211,11 @@ def _internals(label: str, run: recording.Run) -> plt.Figure | None:
     messages = run.messages.get("internals", [])
     if not messages:
         return None
-    units = {s["name"]: s["unit"] for c in run.describe.get("controllers", []) if isinstance(c, dict)
-             for s in c.get("internals", [])}
+    units: dict[str, set[str]] = {}  # each signal's unit, from the controller that published it
+    for m in messages:
+        declared = signal_units(run.describe, m.get("controller", ""))
+        for name in m["signals"]:
+            units.setdefault(name, set()).add(declared.get(name, "-"))
     t0 = run.samples[0]["t"] if run.samples else messages[0]["t"]
     names = list(messages[-1]["signals"])
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.4 * len(names)), sharex=True, squeeze=False)
@@ -129,13 +224,27 @@ def _internals(label: str, run: recording.Run) -> plt.Figure | None:
         for j, joint in enumerate(run.joints):
             values = [m["signals"][name][j] if name in m["signals"] else np.nan for m in messages]
             ax.plot(t, values, lw=1.1, label=joint)
-        ax.set_ylabel(f"{name} [{units.get(name, '-')}]")
+        ax.set_ylabel(f"{name} [{' | '.join(sorted(units.get(name, {'-'})))}]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(f"controller internals: {label}")
     fig.tight_layout()
     return fig
+
+
+def figures(runs: list[tuple[str, recording.Run]]) -> dict[str, plt.Figure | None]:
+    """Every figure of the runs ((label, run) each), by name; None where there is nothing to draw."""
+    drawn = _distinct(runs)
+    made = {"joints": _per_joint_figure(drawn, "joint angles and set-points", "angle [deg]", _angles),
+            "errors": _per_joint_figure(drawn, "tracking error (set-point - angle)", "error [deg]", _errors),
+            "output": _per_joint_figure(drawn, "controller output V_MV (head chamber above its bias; none drawn "
+                                               "where the safe state was written)", "V_MV [V]", _outputs),
+            "pressures": _per_joint_figure(drawn, "chamber pressure commands", "pressure [MPa]", _pressures),
+            "tip": _tip(drawn), "force": _force(drawn)}
+    for i, (label, run) in enumerate(runs):
+        made[f"internals{'-' + str(i + 1) if len(runs) > 1 else ''}"] = _internals(label, run)
+    return made
 
 
 def plot_runs(paths, out_dir=".") -> list[Path]:
@@ -150,16 +259,8 @@ def plot_runs(paths, out_dir=".") -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = files[0].stem if len(files) == 1 else "compare"
-    figures = {"joints": _per_joint_figure(runs, "joint angles and set-points", "angle [deg]", _angles),
-               "errors": _per_joint_figure(runs, "tracking error (set-point - angle)", "error [deg]", _errors),
-               "output": _per_joint_figure(runs, "controller output V_MV (head chamber above its bias)", "V_MV [V]",
-                                           _outputs),
-               "pressures": _per_joint_figure(runs, "chamber pressure commands", "pressure [MPa]", _pressures),
-               "tip": _tip(runs), "force": _force(runs)}
-    for i, (label, run) in enumerate(runs):
-        figures[f"internals{'-' + str(i + 1) if len(runs) > 1 else ''}"] = _internals(label, run)
     written = []
-    for name, fig in figures.items():
+    for name, fig in figures(runs).items():
         if fig is None:
             continue
         target = out / f"{stem}-{name}.png"

@@ -2,8 +2,9 @@
 
 State and its cause, the controller and the running reference with the time it has left,
 the lease holder, per joint the angle, set-point, error and V_MV with a bar over the joint's
-output range, the loop's health from the ``stats`` topic, faults, the daemon's recordings in
-progress and the last events. Piped
+output range (``safe state`` instead outside ``enabled``, where the safe state is written and
+no V_MV is), the output volts actually written, the loop's health from the ``stats`` topic,
+faults, the daemon's recordings in progress and the last events. Piped
 or redirected (no terminal), it prints one line every 100 ms instead, which a script can read.
 """
 from __future__ import annotations
@@ -88,6 +89,7 @@ class View:
 
     def __init__(self, describe: dict):
         self.joints = describe["joints"]
+        self.outputs = [o[0] for o in describe["transport"]["outputs"]]
         self.state: dict | None = None
         self.stats: dict | None = None
         self.status: dict = {}
@@ -124,15 +126,21 @@ class View:
         table = Table(expand=True, box=None)
         for name in ("joint", "angle deg", "set-point deg", "error deg", "V_MV", ""):
             table.add_column(name, justify="right" if name not in ("joint", "") else "left", no_wrap=True)
+        written = Text("outputs written: waiting for telemetry", style="dim")
         if self.state is not None:
             m = self.state
+            safe = m["mode"][-1] != "enabled"  # the safe state is written, whatever the controller last said
             for j, joint in enumerate(self.joints):
                 u = m["u_volts"][-1][j]
                 err = math.degrees(m["error_rad"][-1][j])
                 table.add_row(joint["name"], f"{math.degrees(m['angle_rad'][-1][j]):8.2f}",
                               f"{math.degrees(m['setpoint_rad'][-1][j]):8.2f}",
-                              Text(f"{err:7.2f}", style="red" if abs(err) > 2.0 else ""), f"{u:+6.2f} V",
-                              _bar(u, joint["u_min_volts"], joint["u_max_volts"]))
+                              Text(f"{err:7.2f}", style="red" if abs(err) > 2.0 else ""),
+                              Text("safe state", style="bold red") if safe else f"{u:+6.2f} V",
+                              Text("") if safe else _bar(u, joint["u_min_volts"], joint["u_max_volts"]))
+            written = Text("outputs written: " + "  ".join(f"{name} {v:.2f} V" for name, v in
+                                                            zip(self.outputs, m["out_volts"][-1]))
+                           + ("  (safe state)" if safe else ""))
         health = Text("loop: waiting for stats", style="dim")
         if self.stats is not None:
             st = self.stats
@@ -144,7 +152,7 @@ class View:
         recording = Text("recording: " + (", ".join(f"{name} ({who})" for name, who in self.recordings.items())
                                           or "none"), style="bold magenta" if self.recordings else "dim")
         events = Text("\n".join(self.events) or "no events yet", style="dim")
-        return Panel(Group(head, table, health, faults, recording, Text("events:", style="bold"), events),
+        return Panel(Group(head, table, written, health, faults, recording, Text("events:", style="bold"), events),
                      title="pneumad", subtitle="Ctrl-C to leave")
 
 

@@ -170,7 +170,8 @@ class LoopControls:
             self.events.add({"kind": "reference", "action": "start", "name": name,
                              "generation": self.trajectory_generation,
                              "duration_s": trajectory.duration, "record": record,
-                             "signal": getattr(trajectory, "definition", None)})
+                             "signal": getattr(trajectory, "definition", None),
+                             "approach_s": getattr(trajectory, "approach_s", None)})
 
     def reference_remaining(self) -> float:
         """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""

@@ -43,10 +43,11 @@ class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
                  keys: str | None = None, insecure: bool = False, recording: dict | None = None,
-                 plotjuggler: str | None = None):
+                 plotjuggler: str | None = None, foxglove: str | None = None):
         """``recording``: where and how the daemon records (``directory``, ``max_mb``,
         ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
-        ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`)."""
+        ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`);
+        ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`)."""
         self.max_per_cycle = max_per_cycle
         self.recording = recording
         self.recorder: RecorderProcess | None = None
@@ -55,6 +56,7 @@ class ZmqServer:
             raise ConfigError(f"--plotjuggler {plotjuggler}: PlotJuggler cannot use keys, so its endpoint must be "
                               f"local (tcp://127.0.0.1:PORT or ipc://; from a laptop, ssh -L PORT:127.0.0.1:PORT "
                               f"LAB-PC), or say --insecure")
+        fox = foxglove_address(foxglove, insecure) if foxglove else None
         for name in reclaim_stale_rings(_shm_dir()):
             log.warning("removed the rings a killed daemon left behind: %s", name)
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
@@ -64,7 +66,8 @@ class ZmqServer:
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
-                                   keys, recorder=recording is not None, plotjuggler=plotjuggler)
+                                   keys, recorder=recording is not None, plotjuggler=plotjuggler,
+                                   foxglove=fox)
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -223,6 +226,20 @@ def is_local(endpoint: str) -> bool:
         return True
     host = address.rpartition(":")[0]
     return scheme == "tcp" and (host in LOCAL_HOSTS or host.startswith("127."))
+
+
+def foxglove_address(address: str, insecure: bool) -> tuple[str, int]:
+    """``--foxglove HOST:PORT`` as (host, port): loopback unless ``insecure`` (the Foxglove
+    protocol has no CURVE: anyone who reaches the port sees the arm), else a ConfigError."""
+    host, _, port = address.rpartition(":")
+    host = host.strip("[]")
+    if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ConfigError(f"--foxglove {address}: give HOST:PORT, e.g. 127.0.0.1:8765")
+    if not insecure and not (host in LOCAL_HOSTS or host.startswith("127.")):
+        raise ConfigError(f"--foxglove {address}: the Foxglove protocol cannot use keys, so it must listen on loopback "
+                          f"(127.0.0.1:PORT; from a laptop, ssh -L {port}:127.0.0.1:{port} LAB-PC and connect Foxglove "
+                          f"to ws://localhost:{port}), or say --insecure")
+    return host, int(port)
 
 
 def security(endpoints, keys: str | None, insecure: bool) -> dict:

@@ -12,6 +12,7 @@ class LoopView:
     def __init__(self, loop):
         self._loop = loop
         self._commands_of: list[list[tuple[str, int]]] | None = None  # per joint: (command, its index in u)
+        self._outputs_of: list[list[tuple[str, int]]] = []  # per joint: (output channel, its index in the sweep)
 
     # -- what the loop runs on (fixed once it is built) -----------------------------------
     @property
@@ -107,15 +108,22 @@ class LoopView:
     def _joint(self, i: int) -> dict:
         """One joint in ``status``: angle, set-point, speed, and its commands in force (V_MV as
         ``u_volts``; a muscle pair's pressures [Pa] and brake [N m], its stiffness set-point
-        and measured pressures)."""
+        and measured pressures); ``output``: ``controller``, or ``safe state`` outside
+        ``enabled``, where the safe state is written and no command is in force (null); and
+        ``written_volts``, the joint's output channels as last written [V]."""
         loop = self._loop
-        if self._commands_of is None:  # the command interfaces are fixed once the loop is built
+        if self._commands_of is None:  # the command interfaces and channels are fixed once the loop is built
             self._commands_of = [[(c.name, k) for k, c in enumerate(loop.actuation.commands) if c.joint == joint]
                                  for joint in loop.io.joint_names]
+            names = [ch.name for ch in loop.io.transport.outputs]
+            self._outputs_of = [[(ch, names.index(ch)) for ch in channels] for channels in loop.io.joint_outputs]
+        safe = not loop.supervisor.enabled
+        written = loop.io.last_volts
         out = {"angle_deg": math.degrees(loop.angles[i]), "setpoint_deg": math.degrees(loop.reference[0][i]),
-               "velocity_deg_s": math.degrees(loop.velocities[i])}
+               "velocity_deg_s": math.degrees(loop.velocities[i]), "output": "safe state" if safe else "controller",
+               "written_volts": {ch: written[k] for ch, k in self._outputs_of[i]}}
         u = loop.u
-        commands = {name: u[k] for name, k in self._commands_of[i]}
+        commands = {name: None if safe else u[k] for name, k in self._commands_of[i]}
         if "v_mv" in commands:
             out["u_volts"] = commands["v_mv"]
         else:

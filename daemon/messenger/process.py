@@ -71,8 +71,9 @@ class Messenger:
 
     def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
                  stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False,
-                 plotjuggler: str | None = None):
+                 plotjuggler: str | None = None, foxglove: tuple[str, int] | None = None):
         self.rings_dir = rings_dir
+        self.foxglove = foxglove  # (host, port) of the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.plotjuggler = plotjuggler  # an endpoint for PlotJuggler's rows (daemon.messenger.plotjuggler)
         self.recorder = recorder  # hand telemetry and record.* requests to the recorder process
         self.stall_s = stall_s
@@ -103,7 +104,7 @@ class Messenger:
                       pass_fds=(self.doorbell,), nice=0, cpus=self._cpus)
 
     def _args(self, endpoints: dict[str, str]) -> tuple:
-        return self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints
+        return self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints, self.foxglove
 
     def check(self) -> str | None:
         """Called once a second from the loop, never blocking: if the process has died, start
@@ -143,7 +144,7 @@ class Messenger:
 
 # -- in the messenger process ---------------------------------------------------------------
 def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str | None, recorder: bool,
-          plotjuggler: str | None, endpoints: dict[str, str]) -> int:
+          plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None) -> int:
     """The messenger process's main: bind the sockets, say ready with their endpoints, relay
     until the loop's END or the parent's end."""
     logging.basicConfig(level=logging.INFO, format="pneumad messenger %(levelname)s: %(message)s")
@@ -165,6 +166,13 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     except zmq.ZMQError as exc:
         raise HelperFailed(f"cannot bind the {name} endpoint {plotjuggler if name == 'plotjuggler' else endpoints[name]}: "
                            f"{exc}") from None
+    stream = None
+    if foxglove:
+        from daemon.messenger.foxglove_stream import FoxgloveStream
+        try:
+            stream = FoxgloveStream(*foxglove, rings_dir)
+        except RuntimeError as exc:
+            raise HelperFailed(f"cannot serve Foxglove on {foxglove[0]}:{foxglove[1]}: {exc}") from None
     from daemon.messenger.recorder_link import (
         Recorder,  # the process's own work: the daemon's side never needs them
     )
@@ -175,8 +183,8 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     stats = StatsBanks.in_directory(rings_dir, create=False)
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})
-    Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, stall_s, guard, link, feed).run(child.parent_alive)
-    for helper in (link, feed):
+    Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, stall_s, guard, link, feed, stream).run(child.parent_alive)
+    for helper in (link, feed, stream):
         if helper is not None:
             helper.close()
     sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)

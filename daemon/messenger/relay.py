@@ -9,6 +9,8 @@ import struct
 import sys
 import time
 
+from typing import TYPE_CHECKING
+
 import msgpack
 import zmq
 
@@ -24,6 +26,9 @@ from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import internals_message, state_message
 
+if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
+    from daemon.messenger.foxglove_stream import FoxgloveStream
+
 
 class Relay:
     """Moves requests from the ROUTER sockets into the loop's rings, and replies and
@@ -31,11 +36,12 @@ class Relay:
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
                  stats: StatsBanks, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
-                 plotjuggler: PlotJugglerFeed | None = None):
+                 plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.stats = stats  # the loop's timing histograms, summarised here once a window
         self.recorder = recorder
         self.plotjuggler = plotjuggler
+        self.foxglove = foxglove  # the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.stall_s = stall_s
         self.guard = guard
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
@@ -57,7 +63,8 @@ class Relay:
         """Until the telemetry ring's END, or until the parent is gone."""
         last_check = time.monotonic()
         while True:
-            ready = dict(self.poller.poll(IDLE_POLL_MS))
+            stream_busy = self.foxglove is not None and self.foxglove.busy
+            ready = dict(self.poller.poll(0 if stream_busy else IDLE_POLL_MS))
             for name in ("control", "command"):  # control first: an e-stop overtakes a flood
                 if self.sockets[name] in ready:
                     self._take_requests(name)
@@ -69,6 +76,8 @@ class Relay:
             if not self._publish():
                 self._send_replies()  # the loop's last answers, then stop
                 return
+            if self.foxglove is not None:
+                self.foxglove.work()  # a slice of the Foxglove stream's encoding, then the sockets again
             if reloads:
                 reloads.clear()
                 self._reload_keys()
@@ -214,6 +223,8 @@ class Relay:
         self.sockets["telemetry"].send_multipart((b"event", body))
         if self.recorder is not None:
             self.recorder.feed(b"event", body)
+        if self.foxglove is not None:
+            self.foxglove.take("event", msgpack.unpackb(body, raw=False))
 
     def _send_replies(self) -> None:
         ring = self.rings["replies"]
@@ -253,7 +264,22 @@ class Relay:
                 self.recorder.feed(topic, payload)
             if self.plotjuggler is not None:
                 self._plot(topic, columns, body)
+            if self.foxglove is not None:
+                self._stream(topic, columns, body)
         return True
+
+    def _stream(self, topic: bytes, columns: dict | None, body: bytes) -> None:
+        """The live Foxglove stream's share (:mod:`daemon.messenger.foxglove_stream`)."""
+        if columns is not None:
+            self.foxglove.take("state", columns)
+            return
+        try:
+            message = msgpack.unpackb(body, raw=False)
+        except Exception as exc:  # only the loop writes these: a bug, said loudly, never fatal
+            print(f"pneumad messenger: cannot read a {topic.decode()} message for Foxglove: {exc}", file=sys.stderr,
+                  flush=True)
+            return
+        self.foxglove.take(topic.decode(), message)
 
     def _plot(self, topic: bytes, columns: dict | None, body: bytes) -> None:
         """The rows PlotJuggler plots (:mod:`daemon.messenger.plotjuggler`)."""

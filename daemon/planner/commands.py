@@ -225,7 +225,7 @@ def after_approach(ctx: PlanContext, args: dict, setpoint: list[float], path: tr
     move = trajectory.JointMove(setpoint, start, approach)
     check_authority(ctx, "the approach to its start", move, None if approach else "the rig cannot hold the start",
                     "approach_s")
-    chain = trajectory.Chain([move, path])
+    chain = trajectory.Chain([move, path], approach_s=approach)
     where = first_outside_limits(chain.profile(), ctx.limits, ctx.joint_names)
     if where is not None:
         raise CommandFailed(P.REFUSED, where, {"reason": "limits"})

@@ -10,6 +10,12 @@ a topic's ``seq``) is written where it happened, on ``/pneumad/gap``. The rig fi
 attachment; ``describe``, the controller and its parameters, the software version and the
 rig hash are metadata records.
 
+Beside them, the Foxglove channels of the live stream (:mod:`daemon.recordings.channels`:
+``/joint_states``, ``/pneumad/tracking`` ..., ``/log``, ``/events``), with the same schemas, so
+one Foxglove layout (docs/foxglove-layout.json) serves live and recorded data; :func:`read`
+(and so ``recording.load``, ``export``, ``plot``) reads the ``/pneumad/<topic>`` channels
+alone, in files with or without them.
+
 Chunks are closed every CHUNK_BYTES, so a recording cut short (a killed recorder, a full
 disk) loses at most its last chunk: :func:`read` returns everything up to it.
 """
@@ -25,6 +31,8 @@ from mcap.exceptions import McapError
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
+
+from daemon.recordings.channels import Frames, json_schemas, protobuf_schemas, schema_name
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
@@ -114,6 +122,14 @@ class McapRecording:
             schema = state_schema(self._joints) if topic == "state" else OTHER_SCHEMAS[topic]
             sid = self._writer.register_schema(f"pneumad.{topic}", "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(channel(topic), "json", sid)
+        self._frames = Frames(describe)  # the Foxglove channels, as the live stream serves them
+        self._foxglove = {}
+        for topic, schema in json_schemas(describe).items():
+            sid = self._writer.register_schema(schema_name(topic), "jsonschema", json.dumps(schema).encode())
+            self._foxglove[topic] = self._writer.register_channel(topic, "json", sid)
+        for topic, (name, data) in protobuf_schemas().items():
+            sid = self._writer.register_schema(name, "protobuf", data)
+            self._foxglove[topic] = self._writer.register_channel(topic, "protobuf", sid)
         now = time.time_ns()
         self._writer.add_attachment(now, now, "rig.toml", "application/toml", describe["rig"]["source"].encode())
         self._writer.add_metadata("pneumad", {"software": str(describe.get("version")), "rig_hash": describe["rig"]["hash"],
@@ -137,6 +153,8 @@ class McapRecording:
             self._add("gap", self._last_t, {"topic": topic, "missing": missing, "after_seq": self._last_seq.get(topic)})
         if seq is not None:
             self._last_seq[topic] = seq
+        for name, stamp, data in self._frames.of(topic, message):
+            self._writer.add_message(self._foxglove[name], stamp, data, stamp)
         if topic == "state":
             for row in state_samples(message, self._joints, self._outputs, self._fields):
                 self._add("state", row["t"], row, sequence=row["cycle"])
@@ -206,12 +224,14 @@ def read(path) -> Contents:
     """Everything in a pneumad MCAP recording, up to its last complete record: a truncated
     file yields what was written before the cut, with ``truncated`` saying so."""
     out = Contents()
+    ours = {channel(t): t for t in TOPICS}  # the Foxglove channels beside them are the viewers'
     topics: dict[int, str] = {}
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f).records:
                 if isinstance(record, Channel):
-                    topics[record.id] = record.topic.rsplit("/", 1)[-1]
+                    if record.topic in ours:
+                        topics[record.id] = ours[record.topic]
                 elif isinstance(record, Message) and record.channel_id in topics:
                     out.messages.setdefault(topics[record.channel_id], []).append(json.loads(record.data))
                 elif isinstance(record, Attachment):

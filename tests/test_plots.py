@@ -1,0 +1,106 @@
+"""``pneumactl plot``'s pictures never mislead (daemon/client/plots.py), on runs made here: each
+internal signal's unit from the controller that published it, identical runs drawn once and
+named together, V_MV only where it was written and between its limits, the approach/path
+boundary, and the tip path's start and direction."""
+import math
+
+import matplotlib.pyplot as plt
+import pytest
+
+from daemon.client import plots
+from daemon.recordings.reading import Run
+
+DESCRIBE = {
+    "period_s": 0.001,
+    "joints": [{"name": "bottom", "u_min_volts": -4.0, "u_max_volts": 6.0},
+               {"name": "middle", "u_min_volts": -4.0, "u_max_volts": 6.0}],
+    "arm": {"link_lengths_mm": [100.0, 100.0]},
+    # as describe lists them: a lookup by signal name across controllers finds muscle_pid's Pa for pid's i
+    "controllers": [{"name": "pid", "internals": [{"name": "p", "unit": "V"}, {"name": "i", "unit": "V"}]},
+                    {"name": "muscle_pid", "internals": [{"name": "i", "unit": "Pa"}]}],
+}
+
+
+def run(gain: float = 1.0, modes=None, approach_s=None, n: int = 400) -> Run:
+    """A run of ``n`` cycles: the bottom joint sweeps, V_MV = 2 V x gain; ``modes`` by cycle."""
+    samples = []
+    for k in range(n):
+        t = 10.0 + k * 1e-3
+        q = [math.radians(120 + 20 * k / n), math.radians(-80.0)]
+        mode = modes(k) if modes else "enabled"
+        samples.append({"cycle": k, "t": t, "mode": "enabled" if mode is None else mode, "force_n": float("nan"),
+                        "joints": {name: {"angle_rad": q[j] * gain, "setpoint_rad": q[j], "error_rad": q[j] * (1 - gain),
+                                          "u_volts": 2.0 * gain, "p_head_pa": 4e5, "p_rod_pa": 3e5,
+                                          "velocity_rad_s": 0.0}
+                                   for j, name in enumerate(("bottom", "middle"))}})
+    events = [{"t": 10.0, "kind": "reference", "action": "start", "name": "translation", "generation": 1,
+               "duration_s": 0.4, "approach_s": approach_s}] if approach_s else []
+    internals = [{"t": 10.0 + k * 0.01, "controller": "pid", "signals": {"p": [0.1, 0.2], "i": [0.3, 0.4]}}
+                 for k in range(n // 10)]
+    return Run(DESCRIBE, {"name": "pid"}, samples, {"event": events, "internals": internals})
+
+
+@pytest.fixture(autouse=True)
+def close_figures():
+    yield
+    plt.close("all")
+
+
+def test_each_internal_signals_unit_is_its_own_controllers():
+    fig = plots.figures([("a", run())])["internals"]
+    assert [ax.get_ylabel() for ax in fig.axes] == ["p [V]", "i [V]"]  # not muscle_pid's i [Pa]
+
+
+def test_identical_runs_are_drawn_once_and_named_together():
+    made = plots.figures([("a (pid)", run()), ("b (lti)", run()), ("c (smc)", run(gain=0.9))])
+    ax = made["errors"].axes[0]
+    labels = [line.get_label() for line in ax.get_lines()]
+    assert labels == ["a (pid) = b (lti) (identical)", "c (smc)"]  # two lines, each visible, all three named
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert legend == labels
+
+
+def test_v_mv_is_drawn_only_where_written_and_between_its_limits():
+    made = plots.figures([("a", run(modes=lambda k: "estop" if k >= 200 else None))])
+    ax = made["output"].axes[0]
+    v_mv = next(line for line in ax.get_lines() if line.get_label() == "a V_MV")
+    y = v_mv.get_ydata()
+    assert all(v == 2.0 for v in y[:200]) and all(math.isnan(v) for v in y[200:])  # no +2 V during the e-stop
+    limits = sorted(line.get_ydata()[0] for line in ax.get_lines() if line.get_linestyle() == "--")
+    assert limits == [-4.0, 6.0]
+    assert "V_MV limits" in [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def test_the_approach_path_boundary_and_the_tip_paths_start_and_direction():
+    made = plots.figures([("a", run(approach_s=0.15))])
+    ax = made["joints"].axes[0]
+    boundary = [line for line in ax.get_lines() if line.get_label() == "approach ends, path begins"]
+    assert len(boundary) == 1 and boundary[0].get_xdata()[0] == pytest.approx(0.151)  # start + a cycle + 0.15 s
+    tip = made["tip"].axes[0]
+    labels = [line.get_label() for line in tip.get_lines()]
+    assert "a start" in labels and "a path begins (approach ends)" in labels
+    arrows = [c for c in tip.get_children() if type(c).__name__ == "Annotation"]
+    assert len(arrows) >= 3
+    (x0, y0), (x1, y1) = arrows[0].xyann, arrows[0].xy  # from, to: along the sweep (the bottom joint rising)
+    start = [line for line in tip.get_lines() if line.get_label() == "a start"][0]
+    assert math.hypot(x0 - start.get_xdata()[0], y0 - start.get_ydata()[0]) < math.hypot(
+        x1 - start.get_xdata()[0], y1 - start.get_ydata()[0])
+
+
+def test_the_payload_noise_figure_says_why_the_papers_figures_are_scaled():
+    from bench import payload
+    rows = [(level, 1.0, 1.0, 0.001) for level in sorted(payload.PAPER_NOISE)]
+    fig = payload.figure(rows, 0.4, 0.2 / 3.0, 0.2)
+    caption = " ".join(t.get_text() for t in fig.texts)
+    assert "reach, 0.20 m / 0.50 m = x0.40" in caption and "capacity, 0.2 kg / 3 kg = x0.067" in caption
+    legend = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
+    assert all("ratio" in label for label in legend if "paper" in label)
+
+
+def test_runs_a_figure_cannot_tell_apart_are_merged_and_say_by_how_much():
+    a = [[0.0, 1.0], [1.0, 2.0], [2.0, 3.0]]
+    near = [[0.0, 1.0], [1.005, 2.0], [2.0, 3.0]]  # 0.5 % of the first column's range
+    far = [[0.0, 1.0], [1.5, 2.0], [2.0, 3.0]]
+    assert plots.merge_identical(["pid", "lti", "smc"], [a, near, far], within=0.01) == [
+        ("pid ≈ lti (within 1% of the range)", 0), ("smc", 2)]
+    assert plots.merge_identical(["pid", "lti"], [a, near]) == [("pid", 0), ("lti", 1)]  # exact unless asked
