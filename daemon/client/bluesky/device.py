@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import time
 
@@ -32,8 +33,13 @@ from ophyd_async.core import (
 )
 
 from daemon.client.bluesky.link import RigLink
+from daemon.client.client import RemoteError
+from daemon.wire import protocol as P
 
-SETTLED_DEG = 0.5  # a move has settled once within this of its target [deg] ...
+log = logging.getLogger(__name__)
+
+SETTLED_DEG = 1.0  # a move has settled once within this of its target [deg] (PID's friction band: the
+#                     middle joint's stiction can hold it 0.6 deg off) ...
 STILL_DEG_S = 2.0  # ... slower than this [deg/s] ...
 SETTLED_FOR_S = 0.3  # ... for this long [s]
 SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
@@ -121,6 +127,7 @@ class PneumadRig(StandardReadable):
         self.hdf5_directory = hdf5_directory  # where plans write the daemon's records as HDF5
         status = link.client.status()
         self.move_s = 2.0  # a joint's set: the cubic move's duration [s] (0: a step)
+        self.settled_deg = SETTLED_DEG  # a move has settled within this of its target [deg]
         with self.add_children_as_readables():
             self.joints = DeviceVector({i: PneumadJoint(link, self, i, status["joints"][j["name"]])
                                         for i, j in enumerate(link.describe["joints"])})
@@ -166,12 +173,17 @@ class PneumadRig(StandardReadable):
     async def unstage(self) -> None:
         """Hand the lease back (the rig file's unleased action applies from then on)."""
         if self.link.client.lease is not None:
-            await self.link.call("release_lease")
+            try:
+                await self.link.call("release_lease")
+            except RemoteError as exc:  # it lapsed (the daemon then acted on it, as the run's status says)
+                if exc.code != P.NO_LEASE:
+                    raise
+                log.warning("%s: the lease had lapsed before the run handed it back: %s", self.link.rig_name, exc)
         await super().unstage()
 
     async def settled(self, targets_deg: dict[str, float], move_s: float) -> None:
         """Return once the reference has ended and each named joint has stayed within
-        SETTLED_DEG of its target, slower than STILL_DEG_S, for SETTLED_FOR_S; RuntimeError if
+        ``settled_deg`` of its target, slower than STILL_DEG_S, for SETTLED_FOR_S; RuntimeError if
         the arm leaves the enabled state (with the daemon's cause) or does not settle in time."""
         deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
         still_since = None
@@ -181,7 +193,7 @@ class PneumadRig(StandardReadable):
                 raise RuntimeError(f"{self.link.rig_name}: the arm is {status['state']}: {status.get('cause', '')}")
             joints = status["joints"]
             near = status["reference_remaining_s"] <= 0.0 and all(
-                abs(joints[n]["angle_deg"] - t) <= SETTLED_DEG and abs(joints[n]["velocity_deg_s"]) <= STILL_DEG_S
+                abs(joints[n]["angle_deg"] - t) <= self.settled_deg and abs(joints[n]["velocity_deg_s"]) <= STILL_DEG_S
                 for n, t in targets_deg.items())
             now = time.monotonic()
             still_since = (still_since or now) if near else None

@@ -56,22 +56,21 @@ def _recorded(rig: PneumadRig, flights, md: dict):
     return (yield from run())
 
 
-def _setpoints(rig: PneumadRig):
-    """Each joint's set-point now [deg], in the rig's order."""
-    out = []
-    for joint in rig.joints.values():
-        out.append((yield from bps.rd(joint.setpoint_deg)))
-    return out
-
-
 def step_response(rig, joint: str, step_deg: float, md: dict | None = None):
     """A step of ``step_deg`` [deg] on ``joint`` from its set-point, recorded until it has settled."""
     names = [j["name"] for j in rig.link.describe["joints"]]
-    targets = yield from _setpoints(rig)
-    targets[names.index(joint)] += step_deg
+    if joint not in names:
+        raise ValueError(f"{rig.link.rig_name} has no joint {joint!r} (joints: {', '.join(names)})")
+    j = names.index(joint)
+
+    def send(client):
+        joints = client.status()["joints"]
+        targets = [joints[n]["setpoint_deg"] for n in names]
+        targets[j] += step_deg
+        return client.set(angles_deg=targets, duration_s=0.0, record=True)
+
     meta = yield from _metadata(rig, "step_response", {"joint": joint, "step_deg": step_deg})
-    flight = Flight(lambda c: c.set(angles_deg=targets, duration_s=0.0, record=True),
-                    settle_deg={joint: targets[names.index(joint)]})
+    flight = Flight(send, settle=lambda reply: {joint: reply["target_deg"][j]})
     return (yield from _recorded(rig, [flight], {**meta, **(md or {})}))
 
 
@@ -118,7 +117,7 @@ def payload_dithers(rig, md: dict | None = None):
     for target in payload_routine.postures(rig_config):
         flights.append(Flight(lambda c, t=target: c.set(angles_deg=t, duration_s=identify.move_duration(
             t, [c.status()["joints"][n]["setpoint_deg"] for n in names]), record=True),
-            settle_deg=dict(zip(names, target))))
+            settle=lambda reply: dict(zip(names, reply["target_deg"]))))
         for name in names:
             flights.append(Flight(lambda c, n=name: c.call("excite", {**payload_routine.dither_args(rig_config, n),
                                                                        "record": True})))

@@ -15,7 +15,7 @@ import asyncio
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import h5py
 import numpy as np
@@ -31,12 +31,13 @@ from daemon.recordings import mcap_log, reading
 
 @dataclass
 class Flight:
-    """A reference to run and record: ``send(client)`` starts it with ``record=True`` and
-    returns the daemon's reply; ``settle_deg``: the joints' targets [deg] to wait to settle
-    at after it (none: until the reference has ended)."""
+    """A reference to run and record: ``send(client)`` starts it with ``record=True`` (when
+    the flight starts, so it may read where the arm is then) and returns the daemon's reply;
+    ``settle(reply)``: the joints' targets [deg] to wait to settle at after it (none: until
+    the reference has ended)."""
 
     send: Callable[[Client], dict]
-    settle_deg: dict[str, float] = field(default_factory=dict)
+    settle: Callable[[dict], dict[str, float]] | None = None
 
 
 class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
@@ -75,6 +76,7 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
         if self._flight is None:
             raise RuntimeError(f"{self.name}: prepare() a Flight before kickoff")
         reply = await asyncio.to_thread(self._flight.send, self.rig.link.client)
+        self._settle_deg = self._flight.settle(reply) if self._flight.settle is not None else {}
         if not reply.get("recording"):
             raise RuntimeError(f"{self.name}: the daemon did not record the reference (no recording in {reply})")
         self._recording = reply["recording"]  # the name the daemon records it under
@@ -84,8 +86,8 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
     @AsyncStatus.wrap
     async def complete(self) -> None:
         link = self.rig.link
-        if self._flight.settle_deg:
-            await self.rig.settled(self._flight.settle_deg, self._total_s)
+        if self._settle_deg:
+            await self.rig.settled(self._settle_deg, self._total_s)
         else:
             ended = await asyncio.to_thread(_follow, link.client, self._total_s)
             if ended["state"] != "enabled":
