@@ -34,7 +34,7 @@ def follow(client: Client, total_s: float, recording: str | None = None) -> dict
     outcome = {"ended": status["state"] == "enabled", "state": status["state"], "cause": status.get("cause", "")}
     if recording:
         try:
-            outcome["recording_file"] = _recording_file(client, recording)
+            outcome["recording_file"] = recording_file(client, recording)
         except KeyboardInterrupt:
             raise Interrupted(f"interrupted: the reference has ended; the daemon finishes its recording {recording} "
                               f"(`pneumactl record.list` lists it)") from None
@@ -81,7 +81,7 @@ def _poll(client: Client, show, seen: dict) -> dict:
         time.sleep(min(POLL_S, left))
 
 
-def _recording_file(client: Client, name: str) -> str | None:
+def recording_file(client: Client, name: str) -> str | None:
     """The file of the daemon's recording ``name`` once it is finished (None if it never appeared).
     A listing not answered in the client's time is asked again: the recorder answers it after
     closing the file, late on a loaded PC (beside two CPU hogs, more than 2 s)."""

@@ -1,0 +1,209 @@
+"""A pneumad rig as an ophyd-async device, built from the daemon's ``describe`` and ``status``
+(no hand-written list of joints or signals): what a Bluesky RunEngine reads and moves.
+
+- ``rig.joints[i]`` is a ``Movable``: ``set(angle_deg)`` is the daemon's planned ``set`` of
+  that joint (the others keep their set-points), and its status completes once the move has
+  ended and the joint has settled; a refusal fails it with the daemon's RemoteError (code,
+  message and data intact), a trip with the daemon's cause.
+- Readable signals: per joint, every number ``status`` carries for it (angle [deg] hinted,
+  set-point, velocity, V_MV; a muscle joint's measured pressures [Pa] and stiffness); for the
+  rig, the force [N] and the state. Configuration: the controller, its parameters, the rig
+  file's hash and name. Each signal's source is ``pneumad://<rig>/<joint|rig>/<signal>``.
+- ``stage`` takes the lease (renewed in the background) and enables the arm; ``unstage``
+  hands the lease back: a run holds the arm for its length and no longer.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import time
+
+import numpy as np
+from bluesky.protocols import Movable
+from ophyd_async.core import (
+    Array1D,
+    AsyncStatus,
+    DeviceVector,
+    SignalR,
+    SoftSignalBackend,
+    StandardReadable,
+    StandardReadableFormat,
+)
+
+from daemon.client.bluesky.link import RigLink
+from daemon.client.client import RemoteError
+from daemon.wire import protocol as P
+
+log = logging.getLogger(__name__)
+
+SETTLED_DEG = 1.0  # a move has settled once within this of its target [deg] (PID's friction band: the
+#                     middle joint's stiction can hold it 0.6 deg off) ...
+STILL_DEG_S = 2.0  # ... slower than this [deg/s] ...
+SETTLED_FOR_S = 0.3  # ... for this long [s]
+SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
+POLL_S = 0.05
+
+
+class _StatusBackend(SoftSignalBackend):
+    """A soft signal whose value is read from the daemon on every read, named by its source."""
+
+    def __init__(self, datatype, source: str, getter, units: str | None = None):
+        super().__init__(datatype, units=units, getter=getter)
+        self._source = source
+
+    def source(self, name: str, read: bool) -> str:
+        return self._source
+
+
+def _number(value) -> float:
+    return math.nan if value is None else float(value)
+
+
+def _unit(field: str) -> str | None:
+    """The unit a status field's name ends in (``angle_deg`` -> deg)."""
+    for suffix, unit in (("_deg_s", "deg/s"), ("_deg", "deg"), ("_volts", "V"), ("_pa", "Pa"), ("_nm_deg", "N m/deg"),
+                         ("_n", "N")):
+        if field.endswith(suffix):
+            return unit
+    return None
+
+
+def _signal(link: RigLink, path: tuple[str, ...], pick, sample) -> SignalR:
+    """A read-only signal at ``path`` whose value is ``pick(status)``; its type from ``sample``."""
+    if isinstance(sample, list):
+        async def get():
+            return np.array([_number(v) for v in pick(await link.status())], dtype=float)
+        return SignalR(_StatusBackend(Array1D[np.float64], link.source(*path), get, _unit(path[-1])))
+    if isinstance(sample, str):
+        async def get():
+            return pick(await link.status())
+        return SignalR(_StatusBackend(str, link.source(*path), get))
+
+    async def get():
+        return _number(pick(await link.status()))
+    return SignalR(_StatusBackend(float, link.source(*path), get, _unit(path[-1])))
+
+
+class PneumadJoint(StandardReadable, Movable):
+    """One joint: its status fields as signals (the angle hinted), and ``set`` a planned move."""
+
+    def __init__(self, link: RigLink, rig: "PneumadRig", index: int, fields: dict, name: str = ""):
+        # the rig's move time and settling wait, not the rig itself: a Device attribute is a child
+        self._link, self._move_s, self._settled, self.index = link, lambda: rig.move_s, rig.settled, index
+        self.joint = link.describe["joints"][index]["name"]
+        with self.add_children_as_readables(StandardReadableFormat.HINTED_UNCACHED_SIGNAL):
+            self.angle_deg = _signal(link, (self.joint, "angle_deg"), self._field("angle_deg"), 0.0)
+        with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
+            for field, sample in fields.items():
+                if field != "angle_deg" and (isinstance(sample, (int, float, list)) or sample is None):
+                    setattr(self, field, _signal(link, (self.joint, field), self._field(field),
+                                                 0.0 if sample is None else sample))
+        super().__init__(name=name)
+
+    def _field(self, field: str):
+        return lambda status: status["joints"][self.joint].get(field)
+
+    @AsyncStatus.wrap
+    async def set(self, value: float) -> None:
+        """Move this joint to ``value`` [deg] (a cubic of ``rig.move_s``, 0: a step), the others
+        staying at their set-points, and wait until it has settled there."""
+        link = self._link
+        status = await link.status()
+        names = [j["name"] for j in link.describe["joints"]]
+        targets = [status["joints"][n]["setpoint_deg"] for n in names]
+        targets[self.index] = float(value)
+        reply = await link.call("set", angles_deg=targets, duration_s=self._move_s())
+        link.forget_status()
+        await self._settled({self.joint: float(value)}, reply["duration_s"])
+
+
+class PneumadRig(StandardReadable):
+    """The rig a daemon runs, as one device; ``PneumadRig.connect_to(...)`` builds it."""
+
+    def __init__(self, link: RigLink, name: str = "", hdf5_directory: str = "."):
+        self.link = link
+        self.hdf5_directory = hdf5_directory  # where plans write the daemon's records as HDF5
+        status = link.client.status()
+        self.move_s = 2.0  # a joint's set: the cubic move's duration [s] (0: a step)
+        self.settled_deg = SETTLED_DEG  # a move has settled within this of its target [deg]
+        with self.add_children_as_readables():
+            self.joints = DeviceVector({i: PneumadJoint(link, self, i, status["joints"][j["name"]])
+                                        for i, j in enumerate(link.describe["joints"])})
+        with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
+            self.force_n = _signal(link, ("rig", "force_n"), lambda s: s.get("force_n"), 0.0)
+            self.state = _signal(link, ("rig", "state"), lambda s: s["state"], "")
+        with self.add_children_as_readables(StandardReadableFormat.CONFIG_SIGNAL):
+            self.controller = _signal(link, ("rig", "controller"), lambda s: s["controller"], "")
+            self.controller_params = SignalR(_StatusBackend(str, link.source("rig", "controller_params"),
+                                                            self._controller_params))
+            self.rig_hash = SignalR(_StatusBackend(str, link.source("rig", "hash"),
+                                                   lambda: link.describe["rig"]["hash"]))
+            self.rig_name = SignalR(_StatusBackend(str, link.source("rig", "name"), lambda: link.rig_name))
+        super().__init__(name=name)
+
+    @classmethod
+    def connect_to(cls, name: str, command: str | None = None, control: str | None = None,
+                   telemetry: str | None = None, key_file: str | None = None, server_key_file: str | None = None,
+                   timeout: float = 5.0, hdf5_directory: str = ".") -> "PneumadRig":
+        """The device of the daemon at these endpoints (``pneumactl``'s: arguments, else the
+        ``PNEUMAD_*`` variables, else the defaults), named ``name``, its plans' HDF5 files in
+        ``hdf5_directory``; it reads ``describe`` now."""
+        link = RigLink(command, control, telemetry, key_file, server_key_file, timeout)
+        link.describe = link.client.describe()
+        return cls(link, name=name, hdf5_directory=hdf5_directory)
+
+    async def _controller_params(self) -> str:
+        return json.dumps(await self.link.call("controller"), sort_keys=True, default=str)
+
+    @AsyncStatus.wrap
+    async def stage(self) -> None:
+        """Take the lease for the run (renewed in the background) and enable the arm."""
+        await super().stage()
+        client = self.link.client
+        if client.lease is None:
+            await self.link.call("acquire_lease")
+            client.keep_lease()
+        if (await self.link.call("status"))["state"] != "enabled":
+            await self.link.call("enable")
+        self.link.forget_status()
+
+    @AsyncStatus.wrap
+    async def unstage(self) -> None:
+        """Hand the lease back (the rig file's unleased action applies from then on)."""
+        if self.link.client.lease is not None:
+            try:
+                await self.link.call("release_lease")
+            except RemoteError as exc:  # it lapsed (the daemon then acted on it, as the run's status says)
+                if exc.code != P.NO_LEASE:
+                    raise
+                log.warning("%s: the lease had lapsed before the run handed it back: %s", self.link.rig_name, exc)
+        await super().unstage()
+
+    async def settled(self, targets_deg: dict[str, float], move_s: float) -> None:
+        """Return once the reference has ended and each named joint has stayed within
+        ``settled_deg`` of its target, slower than STILL_DEG_S, for SETTLED_FOR_S; RuntimeError if
+        the arm leaves the enabled state (with the daemon's cause) or does not settle in time."""
+        deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
+        still_since = None
+        while True:
+            status = await self.link.call("status")
+            if status["state"] != "enabled":
+                raise RuntimeError(f"{self.link.rig_name}: the arm is {status['state']}: {status.get('cause', '')}")
+            joints = status["joints"]
+            near = status["reference_remaining_s"] <= 0.0 and all(
+                abs(joints[n]["angle_deg"] - t) <= self.settled_deg and abs(joints[n]["velocity_deg_s"]) <= STILL_DEG_S
+                for n, t in targets_deg.items())
+            now = time.monotonic()
+            still_since = (still_since or now) if near else None
+            if still_since is not None and now - still_since >= SETTLED_FOR_S:
+                return
+            if now > deadline:
+                where = ", ".join(f"{n} at {joints[n]['angle_deg']:.2f} deg" for n in targets_deg)
+                raise RuntimeError(f"{self.link.rig_name}: not settled within {SETTLE_LIMIT_S:g} s of the move's end "
+                                   f"({where}; targets {targets_deg})")
+            await asyncio.sleep(POLL_S)
+
+    def close(self) -> None:
+        self.link.close()

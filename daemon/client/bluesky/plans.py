@@ -1,0 +1,125 @@
+"""The rig's experiments as Bluesky plans: a step response, a path, the identification
+experiments and the payload routine's dithers. Each is one run: the rig's readings before
+and after (stream ``primary``), each reference recorded by the daemon at 1 kHz and added as
+HDF5 (streams ``record``, ``record_1`` ...: :mod:`daemon.client.bluesky.record`), and the
+run's metadata: the rig's name and file hash, the controller and its parameters, the plan's
+own arguments. The rig is staged for the run (lease taken, arm enabled) and unstaged after.
+
+Each plan's ``rig`` is a :class:`~daemon.client.bluesky.device.PneumadRig` (left unannotated: a
+queue item names it, and bluesky-queueserver turns the name into the device).
+
+A refused command fails the plan with the daemon's RemoteError (code, message, data); a trip
+while it runs, with the daemon's cause. Nothing here runs in the loop: the daemon plans each
+reference beside it, as for any client.
+"""
+from __future__ import annotations
+
+import json
+
+import bluesky.plan_stubs as bps
+import bluesky.preprocessors as bpp
+
+from controllers.identification.data import prior_of
+from daemon.client import identify, payload_routine
+from daemon.client.bluesky.device import PneumadRig
+from daemon.client.bluesky.record import DaemonRecord, Flight
+from hal import config
+
+
+def _metadata(rig: PneumadRig, plan: str, arguments: dict):
+    """The run's start document's extras: what ran, on which rig file, under which controller."""
+    controller = yield from bps.rd(rig.controller)
+    params = yield from bps.rd(rig.controller_params)
+    describe = rig.link.describe
+    return {"plan_name": plan, "plan_args": arguments, "rig": describe["rig"]["name"],
+            "rig_hash": describe["rig"]["hash"], "controller": controller,
+            "controller_params": json.loads(params).get("params", {}), "pneumad_version": describe["version"]}
+
+
+def _recorded(rig: PneumadRig, flights, md: dict):
+    """Stage the rig, open the run, read it, fly and collect each flight into a stream of its
+    own (HDF5 in the rig's ``hdf5_directory``), read it again."""
+    record = DaemonRecord(rig, rig.hdf5_directory)
+    @bpp.stage_decorator([rig])
+    @bpp.run_decorator(md=md)
+    def run():
+        yield from bps.declare_stream(rig, name="primary")
+        yield from bps.trigger_and_read([rig], name="primary")
+        for k, flight in enumerate(flights):
+            stream = "record" if k == 0 else f"record_{k}"
+            yield from bps.prepare(record, flight, wait=True)
+            yield from bps.declare_stream(record, name=stream, collect=True)
+            yield from bps.kickoff(record, wait=True)
+            yield from bps.complete(record, wait=True)
+            yield from bps.collect(record, name=stream)
+        yield from bps.trigger_and_read([rig], name="primary")
+    return (yield from run())
+
+
+def step_response(rig, joint: str, step_deg: float, md: dict | None = None):
+    """A step of ``step_deg`` [deg] on ``joint`` from its set-point, recorded until it has settled."""
+    names = [j["name"] for j in rig.link.describe["joints"]]
+    if joint not in names:
+        raise ValueError(f"{rig.link.rig_name} has no joint {joint!r} (joints: {', '.join(names)})")
+    j = names.index(joint)
+
+    def send(client):
+        joints = client.status()["joints"]
+        targets = [joints[n]["setpoint_deg"] for n in names]
+        targets[j] += step_deg
+        return client.set(angles_deg=targets, duration_s=0.0, record=True)
+
+    meta = yield from _metadata(rig, "step_response", {"joint": joint, "step_deg": step_deg})
+    flight = Flight(send, settle=lambda reply: {joint: reply["target_deg"][j]})
+    return (yield from _recorded(rig, [flight], {**meta, **(md or {})}))
+
+
+def path_run(rig, name: str, duration_s: float | None = None,
+             md: dict | None = None):
+    """One of the rig's paths (``translation``, ``circle``), approach included, recorded."""
+    meta = yield from _metadata(rig, "path_run", {"name": name, "duration_s": duration_s})
+    flight = Flight(lambda c: c.path(name, duration_s=duration_s, record=True))
+    return (yield from _recorded(rig, [flight], {**meta, **(md or {})}))
+
+
+def identification(rig, joint: str, quick: bool = True, md: dict | None = None):
+    """``pneumactl identify``'s experiments on ``joint`` (V_MV side, amplitude as it chooses
+    it, fitted to the daemon's limits), each recorded into a stream of its own; the fit is
+    ``pneumactl identify --from`` on the HDF5's recordings, or the notebook's."""
+    describe = rig.link.describe
+    rig_config = config.parse(describe["rig"]["source"], "<daemon>")
+    j = [x["name"] for x in describe["joints"]].index(joint)
+    prior = prior_of(rig_config, joint)
+    plan = identify.Plan.of(quick)
+    u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
+
+    def experiment(signal: str, settings: dict) -> Flight:
+        def send(client):
+            u_op = identify.holding_volts(rig_config, joint, client.status()["joints"][joint]["setpoint_deg"])
+            args = {**settings, "settle_s": plan.settle_s}
+            return identify.excite_fitting(lambda volts: client.excite_input(signal, joint, volts, record=True, **args),
+                                           signal, identify.default_amplitude(prior, u_op, u_range), fixed=False)
+        return Flight(send)
+
+    meta = yield from _metadata(rig, "identification", {"joint": joint, "quick": quick})
+    flights = [experiment(signal, settings) for signal, settings in plan.experiments]
+    return (yield from _recorded(rig, flights, {**meta, **(md or {})}))
+
+
+def payload_dithers(rig, md: dict | None = None):
+    """The payload routine's measurement: at each of its postures, every joint dithered about
+    its balance (the daemon's ``excite``), each dither recorded; the estimate is the routine's
+    (:func:`daemon.client.payload_routine.window_mean` on the records)."""
+    describe = rig.link.describe
+    rig_config = config.parse(describe["rig"]["source"], "<daemon>")
+    names = [j["name"] for j in describe["joints"]]
+    flights = []
+    for target in payload_routine.postures(rig_config):
+        flights.append(Flight(lambda c, t=target: c.set(angles_deg=t, duration_s=identify.move_duration(
+            t, [c.status()["joints"][n]["setpoint_deg"] for n in names]), record=True),
+            settle=lambda reply: dict(zip(names, reply["target_deg"]))))
+        for name in names:
+            flights.append(Flight(lambda c, n=name: c.call("excite", {**payload_routine.dither_args(rig_config, n),
+                                                                       "record": True})))
+    meta = yield from _metadata(rig, "payload_dithers", {"postures": payload_routine.postures(rig_config)})
+    return (yield from _recorded(rig, flights, {**meta, **(md or {})}))

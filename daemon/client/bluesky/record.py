@@ -1,0 +1,146 @@
+"""A daemon-side recording as a Bluesky "flyer": one reference (a move, a path, an excitation)
+run with ``record`` on, the daemon's 1 kHz record of it turned into HDF5 and added to the run
+as an external resource (StreamResource / StreamDatum): the run's data is every cycle, not a
+scan's handful of points.
+
+``prepare(Flight(...))`` says which reference; ``kickoff`` starts it (the daemon records from
+half a second before to 3 s after); ``complete`` waits for the reference's end (and for the
+joints named to settle), then for the daemon's file, and writes ``<directory>/<name>.h5``;
+``collect`` then emits its documents. The daemon's record directory must be readable where
+the plan runs: the daemon's PC, or a shared mount (docs/bluesky.md).
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import h5py
+import numpy as np
+from bluesky.protocols import Collectable, Flyable, Preparable, WritesStreamAssets
+from event_model import compose_stream_resource
+from ophyd_async.core import AsyncStatus
+
+from daemon.client import progress
+from daemon.client.client import Client
+from daemon.client.bluesky.device import PneumadRig
+from daemon.recordings import mcap_log, reading
+
+
+@dataclass
+class Flight:
+    """A reference to run and record: ``send(client)`` starts it with ``record=True`` (when
+    the flight starts, so it may read where the arm is then) and returns the daemon's reply;
+    ``settle(reply)``: the joints' targets [deg] to wait to settle at after it (none: until
+    the reference has ended)."""
+
+    send: Callable[[Client], dict]
+    settle: Callable[[dict], dict[str, float]] | None = None
+
+
+class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
+    """The recordings of one rig's references, into ``directory`` as HDF5."""
+
+    def __init__(self, rig: PneumadRig, directory: str, name: str = ""):
+        self.rig, self.directory = rig, os.path.abspath(directory)
+        self._name = name or f"{rig.name}_record"
+        self._flight: Flight | None = None
+        self._recording: str | None = None
+        self._file: str | None = None
+        self._rows = 0
+        self._emitted = False
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def parent(self):
+        return None
+
+    def _keys(self) -> list[tuple[str, str]]:
+        """(data key, HDF5 dataset) of each state column, from the rig's ``describe``."""
+        out = [("t", "/t"), ("cycle", "/cycle"), ("force_n", "/force_n")]
+        for joint in self.rig.link.describe["joints"]:
+            out += [(f"{joint['name']}_{column}", f"/{joint['name']}/{column}") for column in mcap_log.PER_JOINT]
+        return [(f"{self.name}_{key}", dataset) for key, dataset in out]
+
+    @AsyncStatus.wrap
+    async def prepare(self, value: Flight) -> None:
+        self._flight, self._recording, self._file, self._rows, self._emitted = value, None, None, 0, False
+
+    @AsyncStatus.wrap
+    async def kickoff(self) -> None:
+        if self._flight is None:
+            raise RuntimeError(f"{self.name}: prepare() a Flight before kickoff")
+        reply = await asyncio.to_thread(self._flight.send, self.rig.link.client)
+        self._settle_deg = self._flight.settle(reply) if self._flight.settle is not None else {}
+        if not reply.get("recording"):
+            raise RuntimeError(f"{self.name}: the daemon did not record the reference (no recording in {reply})")
+        self._recording = reply["recording"]  # the name the daemon records it under
+        self._total_s = float(reply.get("total_s") or reply.get("duration_s") or 0.0)
+        self.rig.link.forget_status()
+
+    @AsyncStatus.wrap
+    async def complete(self) -> None:
+        link = self.rig.link
+        if self._settle_deg:
+            await self.rig.settled(self._settle_deg, self._total_s)
+        else:
+            ended = await asyncio.to_thread(_follow, link.client, self._total_s)
+            if ended["state"] != "enabled":
+                raise RuntimeError(f"{link.rig_name}: the arm is {ended['state']}: {ended['cause']}")
+        path = await asyncio.to_thread(progress.recording_file, link.client, self._recording)
+        if path is None or not os.path.exists(path):
+            raise RuntimeError(f"{link.rig_name}: the daemon's recording {self._recording} is not readable here "
+                               f"({path}): run the plan on the daemon's PC or mount its record directory")
+        self._file = os.path.join(self.directory, f"{self._recording}.h5")
+        self._rows = await asyncio.to_thread(to_hdf5, path, self._file)
+
+    def describe_collect(self) -> dict:
+        return {key: {"source": f"{self.rig.link.source('record', dataset.strip('/'))}", "shape": [],
+                      "dtype": "integer" if dataset == "/cycle" else "number",
+                      "dtype_numpy": "<i8" if dataset == "/cycle" else "<f8", "external": "STREAM:"}
+                for key, dataset in self._keys()}
+
+    def get_index(self) -> int:
+        return self._rows
+
+    def collect_asset_docs(self, index: int | None = None):
+        if self._file is None or self._emitted or not self._rows:
+            return
+        stop = self._rows if index is None else min(index, self._rows)
+        self._emitted = True
+        for key, dataset in self._keys():
+            bundle = compose_stream_resource(mimetype="application/x-hdf5", uri=f"file://localhost{self._file}",
+                                             data_key=key, parameters={"dataset": dataset, "chunk_shape": (stop,)})
+            yield "stream_resource", bundle.stream_resource_doc
+            yield "stream_datum", bundle.compose_stream_datum({"start": 0, "stop": stop})
+
+
+def _follow(client, total_s: float) -> dict:
+    """Until the reference has ended (or the arm left the enabled state), quietly."""
+    deadline = time.monotonic() + total_s + 60.0
+    while True:
+        status = client.status()
+        if status["state"] != "enabled" or status["reference_remaining_s"] <= 0.0 or time.monotonic() > deadline:
+            return {"state": status["state"], "cause": status.get("cause", "")}
+        time.sleep(0.1)
+
+
+def to_hdf5(recording: str, out: str) -> int:
+    """The state stream of a daemon's recording as HDF5 datasets ``/t``, ``/cycle``,
+    ``/force_n``, ``/<joint>/<column>`` (SI units, as :func:`daemon.recordings.reading.load`
+    names them), the internals and contact streams under ``/internals`` and ``/contact``;
+    the number of rows."""
+    columns = reading.load(recording)
+    os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
+    with h5py.File(out, "w") as f:
+        for name, values in columns.items():
+            group, _, leaf = name.rpartition(".")
+            path = "/" + name.replace(".", "/") if group else "/" + leaf
+            f.create_dataset(path, data=np.asarray(values))
+        f.attrs["source"] = os.path.abspath(recording)
+    return len(columns["t"])

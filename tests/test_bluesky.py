@@ -1,0 +1,193 @@
+"""pneumad under Bluesky (daemon/client/bluesky, docs/bluesky.md): a RunEngine runs the plans
+against a real daemon and their 1 kHz records read back from a real Tiled server; a refused
+move and a trip fail their plans with the daemon's words; bluesky-queueserver, with a real
+Redis, runs a queue across two daemons (the cylinder arm and the muscle joint)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ophyd_async", reason="the Bluesky extra is not installed: pip install -e '.[bluesky]'")
+pytest.importorskip("tiled.server", reason="the Bluesky extra is not installed: pip install -e '.[bluesky]'")
+
+import bluesky.plan_stubs as bps  # noqa: E402
+import bluesky.preprocessors as bpp  # noqa: E402
+from bluesky import RunEngine  # noqa: E402
+from bluesky.callbacks.tiled_writer import TiledWriter  # noqa: E402
+from bluesky.utils import FailedStatus  # noqa: E402
+from tiled.client import from_uri  # noqa: E402
+from tiled.server import SimpleTiledServer  # noqa: E402
+
+from daemon.client.bluesky import plans  # noqa: E402
+from daemon.client.bluesky.device import PneumadRig  # noqa: E402
+from daemon.client.client import Client, RemoteError  # noqa: E402
+from tests.daemons import free_tcp_ports, real_daemon, wait_for_own_daemon  # noqa: E402
+
+pytestmark = pytest.mark.slow(seconds=60)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """One daemon, one Tiled server reading the plans' HDF5, one RunEngine writing to it."""
+    tmp = tmp_path_factory.mktemp("bluesky")
+    daemon, eps = real_daemon(tmp)
+    with Client(**eps, timeout=5.0) as client:
+        wait_for_own_daemon(client, daemon)
+    (tmp / "h5").mkdir()
+    server = SimpleTiledServer(directory=tmp / "tiled", readable_storage=[tmp / "h5"])
+    tiled = from_uri(server.uri)
+    engine = RunEngine({})
+    engine.subscribe(TiledWriter(tiled))
+    rig = PneumadRig.connect_to("arm", hdf5_directory=str(tmp / "h5"), **eps)
+    try:
+        yield rig, engine, tiled, eps
+    finally:
+        rig.close()
+        server.close()
+        daemon.terminate()
+        daemon.wait(10)
+
+
+def test_a_step_response_runs_as_a_plan_and_its_1khz_record_reads_back_from_tiled(setup):
+    rig, engine, tiled, _ = setup
+    (uid,) = engine(plans.step_response(rig, "bottom", 3.0, md={"sample": "none"}))
+    run = tiled[uid]
+    start = run.metadata["start"]
+    assert start["rig_hash"] == rig.link.describe["rig"]["hash"] and start["controller"] == "pid"
+    assert start["plan_name"] == "step_response" and start["sample"] == "none"
+    record = run["record"]
+    t = np.asarray(record["arm_record_t"].read())
+    angle = np.degrees(np.asarray(record["arm_record_bottom_angle_rad"].read()))
+    setpoint = np.degrees(np.asarray(record["arm_record_bottom_setpoint_rad"].read()))
+    assert len(t) > 3000 and np.median(np.diff(t)) == pytest.approx(1e-3, rel=0.05)  # every cycle, not a scan's points
+    changes = np.diff(setpoint)
+    assert changes[np.flatnonzero(np.abs(changes) > 1.0)[-1]] == pytest.approx(3.0, abs=1e-3)  # a step, in one cycle
+    assert angle[-1] == pytest.approx(setpoint[-1], abs=0.5)  # the run ended settled, as the plan waits for
+    primary = run["primary"]
+    before, after = np.asarray(primary["arm-joints-0-setpoint_deg"].read())
+    assert after - before == pytest.approx(3.0, abs=1e-3) and setpoint[-1] == pytest.approx(after, abs=1e-3)
+    before, after = np.asarray(primary["arm-joints-0-angle_deg"].read())
+    assert after - before == pytest.approx(3.0, abs=0.6)
+
+
+def test_a_joint_is_a_movable_and_a_refused_move_fails_with_the_daemons_data(setup):
+    rig, engine, _, _ = setup
+    joint = rig.joints[1]
+    here = rig.link.client.status()["joints"]["middle"]["setpoint_deg"]
+
+    @bpp.stage_decorator([rig])
+    def move(target):
+        yield from bps.mv(joint, target)
+    engine(move(here - 2.0))
+    assert rig.link.client.status()["joints"]["middle"]["angle_deg"] == pytest.approx(here - 2.0, abs=0.5)
+    with pytest.raises(FailedStatus) as failed:
+        engine(move(here + 200.0))  # far outside the joint's range
+    refusal = failed.value.args[0].exception()
+    assert isinstance(refusal, RemoteError) and refusal.code == "refused"
+    assert refusal.data and refusal.data.get("joint") == "middle", refusal.data
+
+
+def test_a_trip_fails_the_plan_with_the_daemons_cause(setup):
+    rig, engine, _, eps = setup
+    stopper = Client(**eps, timeout=5.0)
+
+    def estop_once_the_path_runs():
+        deadline = time.monotonic() + 120.0
+        while time.monotonic() < deadline:
+            status = stopper.status()
+            if status["state"] == "enabled" and status["reference_remaining_s"] > 0.0:
+                time.sleep(1.0)
+                stopper.estop("a test's e-stop")
+                return
+            time.sleep(0.05)
+    thread = threading.Thread(target=estop_once_the_path_runs, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(FailedStatus) as failed:
+            engine(plans.path_run(rig, "translation"))
+        cause = failed.value.args[0].exception()
+        assert isinstance(cause, RuntimeError) and "estop" in str(cause) and "a test's e-stop" in str(cause), cause
+    finally:
+        thread.join(130.0)
+        stopper.acquire_lease()  # the run handed its lease back as it failed
+        stopper.reset()
+        stopper.release_lease()
+        stopper.close()
+
+
+@pytest.mark.skipif(shutil.which("redis-server") is None, reason="no redis-server (Debian: apt-get install redis-server)")
+def test_a_queue_runs_plans_across_two_daemons_into_tiled(tmp_path):
+    from bluesky_queueserver_api import BPlan
+    from bluesky_queueserver_api.zmq import REManagerAPI
+    processes = []
+    try:
+        redis_port, control, info = free_tcp_ports(3)
+        processes.append(subprocess.Popen(["redis-server", "--port", str(redis_port), "--bind", "127.0.0.1", "--save", "",
+                                           "--appendonly", "no", "--dir", str(tmp_path)], stdout=subprocess.DEVNULL))
+        rigs = {}
+        for name, options in (("arm", ()), ("muscle", ("--config", "sim-muscle", "--safety", "stall_after_s=5.0"))):
+            (tmp_path / name).mkdir()
+            daemon, eps = real_daemon(tmp_path / name, *options)
+            processes.append(daemon)
+            with Client(**eps, timeout=5.0) as client:
+                wait_for_own_daemon(client, daemon)
+            rigs[name] = eps
+        (tmp_path / "h5").mkdir()
+        server = SimpleTiledServer(directory=tmp_path / "tiled", readable_storage=[tmp_path / "h5"])
+        settings = tmp_path / "bluesky.json"
+        settings.write_text(json.dumps({"rigs": rigs, "tiled": {"uri": server.uri}, "hdf5_directory": str(tmp_path / "h5")}))
+        permissions = Path(plans.__file__).with_name("permissions.yaml")
+        processes.append(subprocess.Popen(
+            [os.path.join(os.path.dirname(sys.executable), "start-re-manager"),
+             "--startup-module", "daemon.client.bluesky.queue_startup", "--redis-addr", f"127.0.0.1:{redis_port}",
+             "--zmq-control-addr", f"tcp://127.0.0.1:{control}", "--zmq-info-addr", f"tcp://127.0.0.1:{info}",
+             "--use-ipython-kernel", "OFF", "--zmq-publish-console", "OFF", "--user-group-permissions", str(permissions),
+             "--existing-plans-devices", str(tmp_path / "existing.yaml"), "--update-existing-plans-devices",
+             "ENVIRONMENT_OPEN"], env={**os.environ, "PNEUMAD_BLUESKY_CONFIG": str(settings)}, cwd=tmp_path,
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        manager = REManagerAPI(zmq_control_addr=f"tcp://127.0.0.1:{control}", zmq_info_addr=f"tcp://127.0.0.1:{info}")
+        deadline = time.monotonic() + 60.0
+        while True:
+            try:
+                manager.status()
+                break
+            except manager.RequestTimeoutError:
+                assert time.monotonic() < deadline, "the queue's manager did not answer within 60 s"
+        manager.environment_open()
+        manager.wait_for_idle(timeout=180)
+        assert sorted(manager.devices_allowed()["devices_allowed"]) == ["arm", "muscle"]
+        manager.item_add(BPlan("step_response", "arm", "bottom", 3.0))
+        manager.item_add(BPlan("step_response", "muscle", "elbow", 5.0))
+        manager.item_add(BPlan("step_response", "arm", "nowhere", 1.0))  # no such joint: that item fails alone
+        manager.queue_start()
+        manager.wait_for_idle(timeout=300)
+        history = manager.history_get()["items"]
+        assert [item["result"]["exit_status"] for item in history] == ["completed", "completed", "failed"]
+        assert "nowhere" in history[2]["result"]["msg"]
+        tiled = from_uri(server.uri)
+        for item, rig_name in zip(history[:2], ("sim-2joint", "sim-muscle")):
+            (uid,) = item["result"]["run_uids"]
+            run = tiled[uid]
+            assert run.metadata["start"]["rig"] == rig_name
+            t = np.asarray(run["record"][f"{item['args'][0]}_record_t"].read())
+            assert len(t) > 3000 and np.median(np.diff(t)) == pytest.approx(1e-3, rel=0.05)
+        manager.environment_close()
+        manager.wait_for_idle(timeout=60)
+        manager.close()
+        server.close()
+    finally:
+        for process in reversed(processes):
+            process.terminate()
+            try:
+                process.wait(10)
+            except subprocess.TimeoutExpired:
+                process.kill()
