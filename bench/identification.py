@@ -155,20 +155,39 @@ def run_case(case: Case, plan: identify.Plan, generations: int, out: Path) -> di
     prior = IDENTIFIED[case.joint]
     want, got = comparable(truth(case), prior), comparable(JointParams(**{**vars(prior), **report["params"]}), prior)
     errors = {k: got[k] / want[k] - 1.0 for k in want}
+    covered = coverage(want, got, report["stated_std"])
     stale = {c: tracking(case, None, c) for c in CONTROLLERS}
     rebuilt = {c: tracking(case, report["rig_file"], c) for c in CONTROLLERS}
     return {"case": case, "want": want, "got": got, "errors": errors, "fit": report["fit_percent"],
             "heldout": report["heldout_fit_percent"][0], "fit_s": report["wall_s"],
             "generations": report["generations"], "recorded_s": recorded_s, "stale_rms": stale,
-            "rebuilt_rms": rebuilt, "out": out}
+            "rebuilt_rms": rebuilt, "out": out, "covered": covered, "prior_heldout": report["prior_heldout_fit_percent"]}
+
+
+COVERED = ("D", "K", "T_ep", "T_dly", "Fs", "Fc")  # the fitted parameters with a stated uncertainty
+
+
+def coverage(want: dict, got: dict, stated: dict) -> dict[str, bool]:
+    """Per fitted parameter, whether its error is within 2 stated sigma: relative for the log
+    parameters, in seconds for T_dly, in Fc/Fs for Fc (the fit's search coordinates)."""
+    out = {}
+    for name in COVERED:
+        if name == "T_dly":
+            error, sigma = got[name] - want[name], stated["T_dly"]
+        elif name == "Fc":
+            error, sigma = got["Fc"] / got["Fs"] - want["Fc"] / want["Fs"], stated["Fc_ratio"]
+        else:
+            error, sigma = math.log(got[name] / want[name]), stated[name]
+        out[name] = bool(abs(error) <= 2.0 * sigma) if sigma == sigma else False  # nan: nothing stated
+    return out
 
 
 def table(rows: list[dict]) -> str:
     keys = ("gain", "D", "K", "T_ep", "T_dly", "Fs", "Fc")
     head = ("| case | perturbed (x built-in) | " + " | ".join(f"{k} err" for k in keys)
-            + " | Fit fitted / held out | fit time | " + " | ".join(f"{c} RMS stale -> rebuilt" for c in CONTROLLERS)
+            + " | within 2 sigma | Fit fitted / held out (prior held out) | fit time | " + " | ".join(f"{c} RMS stale -> rebuilt" for c in CONTROLLERS)
             + " |")
-    lines = [head, "|" + "---|" * (len(keys) + 4 + len(CONTROLLERS))]
+    lines = [head, "|" + "---|" * (len(keys) + 5 + len(CONTROLLERS))]
     for r in rows:
         def cell(k):
             e = r["errors"][k] * 100
@@ -176,7 +195,11 @@ def table(rows: list[dict]) -> str:
             return f"{e:+.1f} %{mark}"
         perturbed = ", ".join(f"{k} {v:g}" for k, v in r["case"].factors.items()) or "none (the seed's values)"
         lines.append(f"| {r['case'].name} | {perturbed} | " + " | ".join(cell(k) for k in keys)
-                     + f" | {' / '.join(f'{v:.1f}' for v in r['fit'])} / {r['heldout']:.1f} % | "
+                     + f" | {sum(r['covered'].values())} of {len(r['covered'])}"
+                     + (f" (not: {', '.join(k for k, v in r['covered'].items() if not v)})"
+                        if not all(r["covered"].values()) else "")
+                     + f" | {' / '.join(f'{v:.1f}' for v in r['fit'])} / {r['heldout']:.1f} % "
+                     f"({r['prior_heldout']:.1f} %) | "
                      f"{r['fit_s']:.0f} s ({r['generations']} gen.) | "
                      + " | ".join(f"{r['stale_rms'][c]:.2f} -> {r['rebuilt_rms'][c]:.2f} deg" for c in CONTROLLERS) + " |")
     return "\n".join(lines)
@@ -198,6 +221,9 @@ def main(argv=None) -> int:
     print(f"python -m bench.identification {' '.join(argv if argv is not None else sys.argv[1:])}  "
           f"({os.cpu_count()} CPUs, {time.strftime('%Y-%m-%d')})")
     print(table(rows))
+    hits = [v for r in rows for v in r["covered"].values()]
+    print(f"\ncoverage: {sum(hits)} of {len(hits)} fitted parameters ({sum(hits) / max(len(hits), 1):.0%}) within "
+          f"2 stated sigma of the truth")
     return 0
 
 
