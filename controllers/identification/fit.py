@@ -196,8 +196,9 @@ def fit_joint(estimation: list[Experiment], prior: JointParams, validation: list
     heldout = [heldout_fit(params, v, step, C_SPAN * prior.Fs) for v in validation]
     correlation = integrated_autocorrelation(polished.fun, [len(t) for t in problem.targets])
     jacobian_std, spread = _relative_std(polished, problem.bounds, correlation), _population_std(found)
-    stated = {n: math.hypot(jacobian_std[n], spread[n]) if jacobian_std[n] == jacobian_std[n] else float("nan")
-              for n in jacobian_std}
+    modelled = model_error_std(problem, best, polished.jac)
+    stated = {n: math.hypot(jacobian_std[n], spread[n], modelled[n]) if jacobian_std[n] == jacobian_std[n]
+              else float("nan") for n in jacobian_std}
     return FitResult(params, c, estimation_fit, heldout, jacobian_std, spread, stated, correlation,
                      time.perf_counter() - started, state["generation"], int(found.nfev + polished.nfev),
                      {"population": population, "generations": generations, "step_s": step, "tol": tol,
@@ -263,6 +264,40 @@ def integrated_autocorrelation(residuals: np.ndarray, lengths: list[int]) -> flo
         total += n * (1.0 + 2.0 * float(np.sum(rho[1:end])))
         weight += n
     return max(total / weight, 1.0) if weight else 1.0
+
+
+CONSIDERED = {"J": 1.5, "vs": 1.5, "beta": 1.5, "alpha": 1.2}  # held parameters' plausible factor (1 sigma)
+
+
+def model_error_std(problem: "_Problem", x: np.ndarray, jac: np.ndarray) -> dict[str, float]:
+    """What the model's own approximations may cost each fitted parameter, in the fit's
+    search coordinates: how far one Gauss-Newton step would move the optimum ``x`` if (a) the
+    mechanics were stepped at the recording's period instead of ``problem.step`` (the
+    discretisation's bias, as in Richardson's estimate), and (b) each parameter held at the
+    prior's value (CONSIDERED) were off by its plausible factor (a consider-covariance, as in
+    Schmidt's filter): the shifts in quadrature. Neither shows in the residuals' noise."""
+    gain = np.linalg.pinv(jac.T @ jac) @ jac.T
+    base = problem.residuals(x)
+    fine = _Problem(problem.prior, problem.data, min(d.dt for d in problem.data))
+    shifts = [gain @ (_on_grid(fine, problem, x) - base)]
+    for name, factor in CONSIDERED.items():
+        other = _Problem(problem.prior.replace({name: getattr(problem.prior, name) * factor}), problem.data,
+                         problem.step)
+        shifts.append(gain @ (other.residuals(x) - base))
+    spread = np.sqrt(np.sum(np.square(shifts), axis=0))
+    return {name: float(spread[i]) for i, name in enumerate(SEARCH[:-1])}
+
+
+def _on_grid(fine: "_Problem", coarse: "_Problem", x: np.ndarray) -> np.ndarray:
+    """``fine``'s residuals at ``x`` sampled on ``coarse``'s grid (scaled as coarse's)."""
+    angles = simulate_experiments([fine.rows(x, i) for i in range(len(fine.data))], [d.lever for d in fine.data],
+                                  [d.dt for d in fine.data], fine.step, fine.prior.alpha, fine.prior.beta)
+    parts = []
+    for y_hat, m_fine, m, target in zip(angles, fine.m, coarse.m, coarse.targets):
+        ratio = m // m_fine
+        picked = y_hat[0, ratio - 1::ratio][:len(target)]
+        parts.append(np.pad(picked, (0, len(target) - len(picked))) - target)
+    return np.concatenate(parts) / coarse.scale
 
 
 def _relative_std(polished, bounds: np.ndarray, correlation: float = 1.0) -> dict[str, float]:

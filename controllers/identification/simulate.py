@@ -12,8 +12,9 @@ as deviations from the operating point where the experiment started at rest:
 inside the friction band, so its value is unknown and fitted). The pressure path is linear,
 so it is filtered at the recording's rate (1 ms) for every member at once; the mechanics are
 stepped at a coarser ``step`` [s] (exact zero-order hold of the 2x2 linear part, the same
-Karnopp stick rule as the simulator in :mod:`sim_backend.joint_model`), vectorised over the
-population: one Python loop over time, numpy over the members.
+friction step as the simulator in :mod:`sim_backend.joint_model`: by default [2-45]'s smooth
+sign, linearly implicit; ``friction_model="karnopp"``: Karnopp's stick rule), vectorised over
+the population: one Python loop over time, numpy over the members.
 """
 from __future__ import annotations
 
@@ -45,7 +46,8 @@ def delayed_lagged(q: np.ndarray, dt: float, t_ep: np.ndarray, t_dly: np.ndarray
     return out
 
 
-def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float, beta: float) -> np.ndarray:
+def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float, beta: float,
+              friction_model: str = "stribeck") -> np.ndarray:
     """Joint angle deviation y [deg] at the end of each step, for per-member torque [N m] of
     shape (members, steps) held over each step. ``params`` columns follow FITTED + NUISANCE."""
     k_mdl, J, D, K, _, _, Fs, Fc, vs, c = params.T
@@ -66,6 +68,8 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
     sharp = beta / vs
     inv_vs, inv_g2 = 1.0 / vs, 1.0 / g2
     tau_all = np.ascontiguousarray((torque + c[:, None]).T)  # a row a step
+    if friction_model == "stribeck":
+        return _smooth(out, tau_all, (p11, p12, p21, p22, g1, g2), (Fs, Fc, vs), alpha, beta)
     for k in range(steps):
         tau = tau_all[k]
         th_lin = p11 * th + p12 * w + g1 * tau
@@ -78,6 +82,35 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
         new_th = np.where(sticks & (w == 0.0), th, th_lin - g1 * f)  # stuck all step: not a hair of motion
         w = np.where(sticks, 0.0, w_lin - g2 * f)
         th = new_th
+        out[k] = th
+    return out.T
+
+
+def _smooth(out: np.ndarray, tau_all: np.ndarray, zoh, friction, alpha: float, beta: float) -> np.ndarray:
+    """:func:`mechanics` with [2-45]'s smooth sign taken at each step's end velocity, one
+    Newton step of backward Euler from the present one, as
+    :func:`sim_backend.joint_model.stribeck_step` does for one joint (vectorised)."""
+    p11, p12, p21, p22, g1, g2 = zoh
+    Fs, Fc, vs = friction
+    members = len(g1)
+    th, w = np.zeros(members), np.zeros(members)
+    slope_s, inv_vs, sharp, floor = Fs - Fc, 1.0 / vs, beta / vs, -0.5 / g2
+    for k in range(len(out)):
+        tau = tau_all[k]
+        th_lin = p11 * th + p12 * w + g1 * tau
+        w_lin = p21 * th + p22 * w + g2 * tau
+        x = np.abs(w) * inv_vs
+        xa = np.power(x, alpha - 1.0)
+        ex = np.exp(-xa * x)
+        magnitude = Fc + slope_s * ex
+        sign = np.tanh(sharp * w)
+        slope = magnitude * sharp * (1.0 - sign * sign) - slope_s * ex * alpha * xa * inv_vs * np.abs(sign)
+        slope = np.maximum(slope, floor)
+        v = (w_lin - g2 * (magnitude * sign - slope * w)) / (1.0 + g2 * slope)
+        v = np.where(w_lin > 0.0, np.clip(v, 0.0, np.maximum(w_lin, 0.0)), np.clip(v, np.minimum(w_lin, 0.0), 0.0))
+        f = np.where(w_lin != 0.0, (w_lin - v) / np.where(w_lin != 0.0, g2, 1.0), 0.0)
+        th = th_lin - g1 * f
+        w = v
         out[k] = th
     return out.T
 
