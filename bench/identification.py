@@ -31,7 +31,8 @@ from controllers.identification.simulate import FITTED
 from daemon.client import identify
 from daemon.recordings import mcap_log
 from daemon.client.client import RemoteError
-from hal.identified import IDENTIFIED, JointParams
+from hal import config
+from hal.identified import JointParams
 
 CONTROLLERS = ("smc", "smc_dob")  # model-based: SMC's design (and the DOB's observer) use the nominal model
 
@@ -55,8 +56,14 @@ TOLERANCE = {"gain": 0.05, "D": 0.05, "T_dly": 0.05, "Fs": 0.15, "Fc": 0.15}  # 
 NOISE = "adc_noise_volts = 0.0005"  # the rig's sensor noise (the built-in rig's own)
 
 
+def nominal(joint: str) -> JointParams:
+    """The built-in rig's model of ``joint`` (the identifier's prior)."""
+    rig = config.load()
+    return rig.joint_params(next(j for j in rig.joints if j.name == joint))
+
+
 def truth(case: Case) -> JointParams:
-    base = IDENTIFIED[case.joint]
+    base = nominal(case.joint)
     return base.replace({k: getattr(base, k) * f for k, f in case.factors.items()})
 
 
@@ -137,7 +144,8 @@ def _rest(loop, j: int, run_seconds, timeout_s: float = 30.0) -> None:
 def tracking(case: Case, rig_path: str | None, controller: str) -> float:
     """RMS joint error [deg] of ``controller`` on the translation path, on the perturbed plant,
     designed on the rig file's model (None: the built-in, stale one)."""
-    pinned = {case.joint: {"model": case.joint, "overrides": {k: getattr(truth(case), k) for k in case.factors}}}
+    pinned = {case.joint: {"model": config.load().joints[[j.name for j in config.load().joints].index(case.joint)]
+                           .model_name, "overrides": {k: getattr(truth(case), k) for k in case.factors}}}
     loop = scenarios.make_loop(controller, rig=rig_path or "sim", options=scenarios.example_options(controller),
                                plant={"joints": pinned}, replace=scenarios.NO_TRACKING_RULE)
     path = scenarios.make_path(loop, "translation", 20.0)
@@ -152,7 +160,7 @@ def run_case(case: Case, plan: identify.Plan, generations: int, out: Path) -> di
     record(case, plan, path)
     recorded_s = time.perf_counter() - started
     report = identify.analyse(path, case.joint, out, 40, generations)
-    prior = IDENTIFIED[case.joint]
+    prior = nominal(case.joint)
     want, got = comparable(truth(case), prior), comparable(JointParams(**{**vars(prior), **report["params"]}), prior)
     errors = {k: got[k] / want[k] - 1.0 for k in want}
     covered = coverage(want, got, report["stated_std"])

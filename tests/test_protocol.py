@@ -91,7 +91,7 @@ def test_bad_messages_get_clear_errors(served, payload, code):
     ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite numbers"),
     ({"angles_deg": [120.0]}, P.BAD_ARGS, "list of 2"),
     ({"angles_deg": [120.0, -80.0], "xy_mm": [1, 2]}, P.BAD_ARGS, "exactly one"),
-    ({"angles_deg": [170.0, -80.0]}, P.REFUSED, "outside its limits"),
+    ({"angles_deg": [180.0, -80.0]}, P.REFUSED, "outside its limits"),
     ({"angles_deg": [float("nan"), -80.0]}, P.BAD_ARGS, "finite"),
     ({"xy_mm": [500.0, 0.0]}, P.REFUSED, "out of reach"),
     ({"angles_deg": [120.0, -80.0], "duration_s": -1}, P.BAD_ARGS, "duration_s"),
@@ -305,12 +305,12 @@ def test_an_infeasible_path_is_refused_with_the_numbers_and_the_shortest_duratio
     sock = dealer(srv)
     lease = leased(loop, sock)
     ok(loop, sock, "enable", lease=lease)
-    reply = call(loop, sock, "path", {"name": "circle", "duration_s": 20.0, "approach_s": 30.0}, lease)
+    reply = call(loop, sock, "path", {"name": "circle", "duration_s": 5.0, "approach_s": 30.0}, lease)
     assert reply["error"]["code"] == P.REFUSED
     message = reply["error"]["message"]
-    assert "joint middle" in message and "needs V_MV" in message and "deg/s" in message
+    assert "joint " in message and "needs V_MV" in message and "deg/s" in message
     shortest = reply["error"]["data"]["shortest_s"]
-    assert f"shortest feasible duration is {shortest:.1f} s" in message and 20.0 < shortest < 3600.0
+    assert f"shortest feasible duration is {shortest:.1f} s" in message and 5.0 < shortest <= 20.0  # the thesis's 20 s runs
     assert loop.trajectory_name == "hold"  # nothing started
     started = ok(loop, sock, "path", {"name": "circle", "duration_s": shortest, "approach_s": 30.0}, lease)
     assert started["duration_s"] == shortest
