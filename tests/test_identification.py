@@ -53,7 +53,10 @@ def series(signal, seconds: float) -> np.ndarray:
 
 
 @pytest.mark.parametrize("joint, factors, amplitude", [
-    ("bottom", {}, 1.0),  # the seed's own values, recovered
+    # the seed's own values, recovered; at 0.7 V, against the identified smooth map's friction
+    # (its peak, 0.16 N m, is 0.19 V of the bottom joint's): at 1 V it showed too little, and Fs
+    # came out 45 % low (issue 32)
+    ("bottom", {}, 0.7),
     ("middle", {"K_mdl": 1.3, "D": 0.75, "Fs": 0.8, "T_dly": 1.3}, 3.0),  # a perturbed plant, not told
 ])
 @pytest.mark.slow(seconds=50)

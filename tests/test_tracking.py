@@ -33,11 +33,11 @@ def test_a_joint_outside_the_band_is_lost_only_when_it_does_not_close_in():
 
 
 def pushed_away(loop, seconds: float) -> float:
-    """Push the middle joint with a torque worth 8 V (beyond its -4 V) for up to ``seconds``;
+    """Push the middle joint with a torque worth 6 V (2 V beyond its -4 V) for up to ``seconds``;
     the middle angle [deg] when the loop left enabled (or at the end)."""
     loop.hold()
     loop.run(2000)
-    loop.io.transport.arm.disturbance_nm[1] = loop.context.models[1].kt * 8.0
+    loop.io.transport.arm.disturbance_nm[1] = loop.context.models[1].kt * 6.0
     for _ in range(int(seconds / loop.period)):
         loop.run(1)
         if loop.state.value != "enabled":
@@ -51,7 +51,7 @@ def test_a_joint_pushed_off_trips_with_who_and_why_well_inside_its_limit():
     assert loop.state.value == "fault"
     assert "controller pid: joint middle lost: tracking error" in loop.supervisor.cause
     high = loop.rig.joints[1].max_angle_deg
-    assert high - angle > 30.0, f"tripped at {angle:.1f} deg, {high - angle:.1f} deg from the limit"
+    assert high - angle > 15.0, f"tripped at {angle:.1f} deg, {high - angle:.1f} deg from the limit"
     assert loop.p_head == list(loop.io.safe_pressures[0]) and loop.p_rod == list(loop.io.safe_pressures[1])
 
 
