@@ -106,7 +106,8 @@ def record(case: Case, plan: identify.Plan, path: Path) -> None:
         for signal, settings in plan.experiments:
             ok(loop, sock, "lease.renew", lease=lease)  # the clock is virtual: the lease counts its seconds
             u_op = identify.holding_volts(rig, case.joint, math.degrees(loop.reference[0][j]))
-            args = {"side": "input", "signal": signal, "joint": case.joint, "settle_s": plan.settle_s, **settings}
+            args = {"side": "input", "signal": signal, "joint": case.joint, "settle_s": plan.settle_s,
+                    "centre_hz": identify.CENTRE_HZ, **settings}
             reply = identify.excite_fitting(lambda v: _result(call(loop, sock, "excite", {**args, "amplitude_v": v},
                                                                    lease)),
                                             signal, identify.default_amplitude(prior, u_op, u_range), fixed=False)

@@ -36,6 +36,9 @@ THESIS_BAND_HZ = (0.1, 1.0)
 HELD = {"K_mdl": "not separable from the torque scale", "J": "its pole is far above the band",
         "vs": "below the angle's resolution"}  # at the prior's values (controllers.identification.fit)
 REST_DEG, REST_SPREAD_DEG, REST_S = 0.5, 0.2, 0.5  # at rest: within [deg] of the set-point, spread [deg], over [s]
+# the experiments' centring PI crossover [Hz] (controllers/experiment.py): at the planner's default
+# 0.03 Hz the reconstructed rig's middle joint (fast, on a weak spring) drifted out of its band (issue 32)
+CENTRE_HZ = 0.1
 
 
 @dataclass(frozen=True)
@@ -143,7 +146,7 @@ def _move(client: Client, target: list[float], here: list[float]) -> dict:
 def _excite(client, joint, j, describe, prior, signal, settings, settle_s, amplitude, band_deg, u_op) -> dict:
     """Start one experiment (the daemon records it too)."""
     u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
-    args = {**settings, "settle_s": settle_s, "band_deg": band_deg}
+    args = {**settings, "settle_s": settle_s, "band_deg": band_deg, "centre_hz": CENTRE_HZ}
     return excite_fitting(lambda volts: client.excite_input(signal, joint, volts, record=True, **args), signal,
                           amplitude if amplitude is not None else default_amplitude(prior, u_op, u_range),
                           fixed=amplitude is not None)
