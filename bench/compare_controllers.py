@@ -1,7 +1,9 @@
 """The controller comparison of docs/controllers.md, on the simulated rig through the real loop
-(virtual clock): every built-in feedback controller on both reference paths, a step per joint
-and a step disturbance torque per joint. The LTI controllers run the shipped example design,
-controllers/designs/pi_thesis.toml (the thesis's PI as matrices).
+(virtual clock): every built-in feedback controller on the thesis's two reference paths at the
+thesis's durations (translation 15 s, circle 20 s: issue 32), beside the thesis's figures, then
+on three paths none was tuned on (a vertical line, a figure-eight, a square) at durations the
+planner accepts, a step per joint and a step disturbance torque per joint. The LTI controllers
+run the shipped example design, controllers/designs/pi_thesis.toml (the thesis's PI as matrices).
 
     python -m bench.compare_controllers > docs/controllers-table.md   # and docs/images/compare-*.png
     python -m bench.compare_controllers --figures-only                # the translation runs and figures alone
@@ -13,6 +15,7 @@ one line hidden under another; every other run has a line style of its own.
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing
 import sys
 from pathlib import Path
@@ -20,15 +23,34 @@ from pathlib import Path
 import numpy as np
 
 from bench import scenarios as S
+from controllers import trajectory
 from daemon.client.plots import merge_identical, start_and_direction
 
 CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 STEPS_DEG = (10.0, 5.0)  # bottom, middle
+THESIS = {"translation": (15.0, 3.3), "circle": (20.0, 3.5)}  # duration [s], best tip error reported [mm] (rig-facts §1)
+UNSEEN = {  # name: (duration [s], maker(lengths, elbow, n, duration))
+    "vertical line": (15.0, lambda L, e, n, d: trajectory.line(L, e, n, d, (30.0, 110.0), (30.0, 165.0), "vertical")),
+    "figure-eight": (20.0, lambda L, e, n, d: trajectory.figure_eight(L, e, n, d)),
+    "square": (20.0, lambda L, e, n, d: trajectory.cartesian_waypoints(
+        L, e, n, [(20.0, 115.0), (70.0, 115.0), (70.0, 160.0), (20.0, 160.0), (20.0, 115.0)], [d / 4] * 4)),
+}
 STYLES = ("-", "--", "-.", (0, (5, 1, 1, 1, 1, 1)), (0, (3, 1)), (0, (8, 2)))  # a line style per run drawn
 
 
+def unseen_path(loop, name: str):
+    """The unseen path ``name`` at its duration, or at the shortest the rig's planner accepts
+    if that is longer (to 0.1 s, up)."""
+    duration, make = UNSEEN[name]
+    path = make(loop.rig.arm.link_lengths_m, loop.rig.arm.elbow, loop.n, duration)
+    shortest = S.authority(loop).shortest(path)
+    if shortest and shortest > duration:
+        path = make(loop.rig.arm.link_lengths_m, loop.rig.arm.elbow, loop.n, math.ceil(shortest * 10.0) / 10.0)
+    return path
+
+
 def translation(name: str, loop=None) -> dict:
-    """The 15 s translation, every 20th cycle kept for the figures."""
+    """The translation at the thesis's duration, every 20th cycle kept for the figures."""
     loop = loop or S.make_loop(name, options=S.example_options(name))
     trace = {"t": [], "ref": [], "q": [], "u": []}
 
@@ -39,7 +61,7 @@ def translation(name: str, loop=None) -> dict:
             trace["q"].append(list(lp.angles[:2]))
             trace["u"].append(list(lp.u[:2]))
 
-    result = S.run_path(loop, S.make_path(loop, "translation", 15.0), keep)
+    result = S.run_path(loop, S.make_path(loop, "translation", THESIS["translation"][0]), keep)
     middle = loop.actuation.commands[1]
     return {"name": name, "translation": result, "trace": trace, "lengths": list(loop.rig.arm.link_lengths_m),
             "u_limits": (middle.low, middle.high)}
@@ -52,9 +74,14 @@ def evaluate(name: str) -> dict:
         return S.make_loop(name, options=options)
 
     loop = fresh()
-    circle_s = S.shortest_feasible(loop, "circle")
-    out = {"name": name, "circle_s": circle_s, **translation(name, loop)}
-    out["circle"] = S.run_path(fresh(), S.make_path(loop, "circle", circle_s))
+    out = {"name": name, "circle_shortest_s": S.authority(loop).shortest(S.make_path(loop, "circle", 20.0)),
+           "translation_shortest_s": S.authority(loop).shortest(S.make_path(loop, "translation", 15.0))}
+    out.update(translation(name, loop))
+    out["circle"] = S.run_path(fresh(), S.make_path(loop, "circle", THESIS["circle"][0]))
+    for path in UNSEEN:
+        lp = fresh()
+        out[path] = S.run_path(lp, unseen_path(lp, path))
+        out[path + " tripped"] = lp.state.value != "enabled"
     out["steps"] = [S.step_response(fresh(), j, STEPS_DEG[j], 20.0) for j in range(2)]
     torques = [m.kt * 1.0 for m in loop.context.models]
     out["rejection"] = [S.disturbance_rejection(fresh(), j, torques[j], 20.0) for j in range(2)]
@@ -63,15 +90,31 @@ def evaluate(name: str) -> dict:
 
 
 def table(results: list[dict]) -> str:
-    lines = [f"Circle period: {results[0]['circle_s']:.1f} s, the shortest the simulated rig's authority allows.",
+    first = results[0]
+    lines = [f"The thesis's durations: translation {THESIS['translation'][0]:g} s (the rig's shortest accepted: "
+             f"{first['translation_shortest_s']:.1f} s), circle {THESIS['circle'][0]:g} s (shortest: "
+             f"{first['circle_shortest_s']:.1f} s).",
              "",
-             "| controller | path | joint max (deg) bottom / middle | joint RMS (deg) | tip max (mm) | tip RMS (mm) |",
-             "|---|---|---|---|---|---|"]
+             "| controller | path | joint max (deg) bottom / middle | joint RMS (deg) | tip max (mm) | tip RMS (mm) "
+             "| thesis, best tip (mm) |",
+             "|---|---|---|---|---|---|---|"]
     for r in results:
         for path in ("translation", "circle"):
             t = r[path]
             lines.append(f"| {r['name']} | {path} {t.duration:.1f} s | {t.joint_max[0]:.2f} / {t.joint_max[1]:.2f} | "
-                         f"{t.joint_rms[0]:.2f} / {t.joint_rms[1]:.2f} | {t.tip_max:.2f} | {t.tip_rms:.2f} |")
+                         f"{t.joint_rms[0]:.2f} / {t.joint_rms[1]:.2f} | {t.tip_max:.2f} | {t.tip_rms:.2f} | "
+                         f"{THESIS[path][1]:g} |")
+    lines += ["", "Paths none of the controllers was tuned on (vertical line (30, 110) -> (30, 165) mm; figure-eight "
+              "about (40, 140) mm, 60 x 25 mm; square (20..70, 115..160) mm, a quarter of the time per side), at "
+              "the durations shown (each the planned one, or the shortest the planner accepts if longer).", "",
+              "| controller | path | joint max (deg) bottom / middle | tip max (mm) | tip RMS (mm) |",
+              "|---|---|---|---|---|"]
+    for r in results:
+        for path in UNSEEN:
+            t = r[path]
+            trip = " (**tripped**)" if r[path + " tripped"] else ""
+            lines.append(f"| {r['name']} | {path} {t.duration:.1f} s{trip} | {t.joint_max[0]:.2f} / "
+                         f"{t.joint_max[1]:.2f} | {t.tip_max:.2f} | {t.tip_rms:.2f} |")
     lines += ["", f"Steps of {STEPS_DEG[0]:g} deg (bottom) and {STEPS_DEG[1]:g} deg (middle) from rest; settling into "
               "+-5 % for good (20 s: did not settle in the run).", "",
               "| controller | joint | rise 10-90 % (s) | overshoot (%) | settling (s) |", "|---|---|---|---|---|"]

@@ -63,6 +63,8 @@ def main() -> None:
         }
         cycle_state = JointState(0.0, loop.angles, loop.velocities), Reference(*loop.reference)
         parts["    of which PID step"] = lambda: loop.controller.step(*cycle_state)
+        parts["    of which tracking rule (lost + stuck)"] = lambda: loop.tracking.check(clock.t, loop.reference[0],
+                                                                                      loop.angles)
         for name, fn in parts.items():
             per_call_us(fn, n // 10)  # warm
             print(f"{name:45s} {per_call_us(fn, n):6.2f} us")

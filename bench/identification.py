@@ -31,7 +31,8 @@ from controllers.identification.simulate import FITTED
 from daemon.client import identify
 from daemon.recordings import mcap_log
 from daemon.client.client import RemoteError
-from hal.identified import IDENTIFIED, JointParams
+from hal import config
+from hal.identified import JointParams
 
 CONTROLLERS = ("smc", "smc_dob")  # model-based: SMC's design (and the DOB's observer) use the nominal model
 
@@ -55,8 +56,14 @@ TOLERANCE = {"gain": 0.05, "D": 0.05, "T_dly": 0.05, "Fs": 0.15, "Fc": 0.15}  # 
 NOISE = "adc_noise_volts = 0.0005"  # the rig's sensor noise (the built-in rig's own)
 
 
+def nominal(joint: str) -> JointParams:
+    """The built-in rig's model of ``joint`` (the identifier's prior)."""
+    rig = config.load()
+    return rig.joint_params(next(j for j in rig.joints if j.name == joint))
+
+
 def truth(case: Case) -> JointParams:
-    base = IDENTIFIED[case.joint]
+    base = nominal(case.joint)
     return base.replace({k: getattr(base, k) * f for k, f in case.factors.items()})
 
 
@@ -99,7 +106,8 @@ def record(case: Case, plan: identify.Plan, path: Path) -> None:
         for signal, settings in plan.experiments:
             ok(loop, sock, "lease.renew", lease=lease)  # the clock is virtual: the lease counts its seconds
             u_op = identify.holding_volts(rig, case.joint, math.degrees(loop.reference[0][j]))
-            args = {"side": "input", "signal": signal, "joint": case.joint, "settle_s": plan.settle_s, **settings}
+            args = {"side": "input", "signal": signal, "joint": case.joint, "settle_s": plan.settle_s,
+                    "centre_hz": identify.CENTRE_HZ, **settings}
             reply = identify.excite_fitting(lambda v: _result(call(loop, sock, "excite", {**args, "amplitude_v": v},
                                                                    lease)),
                                             signal, identify.default_amplitude(prior, u_op, u_range), fixed=False)
@@ -137,7 +145,8 @@ def _rest(loop, j: int, run_seconds, timeout_s: float = 30.0) -> None:
 def tracking(case: Case, rig_path: str | None, controller: str) -> float:
     """RMS joint error [deg] of ``controller`` on the translation path, on the perturbed plant,
     designed on the rig file's model (None: the built-in, stale one)."""
-    pinned = {case.joint: {"model": case.joint, "overrides": {k: getattr(truth(case), k) for k in case.factors}}}
+    pinned = {case.joint: {"model": config.load().joints[[j.name for j in config.load().joints].index(case.joint)]
+                           .model_name, "overrides": {k: getattr(truth(case), k) for k in case.factors}}}
     loop = scenarios.make_loop(controller, rig=rig_path or "sim", options=scenarios.example_options(controller),
                                plant={"joints": pinned}, replace=scenarios.NO_TRACKING_RULE)
     path = scenarios.make_path(loop, "translation", 20.0)
@@ -152,23 +161,42 @@ def run_case(case: Case, plan: identify.Plan, generations: int, out: Path) -> di
     record(case, plan, path)
     recorded_s = time.perf_counter() - started
     report = identify.analyse(path, case.joint, out, 40, generations)
-    prior = IDENTIFIED[case.joint]
+    prior = nominal(case.joint)
     want, got = comparable(truth(case), prior), comparable(JointParams(**{**vars(prior), **report["params"]}), prior)
     errors = {k: got[k] / want[k] - 1.0 for k in want}
+    covered = coverage(want, got, report["stated_std"])
     stale = {c: tracking(case, None, c) for c in CONTROLLERS}
     rebuilt = {c: tracking(case, report["rig_file"], c) for c in CONTROLLERS}
     return {"case": case, "want": want, "got": got, "errors": errors, "fit": report["fit_percent"],
             "heldout": report["heldout_fit_percent"][0], "fit_s": report["wall_s"],
             "generations": report["generations"], "recorded_s": recorded_s, "stale_rms": stale,
-            "rebuilt_rms": rebuilt, "out": out}
+            "rebuilt_rms": rebuilt, "out": out, "covered": covered, "prior_heldout": report["prior_heldout_fit_percent"]}
+
+
+COVERED = ("D", "K", "T_ep", "T_dly", "Fs", "Fc")  # the fitted parameters with a stated uncertainty
+
+
+def coverage(want: dict, got: dict, stated: dict) -> dict[str, bool]:
+    """Per fitted parameter, whether its error is within 2 stated sigma: relative for the log
+    parameters, in seconds for T_dly, in Fc/Fs for Fc (the fit's search coordinates)."""
+    out = {}
+    for name in COVERED:
+        if name == "T_dly":
+            error, sigma = got[name] - want[name], stated["T_dly"]
+        elif name == "Fc":
+            error, sigma = got["Fc"] / got["Fs"] - want["Fc"] / want["Fs"], stated["Fc_ratio"]
+        else:
+            error, sigma = math.log(got[name] / want[name]), stated[name]
+        out[name] = bool(abs(error) <= 2.0 * sigma) if sigma == sigma else False  # nan: nothing stated
+    return out
 
 
 def table(rows: list[dict]) -> str:
     keys = ("gain", "D", "K", "T_ep", "T_dly", "Fs", "Fc")
     head = ("| case | perturbed (x built-in) | " + " | ".join(f"{k} err" for k in keys)
-            + " | Fit fitted / held out | fit time | " + " | ".join(f"{c} RMS stale -> rebuilt" for c in CONTROLLERS)
+            + " | within 2 sigma | Fit fitted / held out (prior held out) | fit time | " + " | ".join(f"{c} RMS stale -> rebuilt" for c in CONTROLLERS)
             + " |")
-    lines = [head, "|" + "---|" * (len(keys) + 4 + len(CONTROLLERS))]
+    lines = [head, "|" + "---|" * (len(keys) + 5 + len(CONTROLLERS))]
     for r in rows:
         def cell(k):
             e = r["errors"][k] * 100
@@ -176,7 +204,11 @@ def table(rows: list[dict]) -> str:
             return f"{e:+.1f} %{mark}"
         perturbed = ", ".join(f"{k} {v:g}" for k, v in r["case"].factors.items()) or "none (the seed's values)"
         lines.append(f"| {r['case'].name} | {perturbed} | " + " | ".join(cell(k) for k in keys)
-                     + f" | {' / '.join(f'{v:.1f}' for v in r['fit'])} / {r['heldout']:.1f} % | "
+                     + f" | {sum(r['covered'].values())} of {len(r['covered'])}"
+                     + (f" (not: {', '.join(k for k, v in r['covered'].items() if not v)})"
+                        if not all(r["covered"].values()) else "")
+                     + f" | {' / '.join(f'{v:.1f}' for v in r['fit'])} / {r['heldout']:.1f} % "
+                     f"({r['prior_heldout']:.1f} %) | "
                      f"{r['fit_s']:.0f} s ({r['generations']} gen.) | "
                      + " | ".join(f"{r['stale_rms'][c]:.2f} -> {r['rebuilt_rms'][c]:.2f} deg" for c in CONTROLLERS) + " |")
     return "\n".join(lines)
@@ -198,6 +230,9 @@ def main(argv=None) -> int:
     print(f"python -m bench.identification {' '.join(argv if argv is not None else sys.argv[1:])}  "
           f"({os.cpu_count()} CPUs, {time.strftime('%Y-%m-%d')})")
     print(table(rows))
+    hits = [v for r in rows for v in r["covered"].values()]
+    print(f"\ncoverage: {sum(hits)} of {len(hits)} fitted parameters ({sum(hits) / max(len(hits), 1):.0%}) within "
+          f"2 stated sigma of the truth")
     return 0
 
 

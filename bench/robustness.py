@@ -28,17 +28,21 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 
-import numpy as np
-
 from bench import scenarios as S
 from controllers import trajectory
-from hal import kinematics
+from hal import config, kinematics
 
 CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 JOINTS = ("bottom", "middle")
-NOMINAL_KMDL = {"bottom": 1.034, "middle": 1.007}  # rig-facts §1 table
-NOMINAL = {"bottom": dict(Fs=2.664e-1, Fc=8.918e-2, D=1.880e-1, T_dly=8.117e-2),
-           "middle": dict(Fs=2.200e-1, Fc=1.371e-2, D=2.390e-1, T_dly=3.941e-2)}
+
+
+def nominal_params() -> dict:
+    """The built-in rig's model per joint (what the factors below multiply): the rig's own
+    model sets, so a rig whose models change (issue 32) is perturbed about its own values."""
+    rig = config.load()
+    return {j.name: rig.joint_params(j) for j in rig.joints}
+
+
 RECOVER_S, RECOVER_DEG = 5.0, 0.5  # back within 0.5 deg within 5 s of the path's end
 HOLD_S = 8.0  # observed after the path's end [s]; the last 3 s are the steady state
 HYSTERESIS_V = 0.1
@@ -48,17 +52,19 @@ HYSTERESIS_V = 0.1
 class Plant:
     name: str
     gain: tuple[float, float] = (1.0, 1.0)  # K_mdl factor per joint
-    friction: float = 1.0  # Fs, Fc, D factor
+    friction: float = 1.0  # Fs, Fc factor
     delay: float = 1.0  # T_dly factor
     noise: bool = True
+    damping: float | None = None  # D factor; None: the friction factor (Fs, Fc and D together)
 
     def sim_options(self) -> dict:
-        joints = {}
+        joints, nominal = {}, nominal_params()
+        damping = self.friction if self.damping is None else self.damping
         for j, name in enumerate(JOINTS):
-            n = NOMINAL[name]
-            joints[name] = {"overrides": {"K_mdl": NOMINAL_KMDL[name] * self.gain[j], "Fs": n["Fs"] * self.friction,
-                                          "Fc": n["Fc"] * self.friction, "D": n["D"] * self.friction,
-                                          "T_dly": n["T_dly"] * self.delay}}
+            n = nominal[name]
+            joints[name] = {"overrides": {"K_mdl": n.K_mdl * self.gain[j], "Fs": n.Fs * self.friction,
+                                          "Fc": n.Fc * self.friction, "D": n.D * damping,
+                                          "T_dly": n.T_dly * self.delay}}
         return {"joints": joints, **({} if self.noise else {"adc_noise_volts": 0.0})}
 
 
@@ -71,26 +77,6 @@ def plants(quick: bool = False) -> list[Plant]:
     return out
 
 
-class Eight(trajectory.TipShape):
-    """A figure-eight (Lissajous 1:2) about ``centre`` with half-width a and half-height b [m]."""
-
-    def __init__(self, centre, a, b):
-        (self.cx, self.cy), self.a, self.b = centre, a, b
-
-    def point(self, s):
-        w = 2 * math.pi * s
-        return self.cx + self.a * math.sin(w), self.cy + self.b * math.sin(2 * w)
-
-    def tangent(self, s):
-        w = 2 * math.pi * s
-        return 2 * math.pi * self.a * math.cos(w), 4 * math.pi * self.b * math.cos(2 * w)
-
-    def points(self, s):
-        w = 2 * np.pi * s
-        return (self.cx + self.a * np.sin(w), self.cy + self.b * np.sin(2 * w),
-                2 * np.pi * self.a * np.cos(w), 4 * np.pi * self.b * np.cos(2 * w))
-
-
 SQUARE_MM = [(20.0, 125.0), (40.0, 125.0), (40.0, 145.0), (20.0, 145.0), (20.0, 125.0)]  # 20 mm sides about (30, 135)
 
 
@@ -98,8 +84,7 @@ def shapes(loop, scale: float = 1.0) -> dict[str, trajectory.Trajectory]:
     """The paths at duration ``scale`` (scaled to the fastest the rig accepts in :func:`paths`)."""
     lengths, elbow, n = loop.rig.arm.link_lengths_m, loop.rig.arm.elbow, loop.n
     return {"line (vertical)": trajectory.line(lengths, elbow, n, 10.0 * scale, (30.0, 110.0), (30.0, 160.0)),
-            "figure-eight": trajectory.CartesianPath("figure-eight", Eight((0.03, 0.135), 0.02, 0.01), 20.0 * scale,
-                                                     lengths, elbow, n),
+            "figure-eight": trajectory.figure_eight(lengths, elbow, n, 20.0 * scale, (30.0, 135.0), 20.0, 20.0),
             "square (corners)": trajectory.cartesian_waypoints(lengths, elbow, n, SQUARE_MM, [5.0 * scale] * 4)}
 
 

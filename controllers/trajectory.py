@@ -140,6 +140,25 @@ class Circle(TipShape):
         return self.cx + self.r * np.cos(a), self.cy + self.r * np.sin(a), -k * np.sin(a), k * np.cos(a)
 
 
+class FigureEight(TipShape):
+    """A lemniscate of Gerono about ``centre`` [m]: x = cx + a sin(2 pi s), y = cy + b sin(4 pi s) / 2,
+    one loop each side, starting and ending at the centre."""
+
+    def __init__(self, centre: tuple[float, float], half_width: float, half_height: float):
+        (self.cx, self.cy), self.a, self.b = centre, half_width, half_height
+
+    def point(self, s):
+        return self.cx + self.a * math.sin(2 * math.pi * s), self.cy + 0.5 * self.b * math.sin(4 * math.pi * s)
+
+    def tangent(self, s):
+        return 2 * math.pi * self.a * math.cos(2 * math.pi * s), 2 * math.pi * self.b * math.cos(4 * math.pi * s)
+
+    def points(self, s):
+        w = 2 * math.pi * s
+        return (self.cx + self.a * np.sin(w), self.cy + 0.5 * self.b * np.sin(2 * w),
+                2 * math.pi * self.a * np.cos(w), 2 * math.pi * self.b * np.cos(2 * w))
+
+
 class CartesianPath(Trajectory):
     """A planar tip path run with cubic scaling over ``duration``; joints beyond the planar
     two are held at 0 rad."""
@@ -185,6 +204,14 @@ def line(lengths, elbow, n_joints, duration, start_mm, end_mm, name="line"):
     """A straight tip path from start_mm to end_mm [mm] with cubic time scaling."""
     (x0, y0), (x1, y1) = [(a * 1e-3, b * 1e-3) for a, b in (start_mm, end_mm)]
     return CartesianPath(name, Line((x0, y0), (x1, y1)), duration, lengths, elbow, n_joints)
+
+
+def figure_eight(lengths, elbow, n_joints, duration, centre_mm=(40.0, 140.0), half_width_mm=30.0,
+                 half_height_mm=25.0):
+    """A figure-eight of the tip about centre_mm [mm] (not one of the thesis's paths: a test of
+    generalisation), with cubic time scaling over the whole figure."""
+    shape = FigureEight((centre_mm[0] * 1e-3, centre_mm[1] * 1e-3), half_width_mm * 1e-3, half_height_mm * 1e-3)
+    return CartesianPath("figure_eight", shape, duration, lengths, elbow, n_joints)
 
 
 def translation(lengths, elbow, n_joints, duration=15.0, start_mm=(70.0, 135.0), end_mm=(-20.0, 135.0)):

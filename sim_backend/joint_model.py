@@ -13,10 +13,18 @@ of [2-45]. With tau_s = 0 the transfer function from the head command V_MV to th
 **Discretisation.** The linear part is discretised exactly (zero-order hold, matrix
 exponential), including a dead time that is not a whole number of steps (Åström &
 Wittenmark's split of the hold interval), so the simulated step response equals the
-continuous one at every sample. Friction enters as a torque held over the step. Its tanh
-is far too stiff to integrate explicitly at 1 ms, so sticking is resolved as in Karnopp's
-model: when the velocity would reach or cross zero within a step, the torque needed to stop
-the joint is computed, and the joint sticks if that is within the breakaway torque Fs.
+continuous one at every sample. Friction enters as a torque held over the step, in one of
+two models (``friction_model``):
+
+- ``"stribeck"`` (default): [2-45] as identified, the smooth sign. Its tanh is far too stiff
+  to integrate explicitly at 1 ms (slope Fs beta / vs against J / h), so the friction is taken
+  at the step's end velocity, linearly implicit (one Newton step of backward Euler from the
+  present velocity, :func:`stribeck_step`): stable for any slope, and the end velocity is kept
+  between 0 and the frictionless one (friction never drives). Under a torque below Fs the
+  joint creeps at the speed where the map balances it, as the identified model says.
+- ``"karnopp"``: sticking resolved as in Karnopp's model: when the velocity would reach or
+  cross zero within a step, the torque needed to stop the joint is computed, and the joint
+  sticks exactly if that is within the breakaway torque Fs (stick-slip studies).
 """
 from __future__ import annotations
 
@@ -38,15 +46,39 @@ def zoh(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]
     return e[:n, :n], e[:n, n:]
 
 
+def stribeck_step(p: JointParams, w: float, w_lin: float, g: float) -> float:
+    """The friction torque [N m] held over a step of the smooth-sign map [2-45]
+    tau_s(w) = (Fc + (Fs - Fc) exp(-(|w|/vs)^alpha)) tanh(beta w / vs), taken at the step's end
+    velocity v (v = w_lin - g tau_s(v), g: velocity per N m held over the step) by one Newton
+    step from the present velocity ``w``; v kept between 0 and ``w_lin`` (the root is there:
+    tau_s is odd and has the sign of its argument). A falling (Stribeck) slope steeper than
+    -1 / (2 g) is capped at that, so the step never divides by a small or negative number."""
+    if w_lin == 0.0:
+        return 0.0
+    x = abs(w) / p.vs
+    ex = math.exp(-(x ** p.alpha))
+    magnitude = p.Fc + (p.Fs - p.Fc) * ex
+    sign = math.tanh(p.beta * w / p.vs)
+    f = magnitude * sign
+    slope = magnitude * p.beta / p.vs * (1.0 - sign * sign)
+    if x > 0.0:
+        slope -= (p.Fs - p.Fc) * ex * p.alpha * x ** (p.alpha - 1.0) / p.vs * abs(sign)
+    slope = max(slope, -0.5 / g)
+    v = (w_lin - g * (f - slope * w)) / (1.0 + g * slope)
+    v = min(max(v, 0.0), w_lin) if w_lin > 0.0 else max(min(v, 0.0), w_lin)
+    return (w_lin - v) / g
+
+
 class JointModel:
     """State: angle ``th`` [deg], velocity ``w`` [deg/s], chamber pressures [Pa]."""
 
     def __init__(self, params: JointParams, dt: float, neutral_deg: float, stops_deg: tuple[float, float],
                  initial_deg: float, initial_pset: tuple[float, float], friction: bool = True,
-                 dead_time: bool = True):
+                 dead_time: bool = True, friction_model: str = "stribeck"):
         self.params = params
         self.dt = dt
         self.friction = friction
+        self.karnopp = friction_model == "karnopp"
         self.neutral_deg = neutral_deg
         self.stop_lo, self.stop_hi = stops_deg
         p = params
@@ -112,7 +144,10 @@ class JointModel:
                   + self._g0_th * t_now + self._g1_th * t_prev + self._gt_th * tau)
         w_lin = (self._p20 * torque + self._p21 * th + self._p22 * w
                  + self._g0_w * t_now + self._g1_w * t_prev + self._gt_w * tau)
-        if self.friction:
+        if self.friction and not self.karnopp:
+            f = stribeck_step(self.params, w, w_lin, self._gt_w)
+            th_new, w_new = th_lin - self._gt_th * f, w_lin - self._gt_w * f
+        elif self.friction:
             f, sticking = self._friction_torque(w, w_lin)
             if sticking and w == 0.0:
                 th_new, w_new = th, 0.0  # stuck all step: not a hair of motion

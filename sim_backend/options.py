@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from hal.schema import require
 from sim_backend.muscle_plant import MusclePlantOptions
 
+FRICTION_MODELS = ("stribeck", "karnopp")
+
 
 @dataclass(frozen=True)
 class SimJointOptions:
@@ -55,6 +57,9 @@ class SimOptions:
     seed: int = 0
     step_s: float = 0.001  # plant step [s]
     friction: bool = True
+    # "stribeck": [2-45] as identified, the smooth sign tanh(beta w / vs) (default); "karnopp":
+    # exact sticking within Fs (Karnopp's model), for stick-slip studies (docs/simulator.md)
+    friction_model: str = "stribeck"
     dead_time: bool = True
     supply_mpa: float = 1.0  # regulator supply pressure [MPa]
     supply_volts: float = 5.0  # potentiometer supply [V]
@@ -68,6 +73,8 @@ class SimOptions:
     muscle: MusclePlantOptions = MusclePlantOptions()  # the muscle rig's dynamics (rig-facts §2)
 
     def __post_init__(self):
+        require(self.friction_model in FRICTION_MODELS, "friction_model",
+                f"must be one of {', '.join(FRICTION_MODELS)}, got {self.friction_model!r}")
         require(0 < self.step_s <= 0.01, "step_s", f"must be within (0, 0.01] s, got {self.step_s}")
         require(0 <= self.supply_mpa <= 1.0, "supply_mpa", "must be within 0-1.0 MPa (ITV0051 maximum)")
         require(0 < self.supply_volts <= 10, "supply_volts", "must be within (0, 10] V")

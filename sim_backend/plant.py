@@ -56,7 +56,8 @@ class SimArm:
             bias = (regulator_output(jc.head.bias_volts, self.supply_pa),
                     regulator_output(jc.rod.bias_volts, self.supply_pa))
             joint = JointModel(params, options.step_s, neutral, stops, initial_deg=neutral, initial_pset=bias,
-                               friction=options.friction, dead_time=options.dead_time)
+                               friction=options.friction, dead_time=options.dead_time,
+                               friction_model=options.friction_model)
             initial = jo.initial_angle_deg
             joint.th = min(max(initial if initial is not None else joint.equilibrium_deg(*bias), stops[0]), stops[1])
             self.joints.append(joint)

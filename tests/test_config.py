@@ -34,7 +34,7 @@ def test_file_round_trip(tmp_path):
     ("[arm]", "[arms]", r"arms: unknown key"),
     ('min_angle_deg = 85.0', '', r"joints\[0\]\.min_angle_deg: missing required key"),
     ('min_angle_deg = 85.0', 'min_angle_deg = "85"', r"joints\[0\]\.min_angle_deg: expected a number"),
-    ('min_angle_deg = 85.0', 'min_angle_deg = 170.0', r"joints\[0\]\.max_angle_deg: limits inverted"),
+    ('min_angle_deg = 85.0', 'min_angle_deg = 180.0', r"joints\[0\]\.max_angle_deg: limits inverted"),
     ('newtons_per_volt = 6.86', 'newtons_per_volt = 0.0', r"force_sensor\.newtons_per_volt: must not be zero"),
     ('deg_per_ratio = 333.3', 'deg_per_ratio = 0.0', r"joints\[0\]\.sensor\.deg_per_ratio: must be > 0"),
     ('direction = 1', 'direction = 2', r"joints\[0\]\.sensor\.direction: must be \+1 or -1"),
@@ -45,7 +45,7 @@ def test_file_round_trip(tmp_path):
     ('max_pressure_mpa = 0.9', 'max_pressure_mpa = 0.0001', r"safe_mpa.*exceeds limits\.max_pressure_mpa"),
     ('max_pressure_mpa = 0.9', 'max_pressure_mpa = nan', r"limits\.max_pressure_mpa: must be finite"),
     ('elbow = -1 ', 'elbow = 0 ', r"arm\.elbow: must be \+1 or -1"),
-    ('link_lengths_mm = [100.0, 100.0]', 'link_lengths_mm = [100.0]', r"1 links given for 2 joints"),
+    ('link_lengths_mm = [150.0, 150.0]', 'link_lengths_mm = [150.0]', r"1 links given for 2 joints"),
     ('bias_volts = 4.0\nsafe_mpa = 0.001          # 0 V', 'bias_volts = 11.0\nsafe_mpa = 0.001 # 0 V',
      r"joints\[0\]\.head\.bias_volts: must be within 0.0-10.0 V"),
 ])

@@ -53,7 +53,10 @@ def series(signal, seconds: float) -> np.ndarray:
 
 
 @pytest.mark.parametrize("joint, factors, amplitude", [
-    ("bottom", {}, 1.0),  # the seed's own values, recovered
+    # the seed's own values, recovered; at 0.7 V, against the identified smooth map's friction
+    # (its peak, 0.16 N m, is 0.19 V of the bottom joint's): at 1 V it showed too little, and Fs
+    # came out 45 % low (issue 32)
+    ("bottom", {}, 0.7),
     ("middle", {"K_mdl": 1.3, "D": 0.75, "Fs": 0.8, "T_dly": 1.3}, 3.0),  # a perturbed plant, not told
 ])
 @pytest.mark.slow(seconds=50)
@@ -75,9 +78,13 @@ def test_the_fit_recovers_the_simulated_plant_within_the_tolerances(joint, facto
     assert abs(error("Fs")) < 0.15
     assert result.heldout_fit_percent[0] >= 90.0
     assert result.relative_std["D"] < 0.05  # and it knows it is sure of it
-    for name, miss in (("D", error("D")), ("Fs", error("Fs")), ("T_dly", result.params.T_dly - truth.T_dly)):
-        stated = max(result.relative_std[name], result.population_std[name])  # relative; T_dly in s
-        assert abs(miss) <= 3.0 * stated, name  # the uncertainty it states covers what it got wrong
+    # the uncertainty it states covers what it got wrong: every fitted parameter within 2 stated
+    # sigma (relative, in the fit's log coordinates; T_dly in s; Fc as a fraction of Fs)
+    misses = {n: math.log(1.0 + error(n)) for n in ("D", "K", "T_ep", "Fs")}
+    misses["T_dly"] = result.params.T_dly - truth.T_dly
+    misses["Fc_ratio"] = result.params.Fc / result.params.Fs - truth.Fc / truth.Fs
+    for name, miss in misses.items():
+        assert abs(miss) <= 2.0 * result.stated_std[name], (name, miss, result.stated_std[name])
 
 
 def test_the_fits_batched_evaluations_are_the_one_by_one_simulations():
@@ -250,3 +257,24 @@ def test_a_recorded_signal_is_rebuilt_as_the_planner_made_it_with_its_period():
     assert frf.period_of(recorded(chirp)) is None
     with pytest.raises(CommandFailed, match="f1_hz"):  # a definition no planner could have made
         recorded({**chirp, "f0_hz": 2.0, "f1_hz": 1.0})
+
+
+def test_identify_shows_the_priors_held_out_fit_and_warns_when_the_new_model_does_not_beat_it(capsys):
+    """Issue 32: a --quick run wrote a model fitting held-out data 96.2 % where the prior fits
+    97.1 %, without saying so. The table now puts the prior's held-out Fit beside the new one's
+    and warns, in the report and on the terminal, when the new model is no better."""
+    from daemon.client import identify
+    from controllers.identification.simulate import FITTED
+    assert identify.against_prior(97.5, 97.1) is None
+    worse = identify.against_prior(96.2, 97.1)
+    assert worse is not None and "96.2 % against 97.1 %" in worse and "keep the prior" in worse
+    std = {n: 0.01 for n in ("D", "K", "T_ep", "T_dly", "Fs", "Fc_ratio")}
+    report = {"prior": {n: 1.0 for n in FITTED}, "params": {n: 1.0 for n in FITTED},
+              "units": {n: "-" for n in FITTED}, "stated_std": std, "population_std": std,
+              "fit_percent": [97.0, 96.0], "heldout_fit_percent": [96.2], "prior_heldout_fit_percent": 97.1,
+              "generations": 10, "wall_s": 1.0, "rig_file": "rig.toml", "figures": [], "warning": worse}
+    identify._print_table(report)
+    err = capsys.readouterr().err
+    assert "96.2 % held out (the prior: 97.1 % held out)" in err and "warning: the identified model" in err
+    identify._print_table({**report, "heldout_fit_percent": [98.0], "warning": None})
+    assert "warning" not in capsys.readouterr().err

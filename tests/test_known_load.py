@@ -81,7 +81,9 @@ def test_the_loaded_arm_holds_closer_with_its_load_fed_forward_even_an_estimated
     estimated = _hold_error_after_enable((0.26, (15.0, 0.0)))  # off by 13 % and 11 mm
     assert without > 0.5, without  # the integrator still winding up against the payload
     assert exact < 0.3 * without, (exact, without)
-    assert estimated < 0.3 * without, (estimated, without)
+    # an estimate off by 13 % and 11 mm still halves it (on 150 mm links the estimate's error
+    # is a larger torque than on the first built-in's 100 mm, issue 32)
+    assert estimated < 0.6 * without, (estimated, without)
 
 
 def _largest_step(loop, sock, cmd, args, lease):
@@ -115,9 +117,9 @@ def test_setting_and_clearing_a_load_is_bumpless_reported_and_planned_with():
         status = ok(loop, sock, "status")
         assert status["load"]["feedforward_volts"]["middle"] == pytest.approx(ff["middle"], abs=0.05)
 
-        # the planner counts the load: a posture whose spring needs 2.96 V of the middle joint's
-        # usable 4.8 V is reachable unloaded, not with 1.96 V more to hold 0.3 kg there
-        target = {"angles_deg": [102.5, -60.0], "duration_s": 120.0}
+        # the planner counts the load: raising the middle joint to -40 deg in 4.8 s is within its
+        # usable V_MV unloaded (4.1 s at the least), not with the volts that hold 0.3 kg (5.5 s)
+        target = {"angles_deg": [math.degrees(loop.reference[0][0]), -40.0], "duration_s": 4.8}
         refused = call(loop, sock, "set", target, lease)
         assert not refused["ok"] and refused["error"]["code"] == P.REFUSED, refused
         assert refused["error"]["data"]["shortfalls"][0]["joint"] == "middle"
@@ -126,7 +128,7 @@ def test_setting_and_clearing_a_load_is_bumpless_reported_and_planned_with():
         assert reply["cleared"] is True and step < 0.05
         assert ok(loop, sock, "status")["load"] is None
         assert ok(loop, sock, "load.clear", lease=lease)["cleared"] is False
-        assert ok(loop, sock, "set", target, lease)["duration_s"] == 120.0
+        assert ok(loop, sock, "set", target, lease)["duration_s"] == 4.8
         kinds = [(m["kind"], m.get("action")) for m in captured.of("event") if m["kind"] == "load"]
         assert kinds == [("load", "set"), ("load", "clear")]
     finally:

@@ -160,7 +160,7 @@ def test_a_timed_reference_has_start_and_end_events_and_one_replaced_ends_cut():
 
 def test_joint_limit_trips():
     loop, _, _ = enabled_loop()
-    loop.set_trajectory(trajectory.Hold([math.radians(158.0), loop.angles[1]]), "beyond")  # limit 155
+    loop.set_trajectory(trajectory.Hold([math.radians(178.0), loop.angles[1]]), "beyond")  # limit 175
     run_seconds(loop, 5.0)
     assert loop.state is State.FAULT and "outside its limits" in loop.supervisor.cause
 

@@ -14,7 +14,7 @@ from daemon.client import payload_routine
 from hal import config
 from hal.kinematics import payload_torques
 
-LENGTHS = (0.1, 0.1)
+LENGTHS = (0.1, 0.1)  # the pure identification tests' own arm (the simulated one's: the rig's arm.link_lengths_m)
 G = (0.0, -9.81)
 
 
@@ -111,7 +111,8 @@ def test_the_dithered_balance_torques_carry_the_payloads_moment():
     unloaded = measure(rig_text(0.0, (0.0, 0.0)), targets)
     loaded = measure(rig_text(0.15, (20.0, -10.0)), targets)
     for before, after in zip(unloaded, loaded):
-        moment = payload_torques([math.radians(a) for a in after.angles_deg], LENGTHS, 0.15, (0.02, -0.01), G)
+        moment = payload_torques([math.radians(a) for a in after.angles_deg], rig.arm.link_lengths_m, 0.15,
+                                 (0.02, -0.01), G)
         for j in range(2):
             measured = after.torques_nm[j] - before.torques_nm[j]
             assert measured == pytest.approx(-moment[j], abs=0.002), (j, measured, -moment[j])

@@ -40,13 +40,17 @@ def test_bottom_joint_10_deg_step_settles_within_about_2_s():
 
 
 @pytest.mark.slow  # long: kept out of the fast subset
-def test_middle_joint_is_stable_but_slower():
-    t, y, y0, other, _ = step_run(1, 40.0)
+def test_middle_joint_settles_under_the_thesis_pid_as_the_bottom_one_does():
+    """The reconstructed rig (issue 32) scales the middle joint so the thesis's PID crosses over
+    where it does on the bottom joint: its step rises about as fast, and with the identified
+    friction (no stiction) it settles and stays (docs/simulator.md)."""
+    t, y, y0, other, _ = step_run(1, 20.0)
     tb, yb, yb0, _, _ = step_run(0, 6.0)
-    assert rise_time(t, y, y0, 10.0) > 2 * rise_time(tb, yb, yb0, 10.0)
-    # Stiction makes PI hunt in a bounded limit cycle around the set-point (see docs/simulator.md)
-    late = [yi - y0 for ti, yi in zip(t, y) if ti > STEP_AT + 15.0]
-    assert max(abs(v - 10.0) for v in late) < 1.0
+    assert 0.5 < rise_time(t, y, y0, 10.0) / rise_time(tb, yb, yb0, 10.0) < 2.0
+    overshoot, settle = step_metrics(t, y, y0, 10.0, STEP_AT)
+    assert overshoot < 15.0 and settle < 5.0
+    late = [yi - y0 for ti, yi in zip(t, y) if ti > STEP_AT + 10.0]
+    assert max(abs(v - 10.0) for v in late) < 0.5
 
 
 def test_middle_joint_without_friction_settles():

@@ -110,7 +110,7 @@ def test_a_waypoint_path_too_fast_for_the_rig_is_refused_with_the_duration_that_
     ({"angles_deg": [[0, -100], [1, -100]], "durations_s": [1, 2]}, "one fewer than points"),
     ({"angles_deg": [[0, -100], [1, "x"]], "durations_s": [1]}, "angles_deg[1]"),
     ({"xy_mm": [[0, 0], [500, 0]], "durations_s": [5]}, "out of reach"),
-    ({"angles_deg": [[0, -100], [170, -100]], "durations_s": [5]}, "outside its limits"),
+    ({"angles_deg": [[0, -100], [180, -100]], "durations_s": [5]}, "outside its limits"),
     ({"angles_deg": [[0, -100], [1, -100]], "xy_mm": [[0, 1], [0, 2]], "durations_s": [1]}, "exactly one of"),
 ])
 def test_bad_waypoints_get_a_clear_error(armed, args, text):
@@ -131,20 +131,21 @@ def test_a_step_sequence_holds_each_level_for_its_time(armed):
 
 
 def test_a_level_the_rig_cannot_hold_is_refused_for_steps_and_set_alike():
-    """On a rig whose middle joint may reach -10 deg, the spring there needs about +8 V of
-    V_MV where +6 V exists: a step to it is refused, whatever the controller could do."""
-    text = config.load().source.replace("max_angle_deg = -40.0", "max_angle_deg = 0.0")
+    """On a rig whose bottom joint may reach -40 deg, the spring at -30 deg needs about -3.5 V
+    of V_MV where -3.2 V is what a reference may ask (80 % of -4 V): a step to it is refused,
+    whatever the controller could do."""
+    text = config.load().source.replace("min_angle_deg = 85.0", "min_angle_deg = -40.0")
     loop, _, srv = make_loop(text, server=True)
     sock = dealer(srv)
     lease = ok(loop, sock, "lease.acquire")["lease"]
     ok(loop, sock, "enable", lease=lease)
     here = [math.degrees(q) for q in loop.reference[0]]
-    reply = call(loop, sock, "steps", {"angles_deg": [[here[0], -60.0], [here[0], -10.0]], "hold_s": [5.0, 5.0]}, lease)
-    assert reply["error"]["code"] == P.REFUSED and "joint middle" in reply["error"]["message"]
+    reply = call(loop, sock, "steps", {"angles_deg": [[60.0, here[1]], [-30.0, here[1]]], "hold_s": [5.0, 5.0]}, lease)
+    assert reply["error"]["code"] == P.REFUSED and "joint bottom" in reply["error"]["message"]
     assert "a level is beyond what the rig can hold there" in reply["error"]["message"]
-    reply = call(loop, sock, "set", {"angles_deg": [here[0], -10.0]}, lease)
+    reply = call(loop, sock, "set", {"angles_deg": [-30.0, here[1]]}, lease)
     assert reply["error"]["code"] == P.REFUSED and "the rig cannot hold that angle" in reply["error"]["message"]
-    ok(loop, sock, "set", {"angles_deg": [here[0], -60.0]}, lease)  # one it can hold is taken
+    ok(loop, sock, "set", {"angles_deg": [60.0, here[1]]}, lease)  # one it can hold is taken
     srv.close()
 
 

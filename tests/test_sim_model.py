@@ -30,10 +30,10 @@ def transfer_function(p):
     return num, den
 
 
-def joint_at_rest(p, friction=False, dead_time=True):
+def joint_at_rest(p, friction=False, dead_time=True, friction_model="stribeck"):
     bias = (pset(V_INI), pset(V_INI))
     j = JointModel(p, H, neutral_deg=0.0, stops_deg=(-1e3, 1e3), initial_deg=0.0, initial_pset=bias,
-                   friction=friction, dead_time=dead_time)
+                   friction=friction, dead_time=dead_time, friction_model=friction_model)
     j.th = j.equilibrium_deg(*bias)
     return j
 
@@ -115,10 +115,10 @@ def test_regulator_lag_has_the_identified_time_constant(name):
 
 
 @pytest.mark.parametrize("name", ["bottom", "middle"])
-def test_friction_sticks_below_breakaway_and_slips_above(name):
+def test_karnopp_friction_sticks_below_breakaway_and_slips_above(name):
     p = IDENTIFIED[name]
     for fraction, moves in ((0.9, False), (1.15, True)):
-        joint = joint_at_rest(p, friction=True)
+        joint = joint_at_rest(p, friction=True, friction_model="karnopp")
         dv = fraction * p.Fs / p.torque_per_volt  # extra torque = fraction * Fs once the lag settles
         y = step_response(joint, dv, 3000)
         if moves:
@@ -126,6 +126,37 @@ def test_friction_sticks_below_breakaway_and_slips_above(name):
         else:
             assert np.all(y == 0.0), f"{name}: {fraction} Fs should stick"
             assert joint.w == 0.0
+
+
+def stribeck(p, w):
+    """[2-45]'s Coulomb/Stribeck part with the smooth sign [N m] at velocity w [model units/s]."""
+    return (p.Fc + (p.Fs - p.Fc) * np.exp(-(np.abs(w) / p.vs) ** p.alpha)) * np.tanh(p.beta * w / p.vs)
+
+
+@pytest.mark.parametrize("name", ["bottom", "middle"])
+def test_the_identified_smooth_friction_creeps_in_balance_below_its_peak_and_slips_above(name):
+    """The default friction is [2-45] as fitted: no static holding, so under a torque below the
+    map's peak the joint creeps at the speed where the map balances the net torque (no chatter
+    from the stiff tanh: the velocity keeps its sign), and above the peak it slips away."""
+    p = IDENTIFIED[name]
+    peak = float(np.max(stribeck(p, np.linspace(0.0, 5.0 * p.vs, 5001))))
+    assert 0.4 * p.Fs < peak < 0.8 * p.Fs  # the smooth sign's peak is well under Fs
+    for fraction, moves in ((0.5, False), (2.0, True)):
+        joint = joint_at_rest(p, friction=True)
+        torque = fraction * peak
+        dv = torque / p.torque_per_volt
+        start = joint.th
+        velocities = []
+        for _ in range(1500):
+            joint.step(pset(V_INI + dv), pset(V_INI))
+            velocities.append(joint.w)
+        y = joint.th - start
+        if moves:
+            assert y > 1.0, f"{name}: {fraction} of the peak should slip away"
+            continue
+        assert 0.0 < y < 1.0 and min(velocities[500:]) > 0.0  # creeping, one way
+        net = torque - p.K * y - p.D * joint.w  # what friction must balance [N m]
+        assert float(stribeck(p, joint.w)) == pytest.approx(net, rel=0.02)
 
 
 def test_end_stops_hold_the_joint():

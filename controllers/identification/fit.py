@@ -17,8 +17,15 @@ shape parameters alpha and beta, which trade off against Fs.
 
 Confidence: the polish (``scipy.optimize.least_squares``) gives the Jacobian at the optimum;
 the parameters' covariance is s^2 (J^T J)^-1 in the search coordinates, so a log parameter's
-standard deviation reads as a relative one. That is the noise's share at one optimum; the
-final population's spread says how far apart the fits are that the data rates as good as it.
+standard deviation reads as a relative one. That formula assumes independent residuals; the
+residuals of a fit to a pneumatic joint are mostly model error, correlated over many samples,
+so the covariance is scaled by the residuals' integrated autocorrelation (1 + 2 sum rho_k over
+the initial positive sequence, Geyer 1992): the number of independent samples the data really
+holds. That is the noise's and the model error's share at one optimum; the final population's
+spread says how far apart the fits are that the data rates as good as it. The uncertainty the
+fit states (``stated_std``) is the two in quadrature (issue 32: the Jacobian's figure alone was
+about a quarter of the errors made on perturbed simulated plants; bench.identification reports
+the coverage).
 """
 from __future__ import annotations
 
@@ -64,6 +71,8 @@ class FitResult:
     heldout_fit_percent: list[float]  # [2-49] on each validation experiment
     relative_std: dict[str, float]  # 1 sigma per fitted parameter: relative (T_dly [s], Fc_ratio: absolute); nan: not determined
     population_std: dict[str, float]  # the final DE population's spread, in the same terms (:func:`_population_std`)
+    stated_std: dict[str, float]  # what the fit states: the two in quadrature, in the same terms
+    correlation: float  # the residuals' integrated autocorrelation: samples per independent one (>= 1)
     wall_s: float
     generations: int
     evaluations: int
@@ -72,7 +81,9 @@ class FitResult:
     def summary(self) -> dict:
         return {"params": {n: getattr(self.params, n) for n in FITTED}, "c_nm": list(self.c),
                 "fit_percent": self.fit_percent, "heldout_fit_percent": self.heldout_fit_percent,
-                "relative_std": self.relative_std, "population_std": self.population_std, "wall_s": self.wall_s, "generations": self.generations,
+                "relative_std": self.relative_std, "population_std": self.population_std,
+                "stated_std": self.stated_std, "residual_correlation": self.correlation,
+                "wall_s": self.wall_s, "generations": self.generations,
                 "evaluations": self.evaluations, "settings": self.settings}
 
 
@@ -183,8 +194,12 @@ def fit_joint(estimation: list[Experiment], prior: JointParams, validation: list
     estimation_fit = [fit_percent(t, t + problem.scale * e) for t, e in
                       zip(problem.targets, np.split(problem.residuals(best), np.cumsum([len(t) for t in problem.targets])[:-1]))]
     heldout = [heldout_fit(params, v, step, C_SPAN * prior.Fs) for v in validation]
-    return FitResult(params, c, estimation_fit, heldout, _relative_std(polished, problem.bounds),
-                     _population_std(found),
+    correlation = integrated_autocorrelation(polished.fun, [len(t) for t in problem.targets])
+    jacobian_std, spread = _relative_std(polished, problem.bounds, correlation), _population_std(found)
+    modelled = model_error_std(problem, best, polished.jac)
+    stated = {n: math.hypot(jacobian_std[n], spread[n], modelled[n]) if jacobian_std[n] == jacobian_std[n]
+              else float("nan") for n in jacobian_std}
+    return FitResult(params, c, estimation_fit, heldout, jacobian_std, spread, stated, correlation,
                      time.perf_counter() - started, state["generation"], int(found.nfev + polished.nfev),
                      {"population": population, "generations": generations, "step_s": step, "tol": tol,
                       "seed": seed, "search": list(SEARCH[:-1]), "experiments": len(problem.data)})
@@ -229,13 +244,70 @@ def _population_std(found) -> dict[str, float]:
     return {name: float(spread[i]) for i, name in enumerate(SEARCH[:-1])}
 
 
-def _relative_std(polished, bounds: np.ndarray) -> dict[str, float]:
-    """1 sigma per parameter from the polish's Jacobian: relative for log parameters. A
+def integrated_autocorrelation(residuals: np.ndarray, lengths: list[int]) -> float:
+    """1 + 2 sum_k rho_k of the residuals, per experiment (``lengths``: their samples, end to
+    end), summed over the initial positive sequence of lags (Geyer's rule: stop where the
+    estimate first turns negative, beyond that it is noise), weighted by length; at least 1.
+    White residuals give 1; residuals correlated over m samples, about m."""
+    total, weight = 0.0, 0
+    for part in np.split(np.asarray(residuals, dtype=float), np.cumsum(lengths)[:-1]):
+        n = len(part)
+        x = part - np.mean(part)
+        var = float(np.dot(x, x))
+        if n < 4 or var <= 0.0:
+            continue
+        size = 1 << (2 * n - 1).bit_length()  # autocorrelation by FFT, zero-padded against wrap-around
+        spectrum = np.fft.rfft(x, size)
+        rho = np.fft.irfft(spectrum * np.conj(spectrum), size)[:n // 2] / var
+        negative = np.nonzero(rho[1:] < 0.0)[0]
+        end = 1 + (negative[0] if len(negative) else len(rho) - 1)
+        total += n * (1.0 + 2.0 * float(np.sum(rho[1:end])))
+        weight += n
+    return max(total / weight, 1.0) if weight else 1.0
+
+
+CONSIDERED = {"J": 1.5, "vs": 1.5, "beta": 1.5, "alpha": 1.2}  # held parameters' plausible factor (1 sigma)
+
+
+def model_error_std(problem: "_Problem", x: np.ndarray, jac: np.ndarray) -> dict[str, float]:
+    """What the model's own approximations may cost each fitted parameter, in the fit's
+    search coordinates: how far one Gauss-Newton step would move the optimum ``x`` if (a) the
+    mechanics were stepped at the recording's period instead of ``problem.step`` (the
+    discretisation's bias, as in Richardson's estimate), and (b) each parameter held at the
+    prior's value (CONSIDERED) were off by its plausible factor (a consider-covariance, as in
+    Schmidt's filter): the shifts in quadrature. Neither shows in the residuals' noise."""
+    gain = np.linalg.pinv(jac.T @ jac) @ jac.T
+    base = problem.residuals(x)
+    fine = _Problem(problem.prior, problem.data, min(d.dt for d in problem.data))
+    shifts = [gain @ (_on_grid(fine, problem, x) - base)]
+    for name, factor in CONSIDERED.items():
+        other = _Problem(problem.prior.replace({name: getattr(problem.prior, name) * factor}), problem.data,
+                         problem.step)
+        shifts.append(gain @ (other.residuals(x) - base))
+    spread = np.sqrt(np.sum(np.square(shifts), axis=0))
+    return {name: float(spread[i]) for i, name in enumerate(SEARCH[:-1])}
+
+
+def _on_grid(fine: "_Problem", coarse: "_Problem", x: np.ndarray) -> np.ndarray:
+    """``fine``'s residuals at ``x`` sampled on ``coarse``'s grid (scaled as coarse's)."""
+    angles = simulate_experiments([fine.rows(x, i) for i in range(len(fine.data))], [d.lever for d in fine.data],
+                                  [d.dt for d in fine.data], fine.step, fine.prior.alpha, fine.prior.beta)
+    parts = []
+    for y_hat, m_fine, m, target in zip(angles, fine.m, coarse.m, coarse.targets):
+        ratio = m // m_fine
+        picked = y_hat[0, ratio - 1::ratio][:len(target)]
+        parts.append(np.pad(picked, (0, len(target) - len(picked))) - target)
+    return np.concatenate(parts) / coarse.scale
+
+
+def _relative_std(polished, bounds: np.ndarray, correlation: float = 1.0) -> dict[str, float]:
+    """1 sigma per parameter from the polish's Jacobian: relative for log parameters, the
+    covariance scaled by the residuals' ``correlation`` (:func:`integrated_autocorrelation`). A
     parameter the data does not move (a zero Jacobian column, or one pinned at a bound, where
     the polish's Jacobian is one-sided) is nan: not determined by this experiment."""
     jac = polished.jac
     dof = max(polished.fun.size - jac.shape[1], 1)
-    s2 = 2 * polished.cost / dof
+    s2 = 2 * polished.cost / dof * correlation
     cov = np.linalg.pinv(jac.T @ jac) * s2
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     out = {}

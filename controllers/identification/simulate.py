@@ -12,8 +12,9 @@ as deviations from the operating point where the experiment started at rest:
 inside the friction band, so its value is unknown and fitted). The pressure path is linear,
 so it is filtered at the recording's rate (1 ms) for every member at once; the mechanics are
 stepped at a coarser ``step`` [s] (exact zero-order hold of the 2x2 linear part, the same
-Karnopp stick rule as the simulator in :mod:`sim_backend.joint_model`), member by member in a
-loop compiled by numba.
+friction step as the simulator in :mod:`sim_backend.joint_model`: by default [2-45]'s smooth
+sign, linearly implicit; ``friction_model="karnopp"``: Karnopp's stick rule), member by member
+in a loop compiled by numba.
 """
 from __future__ import annotations
 
@@ -47,9 +48,12 @@ def delayed_lagged(q: np.ndarray, dt: float, t_ep: np.ndarray, t_dly: np.ndarray
     return out
 
 
-def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float, beta: float) -> np.ndarray:
+def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float, beta: float,
+              friction_model: str = "stribeck") -> np.ndarray:
     """Joint angle deviation y [deg] at the end of each step, for per-member torque [N m] of
     shape (members, steps) held over each step. ``params`` columns follow FITTED + NUISANCE."""
+    if friction_model not in ("stribeck", "karnopp"):
+        raise ValueError(f"friction_model must be 'stribeck' or 'karnopp', not {friction_model!r}")
     _, J, D, K, _, _, Fs, Fc, vs, c = np.asarray(params, dtype=float).T
     members, steps = torque.shape
     a = np.zeros((members, 2, 2))
@@ -64,38 +68,58 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
     coefficients = np.ascontiguousarray(np.column_stack([e[:, 0, 0], e[:, 0, 1], e[:, 1, 0], e[:, 1, 1],
                                                          e[:, 0, 2], e[:, 1, 2], Fs, Fc, vs]))
     out = np.empty((members, steps))
-    _stepper()(coefficients, np.ascontiguousarray(torque + c[:, None], dtype=float), float(alpha), float(beta), out)
+    _stepper()(coefficients, np.ascontiguousarray(torque + c[:, None], dtype=float), float(alpha), float(beta),
+               friction_model == "stribeck", out)
     return out
 
 
-def _step_members(coefficients, torque, alpha, beta, out):  # pragma: no cover (runs compiled)
-    """The mechanics' time loop for every member: exact zero-order hold of the linear part,
-    friction [2-45] held over the step, Karnopp's stick rule (as :mod:`sim_backend.joint_model`).
-    Plain loops over floats, for numba to compile: one member's step is a few arithmetic
-    operations, which numpy's per-call cost would multiply by forty."""
+def _step_members(coefficients, torque, alpha, beta, smooth, out):  # pragma: no cover (runs compiled)
+    """The mechanics' time loop for every member: exact zero-order hold of the linear part and
+    the friction held over the step, as :mod:`sim_backend.joint_model` steps one joint:
+    ``smooth``, [2-45]'s smooth sign at the step's end velocity (one Newton step of backward
+    Euler from the present one, as ``stribeck_step``); else Karnopp's stick rule. Plain loops
+    over floats, for numba to compile: a member's step is a dozen arithmetic operations,
+    which numpy's per-call cost, over the population, made ~25 times dearer."""
     members, steps = torque.shape
     for m in range(members):
         p11, p12, p21, p22, g1, g2, fs, fc, vs = coefficients[m]
-        slope, sharp, inv_vs, inv_g2 = fs - fc, beta / vs, 1.0 / vs, 1.0 / g2
+        slope_s, sharp, inv_vs, inv_g2, floor = fs - fc, beta / vs, 1.0 / vs, 1.0 / g2, -0.5 / g2
         th = 0.0
         w = 0.0
         for k in range(steps):
             tau = torque[m, k]
             th_lin = p11 * th + p12 * w + g1 * tau
             w_lin = p21 * th + p22 * w + g2 * tau
-            f_slip = (fc + slope * math.exp(-(abs(w) * inv_vs) ** alpha)) * math.tanh(sharp * w)
-            slipping = (w_lin - g2 * f_slip) * w > 0.0  # moving on, the same way
-            hold = w_lin * inv_g2  # the torque that would stop it this step
-            sticks = not slipping and abs(hold) <= fs
-            if slipping:
-                f = f_slip
-            elif sticks:
-                f = hold
-            else:
-                f = math.copysign(fs, hold)
-            if not (sticks and w == 0.0):  # stuck all step: not a hair of motion
+            if smooth:
+                x = abs(w) * inv_vs
+                xa = x ** (alpha - 1.0)
+                ex = math.exp(-xa * x)
+                magnitude = fc + slope_s * ex
+                sign = math.tanh(sharp * w)
+                slope = max(magnitude * sharp * (1.0 - sign * sign) - slope_s * ex * alpha * xa * inv_vs * abs(sign),
+                            floor)
+                v = (w_lin - g2 * (magnitude * sign - slope * w)) / (1.0 + g2 * slope)
+                if w_lin > 0.0:  # friction slows the joint, never turns it round within a step
+                    v = min(max(v, 0.0), w_lin)
+                else:
+                    v = min(max(v, w_lin), 0.0)
+                f = (w_lin - v) * inv_g2 if w_lin != 0.0 else 0.0
                 th = th_lin - g1 * f
-            w = 0.0 if sticks else w_lin - g2 * f
+                w = v
+            else:
+                f_slip = (fc + slope_s * math.exp(-(abs(w) * inv_vs) ** alpha)) * math.tanh(sharp * w)
+                slipping = (w_lin - g2 * f_slip) * w > 0.0  # moving on, the same way
+                hold = w_lin * inv_g2  # the torque that would stop it this step
+                sticks = not slipping and abs(hold) <= fs
+                if slipping:
+                    f = f_slip
+                elif sticks:
+                    f = hold
+                else:
+                    f = math.copysign(fs, hold)
+                if not (sticks and w == 0.0):  # stuck all step: not a hair of motion
+                    th = th_lin - g1 * f
+                w = 0.0 if sticks else w_lin - g2 * f
             out[m, k] = th
 
 

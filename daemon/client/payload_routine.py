@@ -45,6 +45,7 @@ from hal.regulator import ITV0051
 DITHER_FS = 2.0  # the dither's V_MV amplitude over the joint's breakaway V_MV (Fs / kt) ...
 DITHER_MAX_V = 2.2  # ... and at most this [V]: the middle joint's range keeps room for its load
 DITHER_HZ = 0.5
+DITHER_BAND_DEG = 8.0  # the excursion the daemon allows the dither: the middle joint moves 5.7 deg at 2.2 V, 0.5 Hz
 DITHER_S = 42.0  # the dither's length after its settling [s]
 REST_S = 2.0  # what coming to rest after a move adds, in the routine's estimate [s]
 AVERAGED_S = 24.0  # the mean is taken over this [s] (whole periods) ending END_GUARD_S before the
@@ -54,7 +55,7 @@ END_GUARD_S = 1.0 / DITHER_HZ  # the window ends this long (a period) before the
 SAMPLE_GAP_S = 0.25  # a window is whole when samples reach within this of both its ends [s]
 LEAD_S = 1.0  # sampling starts this long before the window opens, whatever the client's lag [s]
 CENTRE_HZ = 0.1  # the centring PI's crossover: settled well within DITHER_S - AVERAGED_S - END_GUARD_S
-MARGIN_DEG = 8.0  # postures this far inside the joint limits
+MARGIN_DEG = DITHER_BAND_DEG + 2.0  # postures this far inside the joint limits: the dither's band and 2 deg more
 HOLD_V = 0.75  # postures whose spring needs at most this V_MV (nominal model) [V]
 REFERENCE_FORMAT = "pneumad-payload-reference/1"
 
@@ -105,7 +106,7 @@ def dither_args(rig: RigConfig, joint: str) -> dict:
     return {"side": "input", "signal": "multisine", "joint": joint,
             "amplitude_v": round(min(DITHER_FS * params.Fs / params.torque_per_volt, DITHER_MAX_V), 3),
             "f0_hz": DITHER_HZ, "f1_hz": 2 * DITHER_HZ, "components": 1, "period_s": 1.0 / DITHER_HZ,
-            "periods": int(DITHER_S * DITHER_HZ), "settle_s": 2.0, "band_deg": 5.0, "centre_hz": CENTRE_HZ}
+            "periods": int(DITHER_S * DITHER_HZ), "settle_s": 2.0, "band_deg": DITHER_BAND_DEG, "centre_hz": CENTRE_HZ}
 
 
 def dither_s(rig: RigConfig, joint: str) -> float:

@@ -33,16 +33,22 @@ class SimRig:
         return ControllerContext.for_rig(self.rig, self.actuation, DT)
 
 
-def make_rig(options: str = "", name: str = "sim", replace: dict[str, str] | None = None) -> SimRig:
-    """The built-in rig with extra ``[transport.options]`` lines (TOML) and text replacements."""
-    text = config.load(name).source
+def make_rig(options: str = "", name: str = "sim", replace: dict[str, str] | None = None,
+             text: str | None = None) -> SimRig:
+    """The built-in rig (or the rig file ``text``) with extra ``[transport.options]`` lines
+    (TOML) and text replacements."""
+    text = config.load(name).source if text is None else text
     for old, new in (replace or {}).items():
         if old not in text:
             raise ValueError(f"make_rig: {old!r} is not in the {name} rig's text")
         text = text.replace(old, new)
     if options:  # appended to the end of [transport.options], which the [arm] table follows
         text = text.replace("\n[arm]\n", "\n" + options + "\n\n[arm]\n", 1)
-    rig = config.parse(text)
+    return sim_of(config.parse(text))
+
+
+def sim_of(rig: config.RigConfig) -> SimRig:
+    """The simulated rig of a parsed rig configuration, on its own virtual clock."""
     clock = VirtualClock()
     drivers = PressureDrivers.of(rig)
     return SimRig(clock, rig, assembly.open_rig(rig, clock.now, drivers), RigActuation(rig, drivers))
