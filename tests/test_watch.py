@@ -9,13 +9,21 @@ from daemon.client.watch import View, _bar
 from daemon.testing.loop import dealer, make_loop, ok
 
 
-def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
+def moving_bottom(step_deg: float, move_s: float):
+    """An in-process daemon, enabled under a lease, its bottom joint moving ``step_deg`` [deg]
+    in ``move_s`` [s]: (loop, captured, server, socket, describe, lease)."""
     loop, captured, srv = make_loop(server=True)
     sock = dealer(srv)
     describe = ok(loop, sock, "describe")
     lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
     ok(loop, sock, "enable", lease=lease)
-    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(5.0), loop.angles[1]], 2.0), "move")
+    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(step_deg), loop.angles[1]], move_s),
+                        "move")
+    return loop, captured, srv, sock, describe, lease
+
+
+def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
+    loop, captured, srv, sock, describe, lease = moving_bottom(5.0, 2.0)
     loop.run(1500)  # a stats window and then some
     status = ok(loop, sock, "status")
     srv.close()
@@ -51,12 +59,7 @@ def test_an_output_bar_is_full_at_either_limit_and_marks_zero():
 
 
 def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_controllers_last_v_mv():
-    loop, captured, srv = make_loop(server=True)
-    sock = dealer(srv)
-    describe = ok(loop, sock, "describe")
-    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
-    ok(loop, sock, "enable", lease=lease)
-    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(10.0), loop.angles[1]], 1.0), "move")
+    loop, captured, srv, sock, describe, lease = moving_bottom(10.0, 1.0)
     loop.run(600)
     moving = ok(loop, sock, "status")["joints"]["bottom"]
     assert moving["output"] == "controller" and moving["u_volts"] == loop.u[0]
