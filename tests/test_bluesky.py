@@ -30,7 +30,7 @@ from tiled.server import SimpleTiledServer  # noqa: E402
 from daemon.client.bluesky import plans  # noqa: E402
 from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client, RemoteError  # noqa: E402
-from tests.daemons import free_tcp_ports, real_daemon, wait_for_own_daemon  # noqa: E402
+from tests.daemons import free_tcp_ports, real_daemon, tolerant_rig_text, wait_for_own_daemon  # noqa: E402
 
 pytestmark = pytest.mark.slow(seconds=150)  # its wall time on a 2-core machine: tests/conftest.py orders by it
 
@@ -124,6 +124,33 @@ def test_a_trip_fails_the_plan_with_the_daemons_cause(setup):
         stopper.reset()
         stopper.release_lease()
         stopper.close()
+
+
+def test_a_rig_with_an_array_sensor_reads_its_contact_estimate(tmp_path):
+    from tests.test_contact_daemon import SENSOR
+    rig_path = tmp_path / "rig.toml"
+    rig_path.write_text(tolerant_rig_text() + SENSOR)
+    daemon, eps = real_daemon(tmp_path, "--config", str(rig_path))
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
+        rig = PneumadRig.connect_to("arm", hdf5_directory=str(tmp_path), **eps)
+        engine, seen = RunEngine({}), []
+
+        def until_touched():
+            for _ in range(600):  # the simulated impacts come once a second
+                force = yield from bps.rd(rig.contact_force_n)
+                if force == force:
+                    seen.append((force, (yield from bps.rd(rig.contact_cx))))
+                    return
+                yield from bps.sleep(0.05)
+        engine(until_touched())
+        rig.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    assert seen and seen[0][0] > 0.0 and abs(seen[0][1]) < 0.1, seen  # a force [N] at a centre on the pad [m]
+    assert rig.contact_force_n.source == f"pneumad://{rig.link.rig_name}/contact/force_n"
 
 
 @pytest.mark.skipif(shutil.which("redis-server") is None, reason="no redis-server (Debian: apt-get install redis-server)")

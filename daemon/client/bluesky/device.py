@@ -7,7 +7,8 @@
   message and data intact), a trip with the daemon's cause.
 - Readable signals: per joint, every number ``status`` carries for it (angle [deg] hinted,
   set-point, velocity, V_MV; a muscle joint's measured pressures [Pa] and stiffness); for the
-  rig, the force [N] and the state. Configuration: the controller, its parameters, the rig
+  rig, the force [N] and the state, and on a rig with an array sensor the latest contact
+  estimate (``contact_cx`` ... [m, Pa, N], NaN while nothing touches). Configuration: the controller, its parameters, the rig
   file's hash and name. Each signal's source is ``pneumad://<rig>/<joint|rig>/<signal>``.
 - ``stage`` takes the lease (renewed in the background) and enables the arm; ``unstage``
   hands the lease back: a run holds the arm for its length and no longer.
@@ -19,6 +20,7 @@ import json
 import logging
 import math
 import time
+from functools import partial
 
 import numpy as np
 from bluesky.protocols import Movable
@@ -35,6 +37,7 @@ from ophyd_async.core import (
 from daemon.client.bluesky.link import RigLink
 from daemon.client.client import RemoteError
 from daemon.wire import protocol as P
+from hal import config
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +89,17 @@ def _signal(link: RigLink, path: tuple[str, ...], pick, sample) -> SignalR:
     return SignalR(_StatusBackend(float, link.source(*path), get, _unit(path[-1])))
 
 
+CONTACT_SIGNALS = {"cx": "m", "cy": "m", "a": "m", "b": "m", "p_max": "Pa", "force_n": "N", "cx_sd": "m", "cy_sd": "m",
+                   "force_sd_n": "N"}  # of the contact estimate (docs/protocol.md, contact topic)
+
+
+def _contact(link: RigLink, field: str) -> float:
+    """``field`` of the latest contact estimate; NaN before the first, or while nothing touches."""
+    message = link.contact
+    estimate = message.get("contact") if message else None
+    return _number(estimate.get(field)) if estimate else math.nan
+
+
 class PneumadJoint(StandardReadable, Movable):
     """One joint: its status fields as signals (the angle hinted), and ``set`` a planned move."""
 
@@ -134,6 +148,12 @@ class PneumadRig(StandardReadable):
         with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
             self.force_n = _signal(link, ("rig", "force_n"), lambda s: s.get("force_n"), 0.0)
             self.state = _signal(link, ("rig", "state"), lambda s: s["state"], "")
+        if config.parse(link.describe["rig"]["source"], "<daemon>").contact_sensor is not None:
+            link.follow_contact()
+            with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
+                for field, unit in CONTACT_SIGNALS.items():
+                    setattr(self, f"contact_{field}", SignalR(_StatusBackend(
+                        float, link.source("contact", field), partial(_contact, link, field), unit)))
         with self.add_children_as_readables(StandardReadableFormat.CONFIG_SIGNAL):
             self.controller = _signal(link, ("rig", "controller"), lambda s: s["controller"], "")
             self.controller_params = SignalR(_StatusBackend(str, link.source("rig", "controller_params"),

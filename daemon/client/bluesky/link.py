@@ -9,6 +9,7 @@ rig's signals asks for ``status`` once: readings taken within ``FRESH_S`` share 
 from __future__ import annotations
 
 import asyncio
+import threading
 import time
 from functools import partial
 
@@ -29,6 +30,9 @@ class RigLink:
         self._status: dict = {}
         self._status_t = -1.0
         self._status_lock: asyncio.Lock | None = None
+        self.contact: dict | None = None  # the array sensor's latest estimate (the contact topic's message)
+        self._feed: threading.Thread | None = None
+        self._stop_feed = threading.Event()
 
     @property
     def rig_name(self) -> str:
@@ -60,7 +64,27 @@ class RigLink:
         """The next read asks the daemon again (after a command changed what it would say)."""
         self._status_t = -1.0
 
+    def follow_contact(self) -> None:
+        """Keep :attr:`contact` at the daemon's latest contact estimate, from a background
+        subscription (the estimates come at the sensor process's rate, not on request)."""
+        subscription = self.client.subscribe((b"contact",))
+
+        def feed():
+            try:
+                while not self._stop_feed.is_set():
+                    received = subscription.receive(0.2)
+                    if received is not None:
+                        self.contact = received[1]
+            finally:
+                subscription.close()
+
+        self._feed = threading.Thread(target=feed, name="pneumad-contact", daemon=True)
+        self._feed.start()
+
     def close(self) -> None:
+        self._stop_feed.set()
+        if self._feed is not None:
+            self._feed.join(2.0)
         if self.client.lease is not None:
             try:
                 self.client.release_lease()
