@@ -183,7 +183,8 @@ def test_a_queue_runs_plans_across_two_daemons_into_tiled(tmp_path):
              "--existing-plans-devices", str(tmp_path / "existing.yaml"), "--update-existing-plans-devices",
              "ENVIRONMENT_OPEN"], env={**os.environ, "PNEUMAD_BLUESKY_CONFIG": str(settings)}, cwd=tmp_path,
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        manager = REManagerAPI(zmq_control_addr=f"tcp://127.0.0.1:{control}", zmq_info_addr=f"tcp://127.0.0.1:{info}")
+        manager = REManagerAPI(zmq_control_addr=f"tcp://127.0.0.1:{control}", zmq_info_addr=f"tcp://127.0.0.1:{info}",
+                               timeout_recv=60.0)  # its default 2 s is a fast machine's
         deadline = time.monotonic() + 60.0
         while True:
             try:
