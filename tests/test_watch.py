@@ -6,7 +6,8 @@ from rich.console import Console
 
 from controllers.trajectory import JointMove
 from daemon.client.watch import View, _bar
-from daemon.testing.loop import dealer, make_loop, ok
+from daemon.testing.loop import dealer, exchange, make_loop, ok
+from daemon.wire import protocol
 
 
 def moving_bottom(step_deg: float, move_s: float):
@@ -61,8 +62,10 @@ def test_an_output_bar_is_full_at_either_limit_and_marks_zero():
 def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_controllers_last_v_mv():
     loop, captured, srv, sock, describe, lease = moving_bottom(10.0, 1.0)
     loop.run(600)
-    moving = ok(loop, sock, "status")["joints"]["bottom"]
-    assert moving["output"] == "controller" and moving["u_volts"] == loop.u[0]
+    written = [loop.u[0]]  # the V_MV of every cycle the exchange runs: the reply is built in one of them
+    reply = exchange(loop, sock, protocol.encode_request(1, "status"), each_cycle=lambda: written.append(loop.u[0]))
+    moving = reply["result"]["joints"]["bottom"]
+    assert moving["output"] == "controller" and moving["u_volts"] in written
     ok(loop, sock, "estop")
     loop.run(50)
     last_u = loop.u[0]

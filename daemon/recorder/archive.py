@@ -23,7 +23,7 @@ import msgpack
 from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args
-from daemon.recordings.mcap_log import McapRecording
+from daemon.recordings.mcap_log import McapRecording, TelemetryEncoder
 
 TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
 MAX_ACTIVE = 4
@@ -69,6 +69,7 @@ class Archive:
             self.describe = json.load(f)
         with open(os.path.join(rings_dir, "controller.json")) as f:
             self.controller = json.load(f)
+        self.encoder = TelemetryEncoder(self.describe)  # one encoding of each message for every recording
         self._disk_checked = 0.0
         self._handlers = {"record.start": self._start_request, "record.stop": self._stop_request, "record.list": self._list}
         catalog.check_handlers(("recorder",), self._handlers)
@@ -96,8 +97,7 @@ class Archive:
         if name is not None and not (isinstance(name, str) and NAME.match(name)):
             raise bad_args("a name is 1-80 letters, digits, '.', '_' or '-', starting with a letter or digit", "name")
         seconds = args.get("seconds")
-        active = self.start(name or f"{time.strftime('%Y%m%d-%H%M%S')}-record", who,
-                            None if seconds is None else time.monotonic() + seconds)
+        active = self.start(name or f"{time.strftime('%Y%m%d-%H%M%S')}-record", who, seconds)
         return active.summary(time.monotonic())
 
     def _stop_request(self, args: dict, who: str) -> dict:
@@ -128,8 +128,9 @@ class Archive:
     def _path(self, name: str) -> str:
         return os.path.join(self.directory, name + ".mcap")
 
-    def start(self, name: str, who: str, until: float | None = None, reference: int | None = None) -> Active:
-        """Open a new recording (a taken name gets a -2, -3 ... suffix); CommandFailed if it cannot be."""
+    def start(self, name: str, who: str, seconds: float | None = None, reference: int | None = None) -> Active:
+        """Open a new recording (a taken name gets a -2, -3 ... suffix), ``seconds`` [s] long from
+        when its file is open (None: until stopped); CommandFailed if it cannot be."""
         if len(self.active) >= MAX_ACTIVE:
             raise CommandFailed(P.BAD_STATE, f"{MAX_ACTIVE} recordings are running already: stop one first",
                                 {"reason": "recording"})
@@ -144,12 +145,13 @@ class Archive:
                 except FileExistsError:
                     n += 1
                     name = f"{base}-{n}"
-            writer = McapRecording(f, self.describe, self.controller)
+            writer = McapRecording(f, self.describe, self.controller, self.encoder)
         except OSError as exc:
             raise CommandFailed(P.BAD_STATE, f"cannot record to {self.directory}: {exc.strerror or exc}",
                                 {"reason": "recording"}) from None
-        active = Active(name, self._path(name), f, writer, who, time.monotonic(),
-                        float("inf") if until is None else until, reference)
+        started = time.monotonic()
+        active = Active(name, self._path(name), f, writer, who, started,
+                        float("inf") if seconds is None else started + seconds, reference)
         for message in self._preroll:  # what led up to it
             writer.write("state", message)
         self.active[name] = active
@@ -194,9 +196,12 @@ class Archive:
             self._follow(message)
         elif topic == "state":
             self._preroll.append(message)
+        if not self.active and topic != "event":  # (events: the encoder follows a reference's phase)
+            return
+        encoded = self.encoder.encode(topic, message)
         for active in list(self.active.values()):
             try:
-                active.writer.write(topic, message)
+                active.writer.write(topic, message, encoded=encoded)
                 if active.file.tell() >= self.max_bytes:
                     self.end(active, f"it reached the size limit ({self.max_bytes / 1e6:.0f} MB)")
             except (OSError, ValueError) as exc:
@@ -215,7 +220,7 @@ class Archive:
         elif kind == "reference" and event.get("action") == "start" and event.get("record"):
             try:
                 self.start(str(event["record"]), str(event.get("who", "")),
-                           time.monotonic() + float(event.get("duration_s", 0.0)) + TAIL_S + 10.0,
+                           float(event.get("duration_s", 0.0)) + TAIL_S + 10.0,
                            event.get("generation"))
             except CommandFailed as exc:
                 self.emit({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})

@@ -33,6 +33,7 @@ FEED = "recorder-feed"  # ipc socket names in the rings' directory
 CONTROL = "recorder-control"
 MESSENGER_ID = b"messenger"  # the messenger's routing id on the control socket
 FEED_HWM = 200_000  # messages the feed may queue (about 10 minutes of telemetry)
+BATCH_S = 0.02  # [s] of writing at most between two looks at the requests: a reply waits no longer
 
 
 def endpoint(rings_dir: str, name: str) -> str:
@@ -115,7 +116,10 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
                 if len(frames) == 4:  # [routing id, token, who, request]
                     _send(control, [b"reply", frames[1], archive.request(frames[3], frames[2].decode(errors="replace"))])
         if feed in ready:
-            for _ in range(1000):  # a bounded batch, then the requests again
+            batch_ends = time.monotonic() + BATCH_S
+            for _ in range(1000):  # a bounded batch, then the requests again (however far behind the feed is)
+                if time.monotonic() > batch_ends:
+                    break
                 try:
                     topic, body = feed.recv_multipart(zmq.NOBLOCK)
                 except (zmq.Again, ValueError):

@@ -32,7 +32,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from daemon.recordings.channels import Frames, json_schemas, protobuf_schemas, schema_name
+from daemon.recordings.channels import Frames, json_schemas, ns, protobuf_schemas, schema_name
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
@@ -103,33 +103,63 @@ def state_samples(m: dict, joints: list[str], outputs: list[str], fields=None) -
         yield sample
 
 
-def _ns(t: float) -> int:
-    return max(int(round(t * 1e9)), 0)
+class TelemetryEncoder:
+    """One daemon's telemetry as the messages of a recording's channels (``/pneumad/<topic>`` and
+    the Foxglove channels beside them): encoded once, whatever the number of recordings that
+    write them (the recorder's several recordings share one; the JSON is most of a recording's
+    cost). It follows the events it encodes (a reference's phase), so it sees every message once."""
+
+    def __init__(self, describe: dict):
+        self.joints = [j["name"] for j in describe["joints"]]
+        self._outputs = [o[0] for o in describe["transport"]["outputs"]]
+        self._fields = command_fields(describe)
+        self._frames = Frames(describe)  # the Foxglove channels, as the live stream serves them
+        self._last_t = 0.0
+
+    def encode(self, topic: str, message: dict) -> list[tuple[str, int, bytes, int]]:
+        """One telemetry message as (channel, log time [ns], data, sequence) records; none for a
+        topic a recording does not keep."""
+        if topic not in TOPICS:
+            return []
+        out = [(name, stamp, data, 0) for name, stamp, data in self._frames.of(topic, message)]
+        if topic == "state":
+            for row in state_samples(message, self.joints, self._outputs, self._fields):
+                out.append((STATE_CHANNEL, ns(row["t"]), _json(row), row["cycle"]))
+                self._last_t = row["t"]
+        else:
+            self._last_t = message.get("t", self._last_t)
+            out.append((channel(topic), ns(self._last_t), _json(message), 0))
+        return out
+
+
+def _json(message: dict) -> bytes:
+    return json.dumps(message, allow_nan=True).encode()
+
+
+STATE_CHANNEL = channel("state")
 
 
 class McapRecording:
     """Writes telemetry as the daemon publishes it (decoded messages, as a subscriber sees
-    them) to an open binary file."""
+    them) to an open binary file: encoded by ``encoder`` (shared between recordings of one
+    daemon; default: its own)."""
 
-    def __init__(self, f, describe: dict, controller: dict):
+    def __init__(self, f, describe: dict, controller: dict, encoder: TelemetryEncoder | None = None):
+        self.encoder = encoder or TelemetryEncoder(describe)
         self._writer = Writer(f, chunk_size=CHUNK_BYTES)
         self._writer.start(PROFILE, f"pneumad {describe.get('version', '?')}")
-        self._joints = [j["name"] for j in describe["joints"]]
-        self._outputs = [o[0] for o in describe["transport"]["outputs"]]
-        self._fields = command_fields(describe)
-        self._channels = {}
+        self._ids: dict[str, int] = {}  # channel -> its id in this file
         for topic in TOPICS:
-            schema = state_schema(self._joints) if topic == "state" else OTHER_SCHEMAS[topic]
+            schema = state_schema(self.encoder.joints) if topic == "state" else OTHER_SCHEMAS[topic]
             sid = self._writer.register_schema(f"pneumad.{topic}", "jsonschema", json.dumps(schema).encode())
-            self._channels[topic] = self._writer.register_channel(channel(topic), "json", sid)
-        self._frames = Frames(describe)  # the Foxglove channels, as the live stream serves them
-        self._foxglove = {}
+            self._ids[channel(topic)] = self._writer.register_channel(channel(topic), "json", sid)
+        self._ours = set(self._ids)
         for topic, schema in json_schemas(describe).items():
             sid = self._writer.register_schema(schema_name(topic), "jsonschema", json.dumps(schema).encode())
-            self._foxglove[topic] = self._writer.register_channel(topic, "json", sid)
+            self._ids[topic] = self._writer.register_channel(topic, "json", sid)
         for topic, (name, data) in protobuf_schemas().items():
             sid = self._writer.register_schema(name, "protobuf", data)
-            self._foxglove[topic] = self._writer.register_channel(topic, "protobuf", sid)
+            self._ids[topic] = self._writer.register_channel(topic, "protobuf", sid)
         now = time.time_ns()
         self._writer.add_attachment(now, now, "rig.toml", "application/toml", describe["rig"]["source"].encode())
         self._writer.add_metadata("pneumad", {"software": str(describe.get("version")), "rig_hash": describe["rig"]["hash"],
@@ -138,35 +168,32 @@ class McapRecording:
         self._writer.add_metadata("describe", {"json": json.dumps(describe)})
         self._writer.add_metadata("controller", {"json": json.dumps(controller)})
         self._last_seq: dict[str, int] = {}
-        self._last_t = 0.0
-        self.messages = 0
+        self._last_stamp = 0  # [ns] of the last message written
+        self.messages = 0  # on the /pneumad channels
         self.gaps = 0
 
-    def write(self, topic: str, message: dict, lost: int = 0) -> None:
-        """One telemetry message; ``lost`` messages of this topic went missing before it."""
-        if topic not in self._channels:
+    def write(self, topic: str, message: dict, lost: int = 0,
+              encoded: list[tuple[str, int, bytes, int]] | None = None) -> None:
+        """One telemetry message (``encoded``: what this recording's encoder made of it, if it
+        has been encoded already); ``lost`` messages of this topic went missing before it."""
+        if topic not in TOPICS:
             return
         seq = message.get("seq")
         if lost or (seq is not None and topic in self._last_seq and seq > self._last_seq[topic] + 1):
             missing = lost or seq - self._last_seq[topic] - 1
             self.gaps += missing
-            self._add("gap", self._last_t, {"topic": topic, "missing": missing, "after_seq": self._last_seq.get(topic)})
+            gap = {"topic": topic, "missing": missing, "after_seq": self._last_seq.get(topic)}
+            self._add(channel("gap"), self._last_stamp, _json(gap), 0)
         if seq is not None:
             self._last_seq[topic] = seq
-        for name, stamp, data in self._frames.of(topic, message):
-            self._writer.add_message(self._foxglove[name], stamp, data, stamp)
-        if topic == "state":
-            for row in state_samples(message, self._joints, self._outputs, self._fields):
-                self._add("state", row["t"], row, sequence=row["cycle"])
-            return
-        self._add(topic, message.get("t", self._last_t), message)
+        for name, stamp, data, sequence in self.encoder.encode(topic, message) if encoded is None else encoded:
+            self._add(name, stamp, data, sequence)
 
-    def _add(self, topic: str, t: float, message: dict, sequence: int = 0) -> None:
-        self._last_t = t
-        stamp = _ns(t)
-        self._writer.add_message(self._channels[topic], stamp, json.dumps(message, allow_nan=True).encode(), stamp,
-                                 sequence if sequence >= 0 else 0)
-        self.messages += 1
+    def _add(self, name: str, stamp: int, data: bytes, sequence: int) -> None:
+        self._writer.add_message(self._ids[name], stamp, data, stamp, sequence)
+        self._last_stamp = stamp
+        if name in self._ours:
+            self.messages += 1
 
     def finish(self) -> None:
         self._writer.finish()
