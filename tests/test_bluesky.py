@@ -32,7 +32,7 @@ from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client, RemoteError  # noqa: E402
 from tests.daemons import free_tcp_ports, real_daemon, tolerant_rig_text, wait_for_own_daemon  # noqa: E402
 
-pytestmark = pytest.mark.slow(seconds=150)  # its wall time on a 2-core machine: tests/conftest.py orders by it
+pytestmark = pytest.mark.slow(seconds=190)  # its wall time on a 2-core machine: tests/conftest.py orders by it
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +79,30 @@ def test_a_step_response_runs_as_a_plan_and_its_1khz_record_reads_back_from_tile
     assert after - before == pytest.approx(3.0, abs=1e-3) and setpoint[-1] == pytest.approx(after, abs=1e-3)
     before, after = np.asarray(primary["arm-joints-0-angle_deg"].read())
     assert after - before == pytest.approx(3.0, abs=0.6)
+
+
+def test_the_identification_plan_records_each_experiment_and_the_whole_in_a_file_identify_fits(setup, tmp_path):
+    """Two short experiments (the plan takes a user's own list): each a stream of the run with the
+    excitation in it, and the plan's daemon recording, named in the start document, fitted by
+    ``pneumactl identify --from`` as a recording of its own."""
+    rig, engine, tiled, _ = setup
+    short = [{"signal": "prbs", "order": 5, "bit_s": 0.1}, {"signal": "prbs", "order": 4, "bit_s": 0.2}]
+    (uid,) = engine(plans.identification(rig, "bottom", experiments=short))
+    run = tiled[uid]
+    start = run.metadata["start"]
+    assert start["plan_name"] == "identification" and start["plan_args"]["experiments"] == short
+    for stream, bits in (("record", 31), ("record_1", 15)):
+        cycle = np.asarray(run[stream]["arm_record_cycle"].read())
+        u = np.asarray(run[stream]["arm_record_bottom_u_volts"].read())
+        switches = np.count_nonzero(np.abs(np.diff(u)) > 0.5)  # the PRBS's level changes, each in a cycle
+        assert np.all(np.diff(cycle) == 1) and 0.25 * bits < switches <= bits, (stream, switches)
+    assert rig.link.client.record_list()["active"] == []  # the plan's own recording has ended with it
+    out = tmp_path / "fit"
+    fitted = subprocess.run([sys.executable, "-m", "daemon.client.ctl", "identify", "bottom", "--from", start["recording"],
+                             "--out", str(out), "--generations", "5"], capture_output=True, text=True, timeout=300)
+    assert fitted.returncode == 0, fitted.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert [e["signal"] for e in report["experiments"]] == ["prbs", "prbs"] and (out / "rig.toml").exists()
 
 
 def test_a_joint_is_a_movable_and_a_refused_move_fails_with_the_daemons_data(setup):

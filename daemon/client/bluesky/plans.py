@@ -82,15 +82,24 @@ def path_run(rig, name: str, duration_s: float | None = None,
     return (yield from _recorded(rig, [flight], {**meta, **(md or {})}))
 
 
-def identification(rig, joint: str, quick: bool = True, md: dict | None = None):
+def identification(rig, joint: str, quick: bool = True, experiments: list[dict] | None = None,
+                   md: dict | None = None):
     """``pneumactl identify``'s experiments on ``joint`` (V_MV side, amplitude as it chooses
     it, fitted to the daemon's limits), each recorded into a stream of its own; the fit is
-    ``pneumactl identify --from`` on the HDF5's recordings, or the notebook's."""
+    ``pneumactl identify --from`` on the HDF5's recordings, or the notebook's. ``experiments``
+    (instead of the plan's, e.g. one more chirp): each ``{"signal": ..., <excite's settings>}``,
+    as ``excite`` takes them (docs/protocol.md)."""
     describe = rig.link.describe
+    names = [x["name"] for x in describe["joints"]]
+    if joint not in names:
+        raise ValueError(f"{rig.link.rig_name} has no joint {joint!r} (joints: {', '.join(names)})")
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
-    j = [x["name"] for x in describe["joints"]].index(joint)
+    j = names.index(joint)
     prior = prior_of(rig_config, joint)
     plan = identify.Plan.of(quick)
+    if experiments is not None:
+        plan = identify.Plan(tuple((e["signal"], {k: v for k, v in e.items() if k != "signal"}) for e in experiments),
+                             plan.settle_s)
     u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
 
     def experiment(signal: str, settings: dict) -> Flight:
@@ -101,9 +110,17 @@ def identification(rig, joint: str, quick: bool = True, md: dict | None = None):
                                            signal, identify.default_amplitude(prior, u_op, u_range), fixed=False)
         return Flight(send)
 
-    meta = yield from _metadata(rig, "identification", {"joint": joint, "quick": quick})
+    meta = yield from _metadata(rig, "identification", {"joint": joint, "quick": quick, "experiments": experiments})
     flights = [experiment(signal, settings) for signal, settings in plan.experiments]
-    return (yield from _recorded(rig, flights, {**meta, **(md or {})}))
+    # The whole plan also in one daemon recording, as `pneumactl identify` records it: the run's
+    # start document names its file, which `pneumactl identify JOINT --from FILE` fits.
+    (started,) = yield from bps.wait_for([lambda: rig.link.call("record_start", f"identification-{joint}")])
+    recording = started.result()
+
+    def stop():
+        yield from bps.wait_for([lambda: rig.link.call("record_stop", recording["name"])])
+    return (yield from bpp.finalize_wrapper(
+        _recorded(rig, flights, {**meta, "recording": recording["file"], **(md or {})}), stop()))
 
 
 def payload_dithers(rig, md: dict | None = None):
