@@ -22,7 +22,9 @@ disk) loses at most its last chunk: :func:`read` returns everything up to it.
 from __future__ import annotations
 
 import json
+import signal
 import struct
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -204,27 +206,33 @@ def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int,
     ``client`` (a :class:`daemon.client.client.Client`) to ``path``; (messages, messages lost). An
     OSError (a full disk) propagates, the file readable up to its last complete chunk.
     ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second.
-    Ctrl-C (KeyboardInterrupt) ends it early with the file finished, then goes on up."""
+    Ctrl-C ends it early with the file finished, then raises KeyboardInterrupt: in the main
+    thread it is taken between two messages (within half a second), never inside a record's
+    bytes, which would leave a chunk that cannot be read."""
     describe, controller = client.describe(), client.controller()
     sub = client.subscribe((b"state", b"stats", b"event", b"internals", b"contact"))
     time.sleep(0.2)  # let the subscription reach the publisher
+    interrupted = threading.Event()
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, lambda *_: interrupted.set()) if in_main else None
     try:
         with open(path, "wb") as f:
             rec = McapRecording(f, describe, controller)
             start = time.monotonic()
-            try:
-                while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()):
-                    item = sub.receive(0.5)
-                    if item is not None:
-                        rec.write(*item)
-                    if progress is not None:
-                        progress(time.monotonic() - start, rec.messages, sub.lost)
-            except KeyboardInterrupt:  # Ctrl-C: the file finished, whole, up to here
-                rec.finish()
-                raise
+            while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()) \
+                    and not interrupted.is_set():
+                item = sub.receive(0.5)
+                if item is not None:
+                    rec.write(*item)
+                if progress is not None:
+                    progress(time.monotonic() - start, rec.messages, sub.lost)
             rec.finish()
     finally:
+        if in_main:
+            signal.signal(signal.SIGINT, previous)
         sub.close()
+    if interrupted.is_set():
+        raise KeyboardInterrupt
     return rec.messages, sub.lost
 
 
