@@ -211,7 +211,7 @@ def main(argv=None) -> int:
                 merged.setdefault(name, []).append(e)
     print_tables(merged_table(runs), "speed")
     z = np.concatenate(zs)
-    print(f"\nThe daemon's estimator's own 1 sigma against its errors, z = error / sigma over the same frames:\n")
+    print("\nThe daemon's estimator's own 1 sigma against its errors, z = error / sigma over the same frames:\n")
     print("| | " + " | ".join(COLUMNS[:5]) + " |")
     print("|" + "---|" * 6)
     print("| z RMS | " + " | ".join(f"{v:.2f}" for v in np.sqrt(np.mean(z ** 2, axis=0))) + " |")

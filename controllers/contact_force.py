@@ -155,7 +155,7 @@ class ContactEstimator:
         if first is None:
             return False
         levels = to_levels(np.array([*first, math.log(float(frame_pa[region].max())), BETA_PRIOR[0]]))
-        cost = None
+        cost, previous = None, levels
         for _ in range(START_STEPS):
             model, jac = levels_model(levels, px, py)
             error = p - model
