@@ -235,6 +235,25 @@ def test_a_queue_runs_plans_across_two_daemons_into_tiled(tmp_path):
             cycle = np.asarray(run["record"][f"{item['args'][0]}_record_cycle"].read())
             t = np.asarray(run["record"][f"{item['args'][0]}_record_t"].read())
             assert np.all(np.diff(cycle) == 1) and t[-1] - t[0] > 3.0  # every cycle the loop ran, 3 s past the end
+        # A trip while an item runs: the item fails with the daemon's cause, the queue stops with
+        # it (an unattended queue does not go on past a tripped rig), the rig's lease is handed back.
+        manager.queue_clear()
+        manager.item_add(BPlan("path_run", "arm", "translation"))
+        manager.item_add(BPlan("step_response", "muscle", "elbow", 2.0))
+        with Client(**rigs["arm"], timeout=5.0) as arm:
+            manager.queue_start()
+            deadline = time.monotonic() + 120.0
+            while not (arm.status()["state"] == "enabled" and arm.status()["reference_remaining_s"] > 0.0):
+                assert time.monotonic() < deadline, "the path never started"
+                time.sleep(0.05)
+            arm.estop("a test's e-stop in the queue")
+            manager.wait_for_idle(timeout=120)
+            tripped = manager.history_get()["items"][-1]
+            assert tripped["name"] == "path_run" and tripped["result"]["exit_status"] == "failed", tripped["result"]
+            assert "a test's e-stop in the queue" in tripped["result"]["msg"], tripped["result"]["msg"]
+            assert [item["name"] for item in manager.queue_get()["items"]] == ["path_run", "step_response"]
+            status = arm.status()
+            assert status["state"] == "estop" and status["lease_held"] is False, status
         manager.environment_close()
         manager.wait_for_idle(timeout=60)
         manager.close()
