@@ -82,17 +82,21 @@ def _poll(client: Client, show, seen: dict) -> dict:
 
 
 def recording_file(client: Client, name: str) -> str | None:
-    """The file of the daemon's recording ``name`` once it is finished (None if it never appeared).
-    A listing not answered in the client's time is asked again: the recorder answers it after
-    closing the file, late on a loaded PC (beside two CPU hogs, more than 2 s)."""
-    end = time.monotonic() + RECORDING_WAIT_S
+    """The file of the daemon's recording ``name`` once it is finished (None if it never appeared,
+    or stopped growing for ``RECORDING_WAIT_S`` without finishing). A recorder behind its feed (a
+    loaded PC) is waited for as long as it writes. A listing not answered in the client's time is
+    asked again: the recorder answers it after closing the file, late on a loaded PC."""
+    end, written = time.monotonic() + RECORDING_WAIT_S, -1
     while time.monotonic() < end:
         try:
             listing = client.record_list()
         except TimeoutError:
             continue
-        if not any(a["name"] == name for a in listing["active"]) and any(f["name"] == name for f in listing["files"]):
+        active = [a for a in listing["active"] if a["name"] == name]
+        if not active and any(f["name"] == name for f in listing["files"]):
             return f"{listing['directory']}/{name}.mcap"
+        if active and active[0]["messages"] > written:  # still writing: wait on
+            written, end = active[0]["messages"], time.monotonic() + RECORDING_WAIT_S
         time.sleep(POLL_S)
     return None
 

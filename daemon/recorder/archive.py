@@ -3,7 +3,8 @@ the requests that start, stop and list them, and the telemetry they are written 
 
 Every recording is an MCAP file (:class:`daemon.recordings.mcap_log.McapRecording`) in the recording
 directory. A recording ends by request, after its ``seconds``, ``TAIL_S`` after the end of
-the reference it follows, at its size limit, when the disk's free space falls below the
+the reference it follows (on the daemon's clock, by the samples written: a recorder behind its
+feed still records the whole tail), at its size limit, when the disk's free space falls below the
 floor, or at a write error; each end is a ``record`` event saying why, and the file is
 readable up to its last complete chunk whatever the cause. A recording starts with the last
 half second of the state stream (``PREROLL_BATCHES``): what led up to its start.
@@ -43,8 +44,10 @@ class Active:
     writer: McapRecording
     who: str
     started: float  # [s] monotonic
-    until: float = float("inf")  # [s] monotonic: when it ends by time
+    until: float = float("inf")  # [s] monotonic: when it ends by time (record.start's seconds)
     reference: int | None = None  # the reference generation it follows
+    until_t: float = float("inf")  # [s] on the daemon's clock: a reference's recording ends with the
+    # state sample of this time, however far behind the feed the recorder is (a loaded PC)
     stats: dict = field(default_factory=dict)
 
     def summary(self, now: float) -> dict:
@@ -199,11 +202,14 @@ class Archive:
         if not self.active and topic != "event":  # (events: the encoder follows a reference's phase)
             return
         encoded = self.encoder.encode(topic, message)
+        last_t = message["t"][-1] if topic == "state" and message.get("t") else None
         for active in list(self.active.values()):
             try:
                 active.writer.write(topic, message, encoded=encoded)
                 if active.file.tell() >= self.max_bytes:
                     self.end(active, f"it reached the size limit ({self.max_bytes / 1e6:.0f} MB)")
+                elif last_t is not None and last_t >= active.until_t:
+                    self.end(active, "its reference ended")
             except (OSError, ValueError) as exc:
                 self.end(active, f"write error: {getattr(exc, 'strerror', None) or exc}", failed=True)
 
@@ -219,15 +225,15 @@ class Archive:
                 pass
         elif kind == "reference" and event.get("action") == "start" and event.get("record"):
             try:
-                self.start(str(event["record"]), str(event.get("who", "")),
-                           float(event.get("duration_s", 0.0)) + TAIL_S + 10.0,
-                           event.get("generation"))
+                active = self.start(str(event["record"]), str(event.get("who", "")), None, event.get("generation"))
+                # ended by the reference's end event; at the latest 10 s past its planned end
+                active.until_t = float(event.get("t", 0.0)) + float(event.get("duration_s") or 0.0) + TAIL_S + 10.0
             except CommandFailed as exc:
                 self.emit({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})
         elif kind == "reference" and event.get("action") == "end" or kind == "state" and event.get("to") != "enabled":
             for active in self.active.values():
                 if active.reference is not None and (kind == "state" or active.reference == event.get("generation")):
-                    active.until = min(active.until, time.monotonic() + TAIL_S)
+                    active.until_t = min(active.until_t, float(event.get("t", 0.0)) + TAIL_S)
 
     def tick(self, now: float) -> None:
         """Recordings whose time is up end; every second, the disk's free space is checked."""
