@@ -23,17 +23,24 @@ def moving_bottom(step_deg: float, move_s: float):
     return loop, captured, srv, sock, describe, lease
 
 
-def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
-    loop, captured, srv, sock, describe, lease = moving_bottom(5.0, 2.0)
-    loop.run(1500)  # a stats window and then some
-    status = ok(loop, sock, "status")
-    srv.close()
+def rendered(describe: dict, captured, status: dict) -> tuple[View, Console]:
+    """The live view fed every captured telemetry message and ``status``, rendered once onto a
+    recording console: (view, console), for more events and renders after."""
     view = View(describe)
     for topic, message in captured.messages:
         view.take(topic, message)
     view.status = status
     console = Console(record=True, width=140)
     console.print(view.render())
+    return view, console
+
+
+def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
+    loop, captured, srv, sock, describe, lease = moving_bottom(5.0, 2.0)
+    loop.run(1500)  # a stats window and then some
+    status = ok(loop, sock, "status")
+    srv.close()
+    view, console = rendered(describe, captured, status)
     text = console.export_text()
     assert "enabled" in text and "controller pid" in text and "reference move" in text
     assert "lease held" in text
@@ -76,12 +83,7 @@ def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_contro
     safe = dict(zip([o[0] for o in describe["transport"]["outputs"]], loop.io.safe_volts))
     assert bottom["output"] == "safe state" and bottom["u_volts"] is None
     assert bottom["written_volts"] and all(v == safe[ch] for ch, v in bottom["written_volts"].items())
-    view = View(describe)
-    for topic, message in captured.messages:
-        view.take(topic, message)
-    view.status = status
-    console = Console(record=True, width=140)
-    console.print(view.render())
+    _, console = rendered(describe, captured, status)
     text = console.export_text()
     assert "safe state" in text and f"{last_u:+6.2f} V" not in text
     written = "  ".join(f"{name} {v:.2f} V" for name, v in safe.items())
