@@ -2,7 +2,6 @@
 ports, and ZeroMQ peers that drive it a cycle at a time until their reply comes."""
 from __future__ import annotations
 
-import itertools
 import math
 import time
 
@@ -109,19 +108,24 @@ def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, limit_s: float
     """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None
     after ``limit_s`` of wall time: the reply is waited for, however busy the machine, e.g. a
     build in the nice-19 planner beside two CPU hogs; 5000 cycles were too few there).
-    ``each_cycle``, if given, is called after every cycle the exchange runs."""
+    ``each_cycle``, if given, is called after every cycle the exchange runs.
+
+    The virtual clock moves only by the cycles the request needs, not by how fast this
+    machine's processes pass it on: the loop runs its first cycle once the messenger has queued
+    the request for it (or answered it itself: a cycle still runs), and then one cycle per millisecond of real time
+    at most while the reply is on its way (a loaded machine once let 0.1 s of virtual time pass
+    between two requests a test sent 0.5 s apart)."""
     sock.send(payload)
     deadline = time.monotonic() + limit_s
-    for _ in itertools.count():
-        if time.monotonic() > deadline:
-            break
+    rings = tuple(loop.server.rings[name] for name in ("command", "control")) if loop.server is not None else ()
+    while rings and not any(ring.pending() for ring in rings) and not sock.poll(1) and time.monotonic() < deadline:
+        pass
+    while time.monotonic() < deadline:
         loop.run(1)
         if each_cycle is not None:
             each_cycle()
-        if sock.poll(0):
+        if sock.poll(1):
             return msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
-        if _ > 50:
-            sock.poll(1)  # give ZeroMQ's I/O thread real time to deliver
     return None
 
 

@@ -48,6 +48,10 @@ class Ring:
         """Bytes a put may use now (an entry takes its payload plus 12)."""
         return self.capacity - (self._written.value - self._read.value)
 
+    def pending(self) -> bool:
+        """Whether an entry waits to be taken (for a reader that would rather wait than poll)."""
+        return self._read.value != self._written.value
+
     def put(self, tag: int, payload: bytes) -> bool:
         """Queue ``payload`` with ``tag``; False (nothing written) if it does not fit."""
         size = _ENTRY.size + len(payload)
