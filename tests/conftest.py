@@ -1,5 +1,6 @@
 """A session-wide guard: the suite is safe to run on a lab PC where ``pneumad.service`` runs;
-and the long tests scheduled first.
+the long tests scheduled first; and the fast subset (``-m 'not slow'``) spared the import of
+files that are slow as a whole.
 
 Once per session (in the controlling process under pytest-xdist, never in its workers):
 
@@ -125,6 +126,22 @@ def pytest_sessionfinish(session):
     session.config.stash[REPORT] = (notes, problems)
     if problems and session.exitstatus == pytest.ExitCode.OK:
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+WHOLE_FILE_SLOW = "pytestmark = pytest.mark.slow"
+
+
+def pytest_ignore_collect(collection_path, config):
+    """Under ``-m 'not slow'``, a test file marked slow as a whole (a line ``pytestmark =
+    pytest.mark.slow...``) is not imported: every test in it would be deselected, and importing
+    test_bluesky.py alone (Bluesky, ophyd-async, Tiled) costs each xdist worker 5 s. None
+    otherwise: pytest decides."""
+    if " ".join(config.option.markexpr.split()) != "not slow" or collection_path.suffix != ".py":
+        return None
+    if not collection_path.name.startswith("test_"):
+        return None
+    lines = collection_path.read_text().splitlines()
+    return any(line.startswith(WHOLE_FILE_SLOW) for line in lines) or None
 
 
 def pytest_collection_modifyitems(items):

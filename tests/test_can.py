@@ -80,6 +80,7 @@ def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_afte
         stop_peer(nodes[-1])
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_stray_ids_and_short_frames_are_counted_and_the_loop_carries_on():
     channel = group()
     proc = node(channel, "--wrong-id-every", "10", "--short-frame-every", "7")

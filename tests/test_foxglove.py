@@ -177,6 +177,7 @@ def test_a_stalled_client_loses_only_its_own_messages(fox):
     assert stalled_seen and max(gaps) > 0.5e9, "the stalled client lost nothing: it never stalled"
 
 
+@pytest.mark.slow(seconds=5)  # a few seconds: kept out of the fast subset
 def test_a_recording_made_by_the_daemon_has_the_live_streams_channels_and_old_readers_read_it(fox):
     """The same topics, encodings, schema names and schemas as the live stream advertises, and
     recording.load / export / plot (which read the /pneumad/<topic> channels) still work."""

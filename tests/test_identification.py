@@ -87,6 +87,7 @@ def test_the_fit_recovers_the_simulated_plant_within_the_tolerances(joint, facto
         assert abs(miss) <= 2.0 * result.stated_std[name], (name, miss, result.stated_std[name])
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_the_fits_batched_evaluations_are_the_one_by_one_simulations():
     """The fit simulates its experiments side by side as one population and its polish's
     Jacobian columns in one call: what each member gets must be what simulating it alone

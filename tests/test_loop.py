@@ -30,6 +30,7 @@ def safe(loop):
     return list(loop.io.transport.output_volts) == pytest.approx(list(loop.io.safe_volts), abs=1e-3)
 
 
+@pytest.mark.slow(seconds=4)  # a few seconds: kept out of the fast subset
 def test_pid_tracks_the_translation_path():
     loop, captured, _ = enabled_loop()
     after = start_path(loop, trajectory.translation, 15.0)

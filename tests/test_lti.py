@@ -98,6 +98,7 @@ def test_the_lti_controller_requires_its_design_and_knows_no_other_option():
         registry.build("pid", ctx, options={"design": PI})
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_a_saturating_step_does_not_wind_up_the_design_state():
     """The bottom joint's 10 deg step saturates V_MV: with the state held while clamped the
     PI design overshoots little, as the PID with its anti-windup does (about 6 %)."""

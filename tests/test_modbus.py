@@ -47,6 +47,7 @@ def test_pid_tracks_a_move_over_modbus_as_it_does_in_process(framing, least_exch
     assert health.counters["exchanges"] > least_exchanges and health.errors == 0, health
 
 
+@pytest.mark.slow(seconds=4)  # a few seconds: kept out of the fast subset
 def test_a_killed_server_trips_the_loop_with_the_reason_and_a_new_one_recovers_after_reset():
     port = free_tcp_port()
     peers = [peer(port)]
@@ -65,6 +66,7 @@ def test_a_killed_server_trips_the_loop_with_the_reason_and_a_new_one_recovers_a
         stop_peer(peers[-1])
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_exception_replies_are_counted_and_the_loop_carries_on():
     port = free_tcp_port()
     proc = peer(port, "--exception-every", "25")
@@ -79,6 +81,7 @@ def test_exception_replies_are_counted_and_the_loop_carries_on():
         stop_peer(proc)
 
 
+@pytest.mark.slow(seconds=5)  # a few seconds: kept out of the fast subset
 def test_no_server_at_start_is_a_clear_error():
     # The worker retries until the open limit and the error carries its last reason: the limit
     # leaves a busy machine time to start the worker and have its connect refused (two CPU

@@ -264,6 +264,7 @@ def test_path_command_runs_and_abort_holds(daemon):
     assert loop.trajectory_name == "hold"
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_slow_subscriber_never_stalls_the_loop_and_healthy_ones_see_no_gaps(daemon):
     loop, _, srv = daemon
     ctx = zmq.Context.instance()

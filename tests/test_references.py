@@ -80,6 +80,7 @@ def test_a_waypoint_file_reads_as_joint_or_cartesian(tmp_path):
         read_waypoints(bad)
 
 
+@pytest.mark.slow(seconds=4)  # a few seconds: kept out of the fast subset
 def test_a_joint_waypoint_path_is_followed_to_its_last_point(armed):
     loop, captured, sock, lease = armed
     here = [math.degrees(q) for q in loop.reference[0]]
@@ -149,6 +150,7 @@ def test_a_level_the_rig_cannot_hold_is_refused_for_steps_and_set_alike():
     srv.close()
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_a_chirp_on_one_joint_moves_that_joint_and_holds_the_other(armed):
     loop, captured, sock, lease = armed
     start_cycle = loop.cycle

@@ -46,6 +46,7 @@ def test_pid_tracks_a_move_over_the_serial_bridge_as_it_does_in_process(link):
     assert health.counters["crc_errors"] == 0 and health.reads > 2500
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_a_killed_peer_trips_to_the_safe_state_and_a_new_one_recovers_after_reset(link):
     peers = [peer(link)]
     loop, _ = wire_loop("serial", {"port": str(link), "reopen_every_s": 0.1})
@@ -59,6 +60,7 @@ def test_a_killed_peer_trips_to_the_safe_state_and_a_new_one_recovers_after_rese
         stop_peer(peers[-1])
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_corrupted_replies_are_counted_and_the_loop_carries_on(link):
     proc = peer(link, "--corrupt-every", "20")
     try:

@@ -129,6 +129,7 @@ def _wait_for_child(parent: int, marker: str, limit_s: float = 60.0) -> int:
     raise AssertionError(f"no child process of {parent} running {marker}")
 
 
+@pytest.mark.slow(seconds=4)  # a few seconds: kept out of the fast subset
 def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path):
     """systemctl stop and Ctrl-C signal every process of the daemon: the messenger waits for
     the daemon's last events instead of dying first."""
