@@ -100,14 +100,16 @@ def test_a_dither_cut_short_or_a_window_half_seen_is_an_error_not_a_mean():
         payload_routine.window_mean(late, 24.0, "bottom")
 
 
-@pytest.mark.slow(seconds=50)
+@pytest.mark.slow(seconds=25)
 def test_the_dithered_balance_torques_carry_the_payloads_moment():
     """The routine's measurement on the simulated arm (vertical plane, the rig's noise and
     friction), through the loop: each joint's loaded minus unloaded balance torque against
     the payload's true moment, friction (0.27 and 0.22 N m of breakaway) dithered out, to
-    2 mN m (about 2 g of mass; a window that overran the dither's end was up to 5 mN m off)."""
+    2 mN m (about 2 g of mass; a window that overran the dither's end was up to 5 mN m off).
+    One posture, where both joints carry a moment well beyond that tolerance (bench.payload
+    runs them all; two here took the suite's in-process share 55 s)."""
     rig = config.load()
-    targets = payload_routine.postures(rig)[:2]
+    targets = payload_routine.postures(rig)[:1]
     unloaded = measure(rig_text(0.0, (0.0, 0.0)), targets)
     loaded = measure(rig_text(0.15, (20.0, -10.0)), targets)
     for before, after in zip(unloaded, loaded):
