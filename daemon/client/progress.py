@@ -84,9 +84,16 @@ def _poll(client: Client, show, seen: dict) -> dict:
 def recording_file(client: Client, name: str) -> str | None:
     """The file of the daemon's recording ``name`` once it is finished (None if it never appeared,
     or stopped growing for ``RECORDING_WAIT_S`` without finishing). A recorder behind its feed (a
-    loaded PC) is waited for as long as it writes. A listing not answered in the client's time is
-    asked again: the recorder answers it after closing the file, late on a loaded PC."""
-    end, written = time.monotonic() + RECORDING_WAIT_S, -1
+    loaded PC) is waited for as long as it writes, and, before the recording appears, as long as
+    it takes in its feed short of the daemon's time now (a reference's recording starts when the
+    recorder reaches the reference's start, which was before now). A listing not answered in the
+    client's time is asked again: the recorder answers it after closing the file, late on a
+    loaded PC."""
+    try:
+        now_t = client.status()["t"]  # the daemon's clock
+    except TimeoutError:
+        now_t = None
+    end, written, fed = time.monotonic() + RECORDING_WAIT_S, -1, None
     while time.monotonic() < end:
         try:
             listing = client.record_list()
@@ -95,8 +102,11 @@ def recording_file(client: Client, name: str) -> str | None:
         active = [a for a in listing["active"] if a["name"] == name]
         if not active and any(f["name"] == name for f in listing["files"]):
             return f"{listing['directory']}/{name}.mcap"
+        feed_t = listing.get("feed_t")
         if active and active[0]["messages"] > written:  # still writing: wait on
             written, end = active[0]["messages"], time.monotonic() + RECORDING_WAIT_S
+        elif not active and now_t is not None and feed_t is not None and fed != feed_t and feed_t < now_t:
+            fed, end = feed_t, time.monotonic() + RECORDING_WAIT_S  # catching up to where it starts: wait on
         time.sleep(POLL_S)
     return None
 

@@ -77,6 +77,7 @@ class Archive:
         self._handlers = {"record.start": self._start_request, "record.stop": self._stop_request, "record.list": self._list}
         catalog.check_handlers(("recorder",), self._handlers)
         self._preroll: deque[dict] = deque(maxlen=PREROLL_BATCHES)
+        self.feed_t: float | None = None  # [s] the daemon's clock at the last state sample taken in (record.list)
 
     # -- requests (from the messenger) -----------------------------------------------------
     def request(self, body: bytes, who: str) -> bytes:
@@ -123,7 +124,7 @@ class Archive:
         except OSError:
             entries = []
         entries.sort(key=lambda e: e.stat().st_mtime, reverse=True)
-        return {"directory": self.directory, "active": [a.summary(now) for a in self.active.values()],
+        return {"directory": self.directory, "feed_t": self.feed_t, "active": [a.summary(now) for a in self.active.values()],
                 "files": [{"name": e.name[:-5], "bytes": e.stat().st_size, "modified_unix_s": e.stat().st_mtime}
                           for e in entries[:LIST_LIMIT]], "more": max(len(entries) - LIST_LIMIT, 0)}
 
@@ -199,6 +200,8 @@ class Archive:
             self._follow(message)
         elif topic == "state":
             self._preroll.append(message)
+            if message.get("t"):
+                self.feed_t = message["t"][-1]
         if not self.active and topic != "event":  # (events: the encoder follows a reference's phase)
             return
         encoded = self.encoder.encode(topic, message)

@@ -258,7 +258,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("record.stop", "recorder", "end a recording the daemon makes", (*_RECORDING, "cause"), (
         Arg("name", "string", "which (needed when several run)"),), role=OPERATOR,
             errors=(P.BAD_STATE,)),
-    Command("record.list", "recorder", "the daemon's recordings", ("directory", "active", "files", "more"),
+    Command("record.list", "recorder", "the daemon's recordings", ("directory", "feed_t", "active", "files", "more"),
             errors=(P.BAD_STATE,)),
     Command("keys.reload", "messenger", "read the keys' allow-list again", (
         "allowed", "added", "removed", "problems"), role=OPERATOR, errors=(P.BAD_STATE,)),
