@@ -66,8 +66,9 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
                 if line.split()[1] == "set":  # a step: give it the chapter's slowest settling and more
                     time.sleep(2.5)
                     target = float(line.split()[2])
-                    elbow = client.status()["joints"]["elbow"]
-                    assert abs(elbow["angle_deg"] - target) < 0.05 * 45, (line, elbow)
+                    status = client.status()
+                    elbow = status["joints"]["elbow"]
+                    assert abs(elbow["angle_deg"] - target) < 0.05 * 45, (line, elbow, status["state"], status["cause"])
                     assert elbow["stiffness_nm_deg"] == pytest.approx(float(line.split("--stiffness")[1].split()[0]))
             # a stiffness the muscles cannot give is refused with the range they can
             client.acquire_lease()
