@@ -52,15 +52,17 @@ def wires(tmp: str) -> dict[str, Wire]:
 
 
 def start_peer(command: list[str], ready: Callable[[], bool] | None, timeout_s: float = 20.0,
-               priority: int = 0) -> subprocess.Popen:
-    """Start a peer process (at SCHED_FIFO ``priority`` if > 0 and permitted) and wait until
-    ``ready()``."""
+               priority: int = 0, nice: int = 0) -> subprocess.Popen:
+    """Start a peer process (at SCHED_FIFO ``priority`` if > 0, else with ``nice`` added to its
+    niceness, each if permitted) and wait until ``ready()``."""
     def realtime():
-        if priority > 0:
-            try:
+        try:
+            if priority > 0:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            except OSError:
-                pass
+            elif nice:
+                os.nice(nice)
+        except OSError:
+            pass
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=realtime)
     deadline = time.monotonic() + timeout_s
     while ready is not None and not ready():

@@ -25,6 +25,7 @@ from daemon.client.client import Client
 from daemon.testing.ports import free_tcp_port
 from tests.daemons import endpoint_env, private_endpoints, wait_for_own_daemon
 from tests.test_readme_tour import BIN, ROOT
+from tests.wirehelpers import as_device
 
 pytestmark = pytest.mark.slow(seconds=20)
 LOADED = ["--safety", "stale_after_s=1.0", "--safety", "stall_after_s=5.0"]  # after the line's own: these win
@@ -58,7 +59,8 @@ def test_the_readme_wire_lines_run_as_written(wire, tmp_path):
     peer_line, daemon_line = next(pair for pair in wire_pairs() if f"--transport {wire}" in pair[1])
     text = private(peer_line + "\n" + daemon_line, tmp_path)
     (peer_line, daemon_line), ready = text[0].splitlines(), text[1]
-    peer = subprocess.Popen(["bash", "-c", "exec " + peer_line], cwd=tmp_path, stdout=subprocess.DEVNULL)
+    peer = subprocess.Popen(["bash", "-c", "exec " + peer_line], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            preexec_fn=as_device)
     daemon = None
     try:
         deadline = time.monotonic() + 60
