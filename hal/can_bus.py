@@ -46,12 +46,21 @@ class CanOptions:
     output_id: int = 0x200
     input_id: int = 0x180
     open_timeout_s: float = 2.0
+    port: int | None = None  # udp_multicast only: its UDP port (python-can's default, 43113, when unset)
 
     def __post_init__(self):
         require(bool(self.interface), "interface", "must name a python-can interface")
+        require(self.port is None or (self.interface == "udp_multicast" and 0 < self.port < 65536), "port",
+                "is udp_multicast's UDP port (1-65535), for no other interface")
         require(0 <= self.output_id < 0x800 and 0 <= self.input_id < 0x800, "output_id",
                 "ids must be 11-bit (0-0x7FF)")
         require(0 < self.open_timeout_s <= 30, "open_timeout_s", "must be within (0, 30] s")
+
+
+def bus_port(port: int | None) -> dict:
+    """``can.Bus``'s keyword for a udp_multicast port: a group's traffic reaches every socket of
+    the machine on its port (Linux's IP_MULTICAST_ALL), so two buses apart need ports apart."""
+    return {} if port is None else {"port": port}
 
 
 def frame_ids(first: int, channels: int) -> range:
@@ -90,7 +99,7 @@ class CanTransport(Transport):
         """Join the bus and query the peer every 50 ms until it answers."""
         o = self.options
         try:
-            self._bus = can.Bus(interface=o.interface, channel=o.channel)
+            self._bus = can.Bus(interface=o.interface, channel=o.channel, **bus_port(o.port))
         except (can.CanError, OSError, ValueError, ImportError) as exc:
             raise TransportError(f"can: cannot open {o.interface} channel {o.channel}: {exc}") from None
         deadline = time.monotonic() + o.open_timeout_s

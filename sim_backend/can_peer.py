@@ -21,7 +21,7 @@ import sys
 import can
 
 from hal import config
-from hal.can_bus import PER_FRAME, frame_ids, pack
+from hal.can_bus import PER_FRAME, bus_port, frame_ids, pack
 from sim_backend.wired import WiredRig
 
 DEFAULT_GROUP = "239.74.163.2"  # python-can's IPv4 default group for udp_multicast
@@ -75,13 +75,14 @@ def main(argv=None) -> int:
     ap.add_argument("--config", default=None, help="a simulated rig (default: the built-in one)")
     ap.add_argument("--interface", default="udp_multicast")
     ap.add_argument("--channel", default=DEFAULT_GROUP)
+    ap.add_argument("--port", type=int, default=None, help="udp_multicast's UDP port (default: python-can's)")
     ap.add_argument("--output-id", type=lambda s: int(s, 0), default=0x200)
     ap.add_argument("--input-id", type=lambda s: int(s, 0), default=0x180)
     ap.add_argument("--wrong-id-every", type=int, default=0)
     ap.add_argument("--short-frame-every", type=int, default=0)
     args = ap.parse_args(argv)
     rig = config.load(args.config)
-    bus = can.Bus(interface=args.interface, channel=args.channel)
+    bus = can.Bus(interface=args.interface, channel=args.channel, **bus_port(args.port))
     peer = CanPeer(rig, bus, args.output_id, args.input_id, wrong_id_every=args.wrong_id_every,
                    short_frame_every=args.short_frame_every)
     stopping = []

@@ -8,6 +8,7 @@ import threading
 import can
 import pytest
 
+from daemon.testing.ports import free_tcp_port
 from hal import config
 from hal.errors import TransportError
 from sim_backend.can_peer import CanPeer
@@ -22,19 +23,21 @@ from tests.wirehelpers import (
 )
 
 
-def group() -> str:
-    """A multicast group of its own, so nothing else on the machine joins the test's bus."""
-    return f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+def private_bus() -> tuple[str, int]:
+    """A multicast group and a UDP port of its own, so nothing else on the machine joins the
+    test's bus (Linux hands a group's datagrams to every socket on the port: another test's
+    bus on the same port, with another group, would hear this one)."""
+    return f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}", free_tcp_port()
 
 
-def node(channel, *args):
+def node(bus, *args):
     # ready when the host's open() gets its answer: open_timeout_s covers the node's start-up
-    return start_peer("sim_backend.can_peer", "--interface", "udp_multicast", "--channel", channel, *args,
-                      ready=lambda: True)
+    return start_peer("sim_backend.can_peer", "--interface", "udp_multicast", "--channel", bus[0],
+                      "--port", str(bus[1]), *args, ready=lambda: True)
 
 
-def multicast(channel, **more):
-    return {"interface": "udp_multicast", "channel": channel, "open_timeout_s": 20.0, **more}
+def multicast(bus, **more):
+    return {"interface": "udp_multicast", "channel": bus[0], "port": bus[1], "open_timeout_s": 20.0, **more}
 
 
 @pytest.mark.slow
@@ -55,10 +58,10 @@ def test_pid_tracks_a_move_over_the_virtual_bus_in_process():
 
 @pytest.mark.slow
 def test_pid_tracks_a_move_over_udp_multicast_with_the_node_in_its_own_process():
-    channel = group()
-    proc = node(channel)
+    bus = private_bus()
+    proc = node(bus)
     try:
-        health = tracks_like_in_process(wire_loop("can", multicast(channel))[0])
+        health = tracks_like_in_process(wire_loop("can", multicast(bus))[0])
     finally:
         stop_peer(proc)
     assert health.counters["wrong_ids"] == 0 and health.counters["bad_lengths"] == 0
@@ -66,12 +69,12 @@ def test_pid_tracks_a_move_over_udp_multicast_with_the_node_in_its_own_process()
 
 @pytest.mark.slow  # long: kept out of the fast subset
 def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_after_reset():
-    channel = group()
-    nodes = [node(channel)]
-    loop, _ = wire_loop("can", multicast(channel))
+    bus = private_bus()
+    nodes = [node(bus)]
+    loop, _ = wire_loop("can", multicast(bus))
     try:
         cycles, cause = trip_and_recover(loop, lambda: stop_peer(nodes[-1], hard=True),
-                                         lambda: nodes.append(node(channel)),
+                                         lambda: nodes.append(node(bus)),
                                          lambda: loop.clock.now() - loop.snapshot.t < 0.005)
         # the stale limit (RELAXED's) and a few cycles
         assert "stale" in cause and cycles <= RELAXED["stale_after_s"] * 1000 + 20, (cycles, cause)
@@ -82,10 +85,10 @@ def test_a_killed_node_trips_the_loop_on_stale_input_and_a_new_one_recovers_afte
 
 @pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_stray_ids_and_short_frames_are_counted_and_the_loop_carries_on():
-    channel = group()
-    proc = node(channel, "--wrong-id-every", "10", "--short-frame-every", "7")
+    bus = private_bus()
+    proc = node(bus, "--wrong-id-every", "10", "--short-frame-every", "7")
     try:
-        loop, _ = wire_loop("can", multicast(channel))
+        loop, _ = wire_loop("can", multicast(bus))
         move_and_track(loop, duration_s=1.0, tail_s=0.5)
         assert loop.state.value == "enabled", loop.supervisor.cause
         counters = loop.io.transport.health().counters
@@ -97,4 +100,4 @@ def test_stray_ids_and_short_frames_are_counted_and_the_loop_carries_on():
 
 def test_no_node_at_start_is_a_clear_error():
     with pytest.raises(TransportError, match="no answer on udp_multicast"):
-        wire_loop("can", multicast(group(), open_timeout_s=0.5))
+        wire_loop("can", multicast(private_bus(), open_timeout_s=0.5))
