@@ -255,3 +255,20 @@ def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(daemon)
         assert finished(client, again["name"]) and len(mcap_log.read(again["file"]).messages["state"]) > 100
     finally:
         sub.close()
+
+
+def test_a_timed_recording_holds_its_seconds_of_the_daemons_time_when_the_recorder_falls_behind(daemon):
+    """``record.start --seconds 1`` with the recorder held up for 2 s right after (as a loaded PC
+    holds a nice-5 process): it catches up and records 1 s of the daemon's samples from its start,
+    not 1 s of its own time (which had passed while it was held: the recording ended at once)."""
+    daemon, _, client = daemon
+    started = client.record_start("held-up", seconds=1.0)
+    pid = recorder_pid(daemon)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(2.0)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    samples = mcap_log.read(finished(client, started["name"])).messages["state"]
+    t = [s["t"] for s in samples]
+    assert t[-1] - t[0] >= 1.0 and all(b > a for a, b in zip(t, t[1:])), (t[0], t[-1])

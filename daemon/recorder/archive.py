@@ -2,9 +2,9 @@
 the requests that start, stop and list them, and the telemetry they are written from.
 
 Every recording is an MCAP file (:class:`daemon.recordings.mcap_log.McapRecording`) in the recording
-directory. A recording ends by request, after its ``seconds``, ``TAIL_S`` after the end of
-the reference it follows (on the daemon's clock, by the samples written: a recorder behind its
-feed still records the whole tail), at its size limit, when the disk's free space falls below the
+directory. A recording ends by request, after its ``seconds`` or ``TAIL_S`` after the end of
+the reference it follows (both on the daemon's clock, by the samples written: a recorder behind
+its feed still records all of them), at its size limit, when the disk's free space falls below the
 floor, or at a write error; each end is a ``record`` event saying why, and the file is
 readable up to its last complete chunk whatever the cause. A recording starts with the last
 half second of the state stream (``PREROLL_BATCHES``): what led up to its start.
@@ -32,6 +32,7 @@ NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,79}$")
 LIST_LIMIT = 100  # files record.list shows, newest first
 PREROLL_BATCHES = 50  # state batches (10 cycles each) a new recording starts with: 0.5 s before its start
 DISK_CHECK_S = 1.0
+FEED_LOST_S = 5.0  # a timed recording whose feed stopped this long ends by the recorder's clock
 
 
 @dataclass
@@ -44,21 +45,26 @@ class Active:
     writer: McapRecording
     who: str
     started: float  # [s] monotonic
-    until: float = float("inf")  # [s] monotonic: when it ends by time (record.start's seconds)
+    t0: float | None = None  # [s] the daemon's clock at its start (the feed's last sample, or its next one)
+    seconds: float | None = None  # record.start's seconds: its length on the daemon's clock (None: until stopped)
     reference: int | None = None  # the reference generation it follows
-    until_t: float = float("inf")  # [s] on the daemon's clock: a reference's recording ends with the
-    # state sample of this time, however far behind the feed the recorder is (a loaded PC)
+    until_t: float = float("inf")  # [s] on the daemon's clock: it ends with the state sample of this
+    # time, however far behind the feed the recorder is (a loaded PC): t0 + seconds, or a reference's end
     stats: dict = field(default_factory=dict)
 
-    def summary(self, now: float) -> dict:
+    def summary(self, now: float, feed_t: float | None) -> dict:
+        """``seconds``: recorded so far, and ``ends_in_s``, both on the daemon's clock (by the samples
+        taken in; before the first, none recorded)."""
         try:
             size = self.file.tell()
         except (OSError, ValueError):
             size = None
-        return {"name": self.name, "file": self.path, "who": self.who, "seconds": now - self.started,
+        by_feed = self.t0 is not None and feed_t is not None
+        so_far = feed_t - self.t0 if by_feed else 0.0
+        ends_in = None if self.seconds is None else max(self.until_t - feed_t, 0.0) if by_feed else self.seconds
+        return {"name": self.name, "file": self.path, "who": self.who, "seconds": so_far,
                 "messages": self.writer.messages, "gaps": self.writer.gaps, "bytes": size,
-                "follows_reference": self.reference is not None,
-                "ends_in_s": None if self.until == float("inf") else max(self.until - now, 0.0)}
+                "follows_reference": self.reference is not None, "ends_in_s": ends_in}
 
 
 class Archive:
@@ -78,6 +84,8 @@ class Archive:
         catalog.check_handlers(("recorder",), self._handlers)
         self._preroll: deque[dict] = deque(maxlen=PREROLL_BATCHES)
         self.feed_t: float | None = None  # [s] the daemon's clock at the last state sample taken in (record.list)
+        self._fed_at = time.monotonic()  # [s] when it came (or the recorder started: a feed that is
+        #                                  late to begin is not one that stopped)
 
     # -- requests (from the messenger) -----------------------------------------------------
     def request(self, body: bytes, who: str) -> bytes:
@@ -102,7 +110,7 @@ class Archive:
             raise bad_args("a name is 1-80 letters, digits, '.', '_' or '-', starting with a letter or digit", "name")
         seconds = args.get("seconds")
         active = self.start(name or f"{time.strftime('%Y%m%d-%H%M%S')}-record", who, seconds)
-        return active.summary(time.monotonic())
+        return active.summary(time.monotonic(), self.feed_t)
 
     def _stop_request(self, args: dict, who: str) -> dict:
         name = args.get("name")
@@ -124,7 +132,7 @@ class Archive:
         except OSError:
             entries = []
         entries.sort(key=lambda e: e.stat().st_mtime, reverse=True)
-        return {"directory": self.directory, "feed_t": self.feed_t, "active": [a.summary(now) for a in self.active.values()],
+        return {"directory": self.directory, "feed_t": self.feed_t, "active": [a.summary(now, self.feed_t) for a in self.active.values()],
                 "files": [{"name": e.name[:-5], "bytes": e.stat().st_size, "modified_unix_s": e.stat().st_mtime}
                           for e in entries[:LIST_LIMIT]], "more": max(len(entries) - LIST_LIMIT, 0)}
 
@@ -133,8 +141,9 @@ class Archive:
         return os.path.join(self.directory, name + ".mcap")
 
     def start(self, name: str, who: str, seconds: float | None = None, reference: int | None = None) -> Active:
-        """Open a new recording (a taken name gets a -2, -3 ... suffix), ``seconds`` [s] long from
-        when its file is open (None: until stopped); CommandFailed if it cannot be."""
+        """Open a new recording (a taken name gets a -2, -3 ... suffix), ``seconds`` [s] long on the
+        daemon's clock from the last sample taken in when its file is open, or the first to come
+        (None: until stopped); CommandFailed if it cannot be."""
         if len(self.active) >= MAX_ACTIVE:
             raise CommandFailed(P.BAD_STATE, f"{MAX_ACTIVE} recordings are running already: stop one first",
                                 {"reason": "recording"})
@@ -154,8 +163,9 @@ class Archive:
             raise CommandFailed(P.BAD_STATE, f"cannot record to {self.directory}: {exc.strerror or exc}",
                                 {"reason": "recording"}) from None
         started = time.monotonic()
-        active = Active(name, self._path(name), f, writer, who, started,
-                        float("inf") if seconds is None else started + seconds, reference)
+        active = Active(name, self._path(name), f, writer, who, started, self.feed_t, seconds, reference)
+        if seconds is not None and self.feed_t is not None:
+            active.until_t = self.feed_t + seconds  # (else from the first sample to come: message())
         for message in self._preroll:  # what led up to it
             writer.write("state", message)
         self.active[name] = active
@@ -166,7 +176,7 @@ class Archive:
     def end(self, active: Active, cause: str, failed: bool = False) -> dict:
         """Close a recording; its summary (also an event)."""
         self.active.pop(active.name, None)
-        summary = active.summary(time.monotonic())
+        summary = active.summary(time.monotonic(), self.feed_t)
         try:
             active.writer.finish()
         except (OSError, ValueError) as exc:
@@ -201,7 +211,10 @@ class Archive:
         elif topic == "state":
             self._preroll.append(message)
             if message.get("t"):
-                self.feed_t = message["t"][-1]
+                self.feed_t, self._fed_at = message["t"][-1], time.monotonic()
+                for active in self.active.values():
+                    if active.t0 is None and active.seconds is not None:  # started before any sample came
+                        active.t0, active.until_t = message["t"][0], message["t"][0] + active.seconds
         if not self.active and topic != "event":  # (events: the encoder follows a reference's phase)
             return
         encoded = self.encoder.encode(topic, message)
@@ -212,7 +225,7 @@ class Archive:
                 if active.file.tell() >= self.max_bytes:
                     self.end(active, f"it reached the size limit ({self.max_bytes / 1e6:.0f} MB)")
                 elif last_t is not None and last_t >= active.until_t:
-                    self.end(active, "its reference ended")
+                    self.end(active, "its reference ended" if active.reference is not None else "its time was up")
             except (OSError, ValueError) as exc:
                 self.end(active, f"write error: {getattr(exc, 'strerror', None) or exc}", failed=True)
 
@@ -240,8 +253,9 @@ class Archive:
 
     def tick(self, now: float) -> None:
         """Recordings whose time is up end; every second, the disk's free space is checked."""
-        for active in [a for a in self.active.values() if now >= a.until]:
-            self.end(active, "its reference ended" if active.reference is not None else "its time was up")
+        if now - self._fed_at >= FEED_LOST_S:  # no samples to end it by: its length on the recorder's clock
+            for active in [a for a in self.active.values() if a.seconds is not None and now - a.started >= a.seconds]:
+                self.end(active, f"its time was up (no telemetry from the daemon for {FEED_LOST_S:g} s or more)")
         if self.active and now - self._disk_checked >= DISK_CHECK_S:
             self._disk_checked = now
             try:
