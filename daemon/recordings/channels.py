@@ -111,7 +111,8 @@ def _stamp(t: float) -> Timestamp:
     return Timestamp(max(int(whole), 0), min(int(round((t - whole) * 1e9)), 999_999_999))
 
 
-def _dumps(message: dict) -> bytes:
+def json_bytes(message: dict) -> bytes:
+    """A JSON channel's message, compact (every JSON channel of a recording and of the live stream)."""
     return json.dumps(message, allow_nan=True, separators=(",", ":")).encode()
 
 
@@ -156,7 +157,7 @@ class Frames:
 
     def _tracking(self, m: dict, i: int) -> bytes:
         t, q, r, w = m["t"][i], m["angle_rad"][i], m["setpoint_rad"][i], m["velocity_rad_s"][i]
-        return _dumps({"t": t, "cycle": m["cycle"][i], "mode": m["mode"][i], "phase": self._phase(t),
+        return json_bytes({"t": t, "cycle": m["cycle"][i], "mode": m["mode"][i], "phase": self._phase(t),
                        "joints": {name: {"angle_deg": math.degrees(q[j]), "setpoint_deg": math.degrees(r[j]),
                                          "error_deg": math.degrees(r[j] - q[j]), "velocity_deg_s": math.degrees(w[j])}
                                   for j, name in enumerate(self.joints)}})
@@ -166,19 +167,19 @@ class Frames:
         joints: dict[str, dict] = {name: {} for name in self.joints}
         for joint, name, k, low, high in self._commands:
             joints[joint].update({name: None if safe else u[k], f"{name}_min": low, f"{name}_max": high})
-        return _dumps({"t": m["t"][i], "cycle": m["cycle"][i], "output": SAFE_STATE if safe else "controller",
+        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "output": SAFE_STATE if safe else "controller",
                        "joints": joints, "written_volts": dict(zip(self.outputs, m["out_volts"][i]))})
 
     def _pressures(self, m: dict, i: int) -> bytes:
         ph, pr = m["p_head_pa"][i], m["p_rod_pa"][i]
-        return _dumps({"t": m["t"][i], "cycle": m["cycle"][i], "joints": {
+        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "joints": {
             name: {"p_head_kpa": ph[j] / 1e3, "p_rod_kpa": pr[j] / 1e3} for j, name in enumerate(self.joints)}})
 
     def _tip_position(self, m: dict, i: int) -> bytes | None:
         if self._links is None:
             return None
         (x, y), (sx, sy) = self._tip(m["angle_rad"][i]), self._tip(m["setpoint_rad"][i])
-        return _dumps({"t": m["t"][i], "cycle": m["cycle"][i], "x_mm": x, "y_mm": y,
+        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "x_mm": x, "y_mm": y,
                        "setpoint_x_mm": sx, "setpoint_y_mm": sy})
 
     def _tip(self, q) -> tuple[float, float]:
@@ -193,18 +194,18 @@ class Frames:
     def internals(self, m: dict) -> list[tuple[str, int, bytes]]:
         signals = {name: dict(zip(self.joints, values)) for name, values in m.get("signals", {}).items()}
         units = signal_units(self.describe, m.get("controller", ""))
-        return [(CONTROLLER, ns(m["t"]), _dumps({"t": m["t"], "cycle": m.get("cycle"), "controller": m.get("controller"),
+        return [(CONTROLLER, ns(m["t"]), json_bytes({"t": m["t"], "cycle": m.get("cycle"), "controller": m.get("controller"),
                                                  "signals": signals, "units": {s: units.get(s, "-") for s in signals}}))]
 
     def stats(self, m: dict) -> list[tuple[str, int, bytes]]:
         t = m.get("t", 0.0)
-        return [(LOOP, ns(t), _dumps({"t": t, "cycles": m.get("cycles"), "overruns": m.get("overruns"),
+        return [(LOOP, ns(t), json_bytes({"t": t, "cycles": m.get("cycles"), "overruns": m.get("overruns"),
                                       "latency_us": m.get("latency_us", {}),
                                       "compute_us": m.get("compute_us", {}).get("total", {})}))]
 
     def contact(self, m: dict) -> list[tuple[str, int, bytes]]:
         t = m.get("t", m.get("frame_t", 0.0))
-        return [(CONTACT, ns(t), _dumps({**m, "t": t}))]
+        return [(CONTACT, ns(t), json_bytes({**m, "t": t}))]
 
     def event(self, m: dict) -> list[tuple[str, int, bytes]]:
         """A Log line and an Event: instantaneous, but a reference's end spans from its start."""

@@ -34,7 +34,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from daemon.recordings.channels import Frames, json_schemas, ns, protobuf_schemas, schema_name
+from daemon.recordings.channels import Frames, json_bytes, json_schemas, ns, protobuf_schemas, schema_name
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
@@ -126,16 +126,12 @@ class TelemetryEncoder:
         out = [(name, stamp, data, 0) for name, stamp, data in self._frames.of(topic, message)]
         if topic == "state":
             for row in state_samples(message, self.joints, self._outputs, self._fields):
-                out.append((STATE_CHANNEL, ns(row["t"]), _json(row), row["cycle"]))
+                out.append((STATE_CHANNEL, ns(row["t"]), json_bytes(row), row["cycle"]))
                 self._last_t = row["t"]
         else:
             self._last_t = message.get("t", self._last_t)
-            out.append((channel(topic), ns(self._last_t), _json(message), 0))
+            out.append((channel(topic), ns(self._last_t), json_bytes(message), 0))
         return out
-
-
-def _json(message: dict) -> bytes:
-    return json.dumps(message, allow_nan=True).encode()
 
 
 STATE_CHANNEL = channel("state")
@@ -185,7 +181,7 @@ class McapRecording:
             missing = lost or seq - self._last_seq[topic] - 1
             self.gaps += missing
             gap = {"topic": topic, "missing": missing, "after_seq": self._last_seq.get(topic)}
-            self._add(channel("gap"), self._last_stamp, _json(gap), 0)
+            self._add(channel("gap"), self._last_stamp, json_bytes(gap), 0)
         if seq is not None:
             self._last_seq[topic] = seq
         for name, stamp, data, sequence in self.encoder.encode(topic, message) if encoded is None else encoded:
