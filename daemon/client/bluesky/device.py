@@ -47,6 +47,10 @@ STILL_DEG_S = 2.0  # ... slower than this [deg/s] ...
 SETTLED_FOR_S = 0.3  # ... for this long [s]
 SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
 POLL_S = 0.05
+LEASE_TTL_S = 5.0  # the run's lease [s]: a RunEngine's process (plans, callbacks, a Tiled writer) is busy
+#                    enough that, beside two CPU hogs, its renewals once missed the rig file's 2 s and the
+#                    arm tripped mid-plan; a client that dies leaves the arm held this long before the
+#                    rig file's unleased action
 
 
 class _StatusBackend(SoftSignalBackend):
@@ -183,7 +187,7 @@ class PneumadRig(StandardReadable):
         await super().stage()
         client = self.link.client
         if client.lease is None:
-            await self.link.call("acquire_lease")
+            await self.link.call("acquire_lease", LEASE_TTL_S)
             client.keep_lease()
         if (await self.link.call("status"))["state"] != "enabled":
             await self.link.call("enable")
