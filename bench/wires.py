@@ -55,7 +55,7 @@ def start_peer(command: list[str], ready: Callable[[], bool] | None, timeout_s: 
                priority: int = 0, nice: int = 0) -> subprocess.Popen:
     """Start a peer process (at SCHED_FIFO ``priority`` if > 0, else with ``nice`` added to its
     niceness, each if permitted) and wait until ``ready()``."""
-    def realtime():
+    def scheduling():
         try:
             if priority > 0:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -63,7 +63,7 @@ def start_peer(command: list[str], ready: Callable[[], bool] | None, timeout_s: 
                 os.nice(nice)
         except OSError:
             pass
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=realtime)
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=scheduling)
     deadline = time.monotonic() + timeout_s
     while ready is not None and not ready():
         if proc.poll() is not None or time.monotonic() > deadline:

@@ -8,26 +8,19 @@ import threading
 import can
 import pytest
 
-from daemon.testing.ports import free_tcp_port
 from hal import config
 from hal.errors import TransportError
 from sim_backend.can_peer import CanPeer
 from tests.wirehelpers import (
     RELAXED,
     move_and_track,
+    private_bus,
     start_peer,
     stop_peer,
     tracks_like_in_process,
     trip_and_recover,
     wire_loop,
 )
-
-
-def private_bus() -> tuple[str, int]:
-    """A multicast group and a UDP port of its own, so nothing else on the machine joins the
-    test's bus (Linux hands a group's datagrams to every socket on the port: another test's
-    bus on the same port, with another group, would hear this one)."""
-    return f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}", free_tcp_port()
 
 
 def node(bus, *args):

@@ -12,7 +12,6 @@ latency (`pneumad latency`, bench.transport_cost measure that)."""
 from __future__ import annotations
 
 import os
-import random
 import re
 import signal
 import subprocess
@@ -25,7 +24,7 @@ from daemon.client.client import Client
 from daemon.testing.ports import free_tcp_port
 from tests.daemons import endpoint_env, private_endpoints, wait_for_own_daemon
 from tests.test_readme_tour import BIN, ROOT
-from tests.wirehelpers import as_device
+from tests.wirehelpers import as_device, private_bus
 
 pytestmark = pytest.mark.slow(seconds=20)
 LOADED = ["--safety", "stale_after_s=1.0", "--safety", "stall_after_s=5.0"]  # after the line's own: these win
@@ -44,14 +43,15 @@ def wire_pairs() -> list[tuple[str, str]]:
     return list(zip(peers, daemons))
 
 
-def private(line: str, tmp_path) -> tuple[str, object]:
-    """The line with the wire's address made the test's own, and what tells the peer is up."""
+def private(line: str, tmp_path) -> tuple[str, object, int]:
+    """The line with the wire's address made the test's own, what tells the peer is up, and the
+    CAN bus's UDP port (the README's lines use python-can's default: added by the test)."""
     link = str(tmp_path / "bridge")
     port = str(free_tcp_port())
-    group = f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+    group, bus_port = private_bus()
     line = line.replace("/tmp/pneumad-bridge", link).replace("5020", port)
     line = re.sub(r"239\.74\.163\.2", group, line)
-    return line, {"serial": lambda: os.path.exists(link), "modbus": lambda: listening(int(port))}
+    return line, {"serial": lambda: os.path.exists(link), "modbus": lambda: listening(int(port))}, bus_port
 
 
 @pytest.mark.parametrize("wire", ["serial", "modbus", "can"])
@@ -59,10 +59,9 @@ def test_the_readme_wire_lines_run_as_written(wire, tmp_path):
     peer_line, daemon_line = next(pair for pair in wire_pairs() if f"--transport {wire}" in pair[1])
     text = private(peer_line + "\n" + daemon_line, tmp_path)
     (peer_line, daemon_line), ready = text[0].splitlines(), text[1]
-    bus_port = []  # a CAN bus's UDP port of its own too (tests/test_can.py's private_bus says why)
+    bus_port = []  # a CAN bus's UDP port of its own too (tests/wirehelpers.private_bus says why)
     if wire == "can":
-        port = free_tcp_port()
-        peer_line, bus_port = f"{peer_line} --port {port}", ["--transport-option", f"port={port}"]
+        peer_line, bus_port = f"{peer_line} --port {text[2]}", ["--transport-option", f"port={text[2]}"]
     peer = subprocess.Popen(["bash", "-c", "exec " + peer_line], cwd=tmp_path, stdout=subprocess.DEVNULL,
                             preexec_fn=as_device)
     daemon = None

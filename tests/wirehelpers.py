@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import math
 import os
+import random
 import subprocess
 import sys
 import time
@@ -14,6 +15,7 @@ from bench.wires import stop_peer  # noqa: F401  (the tests stop peers through h
 from controllers import trajectory
 from daemon.loop.cycle import ControlLoop
 from daemon.testing.loop import Captured
+from daemon.testing.ports import free_tcp_port
 
 # A shared, noisy test machine runs this loop without real-time priority, and stalls of tens
 # (under load, hundreds) of milliseconds happen. A pipelined wire's sample dates from the
@@ -34,6 +36,13 @@ def start_peer(module: str, *args: str, ready) -> subprocess.Popen:
     1 kHz requests and the arm tripped on stale input: the machine's doing, not the daemon's.
     It waits on its socket between frames, so it takes no more than a device's share."""
     return wires.start_peer([sys.executable, "-m", module, *args], ready, nice=PEER_NICE)
+
+
+def private_bus() -> tuple[str, int]:
+    """A udp_multicast CAN bus of the test's own: a group and a UDP port nobody else uses (Linux
+    hands a group's datagrams to every socket on the port: another test's bus on the same port,
+    with another group, would hear this one)."""
+    return f"239.74.{random.randrange(1, 255)}.{random.randrange(1, 255)}", free_tcp_port()
 
 
 def as_device() -> None:

@@ -52,7 +52,7 @@ class Active:
     # time, however far behind the feed the recorder is (a loaded PC): t0 + seconds, or a reference's end
     stats: dict = field(default_factory=dict)
 
-    def summary(self, now: float, feed_t: float | None) -> dict:
+    def summary(self, feed_t: float | None) -> dict:
         """``seconds``: recorded so far, and ``ends_in_s``, both on the daemon's clock (by the samples
         taken in; before the first, none recorded)."""
         try:
@@ -110,7 +110,7 @@ class Archive:
             raise bad_args("a name is 1-80 letters, digits, '.', '_' or '-', starting with a letter or digit", "name")
         seconds = args.get("seconds")
         active = self.start(name or f"{time.strftime('%Y%m%d-%H%M%S')}-record", who, seconds)
-        return active.summary(time.monotonic(), self.feed_t)
+        return active.summary(self.feed_t)
 
     def _stop_request(self, args: dict, who: str) -> dict:
         name = args.get("name")
@@ -126,13 +126,13 @@ class Archive:
         return self.end(self.active[name], f"record.stop from {who}")
 
     def _list(self, args: dict, who: str) -> dict:
-        now = time.monotonic()
         try:
             entries = [e for e in os.scandir(self.directory) if e.name.endswith(".mcap") and e.is_file()]
         except OSError:
             entries = []
         entries.sort(key=lambda e: e.stat().st_mtime, reverse=True)
-        return {"directory": self.directory, "feed_t": self.feed_t, "active": [a.summary(now, self.feed_t) for a in self.active.values()],
+        return {"directory": self.directory, "feed_t": self.feed_t,
+                "active": [a.summary(self.feed_t) for a in self.active.values()],
                 "files": [{"name": e.name[:-5], "bytes": e.stat().st_size, "modified_unix_s": e.stat().st_mtime}
                           for e in entries[:LIST_LIMIT]], "more": max(len(entries) - LIST_LIMIT, 0)}
 
@@ -176,7 +176,7 @@ class Archive:
     def end(self, active: Active, cause: str, failed: bool = False) -> dict:
         """Close a recording; its summary (also an event)."""
         self.active.pop(active.name, None)
-        summary = active.summary(time.monotonic(), self.feed_t)
+        summary = active.summary(self.feed_t)
         try:
             active.writer.finish()
         except (OSError, ValueError) as exc:
@@ -206,19 +206,19 @@ class Archive:
             message = msgpack.unpackb(body, raw=False)
         except Exception:
             return  # only the messenger sends these
+        last_t = message["t"][-1] if topic == "state" and message.get("t") else None
         if topic == "event":
             self._follow(message)
         elif topic == "state":
             self._preroll.append(message)
-            if message.get("t"):
-                self.feed_t, self._fed_at = message["t"][-1], time.monotonic()
+            if last_t is not None:
+                self.feed_t, self._fed_at = last_t, time.monotonic()
                 for active in self.active.values():
                     if active.t0 is None and active.seconds is not None:  # started before any sample came
                         active.t0, active.until_t = message["t"][0], message["t"][0] + active.seconds
         if not self.active and topic != "event":  # (events: the encoder follows a reference's phase)
             return
         encoded = self.encoder.encode(topic, message)
-        last_t = message["t"][-1] if topic == "state" and message.get("t") else None
         for active in list(self.active.values()):
             try:
                 active.writer.write(topic, message, encoded=encoded)

@@ -158,9 +158,10 @@ class Frames:
     def _tracking(self, m: dict, i: int) -> bytes:
         t, q, r, w = m["t"][i], m["angle_rad"][i], m["setpoint_rad"][i], m["velocity_rad_s"][i]
         return json_bytes({"t": t, "cycle": m["cycle"][i], "mode": m["mode"][i], "phase": self._phase(t),
-                       "joints": {name: {"angle_deg": math.degrees(q[j]), "setpoint_deg": math.degrees(r[j]),
-                                         "error_deg": math.degrees(r[j] - q[j]), "velocity_deg_s": math.degrees(w[j])}
-                                  for j, name in enumerate(self.joints)}})
+                           "joints": {name: {"angle_deg": math.degrees(q[j]), "setpoint_deg": math.degrees(r[j]),
+                                             "error_deg": math.degrees(r[j] - q[j]),
+                                             "velocity_deg_s": math.degrees(w[j])}
+                                      for j, name in enumerate(self.joints)}})
 
     def _commands_in_force(self, m: dict, i: int) -> bytes:
         safe, u = m["mode"][i] != "enabled", m["u_volts"][i]  # outside enabled the safe state is written
@@ -168,7 +169,7 @@ class Frames:
         for joint, name, k, low, high in self._commands:
             joints[joint].update({name: None if safe else u[k], f"{name}_min": low, f"{name}_max": high})
         return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "output": SAFE_STATE if safe else "controller",
-                       "joints": joints, "written_volts": dict(zip(self.outputs, m["out_volts"][i]))})
+                           "joints": joints, "written_volts": dict(zip(self.outputs, m["out_volts"][i]))})
 
     def _pressures(self, m: dict, i: int) -> bytes:
         ph, pr = m["p_head_pa"][i], m["p_rod_pa"][i]
@@ -180,7 +181,7 @@ class Frames:
             return None
         (x, y), (sx, sy) = self._tip(m["angle_rad"][i]), self._tip(m["setpoint_rad"][i])
         return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "x_mm": x, "y_mm": y,
-                       "setpoint_x_mm": sx, "setpoint_y_mm": sy})
+                           "setpoint_x_mm": sx, "setpoint_y_mm": sy})
 
     def _tip(self, q) -> tuple[float, float]:
         (l1, l2), a = self._links, q[0] + q[1]
@@ -194,14 +195,15 @@ class Frames:
     def internals(self, m: dict) -> list[tuple[str, int, bytes]]:
         signals = {name: dict(zip(self.joints, values)) for name, values in m.get("signals", {}).items()}
         units = signal_units(self.describe, m.get("controller", ""))
-        return [(CONTROLLER, ns(m["t"]), json_bytes({"t": m["t"], "cycle": m.get("cycle"), "controller": m.get("controller"),
-                                                 "signals": signals, "units": {s: units.get(s, "-") for s in signals}}))]
+        return [(CONTROLLER, ns(m["t"]), json_bytes({"t": m["t"], "cycle": m.get("cycle"),
+                                                     "controller": m.get("controller"), "signals": signals,
+                                                     "units": {s: units.get(s, "-") for s in signals}}))]
 
     def stats(self, m: dict) -> list[tuple[str, int, bytes]]:
         t = m.get("t", 0.0)
         return [(LOOP, ns(t), json_bytes({"t": t, "cycles": m.get("cycles"), "overruns": m.get("overruns"),
-                                      "latency_us": m.get("latency_us", {}),
-                                      "compute_us": m.get("compute_us", {}).get("total", {})}))]
+                                          "latency_us": m.get("latency_us", {}),
+                                          "compute_us": m.get("compute_us", {}).get("total", {})}))]
 
     def contact(self, m: dict) -> list[tuple[str, int, bytes]]:
         t = m.get("t", m.get("frame_t", 0.0))

@@ -112,9 +112,9 @@ def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, limit_s: float
 
     The virtual clock moves only by the cycles the request needs, not by how fast this
     machine's processes pass it on: the loop runs its first cycle once the messenger has queued
-    the request for it (or answered it itself: a cycle still runs), and then one cycle per millisecond of real time
-    at most while the reply is on its way (a loaded machine once let 0.1 s of virtual time pass
-    between two requests a test sent 0.5 s apart)."""
+    the request for it (or answered it itself: a cycle still runs), and then one cycle per
+    millisecond of real time at most while the reply is on its way (a loaded machine once let
+    0.1 s of virtual time pass between two requests a test sent 0.5 s apart)."""
     sock.send(payload)
     deadline = time.monotonic() + limit_s
     rings = tuple(loop.server.rings[name] for name in ("command", "control")) if loop.server is not None else ()
