@@ -205,3 +205,44 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
     moved = math.degrees(data["bottom.angle_rad"][-1] - data["bottom.angle_rad"][0])
     assert abs(moved - 5.0) < 0.5  # the step settled in the recording
     assert (tmp_path / "step-joints.png").stat().st_size > 10_000
+
+
+def _strict(token: str):
+    raise ValueError(f"{token} is not JSON (RFC 8259): a viewer's JSON.parse rejects it")
+
+
+def test_a_muscle_rigs_recording_is_strict_json_that_validates_and_reads_back_nan(tmp_path):
+    """The muscle joint takes no V_MV and the rig has no force sensor: those numbers are NaN in
+    telemetry. Every JSON message of the recording still parses strictly (Foxglove parses with
+    JSON.parse: a NaN token made the whole channel unreadable) and validates against its
+    channel's schema, and the readers get NaN back, not None."""
+    from importlib import resources
+
+    loop, captured, srv = make_loop(resources.files("hal").joinpath("sim_muscle.toml").read_text(), server=True,
+                                    controller="muscle_eq")
+    sock = dealer(srv)
+    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
+    start = len(captured.messages)
+    loop.enable()
+    loop.set_trajectory(JointMove(list(loop.angles), [loop.angles[0] + math.radians(10.0)], 0.5), "move")
+    loop.run(1500)
+    srv.close()
+    path = tmp_path / "muscle.mcap"
+    write(path, (describe, controller, captured.messages[start:]))
+    checked = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages():
+            if channel.message_encoding != "json":
+                continue
+            decoded = json.loads(message.data, parse_constant=_strict)
+            if channel.topic not in checked:
+                checked[channel.topic] = jsonschema.validators.validator_for(json.loads(schema.data))(json.loads(schema.data))
+            checked[channel.topic].validate(decoded)
+    assert {"/pneumad/state", "/pneumad/commands", "/pneumad/tracking"} <= set(checked)
+    samples = recording.open_run(path).samples
+    assert len(samples) >= 1500
+    assert all(math.isnan(s["joints"]["elbow"]["u_volts"]) and math.isnan(s["force_n"]) for s in samples)
+    assert all(isinstance(s["joints"]["elbow"]["angle_rad"], float) for s in samples)
+    data = recording.load(path)
+    assert np.isnan(data["elbow.u_volts"]).all() and np.isfinite(data["elbow.angle_rad"]).all()

@@ -39,7 +39,8 @@ ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warn
 WARNINGS = ("tracking", "experiment", "unleased", "messenger", "recorder")
 _PROTOBUF = {JOINT_STATES: JointStates, LOG: Log, EVENTS: Event}
 
-_NUMBER = {"type": "number"}
+_NUMBER = {"type": ["number", "null"]}  # null: not finite, or not measured (json_bytes)
+_TIME = {"type": "number"}  # [s] on the daemon's clock
 
 
 def _obj(properties: dict, title: str = "") -> dict:
@@ -56,7 +57,7 @@ def json_schemas(describe: dict) -> dict[str, dict]:
     joints = [j["name"] for j in describe["joints"]]
     per_joint = lambda fields: _obj({j: fields(j) for j in joints})  # noqa: E731
     commands = {j: [c["name"] for c in describe.get("command_interfaces", []) if c["joint"] == j] for j in joints}
-    stamp = {"t": _NUMBER, "cycle": {"type": "integer"}}
+    stamp = {"t": _TIME, "cycle": {"type": "integer"}}
     figures = _numbers("p50", "p99", "p99.9", "max")
     return {
         TRACKING: _obj({**stamp, "mode": {"type": "string"}, "phase": {"type": "string"},
@@ -76,9 +77,9 @@ def json_schemas(describe: dict) -> dict[str, dict]:
         CONTROLLER: _obj({**stamp, "controller": {"type": "string"},
                           "signals": _obj({}), "units": _obj({})},
                          "the active controller's internal signals per joint, units from that controller"),
-        LOOP: _obj({"t": _NUMBER, "cycles": {"type": "integer"}, "overruns": {"type": "integer"},
+        LOOP: _obj({"t": _TIME, "cycles": {"type": "integer"}, "overruns": {"type": "integer"},
                     "latency_us": figures, "compute_us": figures}, "loop timing over a stats window [us]"),
-        CONTACT: _obj({"t": _NUMBER, "frame": {"type": "integer"}, "age_s": _NUMBER,
+        CONTACT: _obj({"t": _TIME, "frame": {"type": "integer"}, "age_s": _NUMBER,
                        "contact": {"type": ["object", "null"]}}, "the array sensor's contact estimate"),
     }
 
@@ -112,8 +113,24 @@ def _stamp(t: float) -> Timestamp:
 
 
 def json_bytes(message: dict) -> bytes:
-    """A JSON channel's message, compact (every JSON channel of a recording and of the live stream)."""
-    return json.dumps(message, allow_nan=True, separators=(",", ":")).encode()
+    """A JSON channel's message, compact (every JSON channel of a recording and of the live
+    stream). JSON has no NaN or infinity (RFC 8259) and the viewers parse it strictly
+    (Foxglove's ``JSON.parse``): a number that is not finite is written ``null``."""
+    try:
+        return json.dumps(message, allow_nan=False, separators=(",", ":")).encode()
+    except ValueError:  # a NaN or an infinity somewhere: rare, so looked for only then
+        return json.dumps(_finite(message), allow_nan=False, separators=(",", ":")).encode()
+
+
+def _finite(value):
+    """``value`` with every float that is not finite replaced by None (JSON's null)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
 
 
 class Frames:

@@ -39,8 +39,9 @@ from daemon.recordings.channels import Frames, json_bytes, json_schemas, ns, pro
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
 PER_JOINT = ("angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts", "p_head_pa", "p_rod_pa")
-STATE_SCALARS = {"cycle": "integer", "t": "number", "force_n": "number", "mode": "string"}
+STATE_SCALARS = {"cycle": "integer", "t": "number", "force_n": ["number", "null"], "mode": "string"}
 TOPICS = ("state", "stats", "event", "internals", "contact", "gap")
+NAN = float("nan")
 
 
 def channel(topic: str) -> str:
@@ -48,7 +49,7 @@ def channel(topic: str) -> str:
 
 
 def state_schema(joints: list[str]) -> dict:
-    number = {"type": "number"}
+    number = {"type": ["number", "null"]}  # null: no such number this cycle (a joint with no V_MV, no force sensor)
     per_joint = {"type": "object", "properties": {k: number for k in PER_JOINT + ("shadow_u_volts",)}}
     return {"title": "pneumad state sample (one loop cycle; SI units, volts at the hardware edge)", "type": "object",
             "properties": {**{k: {"type": v} for k, v in STATE_SCALARS.items()},
@@ -83,23 +84,25 @@ def command_fields(describe: dict) -> tuple[list[int], list[tuple[str, int]]]:
     return [v_mv.get(name, -1) for name in joints], others
 
 
-def state_samples(m: dict, joints: list[str], outputs: list[str], fields=None) -> Iterator[dict]:
+def state_samples(m: dict, joints: list[str], outputs: list[str], fields=None, missing=NAN) -> Iterator[dict]:
     """A ``state`` batch (columns, as published) as one sample per cycle, each joint's numbers
     under its name (``fields``: :func:`command_fields`; default one V_MV a joint), and commands
-    other than V_MV under ``commands``: what a recording holds and what its readers return."""
+    other than V_MV under ``commands``: what a recording holds and what its readers return.
+    A number the cycle has not (a joint with no V_MV, no force sensor) is ``missing``: NaN for
+    a reader, None where the sample is written as JSON."""
     u_index, others = fields if fields is not None else (list(range(len(joints))), [])
-    nan = float("nan")
     for i, cycle in enumerate(m["cycle"]):
         shadow, u = m["shadow_u_volts"][i], m["u_volts"][i]
         per_joint = {}
         for j, name in enumerate(joints):
             per_joint[name] = {k: m[k][i][j] for k in PER_JOINT if k != "u_volts"}
             k = u_index[j]
-            per_joint[name]["u_volts"] = u[k] if k >= 0 else nan
+            per_joint[name]["u_volts"] = u[k] if k >= 0 else missing
             if shadow is not None:
-                per_joint[name]["shadow_u_volts"] = shadow[k] if k >= 0 else nan
+                per_joint[name]["shadow_u_volts"] = shadow[k] if k >= 0 else missing
+        force = m["force_n"][i]
         sample = {"cycle": cycle, "t": m["t"][i], "joints": per_joint, "out_volts": dict(zip(outputs, m["out_volts"][i])),
-                  "force_n": m["force_n"][i], "mode": m["mode"][i]}
+                  "force_n": force if force == force else missing, "mode": m["mode"][i]}
         if others:
             sample["commands"] = {key: u[k] for key, k in others}
         yield sample
@@ -125,7 +128,7 @@ class TelemetryEncoder:
             return []
         out = [(name, stamp, data, 0) for name, stamp, data in self._frames.of(topic, message)]
         if topic == "state":
-            for row in state_samples(message, self.joints, self._outputs, self._fields):
+            for row in state_samples(message, self.joints, self._outputs, self._fields, missing=None):
                 out.append((STATE_CHANNEL, ns(row["t"]), json_bytes(row), row["cycle"]))
                 self._last_t = row["t"]
         else:
@@ -251,6 +254,17 @@ class Contents:
         return json.loads(self.metadata["controller"]["json"])
 
 
+def _null_to_nan(sample: dict) -> None:
+    """A state sample as written (a number it had not is null, :func:`state_samples`) back to
+    what its readers take: NaN for each such number."""
+    if sample.get("force_n") is None:
+        sample["force_n"] = NAN
+    for group in (*sample["joints"].values(), sample["out_volts"], sample.get("commands", {})):
+        for key, value in group.items():
+            if value is None:
+                group[key] = NAN
+
+
 def read(path) -> Contents:
     """Everything in a pneumad MCAP recording, up to its last complete record: a truncated
     file yields what was written before the cut, with ``truncated`` saying so."""
@@ -264,7 +278,11 @@ def read(path) -> Contents:
                     if record.topic in ours:
                         topics[record.id] = ours[record.topic]
                 elif isinstance(record, Message) and record.channel_id in topics:
-                    out.messages.setdefault(topics[record.channel_id], []).append(json.loads(record.data))
+                    topic = topics[record.channel_id]
+                    message = json.loads(record.data)
+                    if topic == "state" and b"null" in record.data:
+                        _null_to_nan(message)
+                    out.messages.setdefault(topic, []).append(message)
                 elif isinstance(record, Attachment):
                     out.attachments[record.name] = record.data
                 elif isinstance(record, Metadata):
