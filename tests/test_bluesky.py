@@ -32,7 +32,7 @@ from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client, RemoteError  # noqa: E402
 from tests.daemons import free_tcp_ports, real_daemon, tolerant_rig_text, wait_for_own_daemon  # noqa: E402
 
-pytestmark = pytest.mark.slow(seconds=190)  # its wall time on a 2-core machine: tests/conftest.py orders by it
+pytestmark = pytest.mark.slow(seconds=170)  # its wall time on a 2-core machine: tests/conftest.py orders by it
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +116,45 @@ def test_the_identification_plan_records_each_experiment_and_the_whole_in_a_file
     assert fitted.returncode == 0, fitted.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())
     assert [e["signal"] for e in report["experiments"]] == ["prbs", "prbs"] and (out / "rig.toml").exists()
+
+
+def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predicts(setup):
+    """The routine's posture nearest the arm, each joint's dither three periods long (the routine's are
+    21): a stream per reference (the move, then each joint's dither), the dithered joint's V_MV
+    swinging by the dither's amplitude open loop, and its mean over whole periods (what the
+    routine's estimate is made of) at the V_MV the model says holds the joint there: the
+    built-in rig carries no payload."""
+    from daemon.client import identify, payload_routine
+    from hal import config
+    rig, engine, tiled, _ = setup
+    rig_config = config.parse(rig.link.describe["rig"]["source"])
+    names = [j.name for j in rig_config.joints]
+    here = [rig.link.client.status()["joints"][n]["setpoint_deg"] for n in names]
+    posture = min(payload_routine.postures(rig_config), key=lambda p: identify.move_duration(p, here))  # the nearest
+    (uid,) = engine(plans.payload_dithers(rig, postures=[posture], periods=3))
+    run = tiled[uid]
+    assert run.metadata["start"]["plan_args"] == {"postures": [posture], "periods": 3}
+    setpoint = np.degrees(np.asarray(run["record"][f"arm_record_{names[-1]}_setpoint_rad"].read()))
+    assert setpoint[-1] == pytest.approx(posture[-1], abs=1e-3)  # the move's stream ends at the posture
+    for k, name in enumerate(names, start=1):
+        record = run[f"record_{k}"]
+        assert np.all(np.diff(np.asarray(record["arm_record_cycle"].read())) == 1)
+        u = np.asarray(record[f"arm_record_{name}_u_volts"].read())
+        args = payload_routine.dither_args(rig_config, name)
+        period = round(args["period_s"] * 1000)  # samples: one a cycle of 1 ms
+        swing = np.ptp(np.lib.stride_tricks.sliding_window_view(u, period), axis=1)
+        dithering = np.flatnonzero(swing > 1.6 * args["amplitude_v"])  # windows holding a whole swing of it
+        assert dithering.size, f"{name}: no dither in its stream (largest swing {swing.max():.2f} V)"
+        start = dithering[0] + period // 2  # half a period in from either end: the dither alone
+        whole = (dithering[-1] - start + period // 2) // period
+        assert whole >= 2, f"{name}: {whole} whole periods of dither"
+        dither = u[start:start + whole * period]
+        amplitude = 2.0 * abs(np.mean(dither * np.exp(-2j * np.pi * np.arange(dither.size) / period)))
+        balance = dither.mean()
+        held = identify.holding_volts(rig_config, name, posture[k - 1])
+        assert amplitude == pytest.approx(args["amplitude_v"], rel=0.1), name
+        # three periods average less of the friction away than the routine's twelve: 0.06 V seen
+        assert balance == pytest.approx(held, abs=0.15), (name, balance, held)
 
 
 def test_a_joint_is_a_movable_and_a_refused_move_fails_with_the_daemons_data(setup):

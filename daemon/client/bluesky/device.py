@@ -43,7 +43,8 @@ log = logging.getLogger(__name__)
 
 SETTLED_DEG = 1.0  # a move has settled once within this of its target [deg] (PID's friction band: the
 #                     middle joint's stiction can hold it 0.6 deg off) ...
-STILL_DEG_S = 2.0  # ... slower than this [deg/s] ...
+STILL_DEG_S = 2.0  # ... slower than this [deg/s] on average (by the angle's spread over the window, not by
+#                     the status's velocity: a 10 Hz filtered difference of a noisy angle, a few deg/s at rest) ...
 SETTLED_FOR_S = 0.3  # ... for this long [s]
 SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
 POLL_S = 0.05
@@ -207,22 +208,28 @@ class PneumadRig(StandardReadable):
 
     async def settled(self, targets_deg: dict[str, float], move_s: float) -> None:
         """Return once the reference has ended and each named joint has stayed within
-        ``settled_deg`` of its target, slower than STILL_DEG_S, for SETTLED_FOR_S; RuntimeError if
-        the arm leaves the enabled state (with the daemon's cause) or does not settle in time."""
+        ``settled_deg`` of its target for SETTLED_FOR_S, its angle spread over that time at most
+        STILL_DEG_S x SETTLED_FOR_S; RuntimeError if the arm leaves the enabled state (with the
+        daemon's cause) or does not settle in time."""
         deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
-        still_since = None
+        still_since, seen = None, {}  # seen: each joint's lowest and highest angle since still_since [deg]
         while True:
             status = await self.link.call("status")
             if status["state"] != "enabled":
                 raise RuntimeError(f"{self.link.rig_name}: the arm is {status['state']}: {status.get('cause', '')}")
             joints = status["joints"]
-            near = status["reference_remaining_s"] <= 0.0 and all(
-                abs(joints[n]["angle_deg"] - t) <= self.settled_deg and abs(joints[n]["velocity_deg_s"]) <= STILL_DEG_S
-                for n, t in targets_deg.items())
+            angles = {n: joints[n]["angle_deg"] for n in targets_deg}
             now = time.monotonic()
-            still_since = (still_since or now) if near else None
-            if still_since is not None and now - still_since >= SETTLED_FOR_S:
-                return
+            if status["reference_remaining_s"] <= 0.0 and all(abs(angles[n] - t) <= self.settled_deg
+                                                              for n, t in targets_deg.items()):
+                if still_since is not None:
+                    seen = {n: (min(lo, angles[n]), max(hi, angles[n])) for n, (lo, hi) in seen.items()}
+                if still_since is None or any(hi - lo > STILL_DEG_S * SETTLED_FOR_S for lo, hi in seen.values()):
+                    still_since, seen = now, {n: (a, a) for n, a in angles.items()}  # (again) from here
+                elif now - still_since >= SETTLED_FOR_S:
+                    return
+            else:
+                still_since = None
             if now > deadline:
                 where = ", ".join(f"{n} at {joints[n]['angle_deg']:.2f} deg" for n in targets_deg)
                 raise RuntimeError(f"{self.link.rig_name}: not settled within {SETTLE_LIMIT_S:g} s of the move's end "

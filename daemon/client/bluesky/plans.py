@@ -123,17 +123,20 @@ def identification(rig, joint: str, quick: bool = True, experiments: list[dict] 
         _recorded(rig, flights, {**meta, "recording": recording["file"], **(md or {})}), stop()))
 
 
-def payload_dithers(rig, postures: list[list[float]] | None = None, md: dict | None = None):
+def payload_dithers(rig, postures: list[list[float]] | None = None, periods: int | None = None,
+                    md: dict | None = None):
     """The payload routine's measurement: at each of its postures (or ``postures`` [deg], one
     angle a joint each), every joint dithered about its balance (the daemon's ``excite``), each
     dither recorded; the estimate is the routine's (:func:`daemon.client.payload_routine.window_mean`
-    on the records)."""
+    on the records). ``periods``: each dither's length in its periods (default the routine's,
+    ``DITHER_S`` long; fewer average less of the friction away, for a quick look)."""
     describe = rig.link.describe
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
     names = [j["name"] for j in describe["joints"]]
     postures = payload_routine.postures(rig_config) if postures is None else [list(map(float, p)) for p in postures]
     if any(len(p) != len(names) for p in postures):
         raise ValueError(f"a posture is one angle [deg] for each of {', '.join(names)}")
+    lengthen = {} if periods is None else {"periods": int(periods)}
     flights = []
     for target in postures:
         flights.append(Flight(lambda c, t=target: c.set(angles_deg=t, duration_s=identify.move_duration(
@@ -141,6 +144,6 @@ def payload_dithers(rig, postures: list[list[float]] | None = None, md: dict | N
             settle=lambda reply: dict(zip(names, reply["target_deg"]))))
         for name in names:
             flights.append(Flight(lambda c, n=name: c.call("excite", {**payload_routine.dither_args(rig_config, n),
-                                                                       "record": True})))
-    meta = yield from _metadata(rig, "payload_dithers", {"postures": postures})
+                                                                       **lengthen, "record": True})))
+    meta = yield from _metadata(rig, "payload_dithers", {"postures": postures, "periods": periods})
     return (yield from _recorded(rig, flights, {**meta, **(md or {})}))
