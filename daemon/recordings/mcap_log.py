@@ -64,10 +64,10 @@ OTHER_SCHEMAS = {
     "internals": {"title": "the active controller's internal signals, per joint", "type": "object",
                   "properties": {"controller": {"type": "string"}, "signals": {"type": "object"}}},
     "contact": {"title": "the array pressure sensor's latest contact estimate (docs/protocol.md)", "type": "object",
-                "properties": {"frame": {"type": "integer"}, "frame_t": {"type": "number"}, "age_s": {"type": "number"},
+                "properties": {"frame": {"type": "integer"}, "frame_t": {"type": "number"}, "age_s": {"type": ["number", "null"]},
                                "contact": {"type": ["object", "null"]}}},
     "gap": {"title": "telemetry lost between two messages of a topic", "type": "object",
-            "properties": {"topic": {"type": "string"}, "missing": {"type": "integer"}, "after_seq": {"type": "integer"}}},
+            "properties": {"topic": {"type": "string"}, "missing": {"type": "integer"}, "after_seq": {"type": ["integer", "null"]}}},
 }
 
 

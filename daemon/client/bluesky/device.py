@@ -43,8 +43,9 @@ log = logging.getLogger(__name__)
 
 SETTLED_DEG = 1.0  # a move has settled once within this of its target [deg] (PID's friction band: the
 #                     middle joint's stiction can hold it 0.6 deg off) ...
-STILL_DEG_S = 2.0  # ... slower than this [deg/s] on average (by the angle's spread over the window, not by
-#                     the status's velocity: a 10 Hz filtered difference of a noisy angle, a few deg/s at rest) ...
+STILL_SPREAD_DEG = 0.6  # ... its angle spread over at most this [deg] (2 deg/s over the window; judged by
+#                          the angle, not by the status's velocity, a 10 Hz filtered difference of a noisy
+#                          angle: a few deg/s at rest) ...
 SETTLED_FOR_S = 0.3  # ... for this long [s]
 SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
 POLL_S = 0.05
@@ -209,7 +210,7 @@ class PneumadRig(StandardReadable):
     async def settled(self, targets_deg: dict[str, float], move_s: float) -> None:
         """Return once the reference has ended and each named joint has stayed within
         ``settled_deg`` of its target for SETTLED_FOR_S, its angle spread over that time at most
-        STILL_DEG_S x SETTLED_FOR_S; RuntimeError if the arm leaves the enabled state (with the
+        STILL_SPREAD_DEG; RuntimeError if the arm leaves the enabled state (with the
         daemon's cause) or does not settle in time."""
         deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
         still_since, seen = None, {}  # seen: each joint's lowest and highest angle since still_since [deg]
@@ -224,7 +225,7 @@ class PneumadRig(StandardReadable):
                                                               for n, t in targets_deg.items()):
                 if still_since is not None:
                     seen = {n: (min(lo, angles[n]), max(hi, angles[n])) for n, (lo, hi) in seen.items()}
-                if still_since is None or any(hi - lo > STILL_DEG_S * SETTLED_FOR_S for lo, hi in seen.values()):
+                if still_since is None or any(hi - lo > STILL_SPREAD_DEG for lo, hi in seen.values()):
                     still_since, seen = now, {n: (a, a) for n, a in angles.items()}  # (again) from here
                 elif now - still_since >= SETTLED_FOR_S:
                     return

@@ -128,15 +128,18 @@ def payload_dithers(rig, postures: list[list[float]] | None = None, periods: int
     """The payload routine's measurement: at each of its postures (or ``postures`` [deg], one
     angle a joint each), every joint dithered about its balance (the daemon's ``excite``), each
     dither recorded; the estimate is the routine's (:func:`daemon.client.payload_routine.window_mean`
-    on the records). ``periods``: each dither's length in its periods (default the routine's,
-    ``DITHER_S`` long; fewer average less of the friction away, for a quick look)."""
+    on the records). ``periods``: each dither's length in its 2 s periods, 1-100 (default the
+    routine's 21, ``DITHER_S`` long); fewer average less of the friction away, and below 13 the
+    routine's ``AVERAGED_S`` window does not fit: average over a shorter ``seconds``."""
     describe = rig.link.describe
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
     names = [j["name"] for j in describe["joints"]]
     postures = payload_routine.postures(rig_config) if postures is None else [list(map(float, p)) for p in postures]
     if any(len(p) != len(names) for p in postures):
         raise ValueError(f"a posture is one angle [deg] for each of {', '.join(names)}")
-    lengthen = {} if periods is None else {"periods": int(periods)}
+    if periods is not None and (isinstance(periods, bool) or not isinstance(periods, int) or not 1 <= periods <= 100):
+        raise ValueError(f"periods is a whole number of dither periods, 1-100, not {periods!r}")
+    lengthen = {} if periods is None else {"periods": periods}
     flights = []
     for target in postures:
         flights.append(Flight(lambda c, t=target: c.set(angles_deg=t, duration_s=identify.move_duration(
