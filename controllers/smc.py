@@ -112,7 +112,11 @@ class SMC(Controller):
         ParamSpec("eps", "1/s", 0.0, 100.0, (2.0, 1.5), "Riccati shift: every sliding pole left of -eps"),
         ParamSpec("switch_volts", "V", 0.0, 10.0, (1.0, 3.0),
                   "switching amplitude k (S B)^-1; above the breakaway friction Fs/kt (0.31 V bottom, 1.66 V middle)"),
-        ParamSpec("boundary", "rad/s^2", 1e-6, 1e6, (2.0, 2.0), "boundary layer eta of sigma/(|sigma|+eta)"),
+        # the middle joint's is 7.5 times the bottom's: on the reconstructed rig a volt moves its sigma
+        # 7.5 times as much (its J, D, K per 7.5 deg, hal/models.toml middle-scaled), and at 2 rad/s^2 the
+        # switching part's slope k/eta closed a loop that alternated the output every cycle (0.4-0.8 V
+        # peak to peak at 500 Hz while holding, docs/controllers.md "Robustness")
+        ParamSpec("boundary", "rad/s^2", 1e-6, 1e6, (2.0, 15.0), "boundary layer eta of sigma/(|sigma|+eta)"),
         ParamSpec("reach_rate", "1/s", 0.0, 1e4, (5.0, 5.0), "proportional reaching term: sigma' = -reach_rate sigma"),
     ) + ESTIMATOR_PARAMS
     internals = (SignalSpec("sigma", "rad/s^2", "switching function S x"),
