@@ -67,6 +67,9 @@ class SimOptions:
     dac_bits: int = 16
     adc_noise_volts: float = 0.0  # standard deviation of seeded Gaussian noise on every input [V]
     max_catch_up_s: float = 30.0  # real-time mode: the plant catches up a stall this long; a longer one pauses it
+    # real-time mode: the plant steps in a thread beside the loop, as a DAQ samples on its own
+    # processor (sim_backend/plant_thread.py); false: each of the loop's reads steps it in the cycle
+    beside_loop: bool = True
     joints: dict[str, SimJointOptions] = field(default_factory=dict)
     wall: WallOptions = WallOptions()
     payload: PayloadOptions = PayloadOptions()

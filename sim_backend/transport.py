@@ -8,6 +8,11 @@ lockstep with the loop (deterministic, faster than real time); handed ``time.mon
 it runs in real time. Sensor volts come from the rig file's own calibrations read
 backwards, plus seeded noise and ADC quantisation; output volts go through DAC quantisation.
 
+In real time the plant can step beside the loop instead (``beside_loop``, the default there):
+a thread of the loop's process advances it and leaves the latest sweep for the loop's read
+(:mod:`sim_backend.plant_thread`), as a DAQ samples on its own processor; outputs written
+in between take effect from when they were written, as in lockstep.
+
 Faults can be injected to exercise the supervisor: a disconnected sensor (reads the 0 V
 rail), a stuck sensor, a noise burst, a transport timeout, and loss of supply pressure.
 """
@@ -15,10 +20,13 @@ from __future__ import annotations
 
 import math
 import random
+import threading
+import time
+from collections import deque
 from collections.abc import Callable, Sequence
 
 from hal.config import RigConfig
-from hal.errors import ConfigError, TransportTimeout
+from hal.errors import ConfigError, TransportError, TransportTimeout
 from hal.force_sensor import ASFS
 from hal.potentiometer import RDC506
 from hal.pressure_sensor import PressureSensor
@@ -27,8 +35,10 @@ from hal.transport import InputSweep, Transport, rig_channels
 from sim_backend.muscle_plant import SimMuscleRig
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
+from sim_backend.plant_thread import PlantThread
 
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
+LATE_PERIODS = 2.0  # beside the loop: a sample this many steps old is taken in the cycle instead
 
 
 def converter(low: float, high: float, bits: int) -> tuple[float, float, float]:
@@ -53,7 +63,8 @@ class SimTransport(Transport):
     backend = "sim"
     rate_hz = 1000.0
 
-    def __init__(self, rig: RigConfig, options: SimOptions, clock: Callable[[], float]):
+    def __init__(self, rig: RigConfig, options: SimOptions, clock: Callable[[], float], beside: bool = False):
+        """``beside``: step the plant in a thread of its own from the first read (real time only)."""
         super().__init__()
         self.options = options
         self.clock = clock
@@ -81,10 +92,26 @@ class SimTransport(Transport):
         self._t0 = clock()
         self._steps = 0
         self._next_step_t = self._t0 + self.options.step_s * (1.0 - 1e-6)  # when another plant step is due [s]
+        # Beside the loop: the plant's lock (its thread, an in-cycle catch-up, fault injection),
+        # the outputs written since its last tick with their times, and its latest sweep.
+        self._beside = beside
+        self._thread: PlantThread | None = None
+        self._lock = threading.Lock()
+        self._written: deque[tuple[tuple[float, ...], float]] = deque()
+        self._wrote_at = self._t0
+        self._latest: InputSweep | None = None
 
     @classmethod
     def from_config(cls, rig: RigConfig, clock: Callable[[], float]) -> "SimTransport":
-        return cls(rig, build(SimOptions, rig.transport.options, "transport.options"), clock)
+        """On the real-time clock (``time.monotonic``, what the daemon's loop runs on) the plant
+        steps beside the loop unless ``beside_loop = false``; on a virtual clock, in lockstep."""
+        options = build(SimOptions, rig.transport.options, "transport.options")
+        return cls(rig, options, clock, beside=options.beside_loop and clock is time.monotonic)
+
+    def close(self) -> None:
+        if self._thread is not None:
+            self._thread.close()
+        super().close()
 
     # -- the sweeps ---------------------------------------------------------------------
     def read(self) -> InputSweep:
@@ -92,19 +119,67 @@ class SimTransport(Transport):
             self._health.errors += 1
             self._health.last_error = "simulated transport timeout"
             raise TransportTimeout("sim: simulated transport timeout (injected fault)")
+        if self._beside:
+            sweep = self._beside_sweep()
+        else:
+            now = self.clock()
+            self._advance(now)
+            sweep = self._sweep(now)
+        self._health.reads += 1
+        self._health.last_sample_t = sweep.t
+        return sweep
+
+    def _sweep(self, now: float) -> InputSweep:
+        self._seq += 1
+        return InputSweep(self._seq, now, self._sample())
+
+    def _beside_sweep(self) -> InputSweep:
+        """The plant thread's latest sweep; the first read starts the thread (so it takes the
+        reader's scheduling), and a sweep the thread left too old is taken here instead."""
+        thread = self._thread
+        if thread is None:
+            self.tick()
+            self._thread = PlantThread(self.tick, self.options.step_s, self.clock, lambda: self._wrote_at)
+            self._thread.start()
+        elif thread.failure is not None:
+            raise TransportError(f"sim: the plant's thread failed: {type(thread.failure).__name__}: {thread.failure}")
+        sweep = self._latest
+        if self.clock() - sweep.t > LATE_PERIODS * self.options.step_s and self._lock.acquire(blocking=False):
+            try:  # the thread is held up (a loaded machine): the plant must not go stale for it
+                self._tick_locked()
+                counters = self._health.counters
+                counters["plant_ticks_in_cycle"] = counters.get("plant_ticks_in_cycle", 0) + 1
+            finally:
+                self._lock.release()
+            sweep = self._latest
+        return sweep
+
+    def tick(self) -> None:
+        """Beside the loop: take the outputs written since the last tick, each from when it was
+        written, step the plant to the present and leave a fresh sweep."""
+        with self._lock:
+            self._tick_locked()
+
+    def _tick_locked(self) -> None:
+        written = self._written
+        while written:
+            values, t = written.popleft()
+            if t >= self._next_step_t:
+                self._advance(t)
+            self._out = [quantise(v, *dac) for v, dac in zip(values, self._dac)]
         now = self.clock()
         self._advance(now)
-        values = self._sample()
-        self._seq += 1
-        self._health.reads += 1
-        self._health.last_sample_t = now
-        return InputSweep(self._seq, now, values)
+        self._latest = self._sweep(now)
 
     def _write(self, values: Sequence[float]) -> None:
         if ("timeout", "") in self._faults:
             self._health.errors += 1
             raise TransportTimeout("sim: simulated transport timeout (injected fault)")
         now = self.clock()
+        if self._thread is not None:  # the plant's thread takes it in from its time
+            self._written.append((tuple(values), now))
+            self._wrote_at = now
+            return
         if now >= self._next_step_t:  # the common case in process: the read of this cycle brought it up to date
             self._advance(now)
         self._out = [quantise(v, *dac) for v, dac in zip(values, self._dac)]
@@ -191,17 +266,19 @@ class SimTransport(Transport):
         else:
             channel = ""
         state: dict = {}
-        if fault == "stuck":
-            state["value"] = self._last[[ch.name for ch in self.inputs].index(channel)]
-        elif fault == "noise_burst":
-            state.update(sigma_volts=sigma_volts, samples=samples)
-        elif fault == "supply_lost":
-            self.arm.supply_pa = 0.0
-        self._faults[(fault, channel)] = state
+        with self._lock:  # the plant's thread samples under it
+            if fault == "stuck":
+                state["value"] = self._last[[ch.name for ch in self.inputs].index(channel)]
+            elif fault == "noise_burst":
+                state.update(sigma_volts=sigma_volts, samples=samples)
+            elif fault == "supply_lost":
+                self.arm.supply_pa = 0.0
+            self._faults[(fault, channel)] = state
 
     def clear(self, fault: str | None = None) -> None:
         """End one kind of fault (every channel), or all faults."""
-        for key in [k for k in self._faults if fault in (None, k[0])]:
-            del self._faults[key]
-        if fault in (None, "supply_lost"):
-            self.arm.supply_pa = self.options.supply_mpa * 1e6
+        with self._lock:
+            for key in [k for k in self._faults if fault in (None, k[0])]:
+                del self._faults[key]
+            if fault in (None, "supply_lost"):
+                self.arm.supply_pa = self.options.supply_mpa * 1e6

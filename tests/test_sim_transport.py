@@ -1,12 +1,14 @@
 """The simulated transport: seeded noise, converters, clocks and injected faults, seen
 through the real drivers (hal.rig.RigIO) as the daemon will see them."""
+import dataclasses
 import math
 import statistics
 import time
 
 import pytest
 
-from hal.errors import CommandError, ConfigError, TransportTimeout
+from hal.errors import CommandError, ConfigError, TransportError, TransportTimeout
+from hal.rig import RigIO
 from hal.kinematics import jacobian
 from sim_backend.transport import SimTransport, converter, quantise
 from daemon.testing.simrig import DT, make_rig
@@ -133,13 +135,84 @@ def test_virtual_clock_lockstep_steps_once_per_millisecond():
     assert sim.arm.joints[0]._k == 500
 
 
-def test_real_time_mode_follows_the_wall_clock():
+def real_time_rig(beside: bool = True) -> RigIO:
+    """The built-in rig's simulated transport on the real-time clock, as the daemon opens it."""
     from hal import config
-    transport = SimTransport.from_config(config.load(), time.monotonic)
+    rig = config.load()
+    if not beside:
+        rig = dataclasses.replace(rig, transport=dataclasses.replace(
+            rig.transport, options={**rig.transport.options, "beside_loop": False}))
+    transport = SimTransport.from_config(rig, time.monotonic)
     transport.open()
-    time.sleep(0.02)
-    transport.read()
-    assert transport.arm.joints[0]._k >= 15  # at least most of 20 ms, however loaded the machine
+    return RigIO(rig, transport)
+
+
+def wait_for(predicate, timeout_s: float = 30.0) -> None:
+    give_up = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < give_up, "timed out"
+        time.sleep(0.005)
+
+
+@pytest.mark.parametrize("beside", [True, False], ids=["beside the loop", "in the read"])
+def test_real_time_mode_follows_the_wall_clock(beside):
+    io = real_time_rig(beside)
+    try:
+        io.read()
+        time.sleep(0.05)
+        io.read()
+        assert io.transport.arm.joints[0]._k >= 40  # most of 50 ms, however loaded the machine
+    finally:
+        io.transport.close()
+
+
+def test_beside_the_loop_the_plant_steps_on_its_own_and_takes_each_write_from_its_time():
+    io = real_time_rig()
+    transport = io.transport
+    try:
+        first = io.read()
+        wait_for(lambda: transport._latest.seq > first.seq + 20)  # sweeps come with no read asking for them
+        assert "plant_ticks_in_cycle" not in transport.health().counters
+        start = io.read().angles[0]
+        head = list(io.safe_pressures[0])
+        head[0] += 0.15e6  # the bottom joint's head chamber up 0.15 MPa: the joint opens
+        written = time.monotonic()
+        io.write_pressures(head, io.safe_pressures[1])
+        wait_for(lambda: transport.output_volts != io.safe_volts)
+        wait_for(lambda: abs(io.read().angles[0] - start) > math.radians(2.0))
+        assert io.read().angles[0] > start
+        # the plant took the write from when it was written: its DAC changed within a step of it
+        assert transport.arm.joints[0]._k * transport.options.step_s >= written - transport._t0 - 0.002
+    finally:
+        transport.close()
+    assert not transport._thread.alive  # closing stops the plant's thread
+
+
+def test_beside_the_loop_a_stopped_thread_never_leaves_the_loop_a_stale_sample():
+    io = real_time_rig()
+    transport = io.transport
+    try:
+        io.read()
+        transport._thread.close()  # as a thread starved by a loaded machine would stop ticking
+        time.sleep(0.01)
+        snap = io.read()
+        assert time.monotonic() - snap.t < 0.005  # fresh: the read took it in the cycle
+        assert transport.health().counters["plant_ticks_in_cycle"] >= 1
+    finally:
+        transport.close()
+
+
+def test_beside_the_loop_a_failed_plant_thread_is_a_transport_error():
+    io = real_time_rig()
+    transport = io.transport
+    try:
+        io.read()
+        transport.arm.joints[0].step = None  # a plant that cannot step: the thread's tick raises
+        wait_for(lambda: not transport._thread.alive)
+        with pytest.raises(TransportError, match="plant's thread failed: TypeError"):
+            io.read()
+    finally:
+        transport.close()
 
 
 def test_the_plant_runs_on_through_a_stall_and_pauses_only_beyond_max_catch_up():

@@ -1,0 +1,62 @@
+"""The simulated plant stepped beside the loop, as a DAQ's own processor samples its inputs.
+
+In real time, the simulated transport's plant runs in a thread of the loop's process: it
+steps the plant to the present on its own, takes the outputs the loop wrote, and leaves the
+latest input sweep ready. A cycle's read then takes that sweep instead of computing the
+physics in the cycle, as it takes the latest sample from a DAQ on a wire.
+
+The thread ticks once a period, half a period after the loop's latest write (its phase
+follows the writes): well clear of the loop's wake-up and its cycle, so the two rarely want
+the interpreter at once, and each sample is about half a period old when the loop reads it.
+Started from the loop's first read, the thread takes the loop's scheduling (SCHED_FIFO and
+CPU placement are inherited), so the plant keeps pace with the loop it feeds.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+PHASE = 0.5  # a tick comes this fraction of a period after the loop's latest write
+
+
+class PlantThread:
+    """Calls ``tick`` once every ``period_s``, phased on ``wrote_at()`` (when the loop last wrote
+    [s, ``clock``'s time]); a tick that raises ends the thread and is kept in :attr:`failure`."""
+
+    def __init__(self, tick: Callable[[], None], period_s: float, clock: Callable[[], float],
+                 wrote_at: Callable[[], float]):
+        self._tick, self._period, self._clock, self._wrote_at = tick, period_s, clock, wrote_at
+        self._running = True
+        self.failure: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="pneumad-sim-plant", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        h, clock = self._period, self._clock
+        last = clock()
+        try:
+            while self._running:
+                target = self._wrote_at() + PHASE * h
+                if target < last + 0.5 * h:  # the next one on the writes' grid, at least half a period on
+                    target += h * (int((last + 0.5 * h - target) / h) + 1)
+                delay = target - clock()
+                if delay > 0.0:
+                    time.sleep(delay)
+                if not self._running:
+                    break
+                self._tick()
+                last = clock()
+        except BaseException as exc:  # the loop's next read reports it: a transport failure, a trip
+            self.failure = exc
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def close(self) -> None:
+        self._running = False
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(1.0)
