@@ -38,7 +38,6 @@ from sim_backend.plant import SimArm
 from sim_backend.plant_thread import PlantThread
 
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
-LATE_PERIODS = 2.0  # beside the loop: a sample this many steps old is taken in the cycle instead
 
 
 def converter(low: float, high: float, bits: int) -> tuple[float, float, float]:
@@ -100,6 +99,7 @@ class SimTransport(Transport):
         self._written: deque[tuple[tuple[float, ...], float]] = deque()
         self._wrote_at = self._t0
         self._latest: InputSweep | None = None
+        self._read_seq = 0  # the last sweep a read returned
 
     @classmethod
     def from_config(cls, rig: RigConfig, clock: Callable[[], float]) -> "SimTransport":
@@ -134,8 +134,9 @@ class SimTransport(Transport):
         return InputSweep(self._seq, now, self._sample())
 
     def _beside_sweep(self) -> InputSweep:
-        """The plant thread's latest sweep; the first read starts the thread (so it takes the
-        reader's scheduling), and a sweep the thread left too old is taken here instead."""
+        """The plant thread's latest sweep, a new one at every read: the first read starts the
+        thread (so it takes the reader's scheduling), and when the thread has not ticked since
+        the last read (held up by a loaded machine, or the loop overran) the read ticks itself."""
         thread = self._thread
         if thread is None:
             self.tick()
@@ -143,15 +144,16 @@ class SimTransport(Transport):
             self._thread.start()
         elif thread.failure is not None:
             raise TransportError(f"sim: the plant's thread failed: {type(thread.failure).__name__}: {thread.failure}")
-        sweep = self._latest
-        if self.clock() - sweep.t > LATE_PERIODS * self.options.step_s and self._lock.acquire(blocking=False):
-            try:  # the thread is held up (a loaded machine): the plant must not go stale for it
-                self._tick_locked()
-                counters = self._health.counters
-                counters["plant_ticks_in_cycle"] = counters.get("plant_ticks_in_cycle", 0) + 1
+        elif self._latest.seq == self._read_seq and self._lock.acquire(timeout=self.options.step_s):
+            try:  # the thread mid-tick: at most a tick's wait; held up: its tick, here
+                if self._latest.seq == self._read_seq:
+                    self._tick_locked()
+                    counters = self._health.counters
+                    counters["plant_ticks_in_cycle"] = counters.get("plant_ticks_in_cycle", 0) + 1
             finally:
                 self._lock.release()
-            sweep = self._latest
+        sweep = self._latest
+        self._read_seq = sweep.seq
         return sweep
 
     def tick(self) -> None:

@@ -278,7 +278,8 @@ def test_a_queue_runs_plans_across_two_daemons_into_tiled(tmp_path):
         manager.queue_start()
         manager.wait_for_idle(timeout=300)
         history = manager.history_get()["items"]
-        assert [item["result"]["exit_status"] for item in history] == ["completed", "completed", "failed"]
+        assert [item["result"]["exit_status"] for item in history] == ["completed", "completed", "failed"], \
+            [item["result"]["msg"] for item in history]
         assert "nowhere" in history[2]["result"]["msg"]
         tiled = from_uri(server.uri)
         for item, rig_name in zip(history[:2], ("sim-2joint", "sim-muscle")):

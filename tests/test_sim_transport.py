@@ -188,16 +188,17 @@ def test_beside_the_loop_the_plant_steps_on_its_own_and_takes_each_write_from_it
     assert not transport._thread.alive  # closing stops the plant's thread
 
 
-def test_beside_the_loop_a_stopped_thread_never_leaves_the_loop_a_stale_sample():
+def test_beside_the_loop_every_read_is_a_new_sample_even_with_the_thread_stopped():
     io = real_time_rig()
     transport = io.transport
     try:
         io.read()
         transport._thread.close()  # as a thread starved by a loaded machine would stop ticking
         time.sleep(0.01)
-        snap = io.read()
-        assert time.monotonic() - snap.t < 0.005  # fresh: the read took it in the cycle
-        assert transport.health().counters["plant_ticks_in_cycle"] >= 1
+        snaps = [io.read() for _ in range(3)]
+        assert time.monotonic() - snaps[0].t < 0.005  # fresh: the read took it in the cycle
+        assert snaps[0].seq < snaps[1].seq < snaps[2].seq and snaps[0].t < snaps[1].t < snaps[2].t
+        assert transport.health().counters["plant_ticks_in_cycle"] == 3
     finally:
         transport.close()
 
