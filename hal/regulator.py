@@ -62,8 +62,9 @@ class LinearPressureCommand:
         """Command volts for a chamber pressure [Pa], clamped to the set range and 0-10 V."""
         if not math.isfinite(pressure_pa):
             raise CommandError(f"{self.kind} {self.config.channel}: non-finite pressure command {pressure_pa!r}")
-        p = clip(pressure_pa, self._p_min, self._p_max)
-        return clip((p - self._offset) / self._slope, V_MIN, V_MAX)
+        low, high = self._p_min, self._p_max  # hal.bounds.clip, inline: four of these run every cycle
+        v = ((low if pressure_pa < low else high if pressure_pa > high else pressure_pa) - self._offset) / self._slope
+        return V_MIN if v < V_MIN else V_MAX if v > V_MAX else v
 
     def pressure(self, volts: float) -> float:
         """Set pressure [Pa] that a command of ``volts`` asks for (the inverse of :meth:`volts`)."""

@@ -5,9 +5,13 @@ steps the plant to the present on its own, takes the outputs the loop wrote, and
 latest input sweep ready. A cycle's read then takes that sweep instead of computing the
 physics in the cycle, as it takes the latest sample from a DAQ on a wire.
 
-The thread ticks once a period, half a period after the loop's latest write (its phase
-follows the writes): well clear of the loop's wake-up and its cycle, so the two rarely want
-the interpreter at once, and each sample is about half a period old when the loop reads it.
+The thread ticks once a period, just after the loop's latest write (its phase follows the
+writes): woken a little after the write, it takes the interpreter as the loop goes to sleep
+at the end of its cycle, and is done long before the loop's next wake-up (timer-phased
+ticks in the middle of the period missed the window about one period in thirty: a tick
+delayed into the loop's spin before its deadline waits out the whole next cycle). So a
+sample is most of a period old when the loop reads it, as from a DAQ that samples between
+the loop's cycles.
 Started from the loop's first read, the thread takes the loop's scheduling (SCHED_FIFO and
 CPU placement are inherited), so the plant keeps pace with the loop it feeds.
 """
@@ -17,7 +21,7 @@ import threading
 import time
 from collections.abc import Callable
 
-PHASE = 0.5  # a tick comes this fraction of a period after the loop's latest write
+PHASE = 0.05  # a tick is due this fraction of a period after the loop's latest write
 
 
 class PlantThread:

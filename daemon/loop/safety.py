@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 
-from hal.bounds import clip
 from hal.config import RigConfig
 
 from daemon.wire.states import State
@@ -130,4 +129,8 @@ class Supervisor:
     def clamp(self, pressures: list[float], previous: list[float]) -> list[float]:
         """Limit each chamber command [Pa] to the rig's maximum and its slew rate."""
         p_max, dp = self._p_max, self._dp
-        return [clip(p if p < p_max else p_max, last - dp, last + dp) for p, last in zip(pressures, previous)]
+        out = []
+        for p, last in zip(pressures, previous):  # hal.bounds.clip, inline: this runs every cycle
+            p = p if p < p_max else p_max
+            out.append(last - dp if p < last - dp else last + dp if p > last + dp else p)
+        return out
