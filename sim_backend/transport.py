@@ -38,6 +38,7 @@ from sim_backend.plant import SimArm
 from sim_backend.plant_thread import PlantThread
 
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
+WRITES_KEPT = 64  # beside the loop: outputs waiting for a tick (1-2 normally; bounded if its thread failed)
 
 
 def converter(low: float, high: float, bits: int) -> tuple[float, float, float]:
@@ -96,7 +97,7 @@ class SimTransport(Transport):
         self._beside = beside
         self._thread: PlantThread | None = None
         self._lock = threading.Lock()
-        self._written: deque[tuple[tuple[float, ...], float]] = deque()
+        self._written: deque[tuple[tuple[float, ...], float]] = deque(maxlen=WRITES_KEPT)
         self._wrote_at = self._t0
         self._latest: InputSweep | None = None
         self._read_seq = 0  # the last sweep a read returned
@@ -109,8 +110,11 @@ class SimTransport(Transport):
         return cls(rig, options, clock, beside=options.beside_loop and clock is time.monotonic)
 
     def close(self) -> None:
+        """Stop the plant's thread; the outputs written last (the safe state, at shutdown) take effect."""
         if self._thread is not None:
             self._thread.close()
+            if self._thread.failure is None:
+                self.tick()
         super().close()
 
     # -- the sweeps ---------------------------------------------------------------------

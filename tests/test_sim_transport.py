@@ -183,9 +183,11 @@ def test_beside_the_loop_the_plant_steps_on_its_own_and_takes_each_write_from_it
         assert io.read().angles[0] > start
         # the plant took the write from when it was written: its DAC changed within a step of it
         assert transport.arm.joints[0]._k * transport.options.step_s >= written - transport._t0 - 0.002
+        io.write_safe()  # the daemon's last write at shutdown, just before it closes the transport
     finally:
         transport.close()
     assert not transport._thread.alive  # closing stops the plant's thread
+    assert transport.output_volts == pytest.approx(io.safe_volts, abs=1e-3)  # and the last write took effect
 
 
 def test_beside_the_loop_every_read_is_a_new_sample_even_with_the_thread_stopped():
