@@ -8,6 +8,7 @@ from hal.schema import require
 from sim_backend.muscle_plant import MusclePlantOptions
 
 FRICTION_MODELS = ("stribeck", "karnopp")
+BESIDE_LOOP = ("realtime", "always", "never")
 
 
 @dataclass(frozen=True)
@@ -67,9 +68,10 @@ class SimOptions:
     dac_bits: int = 16
     adc_noise_volts: float = 0.0  # standard deviation of seeded Gaussian noise on every input [V]
     max_catch_up_s: float = 30.0  # real-time mode: the plant catches up a stall this long; a longer one pauses it
-    # real-time mode: the plant steps in a thread beside the loop, as a DAQ samples on its own
-    # processor (sim_backend/plant_thread.py); false: each of the loop's reads steps it in the cycle
-    beside_loop: bool = True
+    # real-time mode: "realtime", the plant steps in a thread beside the loop, as a DAQ samples on
+    # its own processor (sim_backend/plant_thread.py), when the loop runs at a real-time priority
+    # for the thread to take, else in each of the loop's reads; "always"; "never"
+    beside_loop: str = "realtime"
     joints: dict[str, SimJointOptions] = field(default_factory=dict)
     wall: WallOptions = WallOptions()
     payload: PayloadOptions = PayloadOptions()
@@ -85,3 +87,5 @@ class SimOptions:
         require(2 <= self.dac_bits <= 24, "dac_bits", "must be within 2-24")
         require(self.adc_noise_volts >= 0, "adc_noise_volts", "must be >= 0")
         require(self.max_catch_up_s >= self.step_s, "max_catch_up_s", "must be at least one step")
+        require(self.beside_loop in BESIDE_LOOP, "beside_loop",
+                f"must be one of {', '.join(BESIDE_LOOP)}, got {self.beside_loop!r}")

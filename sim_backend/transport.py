@@ -8,8 +8,9 @@ lockstep with the loop (deterministic, faster than real time); handed ``time.mon
 it runs in real time. Sensor volts come from the rig file's own calibrations read
 backwards, plus seeded noise and ADC quantisation; output volts go through DAC quantisation.
 
-In real time the plant can step beside the loop instead (``beside_loop``, the default there):
-a thread of the loop's process advances it and leaves the latest sweep for the loop's read
+In real time the plant can step beside the loop instead (``beside_loop``; by default when the
+loop runs at a real-time priority): a thread of the loop's process advances it and leaves the
+latest sweep for the loop's read
 (:mod:`sim_backend.plant_thread`), as a DAQ samples on its own processor; outputs written
 in between take effect from when they were written, as in lockstep.
 
@@ -19,6 +20,7 @@ rail), a stuck sensor, a noise burst, a transport timeout, and loss of supply pr
 from __future__ import annotations
 
 import math
+import os
 import random
 import threading
 import time
@@ -38,7 +40,13 @@ from sim_backend.plant import SimArm
 from sim_backend.plant_thread import PlantThread
 
 FAULTS = ("disconnect", "stuck", "noise_burst", "timeout", "supply_lost")
+LATE_STEPS = 1.5  # beside the loop: a sweep older than this many plant steps is taken in the read instead
 WRITES_KEPT = 64  # beside the loop: outputs waiting for a tick (1-2 normally; bounded if its thread failed)
+
+
+def real_time_priority() -> bool:
+    """Whether the calling thread runs at a real-time policy (SCHED_FIFO or SCHED_RR)."""
+    return os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
 
 
 def converter(low: float, high: float, bits: int) -> tuple[float, float, float]:
@@ -63,8 +71,9 @@ class SimTransport(Transport):
     backend = "sim"
     rate_hz = 1000.0
 
-    def __init__(self, rig: RigConfig, options: SimOptions, clock: Callable[[], float], beside: bool = False):
-        """``beside``: step the plant in a thread of its own from the first read (real time only)."""
+    def __init__(self, rig: RigConfig, options: SimOptions, clock: Callable[[], float], beside: str = "never"):
+        """``beside`` (real time only): step the plant in a thread of its own from the first read,
+        ``"always"`` or when that read runs at a real-time priority (``"realtime"``)."""
         super().__init__()
         self.options = options
         self.clock = clock
@@ -94,7 +103,8 @@ class SimTransport(Transport):
         self._next_step_t = self._t0 + self.options.step_s * (1.0 - 1e-6)  # when another plant step is due [s]
         # Beside the loop: the plant's lock (its thread, an in-cycle catch-up, fault injection),
         # the outputs written since its last tick with their times, and its latest sweep.
-        self._beside = beside
+        self._beside = beside != "never"
+        self._beside_needs_rt = beside == "realtime"
         self._thread: PlantThread | None = None
         self._lock = threading.Lock()
         self._written: deque[tuple[tuple[float, ...], float]] = deque(maxlen=WRITES_KEPT)
@@ -105,9 +115,9 @@ class SimTransport(Transport):
     @classmethod
     def from_config(cls, rig: RigConfig, clock: Callable[[], float]) -> "SimTransport":
         """On the real-time clock (``time.monotonic``, what the daemon's loop runs on) the plant
-        steps beside the loop unless ``beside_loop = false``; on a virtual clock, in lockstep."""
+        steps beside the loop as ``beside_loop`` says; on a virtual clock, in lockstep."""
         options = build(SimOptions, rig.transport.options, "transport.options")
-        return cls(rig, options, clock, beside=options.beside_loop and clock is time.monotonic)
+        return cls(rig, options, clock, beside=options.beside_loop if clock is time.monotonic else "never")
 
     def close(self) -> None:
         """Stop the plant's thread; the outputs written last (the safe state, at shutdown) take effect."""
@@ -123,6 +133,8 @@ class SimTransport(Transport):
             self._health.errors += 1
             self._health.last_error = "simulated transport timeout"
             raise TransportTimeout("sim: simulated transport timeout (injected fault)")
+        if self._beside and self._thread is None and self._beside_needs_rt and not real_time_priority():
+            self._beside = False  # a thread that cannot take the loop's real-time priority would not keep pace
         if self._beside:
             sweep = self._beside_sweep()
         else:
@@ -138,9 +150,11 @@ class SimTransport(Transport):
         return InputSweep(self._seq, now, self._sample())
 
     def _beside_sweep(self) -> InputSweep:
-        """The plant thread's latest sweep, a new one at every read: the first read starts the
-        thread (so it takes the reader's scheduling), and when the thread has not ticked since
-        the last read (held up by a loaded machine, or the loop overran) the read ticks itself."""
+        """The plant thread's latest sweep, a new one at every read and never more than
+        ``LATE_STEPS`` old: the first read starts the thread (so it takes the reader's
+        scheduling), and when the thread has not ticked since the last read or its sweep is
+        older (the thread held up by a loaded machine, or the loop overran, or both held up
+        and the loop first to run again) the read ticks the plant itself."""
         thread = self._thread
         if thread is None:
             self.tick()
@@ -148,9 +162,9 @@ class SimTransport(Transport):
             self._thread.start()
         elif thread.failure is not None:
             raise TransportError(f"sim: the plant's thread failed: {type(thread.failure).__name__}: {thread.failure}")
-        elif self._latest.seq == self._read_seq and self._lock.acquire(timeout=self.options.step_s):
+        elif self._behind() and self._lock.acquire(timeout=self.options.step_s):
             try:  # the thread mid-tick: at most a tick's wait; held up: its tick, here
-                if self._latest.seq == self._read_seq:
+                if self._behind():
                     self._tick_locked()
                     counters = self._health.counters
                     counters["plant_ticks_in_cycle"] = counters.get("plant_ticks_in_cycle", 0) + 1
@@ -159,6 +173,10 @@ class SimTransport(Transport):
         sweep = self._latest
         self._read_seq = sweep.seq
         return sweep
+
+    def _behind(self) -> bool:
+        latest = self._latest
+        return latest.seq == self._read_seq or self.clock() - latest.t > LATE_STEPS * self.options.step_s
 
     def tick(self) -> None:
         """Beside the loop: take the outputs written since the last tick, each from when it was

@@ -2,7 +2,9 @@
 through the real drivers (hal.rig.RigIO) as the daemon will see them."""
 import dataclasses
 import math
+import os
 import statistics
+import threading
 import time
 
 import pytest
@@ -135,13 +137,12 @@ def test_virtual_clock_lockstep_steps_once_per_millisecond():
     assert sim.arm.joints[0]._k == 500
 
 
-def real_time_rig(beside: bool = True) -> RigIO:
+def real_time_rig(beside: str = "always") -> RigIO:
     """The built-in rig's simulated transport on the real-time clock, as the daemon opens it."""
     from hal import config
     rig = config.load()
-    if not beside:
-        rig = dataclasses.replace(rig, transport=dataclasses.replace(
-            rig.transport, options={**rig.transport.options, "beside_loop": False}))
+    rig = dataclasses.replace(rig, transport=dataclasses.replace(
+        rig.transport, options={**rig.transport.options, "beside_loop": beside}))
     transport = SimTransport.from_config(rig, time.monotonic)
     transport.open()
     return RigIO(rig, transport)
@@ -154,7 +155,7 @@ def wait_for(predicate, timeout_s: float = 30.0) -> None:
         time.sleep(0.005)
 
 
-@pytest.mark.parametrize("beside", [True, False], ids=["beside the loop", "in the read"])
+@pytest.mark.parametrize("beside", ["always", "never"], ids=["beside the loop", "in the read"])
 def test_real_time_mode_follows_the_wall_clock(beside):
     io = real_time_rig(beside)
     try:
@@ -203,6 +204,51 @@ def test_beside_the_loop_every_read_is_a_new_sample_even_with_the_thread_stopped
         assert transport.health().counters["plant_ticks_in_cycle"] == 3
     finally:
         transport.close()
+
+
+def test_beside_the_loop_a_sweep_older_than_a_step_and_a_half_is_taken_in_the_read():
+    io = real_time_rig()
+    transport = io.transport
+    try:
+        io.read()
+        transport._thread.close()
+        transport.tick()  # a sweep the loop has not read, then the loop held up (both threads, say)
+        time.sleep(0.01)
+        snap = io.read()
+        assert time.monotonic() - snap.t < 0.005  # not the 10 ms old one: stale input would trip the arm
+        assert transport.health().counters["plant_ticks_in_cycle"] == 1
+    finally:
+        transport.close()
+
+
+def test_by_default_the_plant_steps_beside_the_loop_only_at_a_real_time_priority():
+    io = real_time_rig("realtime")
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        io.read()
+        assert io.transport._thread is None  # no priority for a thread to take: the read steps the plant
+    finally:
+        io.transport.close()
+    io = real_time_rig("realtime")
+    policy = []
+
+    def read_at_real_time():  # as the daemon's loop reads: at SCHED_FIFO (a thread's own policy, on Linux)
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        except PermissionError:
+            return
+        io.read()
+        policy.append(os.sched_getscheduler(io.transport._thread._thread.native_id))
+
+    try:
+        reader = threading.Thread(target=read_at_real_time)
+        reader.start()
+        reader.join()
+        if not policy:
+            pytest.skip("SCHED_FIFO is not permitted here (not root, no CAP_SYS_NICE)")
+        assert policy == [os.SCHED_FIFO]  # the plant's thread took the loop's real-time policy
+    finally:
+        io.transport.close()
 
 
 def test_beside_the_loop_a_failed_plant_thread_is_a_transport_error():
