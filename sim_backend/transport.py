@@ -190,7 +190,7 @@ class SimTransport(Transport):
             values, t = written.popleft()
             if t >= self._next_step_t:
                 self._advance(t)
-            self._out = [quantise(v, *dac) for v, dac in zip(values, self._dac)]
+            self._drive(values)
         now = self.clock()
         self._advance(now)
         self._latest = self._sweep(now)
@@ -206,6 +206,10 @@ class SimTransport(Transport):
             return
         if now >= self._next_step_t:  # the common case in process: the read of this cycle brought it up to date
             self._advance(now)
+        self._drive(values)
+
+    def _drive(self, values: Sequence[float]) -> None:
+        """The DACs take ``values`` [V], quantised."""
         self._out = [quantise(v, *dac) for v, dac in zip(values, self._dac)]
 
     @property
