@@ -126,7 +126,7 @@ def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predict
     routine's estimate is made of) at the V_MV the model says holds the joint where it was
     (and moves it at its drift): the built-in rig carries no payload."""
     from controllers.nominal import NominalJoint
-    from daemon.client import identify, payload_routine
+    from daemon.client import payload_routine
     from hal import config
     rig, engine, tiled, _ = setup
     rig_config = config.parse(rig.link.describe["rig"]["source"])
@@ -161,7 +161,7 @@ def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predict
         drift = (angle[-1] - angle[0]) / (t[inside][-1] - t[inside][0])  # [rad/s]
         joint = next(j for j in rig_config.joints if j.name == name)
         model = NominalJoint.from_rig(joint, rig_config.joint_params(joint))
-        held = identify.holding_volts(rig_config, name, math.degrees(angle.mean())) + model.D / model.kt * drift
+        held = model.static_volts(float(angle.mean()), 0.0, 0.0) + model.D / model.kt * drift
         assert abs(math.degrees(angle.mean()) - posture[k - 1]) < args["band_deg"]  # centred on the posture
         assert amplitude == pytest.approx(args["amplitude_v"], rel=0.2), (name, amplitude)  # open loop: the signal's
         # three periods average less of the friction away than the routine's twelve: 0.04 V seen

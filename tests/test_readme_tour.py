@@ -27,7 +27,7 @@ import pytest
 
 from daemon.recordings import mcap_log
 from daemon.client.client import Client
-from tests.daemons import (endpoint_env, free_tcp_ports, private_endpoints, tolerant_rig,
+from tests.daemons import (endpoint_env, free_tcp_ports, private_endpoints, tolerant_rig_text,
                            wait_for_own_daemon)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,10 +80,10 @@ def start_daemon(tmp_path: Path, cwd: Path) -> tuple[subprocess.Popen, dict[str,
     # follows it to its recording's file; beside two CPU hogs the recorder (nice 5) wrote that
     # file more than the 60 s grace after the path had ended, and the daemon disabled the arm
     # as its rig file tells it to, before the tour's next motion line.
-    rig = tolerant_rig(tmp_path)
-    text = rig.read_text()
-    rig.write_text(text.replace("unleased_grace_s = 60.0", f"unleased_grace_s = {TOUR_GRACE_S}"))
-    assert rig.read_text() != text
+    text = tolerant_rig_text().replace("unleased_grace_s = 60.0", f"unleased_grace_s = {TOUR_GRACE_S}")
+    assert f"unleased_grace_s = {TOUR_GRACE_S}" in text
+    rig = tmp_path / "tour-rig.toml"
+    rig.write_text(text)
     daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config",
                                str(rig), "--record-dir", str(tmp_path / "recordings"),
                                *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=cwd)
