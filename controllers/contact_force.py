@@ -36,7 +36,11 @@ At first touch (8 taxels active) a quadric fit of the taxels gives the geometry 
 Gauss-Newton steps of the pressure model refine it with beta held at 0.5; the rates start at
 0. A track whose model no longer explains the frames (the residual's mean square over
 ``LOST_CHI2`` times the noise's, its RMS over 3 times, for ``LOST_FRAMES`` frames in a row: a
-second impact, a slip) starts again from the frame. The inverse of the information gives each
+second impact, a slip) starts again from the frame, as does a track the reader left for more
+than ``STALE_MEMORIES`` memories (a stalled sensor process): what it knew is forgotten
+(weight under e^-8) and its straight-line prediction that far on is no place to linearise a
+single step at (simulated impacts: sigma-true up to 32 ms gaps, 5-50 sigma off after 64-100 ms
+ones). The inverse of the information gives each
 parameter's 1 sigma; sigma is the data sheet's noise, or more when the residuals of tracked
 frames say so (a slow average), so a noisier pad widens the sigmas instead of making them lie.
 """
@@ -67,6 +71,7 @@ GROWTH_STEP_PER_S = 120.0  # 1 sigma of a frame's change in a relative rate (a^2
 BETA_RATE_STEP_PER_S = 4.0  # likewise for beta's rate [1/s]
 NOMINAL_FRAME_HZ = 4000.0  # the sensor's rate, where the steps above were chosen
 LOST_CHI2, LOST_FRAMES = 9.0, 3
+STALE_MEMORIES = 8.0  # a gap longer than this many (geometry) memories starts the track again
 START_STEPS = 6  # Gauss-Newton steps on the first frame
 LEVELS = 6  # s; the rates s' follow
 BETA = 5
@@ -115,6 +120,7 @@ class ContactEstimator:
                 raise ValueError(f"{name} {value}: must be within (0, 1] s")
         self.forgetting = np.exp(-1.0 / (frame_hz * np.array([memory_s] * (LEVELS - 1) + [beta_memory_s])))
         self.frame_hz = frame_hz
+        self.stale_frames = STALE_MEMORIES * memory_s * frame_hz
         self.grid = SensingGrid()
         self.noise_var = NOISE_PA ** 2  # [Pa^2]: the sensor's, or more when its residuals say so
         self.reset()
@@ -123,14 +129,16 @@ class ContactEstimator:
         self.state = None  # (s, s') [mm, mm^2, -; per frame], or None: no contact tracked
         self.info = None  # N, 12 x 12, in 1 / (s, s')^2
         self.lost = 0
+        self.track_frames = 0  # frames this track has estimated
 
     def update(self, frame_pa: np.ndarray, frames: int = 1) -> ContactEstimate | None:
         """One frame [Pa] (16 x 16, NaN where dead) -> the contact, or None (no contact)."""
         if frames < 1:
             raise ValueError(f"frames {frames}: at least one frame period since the last update")
         region = contact_region(frame_pa)
-        if region is None:
+        if region is None or frames > self.stale_frames:
             self.reset()
+        if region is None:
             return None
         ring = dilate(region) & ~np.isnan(frame_pa)
         p, px, py = frame_pa[ring], self.grid.px[ring], self.grid.py[ring]
@@ -147,6 +155,7 @@ class ContactEstimator:
         if self.lost >= LOST_FRAMES:  # the track no longer explains the frames: start again from this one
             self.reset()
             return self.update(frame_pa)
+        self.track_frames += 1
         return self._estimate(len(p), residual)
 
     def _start(self, region, frame_pa, px, py, p) -> bool:
@@ -235,4 +244,5 @@ class ContactEstimator:
         grad = np.array([0.0, 0.0, force / a, force / b, force / p_max, -force / (beta + 1.0)])
         force_sd = math.sqrt(max(float(grad @ params_cov @ grad), 0.0)) / MM ** 2
         return ContactEstimate(cx / MM, cy / MM, a / MM, b / MM, p_max, beta, taxels, residual,
-                               sd[0] / MM, sd[1] / MM, sd[2] / MM, sd[3] / MM, sd[4], sd[5], force_sd)
+                               sd[0] / MM, sd[1] / MM, sd[2] / MM, sd[3] / MM, sd[4], sd[5], force_sd,
+                               self.track_frames)

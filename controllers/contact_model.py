@@ -34,7 +34,8 @@ class ContactEstimate(Contact):
     """An identified contact [m, Pa], with the taxels the fit used, the model's relative RMS
     residual over them before this frame's step (0: it explains every taxel), and, from an
     estimator that knows it, each parameter's 1-sigma uncertainty (same units; NaN when the
-    estimator gives none)."""
+    estimator gives none) and the frames its track has estimated, this one included (a young
+    track's sigma is its start's linearisation's; 0 from an estimator that keeps no track)."""
 
     taxels: int = 0
     residual: float = 0.0
@@ -45,6 +46,7 @@ class ContactEstimate(Contact):
     p_max_sd: float = math.nan
     beta_sd: float = math.nan
     force_sd_n: float = math.nan
+    track_frames: int = 0
 
 
 class SensingGrid:

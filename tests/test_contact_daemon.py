@@ -57,35 +57,37 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
     touching = [m for m in messages if m["contact"] is not None]
     assert 0.2 * len(messages) < len(touching) < 0.8 * len(messages)  # 0.5 s of every 1 s, give or take the edges
     # an estimate is judged once its track has estimated as many frames as its longest memory
-    # holds: what the sensor process got, not the wall clock (a starved process passes over
-    # frames, and a touch's first few estimates then come from a track of a handful of frames).
-    # A track starts again after any frame estimated as no contact, published or not.
+    # holds (``track_frames``: what the sensor process got, not the wall clock; a starved
+    # process passes over frames, and a track's first estimates carry their start's sigmas).
     memory_frames = sensor.beta_memory_ms / 1e3 * sensor.rate_hz
     # Beta's noise grows as the square root of the frames passed over (with a quarter of the
     # frames it doubles: tests/test_contact_force.py), so its 5 % at every frame widens by
     # that factor over the frames since the message before.
-    checked, track_start, no_contact_frames, before = 0, None, None, None
-    for m in messages:
-        if m["contact"] is None or m["frames"] - m["contact_frames"] != no_contact_frames:
-            track_start, no_contact_frames = m["contact_frames"], m["frames"] - m["contact_frames"]
-        before, previous = m, before
-        if m["contact"] is None or previous is None or m["frame"] == previous["frame"]:
+    sigmas = {"a": "a_sd", "b": "b_sd", "p_max": "p_max_sd", "beta": "beta_sd", "force_n": "force_sd_n"}
+    z = {name: [] for name in sigmas}  # error over the estimate's own 1 sigma
+    for previous, m in zip(messages, messages[1:]):
+        if m["contact"] is None or m["frame"] == previous["frame"]:
             continue  # (the same estimate again: a starved sensor process had no newer one)
         spanned, estimated = m["frame"] - previous["frame"], m["frames"] - previous["frames"]
         widened = {"beta": np.sqrt(spanned / max(estimated, 1))}
         true = truth.truth(m["frame"])
         assert true is not None, f"frame {m['frame']}: a contact reported where the pad had none"
-        track_frames = m["contact_frames"] - track_start
-        if true.b >= 2.5 * PAD_M / TAXELS and track_frames >= memory_frames:
-            found = m["contact"]
-            for name in ("a", "b", "p_max", "beta", "force_n"):
+        found = m["contact"]
+        if true.b >= 2.5 * PAD_M / TAXELS and found["track_frames"] >= memory_frames:
+            for name, sd in sigmas.items():
                 assert found[name] == pytest.approx(getattr(true, name), rel=0.05 * widened.get(name, 1.0)), \
                     (m["frame"], name, f"{estimated} of {spanned} frames estimated")
-            for name, sd in (("a", "a_sd"), ("b", "b_sd"), ("p_max", "p_max_sd"), ("beta", "beta_sd"),
-                             ("force_n", "force_sd_n")):  # its own 1 sigma, believable
-                assert 0 < found[sd] and abs(found[name] - getattr(true, name)) < 5 * found[sd], (m["frame"], name)
-            checked += 1
-    assert checked > 50
+                assert found[sd] > 0, (m["frame"], sd)
+                z[name].append((found[name] - getattr(true, name)) / found[sd])
+    # its own 1 sigma, believable: about the errors' size over the run (a sigma three times too
+    # wide or twice too narrow fails), and no estimate far outside it. A reader passing over
+    # frames irregularly widens the tails (to 7.6 sigma on this replayed impact offline,
+    # docs/estimation.md), so the single estimate's bound is 10, not the 5 of every frame.
+    assert len(z["a"]) > 50
+    for name, values in z.items():
+        values = np.array(values)
+        assert 0.33 < np.sqrt(np.mean(values ** 2)) < 2.0, (name, np.sqrt(np.mean(values ** 2)))
+        assert np.abs(values).max() < 10.0, (name, np.abs(values).max())
     assert all(m["bad_frames"] == 0 for m in messages)
     columns = recording.load(tmp_path / "run.mcap")  # recorded, and a notebook's columns
     assert len(columns["contact.a"]) > 100 and np.nanmax(columns["contact.a"]) > 0.01

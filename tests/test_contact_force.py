@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controllers.contact_force import ContactEstimator
+from controllers.contact_force import MEMORY_S, ContactEstimator
 from controllers.contact_model import contact_region
 from controllers.contact_paper import PaperSWLS, PlainWLS
 from hal.taxel_array import (
@@ -128,6 +128,32 @@ def test_a_track_that_no_longer_fits_starts_again_from_the_frame():
     for name in ("a", "b", "p_max"):
         assert getattr(found[-1], name) == pytest.approx(getattr(second, name), rel=0.02)
     assert found[-1].beta == pytest.approx(second.beta, rel=0.05)
+
+
+@pytest.mark.parametrize("stall_s", [0.064, 0.1])
+def test_a_reader_that_stalls_mid_impact_starts_a_new_track_and_its_sigma_tells_the_truth_again(stall_s):
+    """A sensor process that stalls for 64 or 100 ms in the middle of an impact (over 8 of its
+    4 ms memories): the estimator starts a new track on the next frame instead of one step from
+    its straight-line prediction that far on, and once the new track has estimated a memory's
+    worth of frames its errors are within 5 % and 5 of its own sigma again."""
+    estimator = ContactEstimator()
+    frames = list(frames_of(Impact(0.11), spread_calibration(seed=13), seed=14))
+    stall_from, stall = 1200, int(stall_s * FRAME_HZ)
+    last, after = -1, []
+    for k, (truth, frame) in enumerate(frames):
+        if stall_from < k < stall_from + stall:
+            continue  # the reader is stalled: these frames pass unread
+        found = estimator.update(frame, frames=k - last)
+        last = k
+        if k >= stall_from + stall and truth is not None and truth.b >= 2.5 * PITCH_M:
+            after.append((found, truth))
+    assert after[0][0].track_frames == 1  # a new track, from the first frame after the stall
+    settled = [(found, truth) for found, truth in after if found.track_frames >= MEMORY_S * FRAME_HZ]
+    assert len(settled) > 100
+    for found, truth in settled:
+        for name, sd in zip(PARAMS, SIGMAS):
+            assert getattr(found, name) == pytest.approx(getattr(truth, name), rel=0.05), name
+            assert abs(getattr(found, name) - getattr(truth, name)) < 5 * getattr(found, sd), (found.track_frames, name)
 
 
 @pytest.mark.parametrize("frame_hz, every", [(FRAME_HZ, 4), (1000.0, 1)])

@@ -27,6 +27,7 @@ from hal.taxel_array import ContactSensorConfig
 
 from daemon.wire.telemetry_rows import CONTACT_FIELDS as FIELDS
 
+INTEGER_FIELDS = ("taxels", "track_frames")
 COUNTERS = ("frames", "late_frames", "bad_frames", "contact_frames")
 HEAD = 3  # frame index, its time.monotonic(), whether an estimate follows; then FIELDS
 _ERROR_BYTES = 240
@@ -82,7 +83,7 @@ class ContactSensor:
             self._last_seq = found[0]
             frame, self._latest_mono, valid = found[1][:HEAD]
             self._latest = {"frame": int(frame), "frame_t": self.clock() - self._age(),
-                            "contact": ({name: (int(v) if name == "taxels" else v)
+                            "contact": ({name: (int(v) if name in INTEGER_FIELDS else v)
                                          for name, v in zip(FIELDS, found[1][HEAD:])} if valid else None)}
         if self._latest is None:
             return None

@@ -112,6 +112,7 @@ def load(path) -> dict[str, np.ndarray]:
     if contact:
         out["contact.frame_t"] = np.array([m["frame_t"] for m in contact], dtype=float)
         for key in CONTACT_FIELDS:
-            out[f"contact.{key}"] = np.array([m["contact"][key] if m["contact"] else np.nan for m in contact],
-                                             dtype=float)
+            # (.get: a field newer than the recording, e.g. track_frames, reads as NaN)
+            out[f"contact.{key}"] = np.array([m["contact"].get(key, np.nan) if m["contact"] else np.nan
+                                              for m in contact], dtype=float)
     return out

@@ -12,8 +12,9 @@ from daemon.wire.states import State
 
 STATE_FIELDS = ("cycle", "t", "angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts",
                 "p_head_pa", "p_rod_pa", "out_volts", "force_n", "mode", "shadow_u_volts")
-# the ``contact`` topic's estimate: centre, semi-axes, peak pressure, shape, force, each with its 1 sigma
-CONTACT_FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual",
+# the ``contact`` topic's estimate: centre, semi-axes, peak pressure, shape, force, each with its 1 sigma;
+# the track's age in estimated frames
+CONTACT_FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual", "track_frames",
                   "cx_sd", "cy_sd", "a_sd", "b_sd", "p_max_sd", "beta_sd", "force_sd_n")
 MODES = tuple(s.value for s in State)
 MODE_INDEX = {s: i for i, s in enumerate(State)}
