@@ -24,7 +24,7 @@ _ids = itertools.count(1)
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    # the largest builds take a second on a quiet machine and far longer at nice 19 beside
+    # the largest builds take a second on a quiet machine and far longer at nice 10 beside
     # other work: what these cases check is the answer, not this machine's speed
     proc, eps = real_daemon(tmp_path_factory.mktemp("every-command"), "--stats-period", "0.2",
                             "--prepare-limit-s", "600", module="tests.forbid_planning")

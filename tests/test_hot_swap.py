@@ -2,12 +2,14 @@
 at a cycle boundary, a candidate can run in shadow and be committed, and a failing
 candidate only ends its own run. The real loop on a virtual clock, real ZeroMQ sockets."""
 import math
+import os
 import time
 
 import msgpack
 import pytest
 
 from controllers import lti_design
+from daemon.planner.process import BUILD_NICE, Preparer
 from daemon.wire import protocol as P
 from tests import plugins
 from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
@@ -253,3 +255,15 @@ def test_a_request_never_chooses_a_module_to_import(enabled, name, module):
         assert asked.future.result(timeout=30) is False
     assert loop.controller.name == "pid"
     assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"
+
+
+def test_the_worker_warms_at_the_daemons_priority_and_builds_at_build_nice():
+    """A build after the warm-up runs at BUILD_NICE: below the courier and a --no-rt loop,
+    not so far below that other work on the PC starves it (daemon/planner/process.py)."""
+    preparer = Preparer(time_limit_s=60.0)
+    try:
+        assert preparer.warm().result(timeout=120.0) is None
+        build = preparer.submit(dict, os.getpriority, os.PRIO_PROCESS, 0)
+        assert build.future.result(timeout=120.0) == BUILD_NICE == 10 > os.getpriority(os.PRIO_PROCESS, 0)
+    finally:
+        preparer.close()

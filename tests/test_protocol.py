@@ -36,7 +36,7 @@ def served():
 
 def leased(loop, sock):
     """The lease for 60 s, not the rig's 2 s: a deferred command's reply is waited for while the
-    loop cycles about in real time, and beside CPU hogs the nice-19 planner took over 2 s to
+    loop cycles about in real time, and beside CPU hogs the planner (then at nice 19) took over 2 s to
     derive a controller's parameters (the lease expired between two requests: no_lease)."""
     return ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
 

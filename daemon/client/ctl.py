@@ -21,7 +21,7 @@ def with_lease(client: Client, fn):
     it stays enabled, the daemon's note on what becomes of it is printed, the first time in
     that enabled period only). The lease is
     renewed while the command runs: a command whose work is done beside the loop (a
-    controller built at nice 19, a plan) can take longer than any fixed lease on a busy PC,
+    controller built at nice 10, a plan) can take longer than any fixed lease on a busy PC,
     and a lapsed lease trips an enabled arm. It is asked for ``ONE_SHOT_LEASE_S``, not the
     rig's 2 s: on a loaded PC this process can be held longer than that between renewals."""
     client.acquire_lease(ONE_SHOT_LEASE_S)

@@ -11,10 +11,12 @@ thread only puts a job on a queue and later reads a finished future.
 The courier is created with the daemon, before the real-time set-up, so it and every worker
 it spawns keep the normal scheduling policy; the worker is a helper process
 (:class:`hal.process.Helper`: a fresh interpreter, never a fork of the loop's process), which
-drops any real-time policy it might have inherited, runs its builds at nice 19 and dies with
+drops any real-time policy it might have inherited, runs its builds at nice 10 and dies with
 the daemon (the warm-up at the daemon's start, before the loop runs, at the normal priority:
 at nice 19 beside two busy processes its imports took longer than the job limit and the
-daemon did not start). It is started on the first job or by :meth:`Preparer.warm`, and started again
+daemon did not start). Nice 10, not 19: a waking nice-0 courier or --no-rt loop still takes
+the CPU from it at once and outweighs it 9 to 1, while beside two CPU hogs a 0.6 s build
+(the largest input multisine's) took 15-40 s at nice 19, and over 600 s in a loaded test run. It is started on the first job or by :meth:`Preparer.warm`, and started again
 if it dies or overruns its time limit, which fails only the job it was doing. One job at a
 time: a second request while one is prepared is refused, so a flood of expensive requests
 cannot queue up work.
@@ -34,7 +36,7 @@ from multiprocessing.connection import Connection
 from hal.process import Child, Helper, HelperFailed
 
 DEFAULT_TIME_LIMIT_S = 30.0  # a build slower than this is taken as hung and its worker stopped
-BUILD_NICE = 19  # the worker's priority for every job but the warm-up
+BUILD_NICE = 10  # the worker's priority for every job but the warm-up
 
 
 class PreparationFailed(RuntimeError):
@@ -166,7 +168,7 @@ class _Worker:
 # -- in the worker process ----------------------------------------------------------------
 def serve(child: Child, fd: int) -> None:
     """The worker's main: answer jobs until the socket closes. Every job but the warm-up at
-    nice 19, so the courier, which holds the GIL while it unpickles, is never waiting for a
+    BUILD_NICE, so the courier, which holds the GIL while it unpickles, is never waiting for a
     CPU behind the worker (the loop would wait for the courier)."""
     conn = Connection(fd)
     child.ready()

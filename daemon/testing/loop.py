@@ -107,7 +107,7 @@ def dealer(srv: ZmqServer, which: str = "command") -> zmq.Socket:
 def exchange(loop: ControlLoop, sock: zmq.Socket, payload: bytes, limit_s: float = 120.0, each_cycle=None):
     """Send raw bytes and run the loop until the reply arrives; the decoded reply (or None
     after ``limit_s`` of wall time: the reply is waited for, however busy the machine, e.g. a
-    build in the nice-19 planner beside two CPU hogs; 5000 cycles were too few there).
+    build in the niced planner beside two CPU hogs; 5000 cycles were too few there).
     ``each_cycle``, if given, is called after every cycle the exchange runs.
 
     The virtual clock moves only by the cycles the request needs, not by how fast this
