@@ -39,7 +39,7 @@ Gauss-Newton steps of the pressure model refine it with beta held at 0.5; the ra
 second impact, a slip) starts again from the frame, as does a track the reader left for more
 than ``STALE_MEMORIES`` memories (a stalled sensor process): what it knew is forgotten
 (weight under e^-8) and its straight-line prediction that far on is no place to linearise a
-single step at (simulated impacts: sigma-true up to 32 ms gaps, 5-50 sigma off after 64-100 ms
+single step at (simulated impacts: sigma-true up to 32 ms gaps, up to 67 sigma off after 100 ms
 ones). The inverse of the information gives each
 parameter's 1 sigma; sigma is the data sheet's noise, or more when the residuals of tracked
 frames say so (a slow average), so a noisier pad widens the sigmas instead of making them lie.
