@@ -96,16 +96,21 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         # a loop on a wire without real-time priority runs late: the analysis put each experiment
         # back on the period by its samples' times, and said how late it was
         assert [b["period_s"] for b in report["time_base"]] == [0.001] * 3
+        # The dead time the loop sees through the wire is the plant's plus the wire's: a command
+        # waits for the transport worker's next exchange and rides it, and a sample comes back
+        # at an exchange's end. A fresh sample came every mean cycle / (1 - stale share) (the
+        # report's time base); up to four of those on top (quiet: ~4 ms, inside the 10 %;
+        # beside two CPU hogs, a fresh sample every 2.5 ms and 10 ms more dead time seen).
+        exchange_s = max(b["mean_period_s"] / (1.0 - b["stale_fraction"]) for b in report["time_base"])
         for name, factor in TRUTH.items():  # the plant, which nothing told it
             # within 10 %, or three times the uncertainty the fit itself states (its Jacobian's
             # 1 sigma plus its final population's spread; T_dly's in seconds, the others relative):
             # a realisation a busy machine made noisier is judged by what the fit claims for it.
-            # The dead time seen through the wire is the plant's plus the wire's (a read and a
-            # write, a few ms here), inside the 10 %.
             truth = getattr(prior, name) * factor
             stated = report["relative_std"][name] + report["population_std"][name]
             tolerance = max(0.1 * truth, 3 * stated * (1.0 if name == "T_dly" else truth))
-            assert report["params"][name] == pytest.approx(truth, abs=tolerance), (name, stated)
+            wire = 4 * exchange_s if name == "T_dly" else 0.0
+            assert truth - tolerance <= report["params"][name] <= truth + tolerance + wire, (name, stated, exchange_s)
         for figure in report["figures"]:
             assert (out / figure.rsplit("/", 1)[-1]).stat().st_size > 20_000
         written = config.load(out / "rig.toml")
