@@ -17,7 +17,7 @@ from daemon.loop.clock import MonotonicClock
 from daemon.loop.cycle import ControlLoop
 from daemon.loop.port import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
 from daemon.messenger.process import MessengerError
-from daemon.planner.process import DEFAULT_TIME_LIMIT_S
+from daemon.planner.process import BUILD_NICE, DEFAULT_TIME_LIMIT_S
 from daemon.service import realtime
 from daemon.service.notify import Notifier
 from hal import config
@@ -204,7 +204,7 @@ def parser() -> argparse.ArgumentParser:
     run.add_argument("--telemetry", default=DEFAULT_TELEMETRY, help=f"telemetry endpoint (default {DEFAULT_TELEMETRY})")
     run.add_argument("--prepare-limit-s", type=_positive, default=DEFAULT_TIME_LIMIT_S,
                      help="a plan or controller build beside the loop that takes longer than this [s] is taken as "
-                          f"hung and stopped (default {DEFAULT_TIME_LIMIT_S:g}; builds run at nice 10, so a PC busy "
+                          f"hung and stopped (default {DEFAULT_TIME_LIMIT_S:g}; builds run at nice {BUILD_NICE}, so a PC busy "
                           "with other work may need more); clients read it from describe")
     run.add_argument("--stats-period", type=float, default=1.0, help="window of the stats telemetry [s] (default 1)")
     run.add_argument("--keys", default=None, metavar="DIR",
