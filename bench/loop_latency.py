@@ -106,6 +106,7 @@ def main() -> None:
                 effects.append((reply["cycle"], math.radians(target[0])))
             time.sleep(0.004)
         messenger_s = messenger_cpu.seconds()
+        transport = client.status()["transport"]
         ct_result = cyclictest.result(ct) if ct else None
         stats = None
         if stats_sub.poll(int((args.seconds + 5) * 1e3)):
@@ -121,6 +122,7 @@ def main() -> None:
         daemon.terminate()
         daemon.wait(10)
     report(args, stats, ct_result, rtt, effects, healthy)
+    print(f"transport counters        : {transport['counters'] or 'none'} over {transport['reads']} reads")
     if messenger_s is not None:
         print(f"messenger process CPU     : {messenger_s / args.seconds * 100:.1f} % of a core over the run")
     if fox is not None:

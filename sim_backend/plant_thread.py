@@ -11,7 +11,9 @@ at the end of its cycle, and is done long before the loop's next wake-up (timer-
 ticks in the middle of the period missed the window about one period in thirty: a tick
 delayed into the loop's spin before its deadline waits out the whole next cycle). So a
 sample is most of a period old when the loop reads it, as from a DAQ that samples between
-the loop's cycles.
+the loop's cycles. A tick follows each write, also one that comes late (the loop woken
+late, or the thread's own tick held up): a tick held up past the next grid point used to
+wait for the grid point after it, and the loop's next read found no new sweep.
 Started from the loop's first read, the thread takes the loop's scheduling (SCHED_FIFO and
 CPU placement are inherited), so the plant keeps pace with the loop it feeds.
 """
@@ -22,15 +24,17 @@ import time
 from collections.abc import Callable
 
 PHASE = 0.05  # a tick is due this fraction of a period after the loop's latest write
+LATE_WRITE = 0.5  # a write up to this much of a period late is waited for; later, the plant ticks without it
 
 
 class PlantThread:
     """Calls ``tick`` once every ``period_s``, phased on ``wrote_at()`` (when the loop last wrote
-    [s, ``clock``'s time]); a tick that raises ends the thread and is kept in :attr:`failure`."""
+    [s, ``clock``'s time]): once after each write, and on the writes' grid while none comes (a
+    stalled loop); a tick that raises ends the thread and is kept in :attr:`failure`."""
 
     def __init__(self, tick: Callable[[], None], period_s: float, clock: Callable[[], float],
-                 wrote_at: Callable[[], float]):
-        self._tick, self._period, self._clock, self._wrote_at = tick, period_s, clock, wrote_at
+                 wrote_at: Callable[[], float], sleep: Callable[[float], None] = time.sleep):
+        self._tick, self._period, self._clock, self._wrote_at, self._sleep = tick, period_s, clock, wrote_at, sleep
         self._running = True
         self.failure: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="pneumad-sim-plant", daemon=True)
@@ -39,18 +43,22 @@ class PlantThread:
         self._thread.start()
 
     def _run(self) -> None:
-        h, clock = self._period, self._clock
-        last = clock()
+        h, clock, sleep = self._period, self._clock, self._sleep
+        last, followed = clock(), None  # the last tick's end, and the write it came after
         try:
             while self._running:
-                target = self._wrote_at() + PHASE * h
-                if target < last + 0.5 * h:  # the next one on the writes' grid, at least half a period on
-                    target += h * (int((last + 0.5 * h - target) / h) + 1)
+                wrote = self._wrote_at()
+                target = wrote + PHASE * h
+                if wrote == followed:  # no write since the last tick: the writes' next grid point after it
+                    target += h * max(1, int((last - target) / h) + 1)
                 delay = target - clock()
                 if delay > 0.0:
-                    time.sleep(delay)
+                    sleep(delay)
+                while self._wrote_at() == followed and clock() < target + LATE_WRITE * h:
+                    sleep(PHASE * h)  # the loop's write is late: the tick follows it, not the grid
                 if not self._running:
                     break
+                followed = self._wrote_at()
                 self._tick()
                 last = clock()
         except BaseException as exc:  # the loop's next read reports it: a transport failure, a trip

@@ -12,6 +12,7 @@ import pytest
 from hal.errors import CommandError, ConfigError, TransportError, TransportTimeout
 from hal.rig import RigIO
 from hal.kinematics import jacobian
+from sim_backend.plant_thread import PlantThread
 from sim_backend.transport import SimTransport, converter, quantise
 from daemon.testing.simrig import DT, make_rig
 
@@ -313,3 +314,38 @@ def test_a_command_acts_from_when_it_is_written_not_from_the_read_before_it():
     resting.clock.sleep_until(0.45)
     resting.io.read()
     assert abs(head[0] - resting.arm.joints[0].p_head) > 1e3  # the command did act within 150 ms [Pa]
+
+
+def test_the_plant_thread_ticks_once_after_each_write_also_a_late_one_and_after_a_held_up_tick():
+    """On a scripted clock (the thread's sleeps move it): writes 0.09 ms into each 1 ms period,
+    the fourth 0.26 ms late, and the tick after the second held up 0.6 ms; every write is
+    followed by exactly one tick before the next, so each of the loop's reads finds a new sweep."""
+    h = 1e-3
+    writes = [k * h + 0.09e-3 for k in range(12)]
+    writes[4] += 0.26e-3
+    now, ticks = [0.0], []
+
+    def wrote_at():
+        return max((w for w in writes if w <= now[0]), default=-1.0)
+
+    def tick():
+        ticks.append(now[0])
+        if len(ticks) == 3:
+            now[0] += 0.6e-3  # held up (the GIL, a loaded machine)
+
+    def sleep(seconds):
+        now[0] += seconds
+        if now[0] > writes[-1] + 0.5 * h:
+            thread._running = False
+        time.sleep(0)
+
+    thread = PlantThread(tick, h, lambda: now[0], wrote_at, sleep)
+    thread.start()
+    thread._thread.join(30.0)
+    assert not thread.alive and thread.failure is None
+    for before, after in zip(writes, writes[1:] + [math.inf]):
+        assert len([t for t in ticks if before <= t < after]) == 1, (before, ticks)
+    lags = [t - max(w for w in writes if w <= t) for t in ticks if t > writes[0]]
+    # phased on its write: 0.05 ms after it, and never more than half a period (the one after
+    # the late write is on the grid that write set, 0.31 ms after the next)
+    assert statistics.median(lags) <= 0.06e-3 and max(lags) <= 0.5 * h, lags
