@@ -53,6 +53,7 @@ def assert_bumpless(loop, captured, cycle):
     assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(after, before, span)), (before, after)
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_a_switch_is_built_off_the_loop_and_replied_once_it_is_in_force(moving):
     loop, captured, sock, lease = moving
     sent_at = loop.cycle
@@ -94,6 +95,7 @@ def test_a_controller_that_cannot_be_built_is_refused_and_the_active_one_stays(e
     assert loop.controller.name == "pid" and loop.state.value == "enabled"
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_an_lti_design_sent_over_the_wire_takes_over_bumplessly(moving):
     loop, captured, sock, lease = moving
     design = lti_design.read_file(lti_design.EXAMPLE)
@@ -104,6 +106,7 @@ def test_an_lti_design_sent_over_the_wire_takes_over_bumplessly(moving):
     assert max(abs(math.degrees(r - q)) for r, q in zip(loop.reference[0], loop.angles)) < 3.0
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(moving):
     loop, captured, sock, lease = moving
     assert ok(loop, sock, "controller.shadow", {"name": "smc_dob"}, lease)["shadow"] == "smc_dob"

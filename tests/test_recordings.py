@@ -211,6 +211,7 @@ def _strict(token: str):
     raise ValueError(f"{token} is not JSON (RFC 8259): a viewer's JSON.parse rejects it")
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 def test_a_muscle_rigs_recording_is_strict_json_that_validates_and_reads_back_nan(tmp_path):
     """The muscle joint takes no V_MV and the rig has no force sensor: those numbers are NaN in
     telemetry. Every JSON message of the recording still parses strictly (Foxglove parses with

@@ -29,6 +29,7 @@ def test_no_controller_trips_while_holding_on_the_thesis_corners(controller):
         assert loop.state.value == "enabled", (plant.name, loop.supervisor.cause)
 
 
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
 @pytest.mark.parametrize("controller", ["smc", "smc_dob"])
 def test_sliding_mode_holds_after_a_fast_path_without_alternating_its_output_every_cycle(controller):
     """The vertical line at the fastest the rig's authority allows (1.5 s), nominal plant without
