@@ -3,6 +3,7 @@ process (python -m sim_backend.serial_peer): tracking as in-process, a peer kill
 tripping the loop to the safe state, recovery after it returns and a reset, corrupted
 replies counted, a missing bridge refused at start, a bridge slow to answer at start waited for."""
 import os
+import signal
 import threading
 import time
 import tty
@@ -10,6 +11,7 @@ from dataclasses import replace
 
 import pytest
 
+from bench import wires
 from daemon import assembly
 from daemon.loop.clock import MonotonicClock
 from hal import config, serial_bridge
@@ -211,3 +213,31 @@ def test_a_bridge_that_answers_the_starts_safe_write_late_is_asked_again_and_the
         server.join()
         os.close(slave)
         os.close(master)
+
+
+@pytest.mark.slow(seconds=3)  # a few seconds: kept out of the fast subset
+def test_a_pause_of_the_loop_itself_is_not_stale_input_and_a_silent_bridge_still_is(link):
+    """The wire answers the request of the cycle before, so after the loop's own pause (held up
+    0.3 s, inside its 2 s stall limit) the sample it reads first is as old as the pause: that is
+    the stall rule's to judge, not the stale rule's (50 ms). A bridge that stops answering for
+    as long is stale input, and trips."""
+    proc = peer(link)
+    loop = wires.wire_loop("serial", {"port": str(link)}, safety={"stale_after_s": 0.05, "stall_after_s": 2.0},
+                           spin_s=0.0)
+    try:
+        loop.run(100)
+        loop.enable()
+        loop.run(100)
+        for _ in range(3):
+            time.sleep(0.3)  # the loop held up; the bridge goes on answering
+            loop.run(100)
+            assert loop.state.value == "enabled", loop.supervisor.cause
+        os.kill(proc.pid, signal.SIGSTOP)  # the bridge silent while the loop runs on
+        try:
+            loop.run(300)  # at least 0.3 s
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        assert loop.state.value == "fault" and "stale" in loop.supervisor.cause, loop.supervisor.cause
+    finally:
+        loop.shutdown()
+        stop_peer(proc)

@@ -78,6 +78,12 @@ class ControlLoop(LoopControls):
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
         self._deadline = 0.0
+        # The loop's own pauses (woken late, or a cycle that ran long) are the stall rule's: the
+        # input's age is counted from no earlier than the first wake after a pause that could
+        # age it past its limit, when the loop's next request went out (a pipelined wire answers
+        # the request of the cycle before; the sample it had is as old as the pause).
+        self._last_wake = -math.inf
+        self._resumed_at = -math.inf
         self._stats_due = 0.0
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
@@ -129,9 +135,13 @@ class ControlLoop(LoopControls):
         done = 0
         clock, period, stats = self.clock, self.period, self.stats
         stall_limit = self.rig.safety.stall_after_s
+        pause_s = self.rig.safety.stale_after_s + period  # a gap between two wakes that could age the input past its limit
         while not self.stop_requested and (cycles is None or done < cycles):
             clock.sleep_until(self._deadline)
             wake = clock.now()
+            if wake - self._last_wake > pause_s:
+                self._resumed_at = wake
+            self._last_wake = wake
             lateness = wake - self._deadline
             stats.latency.add(lateness)
             if lateness > stall_limit:
@@ -177,8 +187,10 @@ class ControlLoop(LoopControls):
         if snap is not None:
             self._update_measurement(snap)
             # the sample's age at this cycle's deadline: how late the transport is, not the
-            # loop (its own lateness is the stall check's, and the wake-up latency figures')
-            sup.check(snap.angles, self.velocities, snap.faults, self._deadline - snap.t)
+            # loop (its own lateness and pauses are the stall check's, and the wake-up latency
+            # figures'), so counted from no earlier than the loop's resumption after a pause
+            taken = snap.t if snap.t > self._resumed_at else self._resumed_at
+            sup.check(snap.angles, self.velocities, snap.faults, self._deadline - taken)
         if sup.enabled:
             self._control(wake)
         t2 = clock.now()
