@@ -219,11 +219,30 @@ def test_a_bridge_that_answers_the_starts_safe_write_late_is_asked_again_and_the
 def test_a_pause_of_the_loop_itself_is_not_stale_input_and_a_silent_bridge_still_is(link):
     """The wire answers the request of the cycle before, so after the loop's own pause (held up
     0.3 s, inside its 2 s stall limit) the sample it reads first is as old as the pause: that is
-    the stall rule's to judge, not the stale rule's (50 ms). A bridge that stops answering for
-    as long is stale input, and trips."""
+    the stall rule's to judge, not the stale rule's (50 ms). A bridge that stops answering is
+    stale input and trips, whether the loop runs on or pauses 60 ms before every cycle."""
     proc = peer(link)
     loop = wires.wire_loop("serial", {"port": str(link)}, safety={"stale_after_s": 0.05, "stall_after_s": 2.0},
                            spin_s=0.0)
+
+    def silent(run):
+        os.kill(proc.pid, signal.SIGSTOP)
+        try:
+            run()
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        assert loop.state.value == "fault" and "stale" in loop.supervisor.cause, loop.supervisor.cause
+        loop.run(100)  # answered again
+        loop.reset()
+        loop.enable()
+        loop.run(100)
+        assert loop.state.value == "enabled", loop.supervisor.cause
+
+    def pausing():
+        for _ in range(20):  # a trip within two of these: 60 ms of requests unanswered
+            time.sleep(0.06)
+            loop.run(1)
+
     try:
         loop.run(100)
         loop.enable()
@@ -232,12 +251,8 @@ def test_a_pause_of_the_loop_itself_is_not_stale_input_and_a_silent_bridge_still
             time.sleep(0.3)  # the loop held up; the bridge goes on answering
             loop.run(100)
             assert loop.state.value == "enabled", loop.supervisor.cause
-        os.kill(proc.pid, signal.SIGSTOP)  # the bridge silent while the loop runs on
-        try:
-            loop.run(300)  # at least 0.3 s
-        finally:
-            os.kill(proc.pid, signal.SIGCONT)
-        assert loop.state.value == "fault" and "stale" in loop.supervisor.cause, loop.supervisor.cause
+        silent(lambda: loop.run(300))  # at least 0.3 s
+        silent(pausing)
     finally:
         loop.shutdown()
         stop_peer(proc)

@@ -78,12 +78,13 @@ class ControlLoop(LoopControls):
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
         self._deadline = 0.0
-        # The loop's own pauses (woken late, or a cycle that ran long) are the stall rule's: the
-        # input's age is counted from no earlier than the first wake after a pause that could
-        # age it past its limit, when the loop's next request went out (a pipelined wire answers
-        # the request of the cycle before; the sample it had is as old as the pause).
-        self._last_wake = -math.inf
-        self._resumed_at = -math.inf
+        # When each cycle's write began [s] (a ring covering the stale limit): a pipelined wire
+        # answers the request of the cycle before, so the transport is late by the time since
+        # the first request it has not answered, not since the sample it gave (the loop's own
+        # pauses in between are the stall rule's). See _input_age.
+        size = 2 ** math.ceil(math.log2(self.rig.safety.stale_after_s / self.period + 2))
+        self._writes, self._writes_mask, self._writes_n = [-math.inf] * size, size - 1, 0
+        self._stale_limit = self.rig.safety.stale_after_s
         self._stats_due = 0.0
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
@@ -135,13 +136,9 @@ class ControlLoop(LoopControls):
         done = 0
         clock, period, stats = self.clock, self.period, self.stats
         stall_limit = self.rig.safety.stall_after_s
-        pause_s = self.rig.safety.stale_after_s + period  # a gap between two wakes that could age the input past its limit
         while not self.stop_requested and (cycles is None or done < cycles):
             clock.sleep_until(self._deadline)
             wake = clock.now()
-            if wake - self._last_wake > pause_s:
-                self._resumed_at = wake
-            self._last_wake = wake
             lateness = wake - self._deadline
             stats.latency.add(lateness)
             if lateness > stall_limit:
@@ -188,12 +185,16 @@ class ControlLoop(LoopControls):
             self._update_measurement(snap)
             # the sample's age at this cycle's deadline: how late the transport is, not the
             # loop (its own lateness and pauses are the stall check's, and the wake-up latency
-            # figures'), so counted from no earlier than the loop's resumption after a pause
-            taken = snap.t if snap.t > self._resumed_at else self._resumed_at
-            sup.check(snap.angles, self.velocities, snap.faults, self._deadline - taken)
+            # figures')
+            age = self._deadline - snap.t
+            if age > self._stale_limit:
+                age = self._input_age(snap.t)
+            sup.check(snap.angles, self.velocities, snap.faults, age)
         if sup.enabled:
             self._control(wake)
         t2 = clock.now()
+        self._writes[self._writes_n & self._writes_mask] = t2
+        self._writes_n += 1
         if sup.enabled:
             self._write_command()
         else:
@@ -234,6 +235,23 @@ class ControlLoop(LoopControls):
                     self.angles[i] = q
         self.force = snap.force
         self.pressures = snap.pressures
+
+    def _input_age(self, sample_t: float) -> float:
+        """How late the transport is at this cycle's deadline [s], for a sample dated
+        ``sample_t`` that looks stale: counted from the first write after it (the first request
+        the transport has not answered), so a pause of the loop's own between that sample's
+        request and the next is left out; from the sample itself when no write came after it,
+        and from the oldest write the ring holds when all came after (never an understatement
+        within the stale limit: the ring covers it). Only in a cycle whose sample is older
+        than the limit, so the search costs nothing in the others."""
+        writes, mask, n = self._writes, self._writes_mask, self._writes_n
+        oldest = max(n - len(writes), 0)
+        i = n - 1
+        while i >= oldest and writes[i & mask] > sample_t:
+            i -= 1
+        if i == n - 1:
+            return self._deadline - sample_t
+        return self._deadline - writes[(i + 1) & mask]
 
     def _control(self, now: float) -> None:
         if self._reference_running and now - self.trajectory_t0 >= self.trajectory.duration:
