@@ -6,7 +6,10 @@ after applying them, and the next cycle's ``read`` takes whatever replies have a
 without blocking (about 1 ms later, the reply to k). The seq says which request a reply
 answers: the sample is dated when that request went out (the bridge sampled after it, so the
 age is never understated), and a reply to no recent request of ours, or older than one
-already taken, is counted and dropped. A cycle with no new reply returns the previous
+already taken, is counted and dropped. "Recent" covers the largest stale limit: a bridge held
+up for a while answers its backlog with samples as old as they are, which the stale check
+judges, rather than with replies dropped as strangers (a window of 64 made a bridge 65 ms
+behind look silent until it had caught up). A cycle with no new reply returns the previous
 sample again (same seq, its old time), so a bridge that stops answering ages the data until
 the supervisor trips on stale input (``safety.stale_after_s``).
 
@@ -39,7 +42,7 @@ from hal.transport import (
     volts_to_counts,
 )
 
-SEQ_WINDOW = 64  # replies to the last this many requests are accepted
+SEQ_WINDOW = 4096  # replies to the last this many requests are accepted: 4 s at 1 kHz, past any stale limit (<= 1 s)
 
 
 @dataclass(frozen=True)
@@ -159,12 +162,12 @@ class SerialBridgeTransport(Transport):
                     self._lose(EOFError("the device reports data but returns none (disconnected?)"))
         frames = self._reader.feed(data) if data else ()
         self._count_reader()
-        fresh, sent = None, None
+        fresh, sent = None, self._sweep.t
         for frame in frames:
             seq, t = self._sent_at[frame.seq % SEQ_WINDOW]
             if frame.kind != F.INPUTS or len(frame.counts) != len(self.inputs):
                 self._health.counters["wrong_replies"] += 1
-            elif seq != frame.seq or (sent is not None and t < sent):
+            elif seq != frame.seq or t < sent:
                 self._health.counters["unexpected_seq"] += 1  # no request of ours, or older than one taken
             else:
                 fresh, sent = frame, t

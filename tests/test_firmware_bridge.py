@@ -268,8 +268,7 @@ def test_a_daemon_tracks_a_move_through_the_firmware_as_in_process(device_bridge
     daemon.close()
     firmware = bridge.stop()
     assert firmware["replies"] > 3000 and firmware["crc_errors"] == firmware["refused"] == 0, firmware
-    # a reply later than the daemon's window of requests (the firmware's process held up on a
-    # loaded machine: 17 % of them beside two CPU hogs) is counted and never taken; a firmware
+    # a reply to a request older than one already taken is counted and never taken; a firmware
     # that echoed the sequence number wrongly would have all of its replies here, not some
     assert counters["unexpected_seq"] < 0.5 * firmware["replies"], (counters, firmware)
 

@@ -87,7 +87,9 @@ def test_the_readme_wire_lines_run_as_written(wire, tmp_path):
                 enabled_at = enabled_at if line != "enable" else time.monotonic()
             time.sleep(max(0.0, enabled_at + 10.0 - time.monotonic()))  # 10 s enabled, the move among them
             status = client.status()
-            assert status["state"] == "enabled" and status["trips"] == 0, (status["cause"], status["transport"])
+            # as one string: pytest shortens a tuple's dicts, and the counters are what tell a silent
+            # wire (no replies) from one whose replies were refused (unexpected_seq, tx_dropped)
+            assert status["state"] == "enabled" and status["trips"] == 0, f"{status['cause']}; {status['transport']}"
             assert abs(status["joints"]["bottom"]["angle_deg"] - 130.0) < 1.0
             assert status["transport"]["reads"] > 1000 and status["transport"]["errors"] == 0, status["transport"]
     finally:

@@ -140,6 +140,53 @@ def test_a_reply_to_no_request_of_ours_is_counted_and_not_taken():
         os.close(master)
 
 
+def test_a_bridge_that_fell_behind_answers_its_backlog_with_samples_as_old_as_they_are():
+    """A bridge held up (a busy machine, a slow firmware) answers the requests queued meanwhile:
+    each reply is dated by its own request and taken, so the sample's age says how far behind
+    the bridge is and shrinks as it catches up. Dropping replies to all but the last 64 requests
+    made a bridge 300 ms behind look silent until it had caught up all the way, and beside CPU
+    hogs a bridge lagging a little over 64 ms for a second tripped the arm on stale input."""
+    master, slave = os.openpty()
+    rig = config.load()
+    bridge = BridgePeer(rig, master)
+    now = [0.0]  # the transport's clock [s]: one request per simulated millisecond
+
+    def serving():
+        done = threading.Event()
+        thread = threading.Thread(target=bridge.serve, args=(done.is_set,))
+        thread.start()
+        return done, thread
+
+    done, server = serving()
+    transport = SerialBridgeTransport(config.with_transport(rig, "serial", {"port": os.ttyname(slave)}),
+                                      SerialBridgeOptions(port=os.ttyname(slave)), lambda: now[0])
+    try:
+        transport.open()
+        taken = [transport.read().t]  # the start's query, answered
+        done.set()
+        server.join()  # the bridge stops reading: requests queue up in the line
+        backlog = 300
+        for k in range(1, backlog + 1):
+            now[0] = k * 1e-3
+            transport.write([0.0] * len(transport.outputs))
+        done, server = serving()
+        deadline = time.monotonic() + 30.0  # the bound only ends a hang
+        while taken[-1] < now[0] and time.monotonic() < deadline:
+            sweep = transport.read()
+            if sweep.t != taken[-1]:
+                taken.append(sweep.t)
+            time.sleep(0.001)
+        assert taken[-1] == now[0]  # caught up: the reply to the last request
+        assert taken[1] < now[0] - 0.064, taken[:5]  # the backlog's replies were taken, dated as old as they are
+        assert taken == sorted(taken) and transport.health().counters["unexpected_seq"] == 0
+    finally:
+        transport.close()
+        done.set()
+        server.join()
+        os.close(slave)
+        os.close(master)
+
+
 def test_a_reply_that_arrives_between_two_looks_at_the_port_is_not_a_lost_device(monkeypatch):
     """The cause of the serial tests' failures in full runs (issue 19): a read used to look at
     the port twice, and a reply landing between the looks (more likely on a loaded machine)
