@@ -14,6 +14,7 @@ from hal.rig import RigIO
 from hal.kinematics import jacobian
 from sim_backend.plant_thread import PlantThread
 from sim_backend.transport import SimTransport, converter, quantise
+from daemon.loop.clock import MonotonicClock
 from daemon.testing.simrig import DT, make_rig
 
 
@@ -203,6 +204,36 @@ def test_beside_the_loop_every_read_is_a_new_sample_even_with_the_thread_stopped
         assert time.monotonic() - snaps[0].t < 0.005  # fresh: the read took it in the cycle
         assert snaps[0].seq < snaps[1].seq < snaps[2].seq and snaps[0].t < snaps[1].t < snaps[2].t
         assert transport.health().counters["plant_ticks_in_cycle"] == 3
+    finally:
+        transport.close()
+
+
+def test_beside_the_loop_a_tick_the_thread_missed_is_taken_before_the_deadline_not_in_the_cycle():
+    """The loop's wait calls the transport's upkeep just before its final spin: a tick the plant's
+    thread has not done (starved, or kept off the interpreter by the loop) is done there, so the
+    cycle's read takes a fresh sweep without stepping the plant; a thread that did tick is left
+    alone, and the upkeep never ticks twice for one write."""
+    io = real_time_rig()
+    transport = io.transport
+    clock = MonotonicClock(spin_s=200e-6)
+    try:
+        first = io.read()
+        wait_for(lambda: transport._latest.seq > first.seq)  # the thread ticks on its own
+        io.read()
+        wait_for(lambda: transport._latest.seq > transport._read_seq)
+        clock.sleep_until(time.monotonic() + 0.001, transport.upkeep)
+        assert "plant_ticks_before_deadline" not in transport.health().counters  # it had ticked: nothing to do
+        transport._thread.close()  # as a thread starved by a loaded machine would stop ticking
+        snap = io.read()
+        in_cycle = transport.health().counters.get("plant_ticks_in_cycle", 0)
+        for k in range(1, 4):
+            io.write_safe()
+            clock.sleep_until(time.monotonic() + 0.001, transport.upkeep)
+            transport.upkeep()  # a second look finds the tick done
+            assert transport.health().counters["plant_ticks_before_deadline"] == k
+            read, snap = snap, io.read()
+            assert snap.seq > read.seq and time.monotonic() - snap.t < 0.005
+        assert transport.health().counters.get("plant_ticks_in_cycle", 0) == in_cycle  # no read stepped the plant
     finally:
         transport.close()
 

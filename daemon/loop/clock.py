@@ -1,11 +1,14 @@
 """Clocks the loop runs on: the machine's monotonic clock, or a virtual one for lockstep tests.
 
-Both offer ``now()`` [s] and ``sleep_until(t)``; the simulated transport takes ``now`` as its
-time source, so on a :class:`VirtualClock` the plant advances exactly as the loop sleeps.
+Both offer ``now()`` [s] and ``sleep_until(t, upkeep)``; the simulated transport takes ``now``
+as its time source, so on a :class:`VirtualClock` the plant advances exactly as the loop sleeps.
+``upkeep`` (the transport's, :meth:`hal.transport.Transport.upkeep`) runs once in the wait, just
+before the spin, so its cost lands in the slack before the deadline and never in a cycle.
 """
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 
 class MonotonicClock:
@@ -16,10 +19,12 @@ class MonotonicClock:
 
     now = staticmethod(time.monotonic)
 
-    def sleep_until(self, deadline: float) -> None:
+    def sleep_until(self, deadline: float, upkeep: Callable[[], None] | None = None) -> None:
         remaining = deadline - time.monotonic() - self.spin_s
         if remaining > 0:
             time.sleep(remaining)
+        if upkeep is not None:
+            upkeep()
         while time.monotonic() < deadline:
             pass
 
@@ -33,6 +38,8 @@ class VirtualClock:
     def now(self) -> float:
         return self.t
 
-    def sleep_until(self, deadline: float) -> None:
+    def sleep_until(self, deadline: float, upkeep: Callable[[], None] | None = None) -> None:
         if deadline > self.t:
             self.t = deadline
+        if upkeep is not None:
+            upkeep()
