@@ -188,7 +188,7 @@ class SimTransport(Transport):
                 counters = self._health.counters
                 counters["plant_ticks_before_deadline"] = counters.get("plant_ticks_before_deadline", 0) + 1
         except Exception as exc:  # the next read reports it, as it reports the thread's own failure
-            thread.failure = exc
+            thread.fail(exc)
         finally:
             self._lock.release()
 

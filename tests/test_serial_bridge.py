@@ -3,6 +3,7 @@ process (python -m sim_backend.serial_peer): tracking as in-process, a peer kill
 tripping the loop to the safe state, recovery after it returns and a reset, corrupted
 replies counted, a missing bridge refused at start, a bridge slow to answer at start waited for."""
 import os
+import select
 import signal
 import threading
 import time
@@ -150,39 +151,49 @@ def test_a_bridge_that_fell_behind_answers_its_backlog_with_samples_as_old_as_th
     rig = config.load()
     bridge = BridgePeer(rig, master)
     now = [0.0]  # the transport's clock [s]: one request per simulated millisecond
-
-    def serving():
-        done = threading.Event()
-        thread = threading.Thread(target=bridge.serve, args=(done.is_set,))
-        thread.start()
-        return done, thread
-
-    done, server = serving()
+    done = threading.Event()
+    server = threading.Thread(target=bridge.serve, args=(done.is_set,))
+    server.start()
     transport = SerialBridgeTransport(config.with_transport(rig, "serial", {"port": os.ttyname(slave)}),
                                       SerialBridgeOptions(port=os.ttyname(slave)), lambda: now[0])
+
+    def answer(frames: int | None) -> None:
+        """The bridge takes up the next ``frames`` requests (None: all there are) and answers them."""
+        size = len(F.encode(F.OUTPUTS, 1, [0] * len(transport.outputs)))
+        while frames is None and select.select([master], [], [], 0)[0] or frames:
+            chunk = os.read(master, size * (frames or 256))
+            bridge._take(chunk)
+            frames = frames - len(chunk) // size if frames else None
+
+    def taken_until(last: float) -> list[float]:
+        """The samples' times as taken, until the reply to the request sent at ``last`` [s] is in
+        (or a reply is refused): the pty hands the replies over a few at a time."""
+        taken, deadline = [transport.read().t], time.monotonic() + 30.0  # the bound only ends a hang
+        while taken[-1] < last - 1e-9 and not transport.health().counters["unexpected_seq"]:
+            assert time.monotonic() < deadline, "no reply came"
+            time.sleep(0.001)
+            if (t := transport.read().t) != taken[-1]:
+                taken.append(t)
+        return taken
+
     try:
         transport.open()
-        taken = [transport.read().t]  # the start's query, answered
         done.set()
         server.join()  # the bridge stops reading: requests queue up in the line
-        backlog = 300
-        for k in range(1, backlog + 1):
+        for k in range(1, 301):
             now[0] = k * 1e-3
             transport.write([0.0] * len(transport.outputs))
-        done, server = serving()
-        deadline = time.monotonic() + 30.0  # the bound only ends a hang
-        while taken[-1] < now[0] and time.monotonic() < deadline:
-            sweep = transport.read()
-            if sweep.t != taken[-1]:
-                taken.append(sweep.t)
-            time.sleep(0.001)
-        assert taken[-1] == now[0]  # caught up: the reply to the last request
-        assert taken[1] < now[0] - 0.064, taken[:5]  # the backlog's replies were taken, dated as old as they are
-        assert taken == sorted(taken) and transport.health().counters["unexpected_seq"] == 0
+        answer(10)  # 290 requests behind
+        behind = taken_until(0.010)
+        assert behind[-1] == pytest.approx(0.010), behind  # taken, dated as old as it is (290 ms)
+        answer(None)  # caught up
+        caught_up = taken_until(0.300)
+        assert caught_up[-1] == pytest.approx(0.300), caught_up
+        assert behind + caught_up[1:] == sorted(behind + caught_up[1:])
+        assert transport.health().counters["unexpected_seq"] == 0
     finally:
         transport.close()
         done.set()
-        server.join()
         os.close(slave)
         os.close(master)
 

@@ -3,7 +3,8 @@
 Both offer ``now()`` [s] and ``sleep_until(t, upkeep)``; the simulated transport takes ``now``
 as its time source, so on a :class:`VirtualClock` the plant advances exactly as the loop sleeps.
 ``upkeep`` (the transport's, :meth:`hal.transport.Transport.upkeep`) runs once in the wait, just
-before the spin, so its cost lands in the slack before the deadline and never in a cycle.
+before the spin, so its cost lands in the slack before the deadline and never in a cycle (not
+at all when the wait ends at or past the deadline: without a spin, or woken late).
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ class MonotonicClock:
         remaining = deadline - time.monotonic() - self.spin_s
         if remaining > 0:
             time.sleep(remaining)
-        if upkeep is not None:
+        if upkeep is not None and time.monotonic() < deadline:  # woken late: no upkeep to add to it
             upkeep()
         while time.monotonic() < deadline:
             pass
@@ -39,7 +40,6 @@ class VirtualClock:
         return self.t
 
     def sleep_until(self, deadline: float, upkeep: Callable[[], None] | None = None) -> None:
+        """Jump to ``deadline``; no spin, so no ``upkeep`` (its transport steps in lockstep)."""
         if deadline > self.t:
             self.t = deadline
-        if upkeep is not None:
-            upkeep()
