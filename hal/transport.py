@@ -112,11 +112,6 @@ class Transport(ABC):
     def _write(self, values: Sequence[float]) -> None:
         """Backend part of :meth:`write`; the values are already checked."""
 
-    def upkeep(self) -> None:
-        """Called by the loop while it waits for its next deadline, just before its final spin,
-        never in a cycle: a backend's own work that may run between cycles (the simulator ticks
-        a plant its thread has not). Nothing by default; it must not raise."""
-
     def health(self) -> TransportHealth:
         return self._health
 

@@ -64,11 +64,6 @@ class PlantThread:
         except BaseException as exc:  # the loop's next read reports it: a transport failure, a trip
             self.failure = exc
 
-    def fail(self, exc: BaseException) -> None:
-        """A tick done for the thread (the loop's upkeep) raised: the same end as its own."""
-        self.failure = exc
-        self._running = False
-
     @property
     def alive(self) -> bool:
         return self._thread.is_alive()

@@ -174,24 +174,6 @@ class SimTransport(Transport):
         self._read_seq = sweep.seq
         return sweep
 
-    def upkeep(self) -> None:
-        """Between cycles, just before the loop's spin: the plant's tick if its thread has not
-        ticked since the last read (held up by a loaded machine, or by the loop's own hold on the
-        interpreter), so the next read finds a fresh sweep instead of ticking in its cycle. Never
-        waits: the thread mid-tick finishes it itself."""
-        thread = self._thread
-        if thread is None or thread.failure is not None or not self._behind() or not self._lock.acquire(blocking=False):
-            return
-        try:
-            if self._behind():
-                self._tick_locked()
-                counters = self._health.counters
-                counters["plant_ticks_before_deadline"] = counters.get("plant_ticks_before_deadline", 0) + 1
-        except Exception as exc:  # the next read reports it, as it reports the thread's own failure
-            thread.fail(exc)
-        finally:
-            self._lock.release()
-
     def _behind(self) -> bool:
         latest = self._latest
         return latest.seq == self._read_seq or self.clock() - latest.t > LATE_STEPS * self.options.step_s

@@ -14,7 +14,6 @@ from hal.rig import RigIO
 from hal.kinematics import jacobian
 from sim_backend.plant_thread import PlantThread
 from sim_backend.transport import SimTransport, converter, quantise
-from daemon.loop.clock import MonotonicClock, VirtualClock
 from daemon.testing.simrig import DT, make_rig
 
 
@@ -206,50 +205,6 @@ def test_beside_the_loop_every_read_is_a_new_sample_even_with_the_thread_stopped
         assert transport.health().counters["plant_ticks_in_cycle"] == 3
     finally:
         transport.close()
-
-
-def test_beside_the_loop_a_tick_the_thread_missed_is_taken_before_the_deadline_not_in_the_cycle():
-    """The loop's wait calls the transport's upkeep just before its final spin: a tick the plant's
-    thread has not done (starved, or kept off the interpreter by the loop) is done there, so the
-    cycle's read takes a fresh sweep without stepping the plant; a thread that did tick is left
-    alone."""
-    io = real_time_rig()
-    transport = io.transport
-    try:
-        io.read()
-        transport._thread.close()  # as a thread starved by a loaded machine would stop ticking
-        transport.tick()  # ...after a tick of its own since the read
-        real_clock = transport.clock
-        transport.clock = lambda: transport._latest.t  # that sweep fresh however slow this machine is
-        transport.upkeep()
-        assert "plant_ticks_before_deadline" not in transport.health().counters  # it had ticked: nothing to do
-        transport.clock = real_clock
-        io.read()
-        for k in range(1, 4):
-            io.write_safe()
-            assert transport._latest.seq == transport._read_seq  # nothing new since the read
-            transport.upkeep()  # as the loop's wait calls it (test_the_wait_calls_upkeep_once_before_its_spin_and_never_late)
-            ready = transport._latest
-            assert ready.seq > transport._read_seq and ready.t > transport._wrote_at  # a fresh sweep waits, after the write
-            assert transport.health().counters["plant_ticks_before_deadline"] == k
-            assert io.read().seq >= ready.seq  # the read takes it (or, a loaded machine's late read, a newer one)
-    finally:
-        transport.close()
-
-
-def test_the_wait_calls_upkeep_once_before_its_spin_and_never_late():
-    """The loop's wait (daemon/loop/clock.py) gives the transport's upkeep the slack before the
-    deadline: once, before the deadline, in a wait that ends with a spin; not at all in one that
-    starts past its deadline (a late wake-up gets no extra work), nor on the virtual clock."""
-    calls = []
-    clock = MonotonicClock(spin_s=0.2)  # a long spin: the call lands before the deadline however loaded the machine
-    deadline = time.monotonic() + 0.2
-    clock.sleep_until(deadline, lambda: calls.append(time.monotonic()))
-    assert len(calls) == 1 and calls[0] < deadline <= time.monotonic()
-    clock.sleep_until(time.monotonic() - 0.001, lambda: calls.append(time.monotonic()))
-    virtual = VirtualClock()
-    virtual.sleep_until(1.0, lambda: calls.append(virtual.now()))
-    assert len(calls) == 1 and virtual.now() == 1.0
 
 
 def test_beside_the_loop_a_sweep_older_than_a_step_and_a_half_is_taken_in_the_read():

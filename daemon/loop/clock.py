@@ -1,15 +1,11 @@
 """Clocks the loop runs on: the machine's monotonic clock, or a virtual one for lockstep tests.
 
-Both offer ``now()`` [s] and ``sleep_until(t, upkeep)``; the simulated transport takes ``now``
-as its time source, so on a :class:`VirtualClock` the plant advances exactly as the loop sleeps.
-``upkeep`` (the transport's, :meth:`hal.transport.Transport.upkeep`) runs once in the wait, just
-before the spin, so its cost lands in the slack before the deadline and never in a cycle (not
-at all when the wait ends at or past the deadline: without a spin, or woken late).
+Both offer ``now()`` [s] and ``sleep_until(t)``; the simulated transport takes ``now`` as its
+time source, so on a :class:`VirtualClock` the plant advances exactly as the loop sleeps.
 """
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 
 
 class MonotonicClock:
@@ -20,12 +16,10 @@ class MonotonicClock:
 
     now = staticmethod(time.monotonic)
 
-    def sleep_until(self, deadline: float, upkeep: Callable[[], None] | None = None) -> None:
+    def sleep_until(self, deadline: float) -> None:
         remaining = deadline - time.monotonic() - self.spin_s
         if remaining > 0:
             time.sleep(remaining)
-        if upkeep is not None and time.monotonic() < deadline:  # woken late: no upkeep to add to it
-            upkeep()
         while time.monotonic() < deadline:
             pass
 
@@ -39,7 +33,6 @@ class VirtualClock:
     def now(self) -> float:
         return self.t
 
-    def sleep_until(self, deadline: float, upkeep: Callable[[], None] | None = None) -> None:
-        """Jump to ``deadline``; no spin, so no ``upkeep`` (its transport steps in lockstep)."""
+    def sleep_until(self, deadline: float) -> None:
         if deadline > self.t:
             self.t = deadline

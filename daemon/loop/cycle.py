@@ -136,9 +136,8 @@ class ControlLoop(LoopControls):
         done = 0
         clock, period, stats = self.clock, self.period, self.stats
         stall_limit = self.rig.safety.stall_after_s
-        upkeep = self.io.transport.upkeep
         while not self.stop_requested and (cycles is None or done < cycles):
-            clock.sleep_until(self._deadline, upkeep)
+            clock.sleep_until(self._deadline)
             wake = clock.now()
             lateness = wake - self._deadline
             stats.latency.add(lateness)
