@@ -88,7 +88,10 @@ def test_joint_states_at_loop_rate_and_events_as_log(fox):
         logs_client.close()
     stamps = [t for t, _ in received]
     steps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
-    assert steps[0] > 0 and steps[len(steps) // 2] == pytest.approx(1e6, rel=0.2)  # one a cycle: 1 ms [ns]
+    # one a cycle: 1 ms apart [ns] on a quiet machine; the stamps are the samples' own times, which a
+    # loaded one stretches (beside two CPU hogs the median step was 1.2 ms, the loop without real-time
+    # priority waking late); one a state batch would be 10 ms apart
+    assert steps[0] > 0 and 0.5e6 <= steps[len(steps) // 2] <= 3e6, steps[len(steps) // 2]
     last = received[-1][1]
     assert [j.name for j in last.joints] == ["bottom", "middle"]  # the rig file's names
     assert last.timestamp.seconds * 10**9 + last.timestamp.nanos == pytest.approx(stamps[-1], abs=1)
