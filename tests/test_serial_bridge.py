@@ -194,6 +194,7 @@ def test_a_bridge_that_fell_behind_answers_its_backlog_with_samples_as_old_as_th
     finally:
         transport.close()
         done.set()
+        server.join()  # already ended, unless open() failed with it serving
         os.close(slave)
         os.close(master)
 
