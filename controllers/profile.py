@@ -45,13 +45,18 @@ def cubic_array(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 class TipShape(ABC):
-    """A planar tip path p(sigma) [m], sigma in [0, 1], and its tangent dp/dsigma [m]."""
+    """A planar tip path p(sigma) [m], sigma in [0, 1], its tangent dp/dsigma [m] and its
+    second derivative d2p/dsigma2 [m]."""
 
     @abstractmethod
     def point(self, s: float) -> tuple[float, float]: ...
 
     @abstractmethod
     def tangent(self, s: float) -> tuple[float, float]: ...
+
+    @abstractmethod
+    def curvature(self, s: float) -> tuple[float, float]:
+        """d2p/dsigma2 [m]: with the tangent, the tip's acceleration under the time scaling."""
 
     @abstractmethod
     def points(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

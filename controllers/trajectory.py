@@ -3,8 +3,8 @@ waypoint paths (joint or Cartesian) and step sequences.
 
 Time scaling is the cubic polynomial of [2-15..2-28] with zero velocity at both ends:
 ``s(tau) = 3 tau^2 - 2 tau^3``, ``tau = t / T``. Cartesian paths are mapped to joint angles by the
-2-link inverse kinematics [2-9..2-14]; joint velocity comes from the inverse Jacobian and
-acceleration from its central difference. Angles in rad, positions in m, time in s, with
+2-link inverse kinematics [2-9..2-14]; joint velocity and acceleration come from the inverse
+Jacobian of [2-7] differentiated once and twice (:func:`hal.kinematics.rates_2link`). Angles in rad, positions in m, time in s, with
 ``t`` measured from the trajectory's start.
 
 Two sides, one object. The loop calls :meth:`Trajectory.sample` once a cycle: plain floats,
@@ -117,6 +117,9 @@ class Line(TipShape):
     def tangent(self, s):
         return self.dx, self.dy
 
+    def curvature(self, s):
+        return 0.0, 0.0
+
     def points(self, s):
         return self.x0 + self.dx * s, self.y0 + self.dy * s, np.full_like(s, self.dx), np.full_like(s, self.dy)
 
@@ -135,6 +138,10 @@ class Circle(TipShape):
         a, k = 2 * math.pi * s, 2 * math.pi * self.r
         return -k * math.sin(a), k * math.cos(a)
 
+    def curvature(self, s):
+        a, k = 2 * math.pi * s, 4 * math.pi * math.pi * self.r
+        return -k * math.cos(a), -k * math.sin(a)
+
     def points(self, s):
         a, k = 2 * math.pi * s, 2 * math.pi * self.r
         return self.cx + self.r * np.cos(a), self.cy + self.r * np.sin(a), -k * np.sin(a), k * np.cos(a)
@@ -152,6 +159,10 @@ class FigureEight(TipShape):
 
     def tangent(self, s):
         return 2 * math.pi * self.a * math.cos(2 * math.pi * s), 2 * math.pi * self.b * math.cos(4 * math.pi * s)
+
+    def curvature(self, s):
+        k = 4 * math.pi * math.pi
+        return -k * self.a * math.sin(2 * math.pi * s), -2 * k * self.b * math.sin(4 * math.pi * s)
 
     def points(self, s):
         w = 2 * math.pi * s
@@ -177,23 +188,15 @@ class CartesianPath(Trajectory):
         return self.shape.point(cubic(t / self.duration)[0])
 
     def sample(self, t: float) -> Sample:
-        q, qd = self._angles_and_rates(t)
-        h = 1e-3
-        _, qd_a = self._angles_and_rates(t - h)
-        _, qd_b = self._angles_and_rates(t + h)
-        qdd = [(b - a) / (2 * h) for a, b in zip(qd_a, qd_b)]
-        return q + self._rest, qd + self._rest, qdd + self._rest
-
-    def _angles_and_rates(self, t: float) -> tuple[list[float], list[float]]:
-        s, ds, _ = cubic(t / self.duration)
+        s, ds, dds = cubic(t / self.duration)
         x, y = self.shape.point(s)
-        q = list(kinematics.inverse_2link(x, y, self.l1, self.l2, self.elbow))
+        q1, q2 = kinematics.inverse_2link(x, y, self.l1, self.l2, self.elbow)
         tx, ty = self.shape.tangent(s)
-        rate = ds / self.duration
-        vx, vy = tx * rate, ty * rate
-        (a, c), (b, d) = kinematics.jacobian_2link(q[0], q[1], self.l1, self.l2)  # columns: (dx, dy) per joint
-        det = a * d - b * c
-        return q, [(d * vx - b * vy) / det, (-c * vx + a * vy) / det]
+        kx, ky = self.shape.curvature(s)
+        rate, accel = ds / self.duration, dds / (self.duration * self.duration)  # ds/dt [1/s], d2s/dt2 [1/s^2]
+        qd, qdd = kinematics.rates_2link(q1, q2, self.l1, self.l2, tx * rate, ty * rate,
+                                         kx * rate * rate + tx * accel, ky * rate * rate + ty * accel)
+        return [q1, q2, *self._rest], [*qd, *self._rest], [*qdd, *self._rest]
 
     def profile(self, points: int = 0) -> Profile:
         return tip_profile([self.shape], [self.duration], points or PATH_POINTS, self.l1, self.l2, self.elbow,

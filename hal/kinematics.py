@@ -35,12 +35,21 @@ def jacobian(angles: Sequence[float], lengths: Sequence[float]) -> list[tuple[fl
     return columns
 
 
-def jacobian_2link(q1: float, q2: float, l1: float, l2: float) -> tuple[tuple[float, float], tuple[float, float]]:
-    """:func:`jacobian` of a 2-link arm written out (the loop samples a Cartesian path's rates
-    three times a cycle): the columns (dx, dy) [m/rad] of the bottom and the middle joint."""
-    phi = q1 + q2
-    dx2, dy2 = -l2 * math.sin(phi), l2 * math.cos(phi)
-    return (-(l1 * math.sin(q1) + l2 * math.sin(phi)), l1 * math.cos(q1) + dy2), (dx2, dy2)
+def rates_2link(q1: float, q2: float, l1: float, l2: float, vx: float, vy: float, ax: float,
+                ay: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Joint rates [rad/s] and accelerations [rad/s^2] of a 2-link arm at angles (q1, q2) [rad]
+    moving its tip at (vx, vy) [m/s] with acceleration (ax, ay) [m/s^2]: [2-7] differentiated
+    once, v = J qd, and twice, a = J qdd + Jdot qd, solved by the 2x2 inverse. Written out, one
+    sin/cos pair per angle: the loop calls it every cycle of a Cartesian path."""
+    s1, c1, s12, c12 = math.sin(q1), math.cos(q1), math.sin(q1 + q2), math.cos(q1 + q2)
+    b, d = -l2 * s12, l2 * c12  # J's columns (dx, dy) per joint: (a, c) the bottom's, (b, d) the middle's
+    a, c = -l1 * s1 + b, l1 * c1 + d
+    det = a * d - b * c
+    w1, w2 = (d * vx - b * vy) / det, (-c * vx + a * vy) / det
+    w12 = (w1 + w2) * (w1 + w2)
+    ex = ax + l1 * c1 * w1 * w1 + l2 * c12 * w12  # a - Jdot qd: the centripetal terms moved across
+    ey = ay + l1 * s1 * w1 * w1 + l2 * s12 * w12
+    return (w1, w2), ((d * ex - b * ey) / det, (-c * ex + a * ey) / det)
 
 
 def inverse_2link(x: float, y: float, l1: float, l2: float, elbow: int = -1) -> tuple[float, float]:

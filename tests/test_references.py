@@ -226,20 +226,26 @@ def test_a_plan_overtaken_while_it_is_prepared_is_discarded_not_started(armed, o
     assert loop.trajectory_name == "hold" and loop.reference_remaining() == 0.0
 
 
-@pytest.mark.parametrize("name", ["translation", "circle"])
-def test_a_cartesian_paths_rates_move_its_tip_along_the_path(name):
-    """The loop's per-cycle sample: the joint rates are those the arm's Jacobian maps onto
-    the tip's velocity along the path, and the angles' own derivative."""
+@pytest.mark.parametrize("elbow", [-1, 1])
+@pytest.mark.parametrize("name", ["translation", "circle", "figure_eight"])
+def test_a_cartesian_paths_rates_and_accelerations_move_its_tip_along_the_path(name, elbow):
+    """The loop's per-cycle sample, worked out in one pass: the joint rates are those the
+    arm's Jacobian maps onto the tip's velocity along the path, and the angles' own derivative;
+    the accelerations the rates' own derivative (on either elbow branch, a point in each
+    quarter of the path and at its cubic scaling's fastest change)."""
     rig = config.load()
     lengths = rig.arm.link_lengths_m
-    make = {"translation": trajectory.translation, "circle": trajectory.circle}[name]
-    path = make(lengths, rig.arm.elbow, len(rig.joints), 20.0)
+    make = {"translation": trajectory.translation, "circle": trajectory.circle,
+            "figure_eight": trajectory.figure_eight}[name]
+    path = make(lengths, elbow, len(rig.joints), 20.0)
     h = 1e-4
-    for t in (0.5, 5.0, 10.0, 17.3):
-        q, qd, _ = path.sample(t)
+    for t in (0.5, 5.0, 10.0, 17.3, 19.9):
+        q, qd, qdd = path.sample(t)
         (a, c), (b, d) = kinematics.jacobian(q[:2], lengths[:2])
         (x0, y0), (x1, y1) = path.tip(t - h), path.tip(t + h)
         tip_velocity = ((x1 - x0) / (2 * h), (y1 - y0) / (2 * h))
         assert (a * qd[0] + b * qd[1], c * qd[0] + d * qd[1]) == pytest.approx(tip_velocity, rel=1e-6, abs=1e-9)
-        ahead, behind = path.sample(t + h)[0], path.sample(t - h)[0]
+        (ahead, rate_ahead, _), (behind, rate_behind, _) = path.sample(t + h), path.sample(t - h)
         assert qd == pytest.approx([(p - m) / (2 * h) for p, m in zip(ahead, behind)], rel=1e-5, abs=1e-9)
+        assert qdd == pytest.approx([(p - m) / (2 * h) for p, m in zip(rate_ahead, rate_behind)], rel=1e-5, abs=1e-8)
+    assert path.sample(-1.0)[2] == path.sample(21.0)[2] == [0.0] * len(rig.joints)  # at rest before and after
