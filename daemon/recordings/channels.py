@@ -113,18 +113,16 @@ def _stamp(t: float) -> Timestamp:
     return Timestamp(max(int(whole), 0), min(int(round((t - whole) * 1e9)), 999_999_999))
 
 
-_ORJSON = orjson.OPT_NON_STR_KEYS | orjson.OPT_SERIALIZE_NUMPY  # as json.dumps: int keys as strings; numpy numbers too
-
-
 def json_bytes(message: dict) -> bytes:
     """A JSON channel's message, compact (every JSON channel of a recording and of the live
     stream). JSON has no NaN or infinity (RFC 8259) and the viewers parse it strictly
     (Foxglove's ``JSON.parse``): a number that is not finite is written ``null``, as orjson
     writes it. orjson, not the standard library: a recording writes five JSON messages a cycle,
-    and the standard encoder made them most of a recording's cost (docs/benchmarks.md, "The
-    suite's CPU"). What orjson refuses (an integer past 64 bits) goes the standard way."""
+    and the standard encoder was half a recording's cost (docs/benchmarks.md, "A recording's
+    JSON through orjson"). What orjson refuses (a key that is not a string, an integer past
+    64 bits) goes the standard way."""
     try:
-        return orjson.dumps(message, option=_ORJSON)
+        return orjson.dumps(message)
     except orjson.JSONEncodeError:
         return json.dumps(_finite(message), allow_nan=False, separators=(",", ":")).encode()
 
