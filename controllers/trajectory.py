@@ -4,8 +4,8 @@ waypoint paths (joint or Cartesian) and step sequences.
 Time scaling is the cubic polynomial of [2-15..2-28] with zero velocity at both ends:
 ``s(tau) = 3 tau^2 - 2 tau^3``, ``tau = t / T``. Cartesian paths are mapped to joint angles by the
 2-link inverse kinematics [2-9..2-14]; joint velocity and acceleration come from the inverse
-Jacobian of [2-7] differentiated once and twice (:func:`hal.kinematics.rates_2link`). Angles in rad, positions in m, time in s, with
-``t`` measured from the trajectory's start.
+Jacobian of [2-7] differentiated once and twice (:func:`hal.kinematics.rates_2link`). Angles in
+rad, positions in m, time in s, with ``t`` measured from the trajectory's start.
 
 Two sides, one object. The loop calls :meth:`Trajectory.sample` once a cycle: plain floats,
 bounded work whatever the reference's size (a long waypoint path or step sequence finds its

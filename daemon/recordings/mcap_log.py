@@ -112,7 +112,8 @@ class TelemetryEncoder:
     """One daemon's telemetry as the messages of a recording's channels (``/pneumad/<topic>`` and
     the Foxglove channels beside them): encoded once, whatever the number of recordings that
     write them (the recorder's several recordings share one: the encoding is most of a
-    recording's cost). It follows the events it encodes (a reference's phase), so it sees every message once."""
+    recording's cost). It follows the events it encodes (a reference's phase), so it sees every
+    message once."""
 
     def __init__(self, describe: dict):
         self.joints = [j["name"] for j in describe["joints"]]
