@@ -23,6 +23,21 @@ def test_entries_split_across_the_end_of_the_circle_come_back_whole(tmp_path):
         assert ring.get() == (round_, payload)
 
 
+def test_a_view_of_a_reused_buffer_is_copied_in_whole_pieces_or_split(tmp_path):
+    """The loop puts views of buffers it then reuses: what comes out is what was put, whether
+    the entry fits before the circle's end or is split across it."""
+    ring = Ring(str(tmp_path / "r"), 100)
+    buffer = bytearray(40)
+    for round_ in range(30):  # 42- and 36-byte entries: some in one piece, some split at the end
+        size = 30 if round_ % 2 else 24
+        buffer[:size] = bytes((round_ * 7 + k) % 256 for k in range(size))
+        expected = bytes(buffer[:size])
+        assert ring.put(round_, memoryview(buffer)[:size])
+        buffer[:] = bytes(40)  # reused at once
+        assert ring.get() == (round_, expected)
+    assert ring.put(99, bytearray(b"whole")) and ring.get() == (99, b"whole")
+
+
 def test_a_full_ring_refuses_and_loses_nothing_it_took(tmp_path):
     ring = Ring(str(tmp_path / "r"), 100)
     assert ring.put(1, b"a" * 40)

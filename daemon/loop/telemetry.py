@@ -25,6 +25,7 @@ Sending never blocks: whatever ``send`` cannot take at once is dropped, never wa
 from __future__ import annotations
 
 import math
+from itertools import chain
 
 import msgpack
 
@@ -40,15 +41,16 @@ from daemon.wire.telemetry_rows import (
 
 class Telemetry:
     def __init__(self, send, batch: int = 10):
-        """``send(topic: bytes, body: bytes)`` must not block."""
+        """``send(topic: bytes, body)`` must not block, and must copy ``body`` (bytes-like) if it
+        keeps it: a state batch and an internals sample are passed as views of buffers this
+        object reuses, so the ring's put is their only copy."""
         self._send = send
         self.batch = batch
         self.seq = {b"state": 0, b"event": 0, b"internals": 0, b"contact": 0}  # stats: numbered by its window
         self._shape: tuple[int, int] | None = None
         self._rows = 0
         self._buf = bytearray()
-        self._internals_of = None  # the controller whose internals layout is packed in _layout
-        self._layout = b""
+        self._internals_of = None  # the controller whose internals buffer is ready (_internals_for)
         self._beside_flush = max(batch // 2, 1)  # the cycle of each batch that samples internals and contact
 
     def record(self, loop) -> None:
@@ -73,24 +75,39 @@ class Telemetry:
 
     def internals(self, loop) -> None:
         """One sample of the active controller's internal signals (decimated: a few dozen
-        numbers once a batch), packed as numbers behind the controller's layout (packed once per
-        controller); the messenger makes the message. A plugin whose signals cannot be read, or
-        do not match its ``internals``, publishes none."""
+        numbers once a batch), packed as numbers behind the controller's layout; the messenger
+        makes the message. The header, the layout and the values' format are made once per
+        controller, so a sample is one call to the plugin, a shape check and one pack. A plugin
+        whose signals cannot be read, or do not match its ``internals``, publishes none."""
         controller = loop.controller
         if controller is not self._internals_of:
-            self._internals_of = controller
-            self._layout = internals_layout(controller.name, [spec.name for spec in controller.internals])
+            self._internals_for(controller, loop.n)
+        rows, cols = self._internals_shape
         try:
             values = controller.internal_signals()
-            rows, cols = len(values), len(values[0]) if values else 0
-            if rows != len(controller.internals) or any(len(row) != cols for row in values):
+            if len(values) != rows:
                 return
-            numbers = internals_values(rows * cols).pack(*[v for row in values for v in row])
+            for row in values:
+                if len(row) != cols:
+                    return
+            self._internals_values.pack_into(self._internals_buf, self._internals_at, *chain.from_iterable(values))
         except Exception:  # a plugin's failure must never take the loop down
             return
         self.seq[b"internals"] += 1
-        self._send(b"internals", INTERNALS_HEADER.pack(self.seq[b"internals"], loop.cycle, loop.clock.now(),
-                                                       len(self._layout), rows, cols) + self._layout + numbers)
+        INTERNALS_HEADER.pack_into(self._internals_buf, 0, self.seq[b"internals"], loop.cycle, loop.clock.now(),
+                                   len(self._layout), rows, cols)
+        self._send(b"internals", self._internals_buf)
+
+    def _internals_for(self, controller, n: int) -> None:
+        """A sample's buffer for ``controller``: header, layout, one value per joint for each of
+        its ``internals`` (the plugin contract, controllers.base)."""
+        self._internals_of = controller
+        self._layout = internals_layout(controller.name, [spec.name for spec in controller.internals])
+        self._internals_shape = rows, cols = len(controller.internals), n
+        self._internals_values = internals_values(rows * cols)
+        self._internals_at = INTERNALS_HEADER.size + len(self._layout)
+        self._internals_buf = bytearray(self._internals_at + self._internals_values.size)
+        self._internals_buf[INTERNALS_HEADER.size:self._internals_at] = self._layout
 
     def contact(self, loop) -> None:
         """The array sensor's latest estimate (a dozen numbers; nothing before its first frame)."""
@@ -103,15 +120,16 @@ class Telemetry:
         self._row = row_format(n, m, k)
         self._no_shadow = (math.nan,) * k
         self._buf = bytearray(HEADER.size + self.batch * self._row.size)
+        self._view = memoryview(self._buf)
 
     def flush(self) -> None:
         if not self._rows:
             return
         self.seq[b"state"] += 1
         HEADER.pack_into(self._buf, 0, self.seq[b"state"], *self._shape, self._rows)
-        body = bytes(self._buf[:HEADER.size + self._rows * self._row.size])
+        size = HEADER.size + self._rows * self._row.size
         self._rows = 0
-        self._send(b"state", body)
+        self._send(b"state", self._view[:size])
 
     def event(self, loop, event: dict) -> None:
         self._publish(b"event", {"cycle": loop.cycle, "t": loop.clock.now(), **event})

@@ -36,7 +36,7 @@ class Captured:
         if topic == b"stats":  # summarised now: the banks it reads move on
             self._messages.append(("stats", summarise(self.stats, body, self.release_stats)))
         else:
-            self._messages.append((topic.decode(), body))
+            self._messages.append((topic.decode(), bytes(body)))  # a view of a buffer the loop reuses
 
     @property
     def messages(self) -> list[tuple[str, dict]]:
