@@ -71,3 +71,22 @@ def test_a_plugins_unreadable_or_mismatched_internals_publish_nothing_and_numpy_
                                          for m in published["float32"])
     assert not published["ragged"] and not published["too few"] and not published["raises"]
     assert loop.state.value == "enabled"  # a plugin's bad signals never take the loop down
+
+
+def test_a_sample_carries_the_cycle_it_was_taken_at_though_sent_cycles_later():
+    """The sample is taken in one cycle of a batch and sent in a later one (so no cycle carries
+    two of the telemetry's costs): its cycle and time are those of the taking, its values too,
+    and the two never fall in the cycle that flushes the state batch."""
+    loop, captured, _ = make_loop()
+    loop.enable()
+    pid = loop.controller
+    pid.internal_signals = lambda: [[float(loop.cycle)] * loop.n] * len(pid.internals)
+    loop.run(200)
+    samples = captured.of("internals")
+    assert len(samples) >= 15
+    flushed = {state["cycle"][-1] for state in captured.of("state")}
+    for m in samples:
+        assert m["signals"][pid.internals[0].name] == [float(m["cycle"])] * loop.n
+        assert m["cycle"] not in flushed and m["cycle"] + 3 not in flushed
+    times = {c: t for state in captured.of("state") for c, t in zip(state["cycle"], state["t"])}
+    assert all(m["t"] == pytest.approx(times[m["cycle"]], abs=1e-9) for m in samples)  # the virtual clock: one time

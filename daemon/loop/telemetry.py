@@ -9,8 +9,11 @@
   SMC's sigma, the DOB's d_hat), one sample per ``state`` batch while the arm is enabled;
 - ``contact``: with an array pressure sensor (the rig file's ``[contact_sensor]``), its
   latest contact estimate, its frame's time and age, once per ``state`` batch.
-Both are sampled half a batch away from the batch's flush, so no cycle carries the two costs
-(which is where a p99 of the cycle's compute time lives: one cycle in ten).
+The batch's flush, the internals sample and the sample's sending (with the contact
+estimate) each have a cycle of their own in every batch (its 10th, 3rd and 6th), so no cycle
+carries two of them: the cycles that carry them are where the p99 of the cycle's compute time
+lives (docs/benchmarks.md, "Session of 2026-11-27 (fifth)"). A sample carries the cycle and
+time it was taken at.
 Every message carries a per-topic ``seq`` so a subscriber can count what it missed.
 
 The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's numbers into a
@@ -51,7 +54,11 @@ class Telemetry:
         self._rows = 0
         self._buf = bytearray()
         self._internals_of = None  # the controller whose internals buffer is ready (_internals_for)
-        self._beside_flush = max(batch // 2, 1)  # the cycle of each batch that samples internals and contact
+        self._sampled: tuple[int, float] | None = None  # the cycle and time [s] of a sample not sent yet
+        if batch < 3:
+            raise ValueError(f"a state batch of {batch} cycles: at least 3 (the flush, the internals sample and "
+                             f"its sending each take a cycle of their own)")
+        self._sample_at, self._send_at = batch // 3, 2 * batch // 3  # rows 3 and 6 of a 10-cycle batch
 
     def record(self, loop) -> None:
         """Pack this cycle's row into the batch; send the batch when it is full."""
@@ -67,18 +74,21 @@ class Telemetry:
         self._rows += 1
         if self._rows >= self.batch:
             self.flush()
-        elif self._rows == self._beside_flush:  # half a batch from the flush: the two costs never share a cycle
+        elif self._rows == self._sample_at:
             if loop.supervisor.enabled and loop.controller.internals:
-                self.internals(loop)
+                self.sample_internals(loop)
+        elif self._rows == self._send_at:
+            if self._sampled is not None:
+                self.send_internals()
             if loop.contact_sensor is not None:
                 self.contact(loop)
 
-    def internals(self, loop) -> None:
-        """One sample of the active controller's internal signals (decimated: a few dozen
-        numbers once a batch), packed as numbers behind the controller's layout; the messenger
-        makes the message. The header, the layout and the values' format are made once per
-        controller, so a sample is one call to the plugin, a shape check and one pack. A plugin
-        whose signals cannot be read, or do not match its ``internals``, publishes none."""
+    def sample_internals(self, loop) -> None:
+        """Take one sample of the active controller's internal signals (decimated: a few dozen
+        numbers once a batch): its values packed behind the controller's layout in a buffer
+        made once per controller, its cycle and time kept for :meth:`send_internals`. A plugin
+        whose signals cannot be read, or do not match its ``internals``, gives no sample."""
+        self._sampled = None  # one not sent yet (a batch cut short by a flush) is replaced, or dropped if this fails
         controller = loop.controller
         if controller is not self._internals_of:
             self._internals_for(controller, loop.n)
@@ -93,9 +103,16 @@ class Telemetry:
             self._internals_values.pack_into(self._internals_buf, self._internals_at, *chain.from_iterable(values))
         except Exception:  # a plugin's failure must never take the loop down
             return
+        self._sampled = (loop.cycle, loop.clock.now())
+
+    def send_internals(self) -> None:
+        """Send the sample taken last, numbered now (so a sample that was never sent leaves no
+        gap in ``seq``); the messenger makes the message."""
+        cycle, t = self._sampled
+        self._sampled = None
         self.seq[b"internals"] += 1
-        INTERNALS_HEADER.pack_into(self._internals_buf, 0, self.seq[b"internals"], loop.cycle, loop.clock.now(),
-                                   len(self._layout), rows, cols)
+        INTERNALS_HEADER.pack_into(self._internals_buf, 0, self.seq[b"internals"], cycle, t, len(self._layout),
+                                   *self._internals_shape)
         self._send(b"internals", self._internals_buf)
 
     def _internals_for(self, controller, n: int) -> None:
