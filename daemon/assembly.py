@@ -33,7 +33,8 @@ from hal.errors import ConfigError
 from hal.rig import PressureDrivers, RigIO
 from hal.transport import create_transport
 
-Publish = Callable[[bytes, bytes], None]  # a telemetry sink: (topic, payload)
+# a telemetry sink: (topic, payload); the payload is bytes-like and valid only during the call
+Publish = Callable[[bytes, bytes | bytearray | memoryview], None]
 
 
 def rig_of(args) -> config.RigConfig:

@@ -61,12 +61,15 @@ def test_a_plugins_unreadable_or_mismatched_internals_publish_nothing_and_numpy_
               "ragged": lambda: [[1.0, 2.0], [3.0]] + [[0.0, 0.0]] * (len(pid.internals) - 2),
               "too few": lambda: [[1.0, 2.0]],
               "raises": lambda: 1 / 0}
-    published = {}
+    windows = {}
     for name, signals in shapes.items():
         pid.internal_signals = signals
-        before = len(captured.of("internals"))
+        first = loop.cycle
         loop.run(20)
-        published[name] = captured.of("internals")[before:]
+        windows[name] = (first, loop.cycle)
+    loop.run(10)  # the last window's sample is sent a few cycles after it is taken
+    published = {name: [m for m in captured.of("internals") if first < m["cycle"] <= last]  # by the cycle sampled
+                 for name, (first, last) in windows.items()}
     assert published["float32"] and all(m["signals"][pid.internals[0].name] == [1.5, -2.0]
                                          for m in published["float32"])
     assert not published["ragged"] and not published["too few"] and not published["raises"]

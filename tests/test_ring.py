@@ -36,6 +36,11 @@ def test_a_view_of_a_reused_buffer_is_copied_in_whole_pieces_or_split(tmp_path):
         buffer[:] = bytes(40)  # reused at once
         assert ring.get() == (round_, expected)
     assert ring.put(99, bytearray(b"whole")) and ring.get() == (99, b"whole")
+    exact = Ring(str(tmp_path / "exact"), 100)
+    for round_ in range(4):  # 50-byte entries: the second ends exactly at the circle's end
+        buffer[:38] = bytes([round_]) * 38
+        assert exact.put(round_, memoryview(buffer)[:38])
+        assert exact.get() == (round_, bytes([round_]) * 38)
 
 
 def test_a_full_ring_refuses_and_loses_nothing_it_took(tmp_path):

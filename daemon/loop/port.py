@@ -92,7 +92,7 @@ class ZmqServer:
                                             self.recording["min_free_mb"])
             self.recorder.start()
 
-    def publish(self, topic: bytes, body: bytes) -> None:
+    def publish(self, topic: bytes, body: bytes | bytearray | memoryview) -> None:
         """Queue a telemetry message for the messenger (dropped and counted if the ring is full)."""
         if not self.rings["telemetry"].put(_TOPIC_TAG[topic], body):
             self.telemetry_dropped += 1

@@ -118,13 +118,13 @@ class Telemetry:
     def _internals_for(self, controller, n: int) -> None:
         """A sample's buffer for ``controller``: header, layout, one value per joint for each of
         its ``internals`` (the plugin contract, controllers.base)."""
-        self._internals_of = controller
         self._layout = internals_layout(controller.name, [spec.name for spec in controller.internals])
         self._internals_shape = rows, cols = len(controller.internals), n
         self._internals_values = internals_values(rows * cols)
         self._internals_at = INTERNALS_HEADER.size + len(self._layout)
         self._internals_buf = bytearray(self._internals_at + self._internals_values.size)
         self._internals_buf[INTERNALS_HEADER.size:self._internals_at] = self._layout
+        self._internals_of = controller  # last: a build that raised is tried again, never half used
 
     def contact(self, loop) -> None:
         """The array sensor's latest estimate (a dozen numbers; nothing before its first frame)."""

@@ -44,7 +44,7 @@ class PlotJugglerFeed:
         return self._joints if len(self._joints) == n else [f"j{i}" for i in range(n)]
 
     def state(self, columns: dict) -> None:
-        """One row per cycle of a ``state`` batch (columns as :func:`daemon.loop.telemetry.state_message` gives)."""
+        """One row per cycle of a ``state`` batch (columns as :func:`daemon.wire.telemetry_rows.state_message` gives)."""
         names = self.joints(len(columns["angle_rad"][0])) if columns["cycle"] else []
         for i, cycle in enumerate(columns["cycle"]):
             row = {"t": columns["t"][i], "cycle": cycle}

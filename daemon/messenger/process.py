@@ -4,7 +4,7 @@ It owns the command and control ROUTER sockets and the telemetry PUB socket. Req
 the loop, and replies and telemetry come back, through shared-memory rings
 (:mod:`daemon.wire.ring`), so the loop passes a message with a memory copy: no system call, no
 ZeroMQ call, no serialisation of the state stream (this process turns the loop's binary
-rows into msgpack, :func:`daemon.loop.telemetry.to_payload`), and no Python thread beside the
+rows into msgpack, :func:`daemon.wire.telemetry_rows.to_payload`), and no Python thread beside the
 loop taking the GIL.
 
 Control-socket requests have a ring of their own, which the loop drains first, so an

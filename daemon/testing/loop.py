@@ -32,7 +32,7 @@ class Captured:
         self.stats: StatsBanks | None = None  # the loop's histograms (LoopStats.banks), to summarise its windows
         self.release_stats = True  # False beside a messenger, which clears and hands the banks back itself
 
-    def __call__(self, topic: bytes, body: bytes) -> None:
+    def __call__(self, topic: bytes, body: bytes | bytearray | memoryview) -> None:
         if topic == b"stats":  # summarised now: the banks it reads move on
             self._messages.append(("stats", summarise(self.stats, body, self.release_stats)))
         else:
