@@ -16,6 +16,7 @@ from daemon.messenger.process import MessengerError
 from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
 from daemon.testing.loop import dealer, make_loop, ok
+from daemon.wire.telemetry_rows import HEADER, MODES, STATE_FIELDS, row_format, state_message
 
 
 @pytest.fixture
@@ -70,9 +71,34 @@ def test_subscribers_get_the_same_messages_as_the_loop_sent(served):
     sub = subscriber(srv, (b"state",))
     first = received(sub, loop, lambda topic, m: True)
     sent = next(m for m in captured.of("state") if m["seq"] == first["seq"])
-    assert first.keys() == sent.keys()
-    assert first["cycle"] == sent["cycle"] and first["angle_rad"] == sent["angle_rad"]
+    assert msgpack.packb(first) == msgpack.packb(sent)  # every column (bytes: a NaN is equal to itself)
     assert first["mode"] == sent["mode"] == ["idle"] * 10
+
+
+def test_a_state_batch_reads_back_column_by_column_in_the_documented_layout():
+    """A muscle-shaped batch (1 joint, 3 commands, 3 outputs), rows with and without a shadow
+    run: each column holds its own slice of every row, in the documented field order."""
+    n, m, k = 1, 3, 3
+    row = row_format(n, m, k)
+    body = bytearray(HEADER.size + 4 * row.size)
+    HEADER.pack_into(body, 0, 42, n, m, k, 4)
+    rows = []
+    for i in range(4):
+        values = [float(100 * i + j) for j in range(5 * n + k + m + 1)]  # angle .. force, each its own number
+        shadow = (i % 2 == 1, *([0.5 + i] * k if i % 2 else [math.nan] * k))
+        row.pack_into(body, HEADER.size + i * row.size, 7 + i, 0.001 * i, *values, i % len(MODES), *shadow)
+        rows.append(values)
+    message = state_message(bytes(body))
+    assert list(message) == [*STATE_FIELDS, "seq"] and message["seq"] == 42
+    assert message["cycle"] == [7, 8, 9, 10] and message["t"] == [0.0, 0.001, 0.002, 0.003]
+    for name, start, width in (("angle_rad", 0, n), ("velocity_rad_s", n, n), ("setpoint_rad", 2 * n, n),
+                               ("u_volts", 3 * n, k), ("p_head_pa", 3 * n + k, n), ("p_rod_pa", 4 * n + k, n),
+                               ("out_volts", 5 * n + k, m)):
+        assert message[name] == [v[start:start + width] for v in rows], name
+    assert message["error_rad"] == [[v[2 * n] - v[0]] for v in rows]
+    assert message["force_n"] == [v[-1] for v in rows]
+    assert message["mode"] == [MODES[i % len(MODES)] for i in range(4)]
+    assert message["shadow_u_volts"] == [None, [1.5] * k, None, [3.5] * k]
 
 
 def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served, caplog):

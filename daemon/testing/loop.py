@@ -15,7 +15,7 @@ from daemon.loop.port import ZmqServer
 from daemon.planner.process import Preparer
 from daemon.wire import protocol
 from daemon.wire.loop_stats import StatsBanks, summarise
-from daemon.wire.telemetry_rows import to_payload
+from daemon.wire.telemetry_rows import state_message, to_payload
 from hal import config
 
 PRIVATE = "tcp://127.0.0.1:*"  # a free port per socket, never the default endpoints
@@ -42,8 +42,9 @@ class Captured:
     def messages(self) -> list[tuple[str, dict]]:
         for i in range(self._decoded, len(self._messages)):
             topic, body = self._messages[i]
-            if isinstance(body, bytes):
-                self._messages[i] = (topic, msgpack.unpackb(to_payload(topic.encode(), body), raw=False))
+            if isinstance(body, bytes):  # a state batch's columns are already what a subscriber decodes
+                self._messages[i] = (topic, state_message(body) if topic == "state" else
+                                     msgpack.unpackb(to_payload(topic.encode(), body), raw=False))
         self._decoded = len(self._messages)
         return self._messages
 
