@@ -46,23 +46,25 @@ def zoh(a: np.ndarray, b: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]
     return e[:n, :n], e[:n, n:]
 
 
-def stribeck_step(p: JointParams, w: float, w_lin: float, g: float) -> float:
+def stribeck_step(friction: tuple[float, float, float, float, float], w: float, w_lin: float, g: float) -> float:
     """The friction torque [N m] held over a step of the smooth-sign map [2-45]
     tau_s(w) = (Fc + (Fs - Fc) exp(-(|w|/vs)^alpha)) tanh(beta w / vs), taken at the step's end
     velocity v (v = w_lin - g tau_s(v), g: velocity per N m held over the step) by one Newton
     step from the present velocity ``w``; v kept between 0 and ``w_lin`` (the root is there:
     tau_s is odd and has the sign of its argument). A falling (Stribeck) slope steeper than
-    -1 / (2 g) is capped at that, so the step never divides by a small or negative number."""
+    -1 / (2 g) is capped at that, so the step never divides by a small or negative number.
+    ``friction``: (Fc, Fs - Fc, vs, alpha, beta) of the joint (:meth:`JointModel.friction_constants`)."""
     if w_lin == 0.0:
         return 0.0
-    x = abs(w) / p.vs
-    ex = math.exp(-(x ** p.alpha))
-    magnitude = p.Fc + (p.Fs - p.Fc) * ex
-    sign = math.tanh(p.beta * w / p.vs)
+    fc, drop, vs, alpha, beta = friction
+    x = abs(w) / vs
+    ex = math.exp(-(x ** alpha))
+    magnitude = fc + drop * ex
+    sign = math.tanh(beta * w / vs)
     f = magnitude * sign
-    slope = magnitude * p.beta / p.vs * (1.0 - sign * sign)
+    slope = magnitude * beta / vs * (1.0 - sign * sign)
     if x > 0.0:
-        slope -= (p.Fs - p.Fc) * ex * p.alpha * x ** (p.alpha - 1.0) / p.vs * abs(sign)
+        slope -= drop * ex * alpha * x ** (alpha - 1.0) / vs * abs(sign)
     slope = max(slope, -0.5 / g)
     v = (w_lin - g * (f - slope * w)) / (1.0 + g * slope)
     v = min(max(v, 0.0), w_lin) if w_lin > 0.0 else max(min(v, 0.0), w_lin)
@@ -99,11 +101,13 @@ class JointModel:
         _, g_early = zoh(a, b_set, frac)  # the first `frac` seconds, still driven by u(k-n-1)
         g_prev = e_late @ g_early
         _, g_tau = zoh(a, b_tau, dt)
-        # Rows for th and w, as plain floats: numpy's per-call cost would dominate at this size.
-        (self._p10, self._p11, self._p12), (self._p20, self._p21, self._p22) = phi[1].tolist(), phi[2].tolist()
-        self._g0_th, self._g0_w = float(g_late[1, 0]), float(g_late[2, 0])
-        self._g1_th, self._g1_w = float(g_prev[1, 0]), float(g_prev[2, 0])
-        self._gt_th, self._gt_w = float(g_tau[1, 0]), float(g_tau[2, 0])
+        # Rows for th and w, as plain floats in one tuple (a step unpacks it once): numpy's
+        # per-call cost, or an attribute load per coefficient, would dominate at this size.
+        self._gt_w = float(g_tau[2, 0])  # velocity [deg/s] per N m held over a step (friction's Newton step)
+        self._rows = (*phi[1].tolist(), float(g_late[1, 0]), float(g_prev[1, 0]), float(g_tau[1, 0]),
+                      *phi[2].tolist(), float(g_late[2, 0]), float(g_prev[2, 0]), self._gt_w)
+        self._spring_nm = p.K * self.neutral_deg  # K th_0 [N m]: the spring's share of the held torque
+        self._friction = self.friction_constants(p)
         # Scalar chamber lag with the same split: P(k+1) = a P + b0 u(k-n) + b1 u(k-n-1)
         self._pa = math.exp(-dt / p.T_ep)
         self._pb0 = 1.0 - math.exp(-(dt - frac) / p.T_ep)
@@ -117,6 +121,11 @@ class JointModel:
         self.th = min(max(initial_deg, self.stop_lo), self.stop_hi)
         self.w = 0.0
 
+    @staticmethod
+    def friction_constants(p: JointParams) -> tuple[float, float, float, float, float]:
+        """(Fc, Fs - Fc, vs, alpha, beta) of [2-45], as :func:`stribeck_step` takes them."""
+        return p.Fc, p.Fs - p.Fc, p.vs, p.alpha, p.beta
+
     def pneumatic_torque(self, p_head: float, p_rod: float) -> float:
         """K_mdl L (A_H P_H - A_L P_L) [N m]."""
         return self._c * (self._ah * p_head - self._al * p_rod)
@@ -128,32 +137,33 @@ class JointModel:
     def step(self, pset_head: float, pset_rod: float, tau_ext: float = 0.0) -> None:
         """Advance one step with the regulators asked for these set pressures [Pa] and an
         external torque [N m], both held over the step."""
-        size = len(self._buf_head)
+        buf_head, buf_rod = self._buf_head, self._buf_rod
+        size = len(buf_head)
         k = self._k
-        self._buf_head[k % size] = pset_head
-        self._buf_rod[k % size] = pset_rod
+        buf_head[k % size] = pset_head
+        buf_rod[k % size] = pset_rod
         i_now, i_prev = (k - self.delay_steps) % size, (k - self.delay_steps - 1) % size
-        h_now, r_now = self._buf_head[i_now], self._buf_rod[i_now]
-        h_prev, r_prev = self._buf_head[i_prev], self._buf_rod[i_prev]
-        t_now = self.pneumatic_torque(h_now, r_now)
-        t_prev = self.pneumatic_torque(h_prev, r_prev)
-        torque = self.pneumatic_torque(self.p_head, self.p_rod)
-        tau = self.params.K * self.neutral_deg + tau_ext
+        h_now, r_now = buf_head[i_now], buf_rod[i_now]
+        h_prev, r_prev = buf_head[i_prev], buf_rod[i_prev]
+        c, ah, al = self._c, self._ah, self._al  # pneumatic_torque, inline: three calls a step
+        t_now = c * (ah * h_now - al * r_now)
+        t_prev = c * (ah * h_prev - al * r_prev)
+        torque = c * (ah * self.p_head - al * self.p_rod)
+        tau = self._spring_nm + tau_ext
         th, w = self.th, self.w
-        th_lin = (self._p10 * torque + self._p11 * th + self._p12 * w
-                  + self._g0_th * t_now + self._g1_th * t_prev + self._gt_th * tau)
-        w_lin = (self._p20 * torque + self._p21 * th + self._p22 * w
-                 + self._g0_w * t_now + self._g1_w * t_prev + self._gt_w * tau)
+        p10, p11, p12, g0_th, g1_th, gt_th, p20, p21, p22, g0_w, g1_w, gt_w = self._rows
+        th_lin = p10 * torque + p11 * th + p12 * w + g0_th * t_now + g1_th * t_prev + gt_th * tau
+        w_lin = p20 * torque + p21 * th + p22 * w + g0_w * t_now + g1_w * t_prev + gt_w * tau
         if self.friction and not self.karnopp:
-            f = stribeck_step(self.params, w, w_lin, self._gt_w)
-            th_new, w_new = th_lin - self._gt_th * f, w_lin - self._gt_w * f
+            f = stribeck_step(self._friction, w, w_lin, gt_w)
+            th_new, w_new = th_lin - gt_th * f, w_lin - gt_w * f
         elif self.friction:
             f, sticking = self._friction_torque(w, w_lin)
             if sticking and w == 0.0:
                 th_new, w_new = th, 0.0  # stuck all step: not a hair of motion
             else:
-                th_new = th_lin - self._gt_th * f
-                w_new = 0.0 if sticking else w_lin - self._gt_w * f
+                th_new = th_lin - gt_th * f
+                w_new = 0.0 if sticking else w_lin - gt_w * f
         else:
             th_new, w_new = th_lin, w_lin
         if th_new <= self.stop_lo:
