@@ -28,7 +28,8 @@ from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client  # noqa: E402
 from tests.daemons import free_tcp_ports, real_daemon, tolerant_rig_text, wait_for_own_daemon  # noqa: E402
 
-pytestmark = pytest.mark.slow(seconds=80)  # its wall time on a 2-core machine: tests/conftest.py orders by it
+pytestmark = pytest.mark.slow(seconds=40)  # each test's share of the file's ~80 s on a 2-core machine: tests/conftest.py
+# orders files by the sum
 
 
 def test_a_rig_with_an_array_sensor_reads_its_contact_estimate(tmp_path):
