@@ -103,9 +103,8 @@ class JointModel:
         _, g_tau = zoh(a, b_tau, dt)
         # Rows for th and w, as plain floats in one tuple (a step unpacks it once): numpy's
         # per-call cost, or an attribute load per coefficient, would dominate at this size.
-        self._gt_w = float(g_tau[2, 0])  # velocity [deg/s] per N m held over a step (friction's Newton step)
         self._rows = (*phi[1].tolist(), float(g_late[1, 0]), float(g_prev[1, 0]), float(g_tau[1, 0]),
-                      *phi[2].tolist(), float(g_late[2, 0]), float(g_prev[2, 0]), self._gt_w)
+                      *phi[2].tolist(), float(g_late[2, 0]), float(g_prev[2, 0]), float(g_tau[2, 0]))
         self._spring_nm = p.K * self.neutral_deg  # K th_0 [N m]: the spring's share of the held torque
         self._friction = self.friction_constants(p)
         # Scalar chamber lag with the same split: P(k+1) = a P + b0 u(k-n) + b1 u(k-n-1)
@@ -158,7 +157,7 @@ class JointModel:
             f = stribeck_step(self._friction, w, w_lin, gt_w)
             th_new, w_new = th_lin - gt_th * f, w_lin - gt_w * f
         elif self.friction:
-            f, sticking = self._friction_torque(w, w_lin)
+            f, sticking = self._friction_torque(w, w_lin, gt_w)
             if sticking and w == 0.0:
                 th_new, w_new = th, 0.0  # stuck all step: not a hair of motion
             else:
@@ -176,18 +175,19 @@ class JointModel:
         self.p_rod = a * self.p_rod + b0 * r_now + b1 * r_prev
         self._k = k + 1
 
-    def _friction_torque(self, w: float, w_lin: float) -> tuple[float, bool]:
-        """Friction torque [N m] held over this step, given the velocity without friction,
-        and whether it holds the joint still."""
+    def _friction_torque(self, w: float, w_lin: float, gt_w: float) -> tuple[float, bool]:
+        """Friction torque [N m] held over this step, given the velocity without friction and
+        ``gt_w``, the velocity [deg/s] a N m held over a step makes; and whether it holds the
+        joint still."""
         p = self.params
         if w != 0.0:
             magnitude = p.Fc + (p.Fs - p.Fc) * math.exp(-((abs(w) / p.vs) ** p.alpha))
             f = magnitude * math.tanh(p.beta * w / p.vs)
-            w_try = w_lin - self._gt_w * f
+            w_try = w_lin - gt_w * f
             if (w_try > 0.0) == (w > 0.0) and w_try != 0.0:
                 return f, False  # slipping on, same direction
         # At rest, or the step would stop or reverse the joint: can static friction hold it?
-        hold = w_lin / self._gt_w
+        hold = w_lin / gt_w
         if abs(hold) <= p.Fs:
             return hold, True
         return math.copysign(p.Fs, hold), False  # breakaway: moves in the direction of the net torque
