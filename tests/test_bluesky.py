@@ -31,7 +31,8 @@ from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client, RemoteError  # noqa: E402
 from tests.daemons import real_daemon, wait_for_own_daemon  # noqa: E402
 
-pytestmark = pytest.mark.slow(seconds=150)  # its wall time on a 2-core machine: tests/conftest.py orders by it
+pytestmark = pytest.mark.slow(seconds=32)  # each test's share of the file's ~160 s on a 2-core machine: tests/conftest.py
+# orders files by the sum
 
 
 @pytest.fixture(scope="module")

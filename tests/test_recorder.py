@@ -234,6 +234,31 @@ def test_record_start_stop_list_as_documented_and_refusals(daemon):
     assert client.status()["trips"] == 0
 
 
+def test_a_stopped_recording_holds_what_was_published_before_the_stop(daemon):
+    """The recorder reads its feed in batches (every 50 ms, not at every message), and a request
+    first takes what is queued: a stop cuts the file where the daemon was when it was sent, not
+    up to a batch earlier. The messenger hands a message to the recorder as it publishes it,
+    before it takes the next request: a batch this subscriber has received is one the recorder
+    was given before the stop."""
+    _, eps, client = daemon
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"state")
+    sub.connect(eps["telemetry"])
+    try:
+        started = client.record_start("up-to-the-stop")
+        holding(started["file"], 100)
+        while sub.poll(0):  # what queued here meanwhile: the next batch is a fresh one
+            sub.recv_multipart()
+        assert sub.poll(5000), "no state batch came"
+        published = msgpack.unpackb(sub.recv_multipart()[1], raw=False)["cycle"][-1]
+        stopped = client.record_stop(started["name"])
+    finally:
+        sub.close()
+    recorded = [s["cycle"] for s in mcap_log.read(stopped["file"]).messages["state"]]
+    assert max(recorded) >= published, (max(recorded), published)
+
+
 def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(daemon):
     daemon, eps, client = daemon
     sub = events(eps)
