@@ -2,6 +2,7 @@
 a recorded path loses nothing while a client is stalled, record.start/stop/list answer as
 documented, and a write error, a full disk or a killed recorder end a recording with an event,
 the file readable, the loop untouched."""
+import json
 import os
 import resource
 import signal
@@ -13,8 +14,12 @@ import zmq
 from mcap.reader import make_reader
 
 from bench.common import child_process
+from daemon.recorder import process as recorder_process
+from daemon.recorder.archive import Archive
 from daemon.recordings import mcap_log
 from daemon.client.client import Client, RemoteError
+from daemon.testing.loop import dealer, make_loop, ok
+from daemon.wire import protocol as P
 from tests.daemons import real_daemon, wait_for_own_daemon
 from tests.schemas import schema
 
@@ -234,29 +239,83 @@ def test_record_start_stop_list_as_documented_and_refusals(daemon):
     assert client.status()["trips"] == 0
 
 
-def test_a_stopped_recording_holds_what_was_published_before_the_stop(daemon):
-    """The recorder reads its feed in batches (every 50 ms, not at every message), and a request
-    first takes what is queued: a stop cuts the file where the daemon was when it was sent, not
-    up to a batch earlier. The messenger hands a message to the recorder as it publishes it,
-    before it takes the next request: a batch this subscriber has received is one the recorder
-    was given before the stop."""
-    _, eps, client = daemon
+def test_a_stopped_recording_holds_what_was_published_before_the_stop_also_from_a_recorder_behind(daemon):
+    """The recorder reads its feed in batches, and a request first takes in what was published
+    before it (up to 2 s of catching up): a stop cuts the file where the daemon was when it was
+    sent, even from a recorder that had fallen behind (here held still for a second, as a
+    loaded PC holds it), not where the recorder had got to. The messenger hands a message to
+    the recorder as it publishes it, before it takes the next request: a batch this subscriber
+    has received is one the recorder was given before the stop."""
+    daemon, eps, client = daemon
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.LINGER, 0)
     sub.setsockopt(zmq.SUBSCRIBE, b"state")
     sub.connect(eps["telemetry"])
+    recorder = recorder_pid(daemon)
     try:
         started = client.record_start("up-to-the-stop")
         holding(started["file"], 100)
-        while sub.poll(0):  # what queued here meanwhile: the next batch is a fresh one
-            sub.recv_multipart()
-        assert sub.poll(5000), "no state batch came"
-        published = msgpack.unpackb(sub.recv_multipart()[1], raw=False)["cycle"][-1]
+        os.kill(recorder, signal.SIGSTOP)
+        try:
+            time.sleep(1.0)  # a second of telemetry queues in its feed
+            while sub.poll(0):  # what queued here meanwhile: the next batch is a fresh one
+                sub.recv_multipart()
+            assert sub.poll(5000), "no state batch came"
+            published = msgpack.unpackb(sub.recv_multipart()[1], raw=False)["cycle"][-1]
+        finally:
+            os.kill(recorder, signal.SIGCONT)
         stopped = client.record_stop(started["name"])
     finally:
         sub.close()
+    assert "behind" not in stopped["cause"], stopped["cause"]  # caught up: nothing to say
     recorded = [s["cycle"] for s in mcap_log.read(stopped["file"]).messages["state"]]
     assert max(recorded) >= published, (max(recorded), published)
+    assert stopped["gaps"] == 0
+
+
+def test_a_recorder_that_cannot_catch_up_before_a_stop_says_how_far_behind_it_ends_the_file(tmp_path, monkeypatch):
+    """Past its catch-up (2 s of work; here none), a stop ends the file where the recorder got
+    to, and its cause says how far behind the daemon that is: nothing cut short in silence. A
+    real feed (ZeroMQ PUSH to PULL) holding a short run's telemetry, stamped seconds before now."""
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
+    loop.run(300)
+    srv.close()
+    rings = tmp_path / "rings"
+    rings.mkdir()
+    (rings / "describe.json").write_text(json.dumps(describe))
+    (rings / "controller.json").write_text(json.dumps(controller))
+    events = []
+    archive = Archive(str(rings), str(tmp_path / "recordings"), 1e9, 0.0, events.append)
+    lag = time.monotonic() - 5.0  # [s] the run's virtual clock placed 5 s in the daemon's past
+    states = []
+    for topic, message in captured.messages:
+        if topic == "state":
+            states.append(msgpack.packb({**message, "t": [t + lag for t in message["t"]]}))
+    ctx = zmq.Context.instance()
+    feed, messenger = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+    for s in (feed, messenger):
+        s.setsockopt(zmq.LINGER, 0)
+    feed.bind(f"ipc://{tmp_path}/feed")
+    messenger.connect(f"ipc://{tmp_path}/feed")
+    try:
+        archive.message("state", states[0])
+        archive.start("late", "alice")
+        for body in states[1:]:
+            messenger.send_multipart([b"state", body])
+        assert feed.poll(5000)
+        monkeypatch.setattr(recorder_process, "CATCH_UP_S", 0.0)
+        archive.behind_s = recorder_process._catch_up(feed, archive, [])
+        reply = msgpack.unpackb(archive.request(P.encode_request(1, "record.stop", {"name": "late"}), "alice"))
+    finally:
+        feed.close()
+        messenger.close()
+    stopped = reply["result"]
+    behind = float(stopped["cause"].split("the recorder was ")[1].split(" s behind")[0])
+    assert 4.5 < behind < 6.0, stopped["cause"]
+    assert stopped["cause"].startswith("record.stop from alice; ") and "the file ends" in stopped["cause"]
+    assert events[-1]["cause"] == stopped["cause"]  # the record event says it too
 
 
 def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(daemon):

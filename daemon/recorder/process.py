@@ -35,6 +35,7 @@ MESSENGER_ID = b"messenger"  # the messenger's routing id on the control socket
 FEED_HWM = 200_000  # messages the feed may queue (about 10 minutes of telemetry)
 BATCH_S = 0.02  # [s] of writing at most between two looks at the requests: a reply waits no longer
 FEED_EVERY_MS = 50  # the feed is read this often, not at every message: 20 wake-ups a second, not ~110
+CATCH_UP_S = 2.0  # [s] of taking in the feed at most before a request is answered (the client waits 5 s)
 
 
 def endpoint(rings_dir: str, name: str) -> str:
@@ -108,8 +109,11 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     behind = False
     while not stop and child.parent_alive():
         ready = dict(poller.poll(0 if behind else FEED_EVERY_MS))
-        behind = _take_feed(feed, archive, stop)  # first: a request sees everything that came before it
-        if control in ready:
+        if control not in ready:
+            behind = _take_feed(feed, archive, stop)
+        else:
+            archive.behind_s = _catch_up(feed, archive, stop)  # a request sees everything published before it
+            behind = archive.behind_s > 0.0
             while True:
                 try:
                     frames = control.recv_multipart(zmq.NOBLOCK)
@@ -142,6 +146,27 @@ def _take_feed(feed, archive, stop: list) -> bool:
             return False
         archive.message(topic.decode(), body)
     return True
+
+
+def _catch_up(feed, archive, stop: list) -> float:
+    """Before a request: take in the telemetry the daemon published before it came, up to the
+    daemon's clock now (this host's monotonic clock, which the samples are stamped on), or until
+    the feed is empty, for at most CATCH_UP_S. How far behind the daemon [s] it still is."""
+    import zmq
+    now = time.monotonic()
+    give_up = now + CATCH_UP_S
+    while archive.feed_t is None or archive.feed_t < now:
+        if time.monotonic() > give_up:
+            return now - archive.feed_t if archive.feed_t is not None else 0.0
+        try:
+            topic, body = feed.recv_multipart(zmq.NOBLOCK)
+        except (zmq.Again, ValueError):
+            return 0.0  # all of it: the messenger hands a message on before it takes the next request
+        if not topic:  # the messenger passed on the loop's END
+            stop.append(1)
+            return 0.0
+        archive.message(topic.decode(), body)
+    return 0.0
 
 
 def _send(control, frames: list[bytes]) -> None:
