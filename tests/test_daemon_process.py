@@ -17,7 +17,7 @@ from daemon.recordings import reading as recording
 from daemon.client.client import Client
 from daemon.service.notify import Notifier
 from hal import config
-from tests.daemons import tolerant_rig, tolerant_rig_text, wait_for_own_daemon
+from tests.daemons import running, tolerant_rig, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -151,6 +151,48 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
     safe = [0.0, 0.0, 0.0, 0.0]  # the built-in rig vents every chamber
     assert written["writes"][-1] == pytest.approx(safe, abs=1e-3)
     assert "SIGTERM" in proc.stderr.read()
+
+
+SPAWNER = """import sys, time
+from daemon.testing.daemons import spawn
+daemon, eps = spawn(sys.argv[1], "--no-rt", "--spin-us", "0", "--config", sys.argv[2])
+print(daemon.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_daemon_a_test_started_ends_with_the_tests_process_and_leaves_the_safe_state(tmp_path):
+    """daemon.testing.daemons.spawn, as tests and benches start daemons: a test process killed
+    without its teardown (an xdist worker gone, a bench killed) leaves no daemon cycling on. Its
+    daemon gets SIGTERM and writes the safe state."""
+    spawner = subprocess.Popen([sys.executable, "-c", SPAWNER, str(tmp_path), str(rig_file(tmp_path))],
+                               stdout=subprocess.PIPE, text=True, env=env_with())
+    pid = None
+    try:
+        pid = int(spawner.stdout.readline())
+        with Client(**endpoints(tmp_path), timeout=5.0) as client:
+            deadline = time.monotonic() + 60.0
+            while True:
+                try:
+                    assert client.call("ping", timeout=1.0)["daemon"]["pid"] == pid
+                    break
+                except TimeoutError:
+                    assert time.monotonic() < deadline, "the daemon never answered"
+        spawner.kill()
+        spawner.wait(10)
+        deadline = time.monotonic() + 30.0
+        while running(pid):
+            assert time.monotonic() < deadline, "the daemon outlived the process that started it"
+            time.sleep(0.05)
+    finally:
+        if spawner.poll() is None:
+            spawner.kill()
+            spawner.wait()
+        spawner.stdout.close()
+        if pid is not None and running(pid):  # this test's failure: its daemon is still its to end
+            os.kill(pid, signal.SIGTERM)
+    written = json.loads((tmp_path / "writes.json").read_text())
+    assert written["writes"][-1] == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-3)  # the built-in rig vents every chamber
 
 
 def test_dead_man_command_writes_the_safe_state(tmp_path):

@@ -2,22 +2,34 @@
 (the simulated rig unless the options say otherwise), for the benches and the tests."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 ENDPOINTS = ("command", "control", "telemetry")
+# ``python -c LAUNCH PARENT_PID MODULE ARGS...``: have Linux send this process SIGTERM when the
+# thread that started it ends (hal.process.die_with_parent; an exec keeps it), then become
+# ``python -m MODULE ARGS...``, the same pid. A test run killed or interrupted (an xdist worker
+# gone without its teardown) leaves no daemon cycling on after it.
+LAUNCH = """import os, signal, sys
+from hal.process import die_with_parent
+die_with_parent(signal.SIGTERM)
+if os.getppid() != int(sys.argv[1]):
+    sys.exit("the process that started this daemon had already ended")
+os.execv(sys.executable, [sys.executable, "-m", *sys.argv[2:]])
+"""
 
 
 def spawn(directory, *options: str, module: str = "daemon.main", **popen) -> tuple[subprocess.Popen, dict[str, str]]:
     """``python -m <module> run`` with ``options``, its sockets as ipc files in ``directory``
-    and its recordings in ``directory/recordings`` (unless the options name another); the
-    process and its endpoints (name -> address)."""
+    and its recordings in ``directory/recordings`` (unless the options name another), ended
+    (SIGTERM) when the calling thread ends; the process and its endpoints (name -> address)."""
     if "--record-dir" not in options:
         options = (*options, "--record-dir", str(Path(directory) / "recordings"))
     eps = private_endpoints(directory)
-    daemon = subprocess.Popen([sys.executable, "-m", module, "run", "--log-level", "WARNING", *options,
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
+    daemon = subprocess.Popen([sys.executable, "-c", LAUNCH, str(os.getpid()), module, "run", "--log-level", "WARNING",
+                               *options, *sum(([f"--{k}", v] for k, v in eps.items()), [])], **popen)
     return daemon, eps
 
 
