@@ -1,5 +1,6 @@
 """The messenger's side of the recorder (:mod:`daemon.recorder.process`): every telemetry message
-handed on as it leaves the loop's ring, ``record.*`` requests passed over and their answers
+handed on as it leaves the loop's ring, ``record.*`` requests passed over (each after a mark on
+the feed, up to which the recorder takes in the telemetry before it answers) and their answers
 passed back, and the recorder's events published.
 
 Nothing here waits: the feed is a PUSH that drops (and counts) when the recorder's queue is
@@ -16,7 +17,7 @@ import zmq
 
 from daemon.messenger.shared import CLOSE_LINGER_MS
 from daemon.wire import protocol
-from daemon.recorder.process import CONTROL, FEED, FEED_HWM, MESSENGER_ID, endpoint
+from daemon.recorder.process import CONTROL, FEED, FEED_HWM, MARK, MESSENGER_ID, endpoint
 
 ANSWER_TIMEOUT_S = 5.0
 _TOKEN = struct.Struct("<Q")
@@ -44,6 +45,7 @@ class Recorder:
     def ask(self, token: int, sock: zmq.Socket, envelope: list, body: bytes, request_id, who: str) -> bool:
         """Pass a request on (already checked against the catalog); False if the recorder
         cannot take it now."""
+        self.feed(MARK, _TOKEN.pack(token))  # in the feed's order: the recorder takes in what came before it
         try:
             self.control.send_multipart((_TOKEN.pack(token), who.encode(), body), zmq.NOBLOCK)
         except zmq.Again:

@@ -84,7 +84,8 @@ class Archive:
         catalog.check_handlers(("recorder",), self._handlers)
         self._preroll: deque[dict] = deque(maxlen=PREROLL_BATCHES)
         self.feed_t: float | None = None  # [s] the daemon's clock at the last state sample taken in (record.list)
-        self.behind_s = 0.0  # [s] how far behind the daemon the feed still was when a request came (the process's catch-up)
+        self.behind_s: float | None = None  # [s] roughly how far behind the daemon the feed still was when
+        #                                     the requests came (the process's catch-up); None: caught up
         self._fed_at = time.monotonic()  # [s] when it came (or the recorder started: a feed that is
         #                                  late to begin is not one that stopped)
 
@@ -125,9 +126,9 @@ class Archive:
         if name not in self.active:
             raise CommandFailed(P.BAD_STATE, f"no recording named {str(name)[:80]!r} is running", {"reason": "recording"})
         cause = f"record.stop from {who}"
-        if self.behind_s > 0.0:  # a loaded PC: the file ends where the recorder got to, and says so
-            cause += (f"; the recorder was {self.behind_s:.1f} s behind the daemon's telemetry: the file ends "
-                      f"{self.behind_s:.1f} s before the stop")
+        if self.behind_s is not None:  # a loaded PC: the file ends where the recorder got to, and says so
+            cause += (f"; the recorder had not caught up with the daemon's telemetry: the file ends about "
+                      f"{self.behind_s:.2f} s before the stop")
         return self.end(self.active[name], cause)
 
     def _list(self, args: dict, who: str) -> dict:

@@ -35,7 +35,8 @@ MESSENGER_ID = b"messenger"  # the messenger's routing id on the control socket
 FEED_HWM = 200_000  # messages the feed may queue (about 10 minutes of telemetry)
 BATCH_S = 0.02  # [s] of writing at most between two looks at the requests: a reply waits no longer
 FEED_EVERY_MS = 50  # the feed is read this often, not at every message: 20 wake-ups a second, not ~110
-CATCH_UP_S = 2.0  # [s] of taking in the feed at most before a request is answered (the client waits 5 s)
+CATCH_UP_S = 1.0  # [s] of taking in the feed at most before requests are answered (the client waits 2 s)
+MARK = b"mark"  # a feed message the messenger sends just before a request: [MARK, the request's token]
 
 
 def endpoint(rings_dir: str, name: str) -> str:
@@ -112,15 +113,19 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
         if control not in ready:
             behind = _take_feed(feed, archive, stop)
         else:
-            archive.behind_s = _catch_up(feed, archive, stop)  # a request sees everything published before it
-            behind = archive.behind_s > 0.0
+            requests = []
             while True:
                 try:
                     frames = control.recv_multipart(zmq.NOBLOCK)
                 except zmq.Again:
                     break
                 if len(frames) == 4:  # [routing id, token, who, request]
-                    _send(control, [b"reply", frames[1], archive.request(frames[3], frames[2].decode(errors="replace"))])
+                    requests.append(frames)
+            # first everything published before them: up to the last one's mark in the feed
+            archive.behind_s = _catch_up(feed, archive, stop, requests[-1][1]) if requests else None
+            behind = archive.behind_s is not None
+            for _, token, who, body in requests:
+                _send(control, [b"reply", token, archive.request(body, who.decode(errors="replace"))])
         archive.tick(time.monotonic())
     archive.close("the daemon stopped")
     feed.close()
@@ -144,29 +149,35 @@ def _take_feed(feed, archive, stop: list) -> bool:
         if not topic:  # the messenger passed on the loop's END
             stop.append(1)
             return False
-        archive.message(topic.decode(), body)
+        if topic != MARK:  # a request's mark that came before its request: passed
+            archive.message(topic.decode(), body)
     return True
 
 
-def _catch_up(feed, archive, stop: list) -> float:
-    """Before a request: take in the telemetry the daemon published before it came, up to the
-    daemon's clock now (this host's monotonic clock, which the samples are stamped on), or until
-    the feed is empty, for at most CATCH_UP_S. How far behind the daemon [s] it still is."""
+def _catch_up(feed, archive, stop: list, token: bytes) -> float | None:
+    """Before requests: take in the telemetry published before them, up to the last request's
+    mark (the messenger puts it on the feed just before the request: one socket keeps the
+    order two do not), for at most CATCH_UP_S. None once there; else roughly how far behind
+    the daemon [s] the feed still is (the samples' clock is this host's monotonic clock)."""
     import zmq
-    now = time.monotonic()
-    give_up = now + CATCH_UP_S
-    while archive.feed_t is None or archive.feed_t < now:
-        if time.monotonic() > give_up:
-            return now - archive.feed_t if archive.feed_t is not None else 0.0
+    asked = time.monotonic()
+    give_up = asked + CATCH_UP_S
+    while True:
+        left = give_up - time.monotonic()
+        if left <= 0.0 or not feed.poll(int(left * 1e3) + 1):
+            return max(asked - archive.feed_t, 0.0) if archive.feed_t is not None else 0.0
         try:
             topic, body = feed.recv_multipart(zmq.NOBLOCK)
         except (zmq.Again, ValueError):
-            return 0.0  # all of it: the messenger hands a message on before it takes the next request
-        if not topic:  # the messenger passed on the loop's END
+            continue
+        if not topic:  # the messenger passed on the loop's END: nothing more will come
             stop.append(1)
-            return 0.0
-        archive.message(topic.decode(), body)
-    return 0.0
+            return None
+        if topic == MARK:
+            if body == token:
+                return None
+        else:
+            archive.message(topic.decode(), body)
 
 
 def _send(control, frames: list[bytes]) -> None:
