@@ -45,9 +45,10 @@ class Recorder:
     def ask(self, token: int, sock: zmq.Socket, envelope: list, body: bytes, request_id, who: str) -> bool:
         """Pass a request on (already checked against the catalog); False if the recorder
         cannot take it now."""
-        self.feed(MARK, _TOKEN.pack(token))  # in the feed's order: the recorder takes in what came before it
+        packed = _TOKEN.pack(token)
+        self.feed(MARK, packed)  # in the feed's order: the recorder takes in what came before it
         try:
-            self.control.send_multipart((_TOKEN.pack(token), who.encode(), body), zmq.NOBLOCK)
+            self.control.send_multipart((packed, who.encode(), body), zmq.NOBLOCK)
         except zmq.Again:
             return False
         self.owed[token] = (sock, envelope, time.monotonic(), request_id)

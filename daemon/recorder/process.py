@@ -134,23 +134,32 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     return 0
 
 
+def _take_one(feed, archive, stop: list) -> tuple[bytes, bytes] | None:
+    """One message off the feed, taken in (telemetry to the archive; the loop's END, an empty
+    topic, sets ``stop``; a request's mark is only returned): its (topic, body), None if none
+    was waiting."""
+    import zmq
+    try:
+        topic, body = feed.recv_multipart(zmq.NOBLOCK)
+    except (zmq.Again, ValueError):
+        return None
+    if not topic:  # the messenger passed on the loop's END
+        stop.append(1)
+    elif topic != MARK:
+        archive.message(topic.decode(), body)
+    return topic, body
+
+
 def _take_feed(feed, archive, stop: list) -> bool:
     """The telemetry queued in the feed, at most BATCH_S of writing (then the requests again,
     however far behind the feed is); True if some was left for the next round."""
-    import zmq
     batch_ends = time.monotonic() + BATCH_S
     for _ in range(1000):
         if time.monotonic() > batch_ends:
             return True
-        try:
-            topic, body = feed.recv_multipart(zmq.NOBLOCK)
-        except (zmq.Again, ValueError):
+        taken = _take_one(feed, archive, stop)
+        if taken is None or not taken[0]:  # (a mark that came before its request: passed)
             return False
-        if not topic:  # the messenger passed on the loop's END
-            stop.append(1)
-            return False
-        if topic != MARK:  # a request's mark that came before its request: passed
-            archive.message(topic.decode(), body)
     return True
 
 
@@ -159,25 +168,15 @@ def _catch_up(feed, archive, stop: list, token: bytes) -> float | None:
     mark (the messenger puts it on the feed just before the request: one socket keeps the
     order two do not), for at most CATCH_UP_S. None once there; else roughly how far behind
     the daemon [s] the feed still is (the samples' clock is this host's monotonic clock)."""
-    import zmq
     asked = time.monotonic()
     give_up = asked + CATCH_UP_S
     while True:
         left = give_up - time.monotonic()
         if left <= 0.0 or not feed.poll(int(left * 1e3) + 1):
             return max(asked - archive.feed_t, 0.0) if archive.feed_t is not None else 0.0
-        try:
-            topic, body = feed.recv_multipart(zmq.NOBLOCK)
-        except (zmq.Again, ValueError):
-            continue
-        if not topic:  # the messenger passed on the loop's END: nothing more will come
-            stop.append(1)
+        taken = _take_one(feed, archive, stop)
+        if taken is not None and (not taken[0] or taken == (MARK, token)):  # END: nothing more will come
             return None
-        if topic == MARK:
-            if body == token:
-                return None
-        else:
-            archive.message(topic.decode(), body)
 
 
 def _send(control, frames: list[bytes]) -> None:
