@@ -67,8 +67,10 @@ def ratios(pairs: list[tuple[Run, Run]]) -> tuple[float, float]:
 
 def export(commit: str, into: Path) -> Path:
     """``commit``'s tree in ``into``, byte-compiled; the checkout is only read."""
-    archive = subprocess.run(["git", "-C", str(CHECKOUT), "archive", commit], check=True, capture_output=True).stdout
-    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+    archive = subprocess.run(["git", "-C", str(CHECKOUT), "archive", commit], capture_output=True)
+    if archive.returncode != 0:
+        raise SystemExit(f"cannot export {commit!r} from {CHECKOUT}: {archive.stderr.decode().strip()}")
+    with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
         tar.extractall(into, filter="data")
     compileall.compile_dir(into, quiet=1)
     return into

@@ -6,7 +6,7 @@ import argparse
 import pytest
 
 from bench import loop_latency
-from bench.side_by_side import Run, parse, ratios
+from bench.side_by_side import Run, export, parse, ratios
 
 
 def _printed(capsys, compute_us: dict[str, dict[str, float]], overruns: int) -> str:
@@ -43,3 +43,9 @@ def test_ratios_pool_the_p99s_and_take_the_median_of_rounds():
     pooled, median = ratios(pairs)
     assert pooled == pytest.approx(320.0 / 400.0)
     assert median == pytest.approx(0.8)  # of 0.6, 0.9, 0.8
+
+
+def test_a_base_git_cannot_find_is_refused_in_its_words(tmp_path):
+    with pytest.raises(SystemExit, match="cannot export 'no-such-commit' .*not a valid object name"):
+        export("no-such-commit", tmp_path)
+    assert not any(tmp_path.iterdir())
