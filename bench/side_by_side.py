@@ -8,8 +8,8 @@ load, not the code), so a figure means something only beside the other tree's ta
 same time. Each round runs ``bench.loop_latency`` once in a copy of ``--base`` and once in
 this checkout, one straight after the other (same interpreter, same options); the table gives
 each run's compute p50 / p99 (read + control + write + telemetry, as ``stats`` counts it)
-and the round's p99 ratio, then the pooled ratio (sum of this tree's p99s over the base's)
-and the median of the rounds' ratios.
+and the round's p99 ratio, then, for p99 and p50, the pooled ratio (sum of this tree's
+figures over the base's) and the median of the rounds' ratios.
 
 The base is exported with ``git archive`` into a temporary directory and byte-compiled (the
 daemon's helpers run with -B), so the checkout, its index and its worktrees are left as
@@ -59,10 +59,11 @@ def parse(output: str) -> Run:
     return Run(stages, int(overruns.group(1)) if overruns else -1)
 
 
-def ratios(pairs: list[tuple[Run, Run]]) -> tuple[float, float]:
-    """(pooled, median) of this tree's compute p99 over the base's, for (base, this) pairs."""
-    pooled = sum(new.compute[1] for _, new in pairs) / sum(base.compute[1] for base, _ in pairs)
-    return pooled, statistics.median(new.compute[1] / base.compute[1] for base, new in pairs)
+def ratios(pairs: list[tuple[Run, Run]], column: int = 1) -> tuple[float, float]:
+    """(pooled, median) of this tree's compute p99 (``column`` 1; 0: p50) over the base's, for
+    (base, this) pairs."""
+    pooled = sum(new.compute[column] for _, new in pairs) / sum(base.compute[column] for base, _ in pairs)
+    return pooled, statistics.median(new.compute[column] / base.compute[column] for base, new in pairs)
 
 
 def export(commit: str, into: Path) -> Path:
@@ -76,14 +77,14 @@ def export(commit: str, into: Path) -> Path:
     return into
 
 
-def run_bench(tree: Path, options: list[str]) -> tuple[Run, str]:
-    """``bench.loop_latency`` in ``tree`` (its own modules first on the path), and its output."""
+def run_bench(tree: Path, options: list[str]) -> Run:
+    """``bench.loop_latency``'s figures, run in ``tree`` (its own modules first on the path)."""
     proc = subprocess.run([sys.executable, "-m", "bench.loop_latency", *options], cwd=tree, capture_output=True,
                           text=True, timeout=300)
     output = proc.stdout + proc.stderr
     if proc.returncode != 0:
         raise RuntimeError(f"bench.loop_latency in {tree} exited {proc.returncode}:\n{output[-2000:]}")
-    return parse(output), output
+    return parse(output)
 
 
 def main() -> None:
@@ -108,14 +109,16 @@ def main() -> None:
         for k in range(1, args.rounds + 1):
             load = Path("/proc/loadavg").read_text().split()[0]
             started = time.strftime("%H:%M:%S")
-            old, _ = run_bench(base, options)
-            new, _ = run_bench(CHECKOUT, options)
+            old = run_bench(base, options)
+            new = run_bench(CHECKOUT, options)
             pairs.append((old, new))
             print(f"{k:2d}, {started:10s} {load:>5s}  {old.compute[0]:5.0f} / {old.compute[1]:5.0f}  "
                   f"{new.compute[0]:5.0f} / {new.compute[1]:5.0f}  {new.compute[1] / old.compute[1]:9.2f}  "
                   f"{old.overruns:4d} {new.overruns:4d}", flush=True)
-    pooled, median = ratios(pairs)
-    print(f"compute p99, this over base: pooled {pooled:.2f}x, median of rounds {median:.2f}x ({len(pairs)} rounds)")
+    for name, column in (("p99", 1), ("p50", 0)):
+        pooled, median = ratios(pairs, column)
+        print(f"compute {name}, this over base: pooled {pooled:.2f}x, median of rounds {median:.2f}x "
+              f"({len(pairs)} rounds)")
     for stage in ("read", "control", "write", "telemetry"):
         if all(stage in run.stages for pair in pairs for run in pair):
             old = statistics.median(b.stages[stage][0] for b, _ in pairs)

@@ -36,13 +36,17 @@ def test_output_without_the_compute_row_is_an_error_that_shows_it(capsys):
     assert "no stats message from the daemon" in str(failure.value)
 
 
-def test_ratios_pool_the_p99s_and_take_the_median_of_rounds():
-    def run(p99):
-        return Run({"compute": (1.0, p99)}, 0)
-    pairs = [(run(100.0), run(60.0)), (run(200.0), run(180.0)), (run(100.0), run(80.0))]
+def test_ratios_pool_each_percentile_and_take_the_median_of_rounds():
+    def run(p50, p99):
+        return Run({"compute": (p50, p99)}, 0)
+    pairs = [(run(40.0, 100.0), run(30.0, 60.0)), (run(40.0, 200.0), run(20.0, 180.0)),
+             (run(20.0, 100.0), run(20.0, 80.0))]
     pooled, median = ratios(pairs)
     assert pooled == pytest.approx(320.0 / 400.0)
     assert median == pytest.approx(0.8)  # of 0.6, 0.9, 0.8
+    pooled, median = ratios(pairs, column=0)
+    assert pooled == pytest.approx(70.0 / 100.0)
+    assert median == pytest.approx(0.75)  # of 0.75, 0.5, 1.0
 
 
 def test_a_base_git_cannot_find_is_refused_in_its_words(tmp_path):
