@@ -40,7 +40,8 @@ _OVERRUNS = re.compile(r"overruns (\d+)")
 
 @dataclass
 class Run:
-    """One bench run's figures [us]: each stage's (p50, p99), and the overruns counted."""
+    """One bench run's figures [us]: each stage's (p50, p99), and the overruns counted (-1:
+    the output named none)."""
 
     stages: dict[str, tuple[float, float]]
     overruns: int
@@ -77,10 +78,11 @@ def export(commit: str, into: Path) -> Path:
     return into
 
 
-def run_bench(tree: Path, options: list[str]) -> Run:
-    """``bench.loop_latency``'s figures, run in ``tree`` (its own modules first on the path)."""
+def run_bench(tree: Path, options: list[str], seconds: float) -> Run:
+    """``bench.loop_latency``'s figures, run in ``tree`` (its own modules first on the path) for
+    ``seconds`` of load; given two minutes beyond that to start and stop its daemon."""
     proc = subprocess.run([sys.executable, "-m", "bench.loop_latency", *options], cwd=tree, capture_output=True,
-                          text=True, timeout=300)
+                          text=True, timeout=seconds + 120)
     output = proc.stdout + proc.stderr
     if proc.returncode != 0:
         raise RuntimeError(f"bench.loop_latency in {tree} exited {proc.returncode}:\n{output[-2000:]}")
@@ -109,8 +111,8 @@ def main() -> None:
         for k in range(1, args.rounds + 1):
             load = Path("/proc/loadavg").read_text().split()[0]
             started = time.strftime("%H:%M:%S")
-            old = run_bench(base, options)
-            new = run_bench(CHECKOUT, options)
+            old = run_bench(base, options, args.seconds)
+            new = run_bench(CHECKOUT, options, args.seconds)
             pairs.append((old, new))
             print(f"{k:2d}, {started:10s} {load:>5s}  {old.compute[0]:5.0f} / {old.compute[1]:5.0f}  "
                   f"{new.compute[0]:5.0f} / {new.compute[1]:5.0f}  {new.compute[1] / old.compute[1]:9.2f}  "
