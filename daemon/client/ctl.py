@@ -360,7 +360,7 @@ def run(client: Client, args):
             return result
         return with_lease(client, lambda: client.set_params(**key_values(args.args)))
     if w == "keys":
-        return client.call("keys.reload", control=True)
+        return client.call("keys.reload")  # the command socket: the control socket serves the arm's stops only
     if w == "load":
         if args.action == "clear":
             return with_lease(client, client.clear_load)
