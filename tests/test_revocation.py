@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -13,6 +14,7 @@ from daemon.client.client import Client, RemoteError
 from daemon.wire import keys
 from daemon.wire import protocol as P
 from tests.daemons import endpoint_env, real_daemon
+from tests.schemas import schema
 
 pytestmark = pytest.mark.slow(seconds=60)
 
@@ -74,3 +76,30 @@ def test_pneumactl_keys_reload_revokes_a_key_as_the_documents_say(lab, tmp_path)
         assert refused.value.code == P.FORBIDDEN and refused.value.data == {"reason": "revoked", "key": "erin"}
     observer = pneumactl(eps, files["vic"], "keys", "reload")  # an operator's command (the catalog's role)
     assert observer.returncode == 1 and "forbidden" in observer.stderr and '"role": "observer"' in observer.stderr
+
+
+def test_the_keys_event_of_a_reload_names_who_reloaded(lab, tmp_path):
+    _, eps, files = lab
+    allow(files, "fay", tmp_path)
+    with client(eps, files["vic"]) as vic:  # an observer watching
+        sub = vic.subscribe((b"event", b"state"))
+        try:
+            assert sub.receive(30.0) is not None  # admitted: it hears the events to come
+            assert reload_as_documented(eps, files)["added"] == ["fay"]
+            reloaded = events_until(sub, "keys")[-1]
+            assert reloaded["who"] == "bea" and reloaded["added"] == ["fay"] and "by bea" in reloaded["cause"]
+            schema("telemetry", "event").validate(reloaded)
+        finally:
+            sub.close()
+
+
+def events_until(sub, kind: str, limit_s: float = 30.0) -> list[dict]:
+    """Events up to and including the first of ``kind`` (failing after ``limit_s``)."""
+    seen, deadline = [], time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        got = sub.receive(1.0)
+        if got is not None and got[0] == "event":
+            seen.append(got[1])
+            if got[1]["kind"] == kind:
+                return seen
+    raise AssertionError(f"no {kind} event within {limit_s} s: {seen}")

@@ -55,11 +55,12 @@ class Guard:
         since the connection was admitted)."""
         return self.allowed.by_name(frame.get("User-Id"))
 
-    def reload(self) -> dict:
-        """Read the allow-list again; what changed (names), as a reply and a log line say it."""
+    def reload(self, who: str) -> dict:
+        """Read the allow-list again (``who`` asked); what changed (names), as a reply and a
+        log line say it."""
         added, removed = self.allowed.reload()
         self._say_problems()
-        log.info("keys reloaded: %d allowed (added %s, removed %s)", len(self.allowed.clients),
+        log.info("keys reloaded by %s: %d allowed (added %s, removed %s)", who, len(self.allowed.clients),
                  sorted(added) or "none", sorted(removed) or "none")
         return {"allowed": sorted(c.name for c in self.allowed.clients.values()), "added": sorted(added),
                 "removed": sorted(removed), "problems": self.allowed.problems}

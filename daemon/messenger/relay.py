@@ -18,7 +18,7 @@ from daemon.wire import catalog, protocol
 from daemon.wire.arguments import CommandFailed
 from daemon.messenger.guard import Guard
 from daemon.wire import routed
-from daemon.wire.keys import ANONYMOUS, OPERATOR
+from daemon.wire.keys import ANONYMOUS, OPERATOR, Identity
 from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.wire.ring import Ring, RingError
@@ -28,6 +28,8 @@ from daemon.wire.telemetry_rows import internals_message, state_message
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
     from daemon.messenger.foxglove_stream import FoxgloveStream
+
+SIGNALLED = Identity("SIGHUP", OPERATOR)  # who reloads the keys on a signal (systemctl reload), in events
 
 
 class Relay:
@@ -80,7 +82,7 @@ class Relay:
                 self.foxglove.work()  # a slice of the Foxglove stream's encoding, then the sockets again
             if reloads:
                 reloads.clear()
-                self._reload_keys()
+                self._reload_keys(SIGNALLED)
             now = time.monotonic()
             self._watch_loop(now)
             if now - last_check > 0.5:
@@ -116,7 +118,7 @@ class Relay:
                 self._send(sock, envelope, protocol.encode_error(request["id"], exc.code, exc.message, exc.data))
                 continue
             if command.server == "messenger":
-                self._served[command.name](sock, envelope, request["id"])
+                self._served[command.name](sock, envelope, request["id"], identity)
                 continue
             if command.server == "recorder":
                 self._to_recorder(sock, envelope, body, request["id"], identity)
@@ -148,29 +150,31 @@ class Relay:
     def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:
         self._send(sock, envelope, protocol.encode_error(protocol.request_id_of(body), protocol.FORBIDDEN, message, data))
 
-    def _answer_reload(self, sock: zmq.Socket, envelope: list, request_id) -> None:
+    def _answer_reload(self, sock: zmq.Socket, envelope: list, request_id, identity: Identity) -> None:
         """``keys.reload``, answered here: the allow-list is this process's (the role was
         checked in :meth:`_admit`)."""
         if self.guard is None:
             reply = protocol.encode_error(request_id, protocol.BAD_STATE, "this daemon runs without keys (pneumad run "
                                           "--keys DIR): there is no allow-list to reload", {"reason": "no_keys"})
         else:
-            reply = protocol.encode_result(request_id, self._reload_keys())
+            reply = protocol.encode_result(request_id, self._reload_keys(identity))
         self._send(sock, envelope, reply)
 
-    def _reload_keys(self) -> dict:
-        """Read the allow-list again; if a key was removed, re-bind the telemetry socket so that
-        its subscribers must be admitted again (a revoked one is not)."""
+    def _reload_keys(self, who: Identity) -> dict:
+        """Read the allow-list again, as ``who`` asked (its ``keys`` event names them); if a key
+        was removed, re-bind the telemetry socket so that its subscribers must be admitted again
+        (a revoked one is not)."""
         if self.guard is None:
             return {}
-        changes = self.guard.reload()
+        changes = self.guard.reload(who.name)
         if changes["removed"]:
             old = self.sockets["telemetry"]
             endpoint = old.getsockopt_string(zmq.LAST_ENDPOINT)
             old.close()
             self.sockets["telemetry"] = _rebind(old.context, endpoint, self.guard)
-        self._event({"kind": "keys", "cycle": self._cycle, "cause": f"keys reloaded: added {changes['added'] or 'none'}, "
-                                              f"removed {changes['removed'] or 'none'}", **changes})
+        self._event({"kind": "keys", "cycle": self._cycle, "who": who.name,
+                     "cause": f"keys reloaded by {who.name}: added {changes['added'] or 'none'}, "
+                              f"removed {changes['removed'] or 'none'}", **changes})
         return changes
 
     _send = staticmethod(send_reply)
