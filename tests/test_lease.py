@@ -4,11 +4,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import msgpack
 import pytest
 
 from daemon.client.client import Client
+from daemon.loop.commands import Commands
 from daemon.loop.safety import State
-from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds, shared_preparer
+from daemon.wire import protocol as P
+from daemon.wire.keys import OPERATOR, Identity
 from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
 
 RIG = (Path(__file__).resolve().parents[1] / "hal" / "sim_2joint.toml").read_text()
@@ -80,6 +84,33 @@ def test_the_hold_policy_keeps_an_unleased_arm_enabled(enabled_then_released):
     assert released["unleased"]["action"] == "hold"
     run_seconds(loop, 3.0)
     assert loop.state is State.ENABLED and ok(loop, sock, "status")["unleased_disable_in_s"] is None
+
+
+def test_under_the_hold_policy_an_arm_whose_lease_holders_key_was_revoked_holds_on():
+    """A revoked key's lease ends (``lease.revoke``, the messenger's at a reload, handled here
+    as the loop's port hands it on; tests/test_revocation.py runs it on a real daemon): with
+    ``unleased_action = "hold"`` the arm holds, enabled, and no grace time runs."""
+    loop, captured, _ = make_loop(rig("hold", 1.0))
+    commands = Commands(loop, shared_preparer())
+
+    def handle(who: str, cmd: str, args=None, lease=None) -> dict:
+        request = P.decode_request(P.encode_request(1, cmd, args, lease))
+        reply = msgpack.unpackb(commands.handle_request(request, False, Identity(who, OPERATOR)), raw=False)
+        assert reply["ok"], reply
+        return reply["result"]
+
+    lease = handle("ann", "lease.acquire")["lease"]
+    handle("ann", "enable", lease=lease)
+    assert handle("bea", "lease.revoke", {"key": "bob"}) == {"ended": False, "cause": ""}  # not the holder
+    assert handle("bea", "lease.revoke", {"key": "ann"})["ended"]
+    loop.run(1)
+    run_seconds(loop, 3.0)
+    status = handle("bea", "status")
+    assert status["state"] == "enabled" and not status["lease_held"] and status["unleased_disable_in_s"] is None
+    loop.telemetry.flush()
+    revoked = [e for e in captured.of("event") if e["kind"] == "lease_revoked"]
+    assert len(revoked) == 1 and revoked[0]["key"] == "ann" and revoked[0]["who"] == "bea"
+    assert 'unleased_action = "hold"' in revoked[0]["cause"]
 
 
 @pytest.mark.parametrize("enabled_then_released", [("disable", 60.0)], indirect=True)

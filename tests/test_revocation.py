@@ -1,14 +1,19 @@
 """Revoking a key on a running daemon as the documents say (`pneumad keys revoke NAME`, then
 `pneumactl keys reload`; systemctl reload's SIGHUP is tests/test_security.py's): the key is
-refused from then on."""
+refused from then on, and a lease it held ends at once. The arm stops what it was doing for
+that key and follows the unleased policy, and another key may take the lease straight away."""
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
 
+import msgpack
 import pytest
+import zmq
 
 from daemon.client.client import Client, RemoteError
 from daemon.wire import keys
@@ -17,6 +22,7 @@ from tests.daemons import endpoint_env, real_daemon
 from tests.schemas import schema
 
 pytestmark = pytest.mark.slow(seconds=60)
+TTL_S = 60.0  # the revoked key's lease: far longer than any step here waits
 
 
 @pytest.fixture(scope="module")
@@ -103,3 +109,97 @@ def events_until(sub, kind: str, limit_s: float = 30.0) -> list[dict]:
             if got[1]["kind"] == kind:
                 return seen
     raise AssertionError(f"no {kind} event within {limit_s} s: {seen}")
+
+
+def logged(path: str, words: tuple[str, ...], limit_s: float = 30.0) -> str:
+    """The first line of the daemon's log holding every one of ``words``."""
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        with open(path) as f:
+            for line in f:
+                if all(w in line for w in words):
+                    return line
+        time.sleep(0.2)
+    raise AssertionError(f"no log line with {words} within {limit_s} s")
+
+
+def test_a_revoked_keys_lease_ends_at_once_and_its_path_stops(lab, tmp_path):
+    """ann takes the lease, enables and starts a long path; her key is removed and reloaded:
+    her lease ends at once (status, an event naming her, the log), the path stops and the arm
+    holds under the unleased policy, and bea's lease.acquire succeeds at once, where it got
+    ``lease_held`` until ann's time to live ran out."""
+    _, eps, files = lab
+    ann_file = allow(files, "ann", tmp_path)
+    reload_as_documented(eps, files)
+    with client(eps, files["bea"]) as bea, client(eps, ann_file) as ann:
+        sub = bea.subscribe((b"event", b"state"))
+        assert sub.receive(30.0) is not None  # admitted: it hears the events to come
+        ann.acquire_lease(TTL_S)
+        ann.enable()
+        ann.path("circle", duration_s=600.0)
+        status = bea.status()
+        assert status["lease_holder"] == "ann" and status["reference"] == "circle"
+        assert status["reference_remaining_s"] > 60.0
+        keys.revoke(files["dir"], "ann")
+        reloaded_at = time.monotonic()
+        assert reload_as_documented(eps, files)["removed"] == ["ann"]
+        status = bea.status()  # the loop had the revocation before this request
+        assert status["lease_held"] is False and status["lease_holder"] is None
+        assert status["state"] == "enabled" and status["reference"] == "hold"
+        assert status["reference_remaining_s"] == 0.0
+        assert 0.0 < status["unleased_disable_in_s"] <= 60.0  # the rig file's policy: disabled after its grace
+        bea.acquire_lease()  # at once: not ann's until her 60 s lapse
+        assert time.monotonic() - reloaded_at < TTL_S / 2
+        for control in (False, True):  # the messenger's word to the loop: no client may send it
+            with pytest.raises(RemoteError) as unknown:
+                bea.call("lease.revoke", {"key": "bea"}, control=control)
+            assert unknown.value.code == P.UNKNOWN_COMMAND
+            assert "lease.revoke" not in unknown.value.message.split("serves")[1]
+        assert bea.status()["lease_holder"] == "bea"
+        try:
+            seen = events_until(sub, "lease_revoked")
+            revoked = seen[-1]
+            assert revoked["key"] == "ann" and revoked["who"] == "bea" and "'ann'" in revoked["cause"]
+            assert "unleased" in revoked["cause"]
+            reloads = [e for e in seen if e["kind"] == "keys" and e["removed"] == ["ann"]]
+            assert len(reloads) == 1 and reloads[0]["who"] == "bea"
+            ends = [e for e in seen if e["kind"] == "reference" and e["action"] == "end" and e["name"] == "circle"]
+            assert len(ends) == 1 and ends[0]["cut"] == "replaced by hold" and ends[0]["who"] == "bea"
+            for event in seen:
+                schema("telemetry", "event").validate(event)
+            assert "'ann'" in logged(files["log"], ("lease", "revoked", "'ann'"))
+        finally:
+            sub.close()
+            bea.disable()
+            bea.release_lease()
+
+
+def test_a_lease_acquire_the_revoked_key_sent_before_the_reload_is_ended_after_it(lab, tmp_path):
+    """A request of the key's already queued for the loop when the reload comes runs after the
+    revocation that overtook it: a lease it takes so is ended too. The loop is stopped
+    (SIGSTOP) so that ann's lease.acquire waits in its queue while the key is revoked."""
+    proc, eps, files = lab
+    ann_file = allow(files, "cal", tmp_path)
+    reload_as_documented(eps, files)
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    keys.secure_client(sock, ann_file)
+    sock.connect(eps["command"])
+    with client(eps, files["bea"]) as bea:
+        assert bea.status()["lease_held"] is False
+        os.kill(proc.pid, signal.SIGSTOP)  # the loop's process; the messenger's runs on
+        try:
+            sock.send(P.encode_request(1, "lease.acquire", {"ttl_s": TTL_S}, None))
+            sock.send(P.encode_request(2, "keys.reload", None, None))  # the messenger's own: answered now
+            assert sock.poll(30_000), "the messenger did not answer while the loop was stopped"
+            assert msgpack.unpackb(sock.recv_multipart()[-1])["id"] == 2  # so the acquire is queued
+            keys.revoke(files["dir"], "cal")
+            assert bea.call("keys.reload")["removed"] == ["cal"]
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        assert sock.poll(30_000)
+        acquired = msgpack.unpackb(sock.recv_multipart()[-1])
+        assert acquired["id"] == 1 and acquired["ok"]  # granted: the revocation had overtaken it ...
+        status = bea.status()
+        assert status["lease_held"] is False, status  # ... and the one behind it ended it
+    sock.close()

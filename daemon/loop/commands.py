@@ -58,7 +58,7 @@ class Commands:
         "controller.set": "controller_set", "controller.shadow": "controller_shadow",
         "controller.commit": "controller_commit", "controller.discard": "controller_discard",
         "load.set": "load_set", "load.clear": "load_clear", "lease.acquire": "lease_acquire",
-        "lease.renew": "lease_renew", "lease.release": "lease_release",
+        "lease.renew": "lease_renew", "lease.release": "lease_release", "lease.revoke": "lease_revoke",
     }
     catalog.check_handlers(("loop", "planner"), HANDLERS)
 
@@ -149,8 +149,11 @@ class Commands:
 
     def handle(self, request: dict, control: bool = False):
         """One request the messenger has checked against the catalog (command, socket,
-        arguments, role): the lease, then the command (which checks the state)."""
-        command = catalog.find(request["cmd"], "control" if control else "command")
+        arguments, role), or one of its own (``catalog.INTERNAL``: only the messenger writes
+        the rings, and it lets no client send those): the lease, then the command (which
+        checks the state)."""
+        name = request["cmd"]
+        command = catalog.INTERNAL.get(name) or catalog.find(name, "control" if control else "command")
         if command.lease:
             self.lease.check(request["lease"], self.client)
         method = getattr(self, self.HANDLERS[command.name])
@@ -171,6 +174,10 @@ class Commands:
 
     def lease_release(self, args):
         return self.lease.release()
+
+    def lease_revoke(self, args):
+        """The messenger's word that a key left the allow-list (internal, at a reload)."""
+        return self.lease.revoke(args["key"])
 
     # -- reading ----------------------------------------------------------------------------
     def ping(self, args):

@@ -6,8 +6,9 @@ key may not take it. A lease that lapses while the arm is enabled trips it: the 
 was in charge has gone. An arm left enabled by a client that handed the lease back runs its
 reference to the end and holds; after the rig file's grace time of holding with no lease
 holder it is disabled (``[safety] unleased_action = "disable"``, ``unleased_grace_s``), or
-held until a client comes (``"hold"``). Everything here runs on the loop's thread, once a
-cycle or per request, in constant time.
+held until a client comes (``"hold"``). A key taken off the allow-list loses its lease at
+once (:meth:`Lease.revoke`). Everything here runs on the loop's thread, once a cycle or per
+request, in constant time.
 """
 from __future__ import annotations
 
@@ -77,6 +78,30 @@ class Lease:
                     f"{self.safety.unleased_grace_s:g} s with none (rig file [safety] unleased_grace_s)")
         return {"unleased": {"action": self.safety.unleased_action, "grace_s": self.safety.unleased_grace_s,
                              "note": note, "first": first}}
+
+    def revoke(self, key: str) -> dict:
+        """End the lease now if key ``key`` holds it: the key has left the allow-list (the
+        messenger's ``lease.revoke`` at a reload). Its holder was in charge of what the arm
+        does, so that stops too: an enabled arm holds where it is (as ``abort``) and the
+        unleased policy runs from now (a ``"disable"`` grace time starts). One string
+        comparison when the key holds no lease."""
+        if self.token is None or self.holder.name != key:
+            return {"ended": False, "cause": ""}
+        self.token = None
+        cause = f"key {key!r} was revoked while it held the lease: the lease ended"
+        if self.loop.supervisor.enabled:
+            stopped = "the running reference was stopped and " if self.loop.reference_remaining() > 0.0 else ""
+            self.loop.hold()
+            action = self.safety.unleased_action
+            if action == "disable":
+                self.unleased_since = self.loop.clock.now()
+                policy = f"disabled after {self.safety.unleased_grace_s:g} s unless a client takes the lease"
+            else:
+                policy = "held until a client takes the lease"
+            cause += (f"; {stopped}the arm holds where it is with no lease holder "
+                      f"(unleased_action = \"{action}\": {policy})")
+        self.loop.events.add({"kind": "lease_revoked", "key": key, "cause": cause})
+        return {"ended": True, "cause": cause}
 
     def check(self, token, client: Identity) -> None:
         """Refuse a command that needs the lease unless ``client`` holds it with ``token``."""

@@ -1,7 +1,8 @@
 """The messenger process's work (:mod:`daemon.messenger.process`): requests from the ROUTER sockets
 into the loop's rings, each with who sent it; replies and telemetry from the loop's rings
 onto the sockets; the loop's heartbeat watched, and answered for while it is stalled; the
-keys' allow-list reloaded (SIGHUP, ``keys.reload``)."""
+keys' allow-list reloaded (SIGHUP, ``keys.reload``), and the loop told of each key it lost
+(:mod:`daemon.messenger.revocation`)."""
 from __future__ import annotations
 
 import os
@@ -21,6 +22,7 @@ from daemon.wire import routed
 from daemon.wire.keys import ANONYMOUS, OPERATOR, Identity
 from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
 from daemon.messenger.recorder_link import Recorder, send_reply
+from daemon.messenger.revocation import Revocations
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
@@ -52,6 +54,7 @@ class Relay:
         self._event_seq = 0  # the last event seq sent
         self._injected = 0  # events of this process's own so far: loop events are renumbered after them
         self._tokens = iter(range(1, 1 << 62))
+        self.revocations = Revocations(rings, heartbeat, self._tokens)  # keys a reload removed, told to the loop
         self.poller = zmq.Poller()
         for name in ("control", "command"):
             self.poller.register(sockets[name], zmq.POLLIN)
@@ -75,9 +78,12 @@ class Relay:
             if self.doorbell in ready:
                 os.read(self.doorbell, 4096)  # the rings say what there is; the bytes only woke us
             self._send_replies()
+            rebind = self.revocations.rebind_due(time.monotonic())  # before the drain: the loop's say is in the ring
             if not self._publish():
                 self._send_replies()  # the loop's last answers, then stop
                 return
+            if rebind:
+                self._rebind_telemetry()
             if self.foxglove is not None:
                 self.foxglove.work()  # a slice of the Foxglove stream's encoding, then the sockets again
             if reloads:
@@ -90,6 +96,7 @@ class Relay:
                 if not parent_alive():
                     return
                 self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
+                self.revocations.expire(now)
                 if self.recorder is not None:
                     self.recorder.expire(now)
 
@@ -161,21 +168,25 @@ class Relay:
         self._send(sock, envelope, reply)
 
     def _reload_keys(self, who: Identity) -> dict:
-        """Read the allow-list again, as ``who`` asked (its ``keys`` event names them); if a key
-        was removed, re-bind the telemetry socket so that its subscribers must be admitted again
-        (a revoked one is not)."""
+        """Read the allow-list again, as ``who`` asked (its ``keys`` event names them); if a
+        key was removed, the loop ends a lease it holds, and the telemetry socket is bound
+        again once the loop has said so, so that its subscribers must be admitted again (a
+        revoked one is not)."""
         if self.guard is None:
             return {}
         changes = self.guard.reload(who.name)
-        if changes["removed"]:
-            old = self.sockets["telemetry"]
-            endpoint = old.getsockopt_string(zmq.LAST_ENDPOINT)
-            old.close()
-            self.sockets["telemetry"] = _rebind(old.context, endpoint, self.guard)
         self._event({"kind": "keys", "cycle": self._cycle, "who": who.name,
                      "cause": f"keys reloaded by {who.name}: added {changes['added'] or 'none'}, "
                               f"removed {changes['removed'] or 'none'}", **changes})
+        if changes["removed"]:
+            self.revocations.revoke(changes["removed"], who, time.monotonic())
         return changes
+
+    def _rebind_telemetry(self) -> None:
+        old = self.sockets["telemetry"]
+        endpoint = old.getsockopt_string(zmq.LAST_ENDPOINT)
+        old.close()
+        self.sockets["telemetry"] = _rebind(old.context, endpoint, self.guard)
 
     _send = staticmethod(send_reply)
 
@@ -237,6 +248,8 @@ class Relay:
             owed = self.owed.pop(token, None)
             if owed is not None:
                 send_reply(owed[0], owed[1], reply)
+            else:
+                self.revocations.answer(token, reply)
 
     def _publish(self) -> bool:
         """Pass the telemetry on; False at the END of the stream."""

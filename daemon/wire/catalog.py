@@ -264,6 +264,13 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         "allowed", "added", "removed", "problems"), role=OPERATOR, errors=(P.BAD_STATE,)),
 )}
 
+# Commands the daemon's own processes send each other through the loop's rings, never a client:
+# no socket serves them (:func:`find` does not know them), and describe and the documents do not list them.
+INTERNAL: dict[str, Command] = {c.name: c for c in (
+    Command("lease.revoke", "loop", "a key left the allow-list (the messenger, at a reload): its lease ends now",
+            ("ended", "cause"), (Arg("key", "string", "the removed key's name", required=True),), sockets=()),
+)}
+
 DEFERRED = tuple(sorted(name for name, c in COMMANDS.items() if c.deferred))
 
 
@@ -309,8 +316,9 @@ def check_args(command: Command, args: dict) -> None:
 
 def check_handlers(servers: tuple[str, ...], handlers) -> None:
     """Start-up fails unless ``handlers`` (names) are exactly the catalog's commands served
-    by ``servers``: no command without a handler, no handler without a command."""
-    expected = {name for name, c in COMMANDS.items() if c.server in servers}
+    by ``servers`` (the internal ones included): no command without a handler, no handler
+    without a command."""
+    expected = {name for name, c in (*COMMANDS.items(), *INTERNAL.items()) if c.server in servers}
     missing, stray = expected - set(handlers), set(handlers) - expected
     if missing or stray:
         raise RuntimeError(f"the {'/'.join(servers)} handlers disagree with the catalog: no handler for "
