@@ -12,7 +12,7 @@ safe state was), between its limits drawn as lines; a path's approach/path bound
 (the ``reference`` start event's ``approach_s``); the tip path shows its start and direction;
 each internal signal's unit is the one its own controller declares; and runs whose results are
 identical are drawn once, named together in the legend ("pid = lti (identical)"), never one line
-hidden under another.
+hidden under another; and a recording that is cut says so on every figure.
 """
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ from daemon.recordings.channels import signal_units  # noqa: E402
 DEG = 180.0 / math.pi
 BOUNDARY = dict(color="0.35", ls=":", lw=1.2)  # the approach/path boundary
 LIMIT = dict(color="0.5", ls="--", lw=1.0)  # V_MV's limits
+CUT = dict(color="firebrick", fontsize=8.5, ha="center", va="bottom")  # the note on a cut recording's figures
 
 
 def _label(path: Path, run: recording.Run) -> str:
@@ -247,22 +248,42 @@ def figures(runs: list[tuple[str, recording.Run]]) -> dict[str, plt.Figure | Non
     return made
 
 
-def plot_runs(paths, out_dir=".") -> list[Path]:
-    """Write the figures of one or more recordings into ``out_dir``; the files written."""
-    files = [Path(p) for p in paths]
+def open_runs(paths) -> list[recording.Run]:
+    """The recordings to plot, read (ValueError for one with no state sample)."""
     runs = []
-    for f in files:
+    for f in paths:
         run = recording.open_run(f)
         if not run.samples:
             raise ValueError(f"{f}: no state samples to plot")
-        runs.append((_label(f, run), run))
+        runs.append(run)
+    return runs
+
+
+def _say_cut(fig: plt.Figure, notices: list[str]) -> None:
+    """A cut recording's notice at the foot of a figure, room made for it."""
+    import textwrap
+    width, height = fig.get_size_inches()
+    lines = [line for notice in notices for line in textwrap.wrap(notice, int(13 * width))]
+    room = (0.16 * len(lines) + 0.1) / height  # [fraction of the figure]
+    fig.subplots_adjust(bottom=fig.subplotpars.bottom + room)
+    fig.text(0.5, 0.06 / height, "\n".join(lines), **CUT)
+
+
+def plot_runs(paths, out_dir=".", runs: list[recording.Run] | None = None) -> list[Path]:
+    """Write the figures of one or more recordings into ``out_dir`` (``runs``: those at
+    ``paths``, opened already); the files written."""
+    files = [Path(p) for p in paths]
+    runs = open_runs(files) if runs is None else runs
+    notices = [run.cut_notice(f.name) for f, run in zip(files, runs) if run.truncated]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = files[0].stem if len(files) == 1 else "compare"
     written = []
-    for name, fig in figures(runs).items():
+    for name, fig in figures([(_label(f, run), run) for f, run in zip(files, runs)]).items():
         if fig is None:
             continue
+        if notices:
+            _say_cut(fig, notices)
         target = out / f"{stem}-{name}.png"
         fig.savefig(target, dpi=110)
         plt.close(fig)
