@@ -34,15 +34,16 @@ def session():
     return describe, controller, captured.messages[start:]
 
 
-def write(path, session, skip_state_batch: int | None = None, plan=None):
+def write(path, session, skip_state_batch: int | range | None = None, plan=None):
     describe, controller, messages = session
+    skip = skip_state_batch if isinstance(skip_state_batch, range) else [skip_state_batch]
     with open(path, "wb") as f:
         rec = mcap_log.McapRecording(f, describe, controller, plan=plan)
         batches = 0
         for topic, message in messages:
             if topic == "state":
                 batches += 1
-                if batches == skip_state_batch:
+                if batches in skip:
                     continue
             rec.write(topic, message)
         rec.finish()
@@ -186,6 +187,20 @@ def default_reader_cycles(path) -> list[int] | None:
             return [json.loads(m.data)["cycle"] for _, c, m in make_reader(f).iter_messages() if c.topic == "/pneumad/state"]
     except Exception:  # noqa: BLE001 (whatever the package raises at the cut)
         return None
+
+
+def test_plot_says_where_a_recording_has_holes(tmp_path, session, capsys):
+    """Telemetry lost on its way (0.3 s: 30 state batches) is said on stdout, with where and how
+    long, beside the figures that draw it as a gap; a whole recording has no such line."""
+    holed, whole = tmp_path / "holed.mcap", tmp_path / "whole.mcap"
+    write(holed, session, skip_state_batch=range(100, 130))
+    write(whole, session)
+    assert main(["plot", str(holed), "--out", str(tmp_path / "plots")]) == 0
+    said = [line for line in capsys.readouterr().out.splitlines() if not line.endswith(".png")]
+    assert len(said) == 1 and said[0].startswith("holed.mcap: no data in 1 hole, 0.30 s in all (0.30 s at 0.99 s; "
+                                                 "300 cycles missing)"), said
+    assert main(["plot", str(whole), "--out", str(tmp_path / "plots")]) == 0
+    assert all(line.endswith(".png") for line in capsys.readouterr().out.splitlines())
 
 
 def test_a_file_that_is_no_recording_is_refused_clearly(tmp_path):

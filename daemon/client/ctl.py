@@ -225,6 +225,9 @@ def export_or_plot(args) -> int:
             runs = plots.open_runs(args.files)
             for written in plots.plot_runs(args.files, args.out, runs):
                 print(written)
+            for path, run in zip(args.files, runs):
+                for note in plots.hole_notes(os.path.basename(path), run):
+                    print(note)
         else:
             runs = [reading.open_run(args.file)]
             rows = reading.export_csv(args.file, args.csv, runs[0])
