@@ -174,6 +174,13 @@ def test_a_cut_file_finished_by_repair_opens_in_the_mcap_packages_default_reader
     repaired = mcap_repair.repair(cut, "the test cut it")
     assert repaired is not None and 0 < repaired.dropped_bytes < len(data) * 0.6
     assert default_reader_cycles(cut) == ours == [s["cycle"] for s in recording.open_run(cut).samples]
+    with open(cut, "rb") as f:  # its index counts what is there, channel by channel
+        reader = make_reader(f)
+        counted = {}
+        for _, channel, _ in reader.iter_messages():
+            counted[channel.id] = counted.get(channel.id, 0) + 1
+        statistics = reader.get_summary().statistics
+    assert dict(statistics.channel_message_counts) == counted and statistics.message_count == repaired.messages
     run = recording.open_run(cut)
     assert run.truncated.startswith("the test cut it; closed at its last complete chunk on ")
     assert mcap_repair.repair(cut, "again") is None and mcap_repair.repair(full, "whole") is None  # finished: untouched

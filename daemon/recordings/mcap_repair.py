@@ -120,7 +120,8 @@ class _Summary:
             elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                 self._definition(Schema.read(stream) if opcode == Opcode.SCHEMA else Channel.read(stream))
             elif opcode == Opcode.MESSAGE:
-                self._message(*struct.unpack_from("<HIQ", body)[::2])
+                channel_id, _, log_time = struct.unpack_from("<HIQ", body)
+                self._messages({channel_id: 1}, log_time, log_time)
             elif opcode == Opcode.ATTACHMENT:
                 a = Attachment.read(stream)
                 self.attachments.append(AttachmentIndex(offset=offset, length=record, log_time=a.log_time,
@@ -135,18 +136,19 @@ class _Summary:
     def _chunk(self, chunk: Chunk, offset: int, length: int) -> bool:
         stream, size = get_chunk_data_stream(chunk)
         data = stream.read(size)
-        at, channels = 0, set()
-        while at + 9 <= len(data):
-            opcode, body_length = struct.unpack_from("<BQ", data, at)
-            body = at + 9
-            if opcode == Opcode.MESSAGE:
-                channel_id, _, log_time = struct.unpack_from("<HIQ", data, body)
-                self._message(channel_id, log_time)
-                channels.add(channel_id)
+        at, end, counts = 0, len(data) - 9, defaultdict(int)  # messages per channel in this chunk
+        head, channel_of, message = struct.Struct("<BQ").unpack_from, struct.Struct("<H").unpack_from, Opcode.MESSAGE
+        while at <= end:  # (the per-message work kept to the least: it is most of a repair's time)
+            opcode, body_length = head(data, at)
+            if opcode == message:
+                counts[channel_of(data, at + 9)[0]] += 1
             elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
-                stream = ReadDataStream(io.BytesIO(data[body:body + body_length]))
+                stream = ReadDataStream(io.BytesIO(data[at + 9:at + 9 + body_length]))
                 self._definition(Schema.read(stream) if opcode == Opcode.SCHEMA else Channel.read(stream))
-            at = body + body_length
+            at += 9 + body_length
+        channels = set(counts)
+        if counts:  # the chunk's own time range stands for its messages' (a writer keeps it so)
+            self._messages(counts, chunk.message_start_time, chunk.message_end_time)
         self.statistics.chunk_count += 1
         self.chunks.append(ChunkIndex(message_start_time=chunk.message_start_time,
                                       message_end_time=chunk.message_end_time, chunk_start_offset=offset,
@@ -162,12 +164,14 @@ class _Summary:
         else:
             self.channels[record.id] = record
 
-    def _message(self, channel_id: int, log_time: int) -> None:
+    def _messages(self, counts: dict[int, int], first: int, last: int) -> None:
+        """``counts`` messages per channel, logged from ``first`` to ``last`` [ns]."""
         s = self.statistics
-        s.message_start_time = log_time if s.message_count == 0 else min(s.message_start_time, log_time)
-        s.message_end_time = max(s.message_end_time, log_time)
-        s.message_count += 1
-        s.channel_message_counts[channel_id] += 1
+        s.message_start_time = first if s.message_count == 0 else min(s.message_start_time, first)
+        s.message_end_time = max(s.message_end_time, last)
+        for channel_id, n in counts.items():
+            s.message_count += n
+            s.channel_message_counts[channel_id] += n
 
     def tail(self, data_end: int, cut: dict[str, str]) -> bytes:
         """The bytes after the last complete record: the ``cut`` metadata, the data end, the
