@@ -388,10 +388,11 @@ def test_a_timed_recording_holds_its_seconds_of_the_daemons_time_when_the_record
     assert t[-1] - t[0] >= 1.0 and all(b > a for a, b in zip(t, t[1:])), (t[0], t[-1])
 
 
-def test_a_recorder_finishes_only_the_files_no_live_recorder_is_writing(tmp_path):
+def test_a_recorder_finishes_only_the_files_no_live_recorder_is_writing(tmp_path, caplog):
     """Two daemons' recorders on one directory: one starting (a daemon started beside another)
     leaves the other's recording in progress alone (its lock), and finishes it once its writer
-    is gone without finishing it (the file closed as a killed process's is)."""
+    is gone without finishing it (the file closed as a killed process's is): an event and a
+    line in the daemon's log."""
     loop, captured, srv = make_loop(server=True)
     sock = dealer(srv)
     describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
@@ -413,6 +414,7 @@ def test_a_recorder_finishes_only_the_files_no_live_recorder_is_writing(tmp_path
     writing.file.close()  # a's recorder gone, the file not finished (no footer)
     b.finish_left_files()
     assert [(e["action"], e["name"]) for e in said_b] == [("repaired", "writing")] and said_b[0]["messages"] > 1000
+    assert f"recording {writing.path} repaired: {LEFT_CAUSE}" in caplog.text
     assert not (tmp_path / "recordings" / ".writing.mcap.writing").exists()
     with open(writing.path, "rb") as f:
         assert sum(1 for _ in make_reader(f).iter_messages(topics=["/pneumad/state"])) > 1000

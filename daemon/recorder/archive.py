@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import logging
 import os
 import re
 import time
@@ -43,6 +44,7 @@ PREROLL_BATCHES = 50  # state batches (10 cycles each) a new recording starts wi
 DISK_CHECK_S = 1.0
 FEED_LOST_S = 5.0  # a timed recording whose feed stopped this long ends by the recorder's clock
 MARKER = ".writing"  # .NAME.mcap.writing: a recording is being written into NAME.mcap
+log = logging.getLogger("pneumad")
 LEFT_CAUSE = "its recorder died before it finished the file: killed, or its daemon was"
 
 
@@ -99,6 +101,13 @@ class Archive:
         #                                     the requests came (the process's catch-up); None: caught up
         self._fed_at = time.monotonic()  # [s] when it came (or the recorder started: a feed that is
         #                                  late to begin is not one that stopped)
+
+    def _tell(self, event: dict) -> None:
+        """An event (through the messenger); one a recording failed or was finished after its
+        writer died by is the daemon's log's too."""
+        if event.get("action") in ("failed", "repaired"):
+            log.warning("recording %s %s: %s", event.get("file", event.get("name")), event["action"], event.get("cause"))
+        self.emit(event)
 
     # -- requests (from the messenger) -----------------------------------------------------
     def request(self, body: bytes, who: str) -> bytes:
@@ -176,14 +185,14 @@ class Archive:
                     fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)  # BlockingIOError: being written
                     repaired = repair(path, LEFT_CAUSE)
                 if repaired is not None:
-                    self.emit({**event, "action": "repaired", "cause": LEFT_CAUSE, "messages": repaired.messages,
+                    self._tell({**event, "action": "repaired", "cause": LEFT_CAUSE, "messages": repaired.messages,
                                "bytes": os.path.getsize(path)})
             except BlockingIOError:
                 continue
             except FileNotFoundError:
                 pass
             except (OSError, ValueError) as exc:
-                self.emit({**event, "action": "failed", "cause": f"{LEFT_CAUSE}; it could not be finished: "
+                self._tell({**event, "action": "failed", "cause": f"{LEFT_CAUSE}; it could not be finished: "
                                                                  f"{getattr(exc, 'strerror', None) or exc}"})
             try:
                 os.remove(os.path.join(self.directory, marker))
@@ -230,7 +239,7 @@ class Archive:
         for message in self._preroll:  # what led up to it
             writer.write("state", message)
         self.active[name] = active
-        self.emit({"kind": "record", "action": "start", "name": name, "file": active.path, "who": who,
+        self._tell({"kind": "record", "action": "start", "name": name, "file": active.path, "who": who,
                    "follows_reference": reference is not None})
         return active
 
@@ -267,7 +276,7 @@ class Archive:
         except OSError:
             pass
         summary["cause"] = cause
-        self.emit({"kind": "record", "action": "failed" if failed else "stop", **summary})
+        self._tell({"kind": "record", "action": "failed" if failed else "stop", **summary})
         return summary
 
     def close(self, cause: str) -> None:
@@ -322,7 +331,7 @@ class Archive:
                 # ended by the reference's end event; at the latest 10 s past its planned end
                 active.until_t = ends + 10.0
             except CommandFailed as exc:
-                self.emit({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})
+                self._tell({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})
         elif kind == "reference" and event.get("action") == "end" or kind == "state" and event.get("to") != "enabled":
             for active in self.active.values():
                 if active.reference is not None and (kind == "state" or active.reference == event.get("generation")):
