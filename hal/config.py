@@ -298,17 +298,20 @@ def parse(text: str, origin: str = "<string>") -> RigConfig:
     return config
 
 
-STATED = {"transport": "backend", "safety": None, "arm": None}  # what a rig file must say itself
+STATED = {"transport": "backend", "safety": None, "arm": None, "limits": None}  # what a rig file must say itself
+STATED_TYPES = {"transport": TransportConfig, "safety": SafetyConfig, "arm": ArmConfig, "limits": LimitsConfig}
 
 
 def _require_stated(data: dict, origin: str) -> None:
-    """A rig file states its transport backend, its safety limits and its arm: defaults for
-    them are the built-in rigs' alone, so a mistyped real rig's file never quietly runs the
-    simulator or another arm's limits."""
+    """A rig file states its transport backend, its safety limits, its arm and its pressure
+    limits: defaults for them are the built-in rigs' alone, so a mistyped real rig's file never
+    quietly runs the simulator, another arm's geometry or the simulator's pressure limits."""
     for section, key in STATED.items():
         if not isinstance(data.get(section), dict):
+            keys = ", ".join(f.name for f in fields(STATED_TYPES[section]) if f.init)
             raise ConfigError(f"{origin}: [{section}]: missing: a rig file must state it (only the built-in rigs "
-                              f"have defaults; copy it from hal/sim_2joint.toml)")
+                              f"have defaults; copy [{section}] from hal/sim_2joint.toml and set its {keys} "
+                              f"for this rig)")
         if key is not None and key not in data[section]:
             raise ConfigError(f"{origin}: {section}.{key}: missing: a rig file must name its transport backend "
                               f"(\"sim\" for the simulator, or serial, modbus, can)")

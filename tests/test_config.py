@@ -121,10 +121,14 @@ def test_a_transport_option_without_a_key_and_value_is_refused(text):
     ("transport", 'backend = "sim"', r"transport\.backend: missing: a rig file must name its transport backend"),
     ("safety", "[safety]", r"\[safety\]: missing: a rig file must state it"),
     ("arm", "[arm]", r"\[arm\]: missing: a rig file must state it"),
+    ("limits", "[limits]", r"\[limits\]: missing: a rig file must state it \(only the built-in rigs have defaults; "
+                           r"copy \[limits\] from hal/sim_2joint\.toml and set its max_pressure_mpa, "
+                           r"max_pressure_rate_mpa_s, authority_fraction for this rig\)"),
 ])
-def test_a_rig_file_states_its_transport_safety_and_arm_itself(tmp_path, section, cut, message):
+def test_a_rig_file_states_its_transport_safety_arm_and_limits_itself(tmp_path, section, cut, message):
     """Defaults are the built-in rigs' alone: a real rig's file that left out its backend would
-    otherwise run the simulator and show a moving arm that is not there."""
+    otherwise run the simulator and show a moving arm that is not there, and one that left out
+    its [limits] would run with the simulator's pressure limits, said nowhere."""
     text = BASE
     if cut.startswith("["):  # drop the whole table, up to the next one
         start = text.index(cut)

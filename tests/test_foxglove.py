@@ -19,8 +19,9 @@ from daemon.client import plots
 from daemon.client.client import Client
 from daemon.loop.port import foxglove_address
 from daemon.recordings import layout
-from daemon.recordings.channels import JOINT_STATES, LOG, TRACKING, ns
+from daemon.recordings.channels import JOINT_STATES, LOG, LOOP, PRESSURES, TRACKING, Frames, json_schemas, ns
 from daemon.testing.foxglove_client import FoxgloveClient, protobuf_class
+from daemon.testing.loop import dealer, make_loop, ok
 from hal.errors import ConfigError
 from tests.daemons import free_tcp_ports, real_daemon, wait_for_own_daemon
 
@@ -235,3 +236,42 @@ def test_foxglove_listens_on_loopback_unless_insecure():
     assert foxglove_address("0.0.0.0:8765", True) == ("0.0.0.0", 8765)
     with pytest.raises(ConfigError, match="HOST:PORT"):
         foxglove_address("8765", False)
+
+
+def test_each_panel_says_what_its_channel_holds_the_pressures_are_commands():
+    """The pressures channel holds the chamber pressure commands the loop wrote (not a sensor's
+    reading): its panel and its schema say so, and the loop panel's work line is the cycle's total."""
+    loop, captured, srv = make_loop(server=True)
+    try:
+        describe = ok(loop, dealer(srv), "describe")
+        loop.enable()
+        loop.run(300)
+    finally:
+        srv.close()
+    state = captured.of("state")[-1]
+    head, rod = state["p_head_pa"][-1], state["p_rod_pa"][-1]
+    assert loop.io.volts_for(head, rod) == pytest.approx(state["out_volts"][-1])  # the commands the regulators were sent
+    frames = {topic: json.loads(data) for topic, _, data in Frames(describe).state(state, rows=[len(state["cycle"]) - 1])
+              if topic == PRESSURES}
+    assert [frames[PRESSURES]["joints"][j]["p_head_kpa"] * 1e3 for j in ("bottom", "middle")] == pytest.approx(head)
+    schema_title = json_schemas(describe)[PRESSURES]["title"]
+    assert "commands" in schema_title and "measured" not in schema_title.replace("not measured", "")
+    panels = list(plot_panels(json.loads(layout.build(describe).to_json())))
+    pressure_panels = [p for p in panels if any(s["value"].startswith(PRESSURES) for s in p["config"]["paths"])]
+    assert len(pressure_panels) == 2
+    for panel in pressure_panels:
+        assert "pressure commands" in panel["title"] and "measured" not in panel["title"], panel["title"]
+    work = [s for p in panels for s in p["config"]["paths"] if s["value"] == f"{LOOP}.compute_us.p99"]
+    assert work and "read to commands" in work[0]["label"]  # the channel's compute_us is the stats' total
+
+
+def plot_panels(value):
+    """Every plot panel of a layout (a dict with a title and a config of paths)."""
+    if isinstance(value, dict):
+        if "title" in value and isinstance(value.get("config"), dict) and "paths" in value["config"]:
+            yield value
+        for item in value.values():
+            yield from plot_panels(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from plot_panels(item)

@@ -104,3 +104,32 @@ def test_runs_a_figure_cannot_tell_apart_are_merged_and_say_by_how_much():
     assert plots.merge_identical(["pid", "lti", "smc"], [a, near, far], within=0.01) == [
         ("pid ≈ lti (within 1% of the range)", 0), ("smc", 2)]
     assert plots.merge_identical(["pid", "lti"], [a, near]) == [("pid", 0), ("lti", 1)]  # exact unless asked
+
+
+def test_a_hole_in_the_data_breaks_the_lines_is_shaded_and_said():
+    """Half a second of telemetry a slow client lost (cycles 100-599) is a gap with a shaded "no
+    data" span, said in the legend and in words, never a straight ramp across it."""
+    whole = run(n=1000)
+    holed = Run(DESCRIBE, {"name": "pid"}, whole.samples[:100] + whole.samples[600:], whole.messages)
+    made = plots.figures([("a", holed)])
+    for name, label in (("joints", "a angle"), ("errors", "a"), ("output", "a V_MV"), ("pressures", "a head")):
+        ax = made[name].axes[0]
+        line = next(line for line in ax.get_lines() if line.get_label() == label)
+        x, y = line.get_xdata(), line.get_ydata()
+        gaps = [i for i in range(len(y)) if math.isnan(y[i])]
+        assert gaps == [100] and x[99] == pytest.approx(0.099) and x[101] == pytest.approx(0.600), name  # no ramp
+        spans = [p for p in ax.patches if p.get_label().startswith("no data")]
+        assert len(spans) == 1, name
+        left, right = spans[0].get_extents().x0, spans[0].get_extents().x1  # display units: back to data
+        data = ax.transData.inverted()
+        assert data.transform((left, 0))[0] == pytest.approx(0.099, abs=1e-3)
+        assert data.transform((right, 0))[0] == pytest.approx(0.600, abs=1e-3)
+        assert "no data (1 hole, 0.50 s)" in [t.get_text() for t in ax.get_legend().get_texts()], name
+    tip = made["tip"].axes[0]
+    drawn = next(line for line in tip.get_lines() if line.get_label() == "a tip")
+    assert sum(math.isnan(v) for v in drawn.get_xdata()) == 1  # the path stops at the hole too
+    assert any("no data (1 hole, 0.50 s)" in t.get_text() for t in tip.get_legend().get_texts())
+    assert plots.hole_notes("a.mcap", holed) == [
+        "a.mcap: no data in 1 hole, 0.50 s in all (0.50 s at 0.10 s; 500 cycles missing): drawn as gaps, shaded"]
+    assert plots.hole_notes("a.mcap", whole) == [] and not any(
+        p.get_label().startswith("no data") for p in plots.figures([("a", whole)])["joints"].axes[0].patches)

@@ -4,6 +4,7 @@ documented, and a write error, a full disk or a killed recorder end a recording 
 the file readable, the loop untouched."""
 import json
 import os
+import re
 import resource
 import signal
 import time
@@ -15,8 +16,8 @@ from mcap.reader import make_reader
 
 from bench.common import child_process
 from daemon.recorder import process as recorder_process
-from daemon.recorder.archive import Archive
-from daemon.recordings import mcap_log
+from daemon.recorder.archive import LEFT_CAUSE, Archive
+from daemon.recordings import mcap_log, reading as recording
 from daemon.client.client import Client, RemoteError
 from daemon.testing.loop import dealer, make_loop, ok
 from daemon.wire import protocol as P
@@ -195,8 +196,11 @@ def test_a_write_error_ends_the_recording_with_an_event_and_the_loop_runs_on(tmp
         resource.prlimit(recorder_pid(daemon), resource.RLIMIT_FSIZE, (limit, limit))
         failed = wait_event(sub, lambda e: e["kind"] == "record" and e["action"] == "failed")
         assert failed["name"] == "limited" and "write error" in failed["cause"] and "large" in failed["cause"]
+        assert "finished up to its last complete chunk" in failed["cause"], failed["cause"]
         contents = mcap_log.read(started["file"])  # readable up to its last complete chunk
-        assert len(contents.messages["state"]) > 100
+        assert len(contents.messages["state"]) > 100 and contents.truncated.startswith("write error")
+        with open(started["file"], "rb") as f:  # by the mcap package's default reader too
+            assert sum(1 for _ in make_reader(f).iter_messages(topics=["/pneumad/state"])) == len(contents.messages["state"])
         assert client.record_list()["active"] == []
         status = client.status()
         assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
@@ -326,17 +330,35 @@ def test_a_recorder_that_cannot_catch_up_before_a_stop_says_how_far_behind_it_en
     assert events[-1]["cause"] == stopped["cause"]  # the record event says it too
 
 
-def test_a_killed_recorder_leaves_a_readable_file_and_another_is_started(daemon):
+def test_a_killed_recorder_leaves_a_file_every_reader_opens_and_another_is_started(daemon):
+    """SIGKILL leaves the file without its footer; the recorder started after it finishes the file
+    up to its last complete chunk (a ``record`` event, ``repaired``), so the `mcap` package's
+    default reader reads it too, and the file says it was cut and how much of its planned
+    length is missing."""
     daemon, eps, client = daemon
     sub = events(eps)
     try:
-        started = client.record_start("cut-short")
+        started = client.record_start("cut-short", seconds=120)
+        marker = os.path.join(os.path.dirname(started["file"]), ".cut-short.mcap.writing")
         holding(started["file"], 100)
+        assert os.path.exists(marker)
         os.kill(recorder_pid(daemon), signal.SIGKILL)
-        restarted = wait_event(sub, lambda e: e["kind"] == "recorder")
-        assert "restarted" in restarted["cause"]
+        seen = {}
+        while len(seen) < 2:  # (in either order: the loop says one, the new recorder the other)
+            event = wait_event(sub, lambda e: e["kind"] == "recorder" or e["kind"] == "record" and e["action"] == "repaired")
+            seen[event["kind"]] = event
+        assert "restarted" in seen["recorder"]["cause"]
+        repaired = seen["record"]
+        assert repaired["name"] == "cut-short" and repaired["file"] == started["file"], repaired
+        assert repaired["cause"] == LEFT_CAUSE and repaired["messages"] > 100
+        with open(started["file"], "rb") as f:
+            default = [json.loads(m.data)["cycle"] for _, c, m in make_reader(f).iter_messages(topics=["/pneumad/state"])]
         contents = mcap_log.read(started["file"])
-        assert contents.truncated and len(contents.messages["state"]) > 100
+        assert len(default) > 100 and default == [m["cycle"] for m in contents.messages["state"]]
+        assert contents.truncated.startswith(LEFT_CAUSE + "; closed at its last complete chunk on ")
+        notice = recording.open_run(started["file"]).cut_notice("cut-short.mcap")
+        assert re.search(r"of the 12\d\.\d s planned: about 1\d\d\.\d s missing at its end$", notice), notice
+        assert not os.path.exists(marker)
         for _ in range(50):  # the new recorder is starting
             try:
                 again = client.record_start("after", seconds=0.5)
@@ -364,3 +386,37 @@ def test_a_timed_recording_holds_its_seconds_of_the_daemons_time_when_the_record
     samples = mcap_log.read(finished(client, started["name"])).messages["state"]
     t = [s["t"] for s in samples]
     assert t[-1] - t[0] >= 1.0 and all(b > a for a, b in zip(t, t[1:])), (t[0], t[-1])
+
+
+def test_a_recorder_finishes_only_the_files_no_live_recorder_is_writing(tmp_path, caplog):
+    """Two daemons' recorders on one directory: one starting (a daemon started beside another)
+    leaves the other's recording in progress alone (its lock), and finishes it once its writer
+    is gone without finishing it (the file closed as a killed process's is): an event and a
+    line in the daemon's log."""
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
+    loop.run(2000)
+    srv.close()
+    rings = tmp_path / "rings"
+    rings.mkdir()
+    (rings / "describe.json").write_text(json.dumps(describe))
+    (rings / "controller.json").write_text(json.dumps(controller))
+    said_a, said_b = [], []
+    a = Archive(str(rings), str(tmp_path / "recordings"), 1e9, 0.0, said_a.append)
+    b = Archive(str(rings), str(tmp_path / "recordings"), 1e9, 0.0, said_b.append)
+    writing = a.start("writing", "alice")
+    for topic, message in captured.messages:
+        a.message(topic, msgpack.packb(message))
+    size = os.path.getsize(writing.path)
+    b.finish_left_files()
+    assert said_b == [] and os.path.getsize(writing.path) == size  # a's, still being written: untouched
+    writing.file.close()  # a's recorder gone, the file not finished (no footer)
+    b.finish_left_files()
+    assert [(e["action"], e["name"]) for e in said_b] == [("repaired", "writing")] and said_b[0]["messages"] > 1000
+    assert f"recording {writing.path} repaired: {LEFT_CAUSE}" in caplog.text
+    assert not (tmp_path / "recordings" / ".writing.mcap.writing").exists()
+    with open(writing.path, "rb") as f:
+        assert sum(1 for _ in make_reader(f).iter_messages(topics=["/pneumad/state"])) > 1000
+    b.finish_left_files()
+    assert len(said_b) == 1  # once

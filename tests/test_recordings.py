@@ -5,6 +5,7 @@ readable up to its last complete chunk; earlier .pnrec files still export; numpy
 the plots."""
 import json
 import math
+import warnings
 
 import jsonschema
 import msgpack
@@ -14,7 +15,8 @@ from mcap.reader import make_reader
 
 from controllers.trajectory import JointMove
 from daemon.client.client import Client
-from daemon.recordings import mcap_log, reading as recording
+from daemon.client.ctl import main
+from daemon.recordings import mcap_log, mcap_repair, reading as recording
 from daemon.testing.loop import dealer, make_loop, ok
 
 
@@ -32,15 +34,16 @@ def session():
     return describe, controller, captured.messages[start:]
 
 
-def write(path, session, skip_state_batch: int | None = None):
+def write(path, session, skip_state_batch: int | range | None = None, plan=None):
     describe, controller, messages = session
+    skip = skip_state_batch if isinstance(skip_state_batch, range) else [skip_state_batch]
     with open(path, "wb") as f:
-        rec = mcap_log.McapRecording(f, describe, controller)
+        rec = mcap_log.McapRecording(f, describe, controller, plan=plan)
         batches = 0
         for topic, message in messages:
             if topic == "state":
                 batches += 1
-                if batches == skip_state_batch:
+                if batches in skip:
                     continue
             rec.write(topic, message)
         rec.finish()
@@ -103,6 +106,108 @@ def test_a_recording_cut_short_reads_up_to_its_last_complete_chunk(tmp_path, ses
     assert 0 < len(part.samples) < len(whole.samples)
     assert part.samples == whole.samples[:len(part.samples)]  # what is there is right, in order
     assert recording.export_csv(cut, tmp_path / "cut.csv") == len(part.samples)
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9])
+def test_a_cut_recording_is_exported_plotted_and_loaded_saying_it_is_cut_and_how_much_is_missing(tmp_path, session,
+                                                                                                   keep, capsys):
+    """A real run's recording, cut at half or nine tenths: what is there is written, and export,
+    plot (exit 3, and on every figure) and load (a warning, ``.cut``) say it is cut and how many
+    seconds of its planned length are missing; the whole file exits 0 with no word."""
+    state = [m for topic, m in session[2] if topic == "state"]
+    first, last = state[0]["t"][0], state[-1]["t"][-1]
+    full = tmp_path / "full.mcap"
+    write(full, session, plan={"planned_end_t": last})
+    data = full.read_bytes()
+    cut = tmp_path / "run.mcap"
+    cut.write_bytes(data[:int(len(data) * keep)])
+    read_to = recording.open_run(cut).samples[-1]["t"]
+    assert main(["export", str(cut), str(tmp_path / "run.csv")]) == 3
+    out, err = capsys.readouterr()
+    rows = len(recording.open_run(cut).samples)
+    assert f"wrote {rows} rows" in out and 0 < rows < len(recording.open_run(full).samples)
+    said = (f"warning: run.mcap is cut (no footer or index: the file ends inside a record): read {read_to - first:.1f} s "
+            f"from its first sample of the {last - first:.1f} s planned: about {last - read_to:.1f} s missing at its end")
+    assert err.startswith(said) and "the CSV holds what is there (exit 3)" in err, err
+    assert main(["plot", str(cut), "--out", str(tmp_path / "plots")]) == 3
+    out, err = capsys.readouterr()
+    assert err.startswith(said) and "the figures show what is there" in err, err
+    pictures = [line for line in out.splitlines() if line.endswith(".png")]
+    assert len(pictures) >= 5
+    figure_text = " ".join(plots_text(recording.open_run(cut), cut))
+    assert f"about {last - read_to:.1f} s missing" in figure_text
+    with pytest.warns(recording.CutRecording, match=r"run\.mcap is cut .* s missing at its end"):
+        loaded = recording.load(cut)
+    assert loaded.cut.startswith(said[len("warning: "):].replace("run.mcap", str(cut), 1)) and len(loaded["t"]) == rows
+    assert main(["export", str(full), str(tmp_path / "full.csv")]) == 0 and capsys.readouterr().err == ""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert recording.load(full).cut == ""
+
+
+def plots_text(run, path) -> list[str]:
+    """Every text on the figures ``pneumactl plot`` draws of ``run`` (the file at ``path``)."""
+    import matplotlib.pyplot as plt
+
+    from daemon.client import plots
+    texts = []
+    for fig in plots.figures([("run", run)]).values():
+        if fig is not None:
+            plots._say_cut(fig, [run.cut_notice(path.name)])
+            texts += [t.get_text().replace("\n", " ") for t in fig.texts]
+            plt.close(fig)
+    return texts
+
+
+def test_a_cut_file_finished_by_repair_opens_in_the_mcap_packages_default_reader_and_still_says_it_is_cut(tmp_path,
+                                                                                                         session):
+    """The `mcap` package's default reader reads nothing from a cut file (it looks for the footer);
+    once finished up to its last complete chunk it reads every state sample ours does, and the
+    file still says it was cut, and why."""
+    full = tmp_path / "full.mcap"
+    write(full, session)
+    data = full.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:int(len(data) * 0.6)])
+    ours = [s["cycle"] for s in recording.open_run(cut).samples]
+    assert len(ours) > 100 and default_reader_cycles(cut) is None
+    repaired = mcap_repair.repair(cut, "the test cut it")
+    assert repaired is not None and 0 < repaired.dropped_bytes < len(data) * 0.6
+    assert default_reader_cycles(cut) == ours == [s["cycle"] for s in recording.open_run(cut).samples]
+    with open(cut, "rb") as f:  # its index counts what is there, channel by channel
+        reader = make_reader(f)
+        counted = {}
+        for _, channel, _ in reader.iter_messages():
+            counted[channel.id] = counted.get(channel.id, 0) + 1
+        statistics = reader.get_summary().statistics
+    assert dict(statistics.channel_message_counts) == counted and statistics.message_count == repaired.messages
+    run = recording.open_run(cut)
+    assert run.truncated.startswith("the test cut it; closed at its last complete chunk on ")
+    assert mcap_repair.repair(cut, "again") is None and mcap_repair.repair(full, "whole") is None  # finished: untouched
+    assert full.read_bytes() == data
+
+
+def default_reader_cycles(path) -> list[int] | None:
+    """The state samples' cycles as ``mcap.reader.make_reader(f).iter_messages()`` gives them; None if it cannot."""
+    try:
+        with open(path, "rb") as f:
+            return [json.loads(m.data)["cycle"] for _, c, m in make_reader(f).iter_messages() if c.topic == "/pneumad/state"]
+    except Exception:  # noqa: BLE001 (whatever the package raises at the cut)
+        return None
+
+
+def test_plot_says_where_a_recording_has_holes(tmp_path, session, capsys):
+    """Telemetry lost on its way (0.3 s: 30 state batches) is said on stdout, with where and how
+    long, beside the figures that draw it as a gap; a whole recording has no such line."""
+    holed, whole = tmp_path / "holed.mcap", tmp_path / "whole.mcap"
+    write(holed, session, skip_state_batch=range(100, 130))
+    write(whole, session)
+    assert main(["plot", str(holed), "--out", str(tmp_path / "plots")]) == 0
+    said = [line for line in capsys.readouterr().out.splitlines() if not line.endswith(".png")]
+    assert len(said) == 1 and said[0].startswith("holed.mcap: no data in 1 hole, 0.30 s in all (0.30 s at 0.99 s; "
+                                                 "300 cycles missing)"), said
+    assert main(["plot", str(whole), "--out", str(tmp_path / "plots")]) == 0
+    assert all(line.endswith(".png") for line in capsys.readouterr().out.splitlines())
 
 
 def test_a_file_that_is_no_recording_is_refused_clearly(tmp_path):

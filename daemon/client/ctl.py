@@ -36,7 +36,7 @@ def with_lease(client: Client, fn):
 
 def record(client: Client, path: str, seconds: float) -> int:
     """Record the telemetry to ``path`` as MCAP (:mod:`daemon.recordings.mcap_log`); a disk that fills or
-    fails ends it with a clear error (exit 1), the file readable up to its last complete chunk."""
+    fails ends it with a clear error (exit 1), the file finished up to its last complete chunk."""
     from daemon.client.progress import recording_bar  # rich: only for the progress display
     from daemon.recordings import mcap_log  # mcap and numpy: only for a recording
     try:
@@ -46,11 +46,24 @@ def record(client: Client, path: str, seconds: float) -> int:
         raise Interrupted(f"interrupted: the recording to {path} ended at Ctrl-C, whole up to there "
                           f"(it was made here: nothing runs on in the daemon)") from None
     except OSError as exc:
-        print(f"error: recording to {path} stopped: {exc.strerror or exc} (the file is readable up to its last "
-              f"complete chunk)", file=sys.stderr)
+        print(f"error: recording to {path} stopped: {exc.strerror or exc} ({finish_cut(path, exc)})", file=sys.stderr)
         return 1
     print(f"recorded {written} messages to {path} (lost {lost}, marked in the file)")
     return 0
+
+
+def finish_cut(path: str, exc: OSError) -> str:
+    """Finish a recording a write error cut (:mod:`daemon.recordings.mcap_repair`), so every MCAP
+    reader opens it; what became of it, in words."""
+    from daemon.recordings import mcap_repair
+    if not os.path.isfile(path):
+        return "nothing was kept"
+    try:
+        mcap_repair.repair(path, f"pneumactl record: write error: {exc.strerror or exc}")
+        return "the file is finished up to its last complete chunk"
+    except (OSError, ValueError) as err:
+        return f"the file could not be finished ({getattr(err, 'strerror', None) or err}); pneumactl export and plot " \
+               f"read it up to its last complete chunk"
 
 
 def motion(client: Client, args):
@@ -201,6 +214,35 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def export_or_plot(args) -> int:
+    """``export`` and ``plot``: 0 when written from whole recordings, 1 on an error (nothing
+    written), 3 when written from a recording that is cut (each said on stderr, with how much is
+    missing): a script does not take a cut run for a whole one (docs/recordings.md)."""
+    from daemon.recordings import reading  # mcap and numpy: only for a recording
+    try:
+        if args.what == "plot":
+            from daemon.client import plots  # matplotlib: only when asked for pictures
+            runs = plots.open_runs(args.files)
+            for written in plots.plot_runs(args.files, args.out, runs):
+                print(written)
+            for path, run in zip(args.files, runs):
+                for note in plots.hole_notes(os.path.basename(path), run):
+                    print(note)
+        else:
+            runs = [reading.open_run(args.file)]
+            rows = reading.export_csv(args.file, args.csv, runs[0])
+            print(f"wrote {rows} rows to {args.csv}")
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    paths = args.files if args.what == "plot" else [args.file]
+    cut = [run.cut_notice(os.path.basename(p)) for p, run in zip(paths, runs) if run.truncated]
+    for notice in cut:
+        print(f"warning: {notice}; {'the figures show' if args.what == 'plot' else 'the CSV holds'} what is there "
+              f"(exit 3)", file=sys.stderr)
+    return 3 if cut else 0
+
+
 def key_values(items) -> dict:
     out = {}
     for item in items:
@@ -216,19 +258,7 @@ def main(argv=None) -> int:
     if args.what == "identify" and args.source:
         return identify(None, args)
     if args.what in ("export", "plot"):
-        try:
-            if args.what == "plot":
-                from daemon.client import plots  # matplotlib: only when asked for pictures
-                for written in plots.plot_runs(args.files, args.out):
-                    print(written)
-                return 0
-            from daemon.recordings import reading  # mcap and numpy: only for a recording
-            rows = reading.export_csv(args.file, args.csv)
-        except (OSError, ValueError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
-        print(f"wrote {rows} rows to {args.csv}")
-        return 0
+        return export_or_plot(args)
     try:
         if args.what == "keys" and args.action == "new":
             return new_key(args)

@@ -10,9 +10,11 @@ lengths (``describe.arm``).
 Nothing misleads: V_MV is drawn only where the controller's output was written (not where the
 safe state was), between its limits drawn as lines; a path's approach/path boundary is marked
 (the ``reference`` start event's ``approach_s``); the tip path shows its start and direction;
-each internal signal's unit is the one its own controller declares; and runs whose results are
+each internal signal's unit is the one its own controller declares; runs whose results are
 identical are drawn once, named together in the legend ("pid = lti (identical)"), never one line
-hidden under another.
+hidden under another; a hole in the data (cycles missing: telemetry a slow client lost) breaks
+the lines and is shaded, "no data" in the legend with how many and how long (:func:`holes`),
+never bridged by a straight ramp; and a recording that is cut says so on every figure.
 """
 from __future__ import annotations
 
@@ -31,6 +33,8 @@ from daemon.recordings.channels import signal_units  # noqa: E402
 DEG = 180.0 / math.pi
 BOUNDARY = dict(color="0.35", ls=":", lw=1.2)  # the approach/path boundary
 LIMIT = dict(color="0.5", ls="--", lw=1.0)  # V_MV's limits
+HOLE = dict(alpha=0.18, lw=0)  # a span with no data
+CUT = dict(color="firebrick", fontsize=8.5, ha="center", va="bottom")  # the note on a cut recording's figures
 
 
 def _label(path: Path, run: recording.Run) -> str:
@@ -44,6 +48,46 @@ def _time(run: recording.Run) -> np.ndarray:
 
 def _column(run: recording.Run, joint: str, key: str) -> np.ndarray:
     return np.array([s["joints"][joint][key] for s in run.samples], dtype=float)
+
+
+def holes(run: recording.Run) -> list[tuple[float, float, int]]:
+    """Where the state stream has no data: two samples in a row whose cycles are not (telemetry
+    lost on its way, e.g. to a slow client), as (the sample before [s], the sample after [s],
+    cycles missing), times from the run's first sample."""
+    cycles = np.array([s["cycle"] for s in run.samples], dtype=np.int64)
+    t = _time(run)
+    return [(float(t[i]), float(t[i + 1]), int(cycles[i + 1] - cycles[i] - 1))
+            for i in np.flatnonzero(np.diff(cycles) > 1)]
+
+
+def _broken(run: recording.Run, values: np.ndarray) -> np.ndarray:
+    """A state column (or the time) with a NaN in each hole: a drawn line stops there."""
+    cycles = np.array([s["cycle"] for s in run.samples], dtype=np.int64)
+    return np.insert(np.asarray(values, dtype=float), np.flatnonzero(np.diff(cycles) > 1) + 1, np.nan)
+
+
+def _hole_words(found: list[tuple[float, float, int]]) -> str:
+    total = sum(b - a for a, b, _ in found)
+    return f"{len(found)} hole{'s' if len(found) > 1 else ''}, {total:.2f} s"
+
+
+def hole_notes(name: str, run: recording.Run) -> list[str]:
+    """What the figures of a run with holes show, in words (none without holes)."""
+    found = holes(run)
+    if not found:
+        return []
+    each = ", ".join(f"{b - a:.2f} s at {a:.2f} s" for a, b, _ in found[:10]) + (" ..." if len(found) > 10 else "")
+    return [f"{name}: no data in {_hole_words(found)} in all ({each}; {sum(n for *_, n in found)} cycles missing): "
+            f"drawn as gaps, shaded"]
+
+
+def _shade_holes(ax, runs, colours) -> None:
+    """Each run's holes as shaded spans, one legend entry per run ("no data")."""
+    for colour, (label, run) in zip(colours, runs):
+        found = holes(run)
+        for k, (a, b, _) in enumerate(found):
+            name = f"no data ({_hole_words(found)})" if len(runs) == 1 else f"{label}: no data ({_hole_words(found)})"
+            ax.axvspan(a, b, color="0.45" if len(runs) == 1 else colour, **HOLE, label=name if k == 0 else None)
 
 
 def merge_identical(labels: list[str], arrays: list, within: float = 0.0) -> list[tuple[str, int]]:
@@ -98,10 +142,12 @@ def path_starts(run: recording.Run) -> list[float]:
 def _per_joint_figure(runs, title: str, ylabel: str, draw) -> plt.Figure:
     joints = runs[0][1].joints
     fig, axes = plt.subplots(len(joints), 1, figsize=(10, 3.2 * len(joints)), sharex=True, squeeze=False)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"] * 4
     for ax, joint in zip(axes[:, 0], joints):
-        for colour, (label, run) in zip(plt.rcParams["axes.prop_cycle"].by_key()["color"] * 4, runs):
+        for colour, (label, run) in zip(colours, runs):
             if joint in run.joints:
                 draw(ax, joint, label, run, colour)
+        _shade_holes(ax, runs, colours)
         for k, t in enumerate(sorted({t for _, run in runs for t in path_starts(run)})):
             ax.axvline(t, **BOUNDARY, label="approach ends, path begins" if k == 0 else None)
         ax.set_title(f"{joint} joint")
@@ -115,13 +161,15 @@ def _per_joint_figure(runs, title: str, ylabel: str, draw) -> plt.Figure:
 
 
 def _angles(ax, joint, label, run, colour):
-    t = _time(run)
-    ax.plot(t, _column(run, joint, "setpoint_rad") * DEG, "--", color=colour, lw=1.0, label=f"{label} set-point")
-    ax.plot(t, _column(run, joint, "angle_rad") * DEG, color=colour, lw=1.4, label=f"{label} angle")
+    t = _broken(run, _time(run))
+    ax.plot(t, _broken(run, _column(run, joint, "setpoint_rad") * DEG), "--", color=colour, lw=1.0,
+            label=f"{label} set-point")
+    ax.plot(t, _broken(run, _column(run, joint, "angle_rad") * DEG), color=colour, lw=1.4, label=f"{label} angle")
 
 
 def _errors(ax, joint, label, run, colour):
-    ax.plot(_time(run), _column(run, joint, "error_rad") * DEG, color=colour, lw=1.2, label=label)
+    ax.plot(_broken(run, _time(run)), _broken(run, _column(run, joint, "error_rad") * DEG), color=colour, lw=1.2,
+            label=label)
 
 
 def _outputs(ax, joint, label, run, colour):
@@ -129,7 +177,7 @@ def _outputs(ax, joint, label, run, colour):
     no V_MV is drawn there), and the joint's V_MV limits."""
     u = _column(run, joint, "u_volts")
     u[np.array([s["mode"] != "enabled" for s in run.samples])] = np.nan
-    ax.plot(_time(run), u, color=colour, lw=1.2, label=f"{label} V_MV")
+    ax.plot(_broken(run, _time(run)), _broken(run, u), color=colour, lw=1.2, label=f"{label} V_MV")
     spec = next((j for j in run.describe["joints"] if j["name"] == joint), {})
     limits = [spec[k] for k in ("u_min_volts", "u_max_volts") if spec.get(k) is not None]
     drawn = {line.get_label() for line in ax.get_lines()}
@@ -138,9 +186,9 @@ def _outputs(ax, joint, label, run, colour):
 
 
 def _pressures(ax, joint, label, run, colour):
-    t = _time(run)
-    ax.plot(t, _column(run, joint, "p_head_pa") / 1e6, color=colour, lw=1.2, label=f"{label} head")
-    ax.plot(t, _column(run, joint, "p_rod_pa") / 1e6, ":", color=colour, lw=1.2, label=f"{label} rod")
+    t = _broken(run, _time(run))
+    ax.plot(t, _broken(run, _column(run, joint, "p_head_pa") / 1e6), color=colour, lw=1.2, label=f"{label} head")
+    ax.plot(t, _broken(run, _column(run, joint, "p_rod_pa") / 1e6), ":", color=colour, lw=1.2, label=f"{label} rod")
 
 
 def _tip(runs) -> plt.Figure | None:
@@ -155,9 +203,13 @@ def _tip(runs) -> plt.Figure | None:
             q1, q2 = _column(run, a, key), _column(run, b, key)
             x = lengths[0] * np.cos(q1) + lengths[1] * np.cos(q1 + q2)
             y = lengths[0] * np.sin(q1) + lengths[1] * np.sin(q1 + q2)
-            ax.plot(x, y, style, color=colour, lw=1.0 if what == "reference" else 1.4, label=f"{label} {what}")
+            ax.plot(_broken(run, x), _broken(run, y), style, color=colour, lw=1.0 if what == "reference" else 1.4,
+                    label=f"{label} {what}")
             if what == "reference":
                 start_and_direction(ax, x, y, _time(run), path_starts(run), colour, label)
+        found = holes(run)
+        if found:  # (no time axis to shade: said in the legend, the lines broken)
+            ax.plot([], [], " ", label=f"{label if len(runs) > 1 else ''} no data ({_hole_words(found)}): lines broken".strip())
         drawn = True
     ax.set_aspect("equal", adjustable="datalim")
     return _finish(fig, ax, drawn, "x [mm]", "y [mm]", "tip path in the workspace (forward kinematics of the first two joints)")
@@ -186,11 +238,14 @@ def start_and_direction(ax, x, y, t, starts: list[float], colour, label: str) ->
 def _force(runs) -> plt.Figure | None:
     fig, ax = plt.subplots(figsize=(10, 3.5))
     drawn = False
-    for label, run in runs:
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"] * 4
+    for colour, (label, run) in zip(colours, runs):
         force = np.array([s["force_n"] for s in run.samples], dtype=float)
         if np.isfinite(force).any():
-            ax.plot(_time(run), force, lw=1.2, label=label)
+            ax.plot(_broken(run, _time(run)), _broken(run, force), color=colour, lw=1.2, label=label)
             drawn = True
+    if drawn:
+        _shade_holes(ax, runs, colours)
     return _finish(fig, ax, drawn, "time [s]", "force [N]", "tip force")
 
 
@@ -219,11 +274,14 @@ def _internals(label: str, run: recording.Run) -> plt.Figure | None:
     t0 = run.samples[0]["t"] if run.samples else messages[0]["t"]
     names = list(messages[-1]["signals"])
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.4 * len(names)), sharex=True, squeeze=False)
-    t = np.array([m["t"] for m in messages]) - t0
+    seq = np.array([m.get("seq", k) for k, m in enumerate(messages)], dtype=np.int64)
+    lost = np.flatnonzero(np.diff(seq) > 1) + 1  # messages lost between these: the lines stop there
+    t = np.insert(np.array([m["t"] for m in messages], dtype=float) - t0, lost, np.nan)
     for ax, name in zip(axes[:, 0], names):
         for j, joint in enumerate(run.joints):
             values = [m["signals"][name][j] if name in m["signals"] else np.nan for m in messages]
-            ax.plot(t, values, lw=1.1, label=joint)
+            ax.plot(t, np.insert(np.array(values, dtype=float), lost, np.nan), lw=1.1, label=joint)
+        _shade_holes(ax, [(label, run)], ["0.45"])
         ax.set_ylabel(f"{name} [{' | '.join(sorted(units.get(name, {'-'})))}]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")
@@ -247,22 +305,42 @@ def figures(runs: list[tuple[str, recording.Run]]) -> dict[str, plt.Figure | Non
     return made
 
 
-def plot_runs(paths, out_dir=".") -> list[Path]:
-    """Write the figures of one or more recordings into ``out_dir``; the files written."""
-    files = [Path(p) for p in paths]
+def open_runs(paths) -> list[recording.Run]:
+    """The recordings to plot, read (ValueError for one with no state sample)."""
     runs = []
-    for f in files:
+    for f in paths:
         run = recording.open_run(f)
         if not run.samples:
             raise ValueError(f"{f}: no state samples to plot")
-        runs.append((_label(f, run), run))
+        runs.append(run)
+    return runs
+
+
+def _say_cut(fig: plt.Figure, notices: list[str]) -> None:
+    """A cut recording's notice at the foot of a figure, room made for it."""
+    import textwrap
+    width, height = fig.get_size_inches()
+    lines = [line for notice in notices for line in textwrap.wrap(notice, int(13 * width))]
+    room = (0.16 * len(lines) + 0.1) / height  # [fraction of the figure]
+    fig.subplots_adjust(bottom=fig.subplotpars.bottom + room)
+    fig.text(0.5, 0.06 / height, "\n".join(lines), **CUT)
+
+
+def plot_runs(paths, out_dir=".", runs: list[recording.Run] | None = None) -> list[Path]:
+    """Write the figures of one or more recordings into ``out_dir`` (``runs``: those at
+    ``paths``, opened already); the files written."""
+    files = [Path(p) for p in paths]
+    runs = open_runs(files) if runs is None else runs
+    notices = [run.cut_notice(f.name) for f, run in zip(files, runs) if run.truncated]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = files[0].stem if len(files) == 1 else "compare"
     written = []
-    for name, fig in figures(runs).items():
+    for name, fig in figures([(_label(f, run), run) for f, run in zip(files, runs)]).items():
         if fig is None:
             continue
+        if notices:
+            _say_cut(fig, notices)
         target = out / f"{stem}-{name}.png"
         fig.savefig(target, dpi=110)
         plt.close(fig)

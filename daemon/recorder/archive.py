@@ -5,13 +5,22 @@ Every recording is an MCAP file (:class:`daemon.recordings.mcap_log.McapRecordin
 directory. A recording ends by request, after its ``seconds`` or ``TAIL_S`` after the end of
 the reference it follows (both on the daemon's clock, by the samples written: a recorder behind
 its feed still records all of them), at its size limit, when the disk's free space falls below the
-floor, or at a write error; each end is a ``record`` event saying why, and the file is
-readable up to its last complete chunk whatever the cause. A recording starts with the last
-half second of the state stream (``PREROLL_BATCHES``): what led up to its start.
+floor, or at a write error; each end is a ``record`` event saying why. A recording starts with
+the last half second of the state stream (``PREROLL_BATCHES``): what led up to its start, and
+says in its metadata how long it is meant to run (a reader of a cut one says how much is missing).
+
+A file is whole, or finished up to its last complete chunk by
+:func:`daemon.recordings.mcap_repair.repair`, so every MCAP reader opens it: at once where its
+own finish failed (a write error, a full disk), and, for a recorder that died while writing
+(killed, or its daemon was), by the next recorder to start on the directory, before it serves
+anything. It knows those files by their markers (``.NAME.mcap.writing``, there while a recording
+runs) and leaves alone one whose writer still holds its lock (another daemon's recorder).
 """
 from __future__ import annotations
 
+import fcntl
 import json
+import logging
 import os
 import re
 import time
@@ -25,6 +34,7 @@ from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args
 from daemon.recordings.mcap_log import McapRecording, TelemetryEncoder
+from daemon.recordings.mcap_repair import repair
 
 TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
 MAX_ACTIVE = 4
@@ -33,6 +43,9 @@ LIST_LIMIT = 100  # files record.list shows, newest first
 PREROLL_BATCHES = 50  # state batches (10 cycles each) a new recording starts with: 0.5 s before its start
 DISK_CHECK_S = 1.0
 FEED_LOST_S = 5.0  # a timed recording whose feed stopped this long ends by the recorder's clock
+MARKER = ".writing"  # .NAME.mcap.writing: a recording is being written into NAME.mcap
+log = logging.getLogger("pneumad")
+LEFT_CAUSE = "its recorder died before it finished the file: killed, or its daemon was"
 
 
 @dataclass
@@ -88,6 +101,13 @@ class Archive:
         #                                     the requests came (the process's catch-up); None: caught up
         self._fed_at = time.monotonic()  # [s] when it came (or the recorder started: a feed that is
         #                                  late to begin is not one that stopped)
+
+    def _tell(self, event: dict) -> None:
+        """An event (through the messenger); one a recording failed or was finished after its
+        writer died by is the daemon's log's too."""
+        if event.get("action") in ("failed", "repaired"):
+            log.warning("recording %s %s: %s", event.get("file", event.get("name")), event["action"], event.get("cause"))
+        self.emit(event)
 
     # -- requests (from the messenger) -----------------------------------------------------
     def request(self, body: bytes, who: str) -> bytes:
@@ -146,10 +166,45 @@ class Archive:
     def _path(self, name: str) -> str:
         return os.path.join(self.directory, name + ".mcap")
 
-    def start(self, name: str, who: str, seconds: float | None = None, reference: int | None = None) -> Active:
+    def _marker(self, path: str) -> str:
+        return os.path.join(self.directory, "." + os.path.basename(path) + MARKER)
+
+    def finish_left_files(self) -> None:
+        """Finish the files recorders that died left in the directory (their markers), each with
+        a ``record`` event (``repaired``, or ``failed`` with why not); those another daemon's
+        recorder is writing (it holds their lock) are left alone."""
+        try:
+            markers = [e.name for e in os.scandir(self.directory) if e.name.startswith(".") and e.name.endswith(MARKER)]
+        except OSError:
+            return
+        for marker in markers:
+            path = os.path.join(self.directory, marker[1:-len(MARKER)])
+            event = {"kind": "record", "name": os.path.basename(path)[:-len(".mcap")], "file": path}
+            try:
+                with open(path, "rb") as f:
+                    fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)  # BlockingIOError: being written
+                    repaired = repair(path, LEFT_CAUSE)
+                if repaired is not None:
+                    self._tell({**event, "action": "repaired", "cause": LEFT_CAUSE, "messages": repaired.messages,
+                               "bytes": os.path.getsize(path)})
+            except BlockingIOError:
+                continue
+            except FileNotFoundError:
+                pass
+            except (OSError, ValueError) as exc:
+                self._tell({**event, "action": "failed", "cause": f"{LEFT_CAUSE}; it could not be finished: "
+                                                                 f"{getattr(exc, 'strerror', None) or exc}"})
+            try:
+                os.remove(os.path.join(self.directory, marker))
+            except OSError:
+                pass
+
+    def start(self, name: str, who: str, seconds: float | None = None, reference: int | None = None,
+              ends_t: float | None = None) -> Active:
         """Open a new recording (a taken name gets a -2, -3 ... suffix), ``seconds`` [s] long on the
         daemon's clock from the last sample taken in when its file is open, or the first to come
-        (None: until stopped); CommandFailed if it cannot be."""
+        (None: until stopped; ``ends_t``: a reference's recording's planned end on the daemon's
+        clock); CommandFailed if it cannot be."""
         if len(self.active) >= MAX_ACTIVE:
             raise CommandFailed(P.BAD_STATE, f"{MAX_ACTIVE} recordings are running already: stop one first",
                                 {"reason": "recording"})
@@ -164,7 +219,16 @@ class Archive:
                 except FileExistsError:
                     n += 1
                     name = f"{base}-{n}"
-            writer = McapRecording(f, self.describe, self.controller, self.encoder)
+            plan = {} if ends_t is None else {"planned_end_t": ends_t}
+            if seconds is not None:
+                plan = {"planned_s": seconds, **({"planned_end_t": self.feed_t + seconds} if self.feed_t is not None else {})}
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held while it is written: finish_left_files
+                open(self._marker(self._path(name)), "w").close()
+                writer = McapRecording(f, self.describe, self.controller, self.encoder, plan)
+            except OSError:
+                f.close()
+                raise
         except OSError as exc:
             raise CommandFailed(P.BAD_STATE, f"cannot record to {self.directory}: {exc.strerror or exc}",
                                 {"reason": "recording"}) from None
@@ -175,29 +239,44 @@ class Archive:
         for message in self._preroll:  # what led up to it
             writer.write("state", message)
         self.active[name] = active
-        self.emit({"kind": "record", "action": "start", "name": name, "file": active.path, "who": who,
+        self._tell({"kind": "record", "action": "start", "name": name, "file": active.path, "who": who,
                    "follows_reference": reference is not None})
         return active
 
-    def end(self, active: Active, cause: str, failed: bool = False) -> dict:
-        """Close a recording; its summary (also an event)."""
+    def end(self, active: Active, cause: str, failed: bool = False, write_error: bool = False) -> dict:
+        """Close a recording; its summary (also an event). After a ``write_error`` (a record may
+        be half written) it is not finished as usual but cut at its last complete chunk."""
         self.active.pop(active.name, None)
         summary = active.summary(self.feed_t)
+        unfinished = cause if write_error else None
         try:
-            active.writer.finish()
+            if not write_error:
+                active.writer.finish()
         except (OSError, ValueError) as exc:
-            failed, cause = True, f"{cause}; the file's index could not be written ({exc}): readable up to its last chunk"
+            failed, unfinished = True, f"{cause}; the file's index could not be written ({exc})"
         finally:
             try:
                 active.file.close()
-            except OSError:
+            except (OSError, ValueError):
                 pass
+        if unfinished is not None:
+            cause = unfinished
+            try:
+                repair(active.path, unfinished)
+                cause += ": finished up to its last complete chunk"
+            except (OSError, ValueError) as exc:
+                cause += f", nor could it be finished ({getattr(exc, 'strerror', None) or exc}): pneumactl export, " \
+                         f"plot and recordings.load read it up to its last complete chunk"
+        try:
+            os.remove(self._marker(active.path))
+        except OSError:
+            pass
         try:
             summary["bytes"] = os.path.getsize(active.path)
         except OSError:
             pass
         summary["cause"] = cause
-        self.emit({"kind": "record", "action": "failed" if failed else "stop", **summary})
+        self._tell({"kind": "record", "action": "failed" if failed else "stop", **summary})
         return summary
 
     def close(self, cause: str) -> None:
@@ -233,7 +312,7 @@ class Archive:
                 elif last_t is not None and last_t >= active.until_t:
                     self.end(active, "its reference ended" if active.reference is not None else "its time was up")
             except (OSError, ValueError) as exc:
-                self.end(active, f"write error: {getattr(exc, 'strerror', None) or exc}", failed=True)
+                self.end(active, f"write error: {getattr(exc, 'strerror', None) or exc}", failed=True, write_error=True)
 
     def _follow(self, event: dict) -> None:
         """What events tell the recorder: the controller in force, and the references it records."""
@@ -247,11 +326,12 @@ class Archive:
                 pass
         elif kind == "reference" and event.get("action") == "start" and event.get("record"):
             try:
-                active = self.start(str(event["record"]), str(event.get("who", "")), None, event.get("generation"))
+                ends = float(event.get("t", 0.0)) + float(event.get("duration_s") or 0.0) + TAIL_S
+                active = self.start(str(event["record"]), str(event.get("who", "")), None, event.get("generation"), ends)
                 # ended by the reference's end event; at the latest 10 s past its planned end
-                active.until_t = float(event.get("t", 0.0)) + float(event.get("duration_s") or 0.0) + TAIL_S + 10.0
+                active.until_t = ends + 10.0
             except CommandFailed as exc:
-                self.emit({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})
+                self._tell({"kind": "record", "action": "failed", "name": event["record"], "cause": str(exc)})
         elif kind == "reference" and event.get("action") == "end" or kind == "state" and event.get("to") != "enabled":
             for active in self.active.values():
                 if active.reference is not None and (kind == "state" or active.reference == event.get("generation")):

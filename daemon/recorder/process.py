@@ -11,7 +11,10 @@ which the messenger passes here and never to the loop), or follow a reference: a
 command with ``record: true`` has its ``reference`` start event name a recording, which runs
 from that event to ``archive.TAIL_S`` after the reference's end (or its cut, or the arm leaving
 ``enabled``). A write error or a full disk (less than ``min_free_mb`` left) ends a recording
-with an event, the file readable up to its last complete chunk; the loop never knows.
+with an event, the file finished up to its last complete chunk; the loop never knows. Once
+started (a daemon's start, or again after a recorder died), it first finishes the files a dead
+recorder left (:meth:`daemon.recorder.archive.Archive.finish_left_files`). Its events wait
+(``EVENTS_HELD``) until the messenger is connected: a recorder just started has none yet.
 
 The metadata of a recording (``describe``, the controller and its parameters) come from the
 files the daemon writes into the rings' directory at start (``describe.json``,
@@ -37,6 +40,7 @@ BATCH_S = 0.02  # [s] of writing at most between two looks at the requests: a re
 FEED_EVERY_MS = 50  # the feed is read this often, not at every message: 20 wake-ups a second, not ~110
 CATCH_UP_S = 1.0  # [s] of taking in the feed at most before requests are answered (the client waits 2 s)
 MARK = b"mark"  # a feed message the messenger sends just before a request: [MARK, the request's token]
+EVENTS_HELD = 100  # events kept while no messenger is connected (a recorder just started, a messenger restarting)
 
 
 def endpoint(rings_dir: str, name: str) -> str:
@@ -98,17 +102,22 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     feed, control = ctx.socket(zmq.PULL), ctx.socket(zmq.ROUTER)
     feed.setsockopt(zmq.RCVHWM, FEED_HWM)
     control.setsockopt(zmq.ROUTER_HANDOVER, 1)  # a restarted messenger takes its id over
+    control.setsockopt(zmq.ROUTER_MANDATORY, 1)  # a send with no messenger connected fails (held, not lost)
     for sock in (feed, control):
         sock.setsockopt(zmq.LINGER, 0)
     feed.bind(endpoint(rings_dir, FEED))
     control.bind(endpoint(rings_dir, CONTROL))
+    held: list[list[bytes]] = []  # events no messenger has taken yet
     archive = Archive(rings_dir, directory, max_mb * 1e6, min_free_mb * 1e6,
-                      lambda event: _send(control, [b"event", json.dumps(event).encode()]))
+                      lambda event: _send_event(control, held, json.dumps(event).encode()))
     child.ready()
+    archive.finish_left_files()
     poller = zmq.Poller()  # requests wake it at once; the feed waits in its queue, read in batches
     poller.register(control, zmq.POLLIN)
     behind = False
     while not stop and child.parent_alive():
+        if held:
+            _send_held(control, held)
         ready = dict(poller.poll(0 if behind else FEED_EVERY_MS))
         if control not in ready:
             behind = _take_feed(feed, archive, stop)
@@ -179,9 +188,23 @@ def _catch_up(feed, archive, stop: list, token: bytes) -> float | None:
             return None
 
 
-def _send(control, frames: list[bytes]) -> None:
+def _send(control, frames: list[bytes]) -> bool:
+    """Frames to the messenger; False if none is connected (or it cannot take them now)."""
     import zmq
     try:
         control.send_multipart([MESSENGER_ID, *frames], zmq.NOBLOCK)
+        return True
     except zmq.ZMQError:
-        pass  # no messenger just now (restarting): the client's time-out tells it
+        return False  # no messenger just now (restarting): a reply's client times out
+
+
+def _send_event(control, held: list[list[bytes]], event: bytes) -> None:
+    """An event to the messenger, after those held before it; held itself if none is connected."""
+    held.append([b"event", event])
+    _send_held(control, held)
+
+
+def _send_held(control, held: list[list[bytes]]) -> None:
+    while held and _send(control, held[0]):
+        held.pop(0)
+    del held[:-EVENTS_HELD]  # (a messenger gone for long: the oldest go)

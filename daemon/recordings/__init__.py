@@ -4,6 +4,6 @@ may read.
     from daemon import recordings
     data = recordings.load("run.mcap")
 """
-from daemon.recordings.reading import export_csv, load
+from daemon.recordings.reading import CutRecording, export_csv, load
 
-__all__ = ["export_csv", "load"]
+__all__ = ["CutRecording", "export_csv", "load"]

@@ -7,15 +7,15 @@ From the telemetry as subscribers see it (``state`` columns, ``internals``, ``st
 ``event``, ``contact``), :class:`Frames` makes (topic, log time [ns], encoded message):
 
 - ``/joint_states``: ``foxglove.JointStates`` (protobuf), one per loop cycle: per joint (named
-  as the rig file names it) position [rad], velocity [rad/s] and effort, the chamber pressure
-  difference head - rod (a muscle pair's a - b) [Pa]: the torque needs a moment arm and areas
+  as the rig file names it) position [rad], velocity [rad/s] and effort, the commanded chamber
+  pressure difference head - rod (a muscle pair's a - b) [Pa]: the torque needs a moment arm and areas
   the daemon does not publish, the pressure difference is what drives the joint.
 - JSON-schema channels, one message per cycle: ``/pneumad/tracking`` (angle, set-point, error,
   velocity [deg, deg/s], the loop's mode and the reference's phase: approach, path or hold),
   ``/pneumad/commands`` (each command interface in force with its limits: V_MV [V], a muscle
   pair's pressures [Pa], brake [N m]; the output volts actually written; ``output`` says
   ``safe state`` whenever the safe state is written instead of the controller's output),
-  ``/pneumad/pressures`` (measured head and rod [kPa]), ``/pneumad/tip`` (forward kinematics of
+  ``/pneumad/pressures`` (the head and rod chambers' pressure commands [kPa], as written), ``/pneumad/tip`` (forward kinematics of
   the first two joints [mm], measured and set-point);
   and one per message: ``/pneumad/controller`` (the internals, each signal's unit from the
   controller that published it), ``/pneumad/loop`` (timing), ``/pneumad/contact_estimate``.
@@ -72,7 +72,8 @@ def json_schemas(describe: dict) -> dict[str, dict]:
                        "command interfaces in force and their limits (V_MV [V], pressures [Pa], brake [N m]); "
                        "output volts written; output: controller or safe state"),
         PRESSURES: _obj({**stamp, "joints": per_joint(lambda j: _numbers("p_head_kpa", "p_rod_kpa"))},
-                        "measured chamber pressures [kPa] (a muscle pair: a, b)"),
+                        "chamber pressure commands [kPa], after the rig's limits (a muscle pair: a, b); "
+                        "not measured pressures"),
         TIP: _obj({**stamp, **_numbers("x_mm", "y_mm", "setpoint_x_mm", "setpoint_y_mm")["properties"]},
                   "tip position by forward kinematics of the first two joints [mm]"),
         CONTROLLER: _obj({**stamp, "controller": {"type": "string"},

@@ -4,7 +4,7 @@ committed file is the built-in rig's; tests/test_foxglove.py checks it names onl
 daemon advertises, and that it is this module's output).
 
 One tab per joint (angle against set-point, tracking error, each command interface with its
-limits, the measured chamber pressures), a tab for the tip path (y against x, measured and
+limits, the chamber pressure commands), a tab for the tip path (y against x, measured and
 set-point), and a tab for the loop and the controller. Every tab has a state strip (the loop's
 mode, the safe state, the reference's phase: where the approach ends and the path begins)
 and the daemon's log (trips, switches, references starting and ending). Built with
@@ -52,7 +52,7 @@ def _joint_tab(joint: str, commands: list[str]) -> fl.TabItem:
         _plot(f"{joint}: tracking error", [(f"{tracking}.error_deg", "set-point - angle", "solid")], "error [deg]"),
         _plot(f"{joint}: commands in force (none in the safe state) and their limits", command_series,
               "V_MV [V] / pressure [Pa] / brake [N m]"),
-        _plot(f"{joint}: measured chamber pressures", [(f"{PRESSURES}.joints.{joint}.p_head_kpa", "head (a)", "solid"),
+        _plot(f"{joint}: chamber pressure commands (after the rig's limits)", [(f"{PRESSURES}.joints.{joint}.p_head_kpa", "head (a)", "solid"),
                                                        (f"{PRESSURES}.joints.{joint}.p_rod_kpa", "rod (b)", "dotted")],
               "pressure [kPa]"),
     ]
@@ -75,7 +75,7 @@ def build(describe: dict) -> fl.Layout:
     loop = fl.SplitContainer(direction="column", items=[
         fl.SplitItem(content=_plot("loop timing (per stats window)", [
             (f"{LOOP}.latency_us.p99", "wake-up latency p99", "solid"),
-            (f"{LOOP}.compute_us.p99", "compute p99", "solid"), (f"{LOOP}.latency_us.max", "wake-up max", "dotted")],
+            (f"{LOOP}.compute_us.p99", "cycle's work p99 (read to commands)", "solid"), (f"{LOOP}.latency_us.max", "wake-up max", "dotted")],
             "time [us]")),
         fl.SplitItem(content=_plot("overruns (per stats window)", [(f"{LOOP}.overruns", "overruns", "solid")],
                                    "cycles")),

@@ -17,11 +17,15 @@ one Foxglove layout (docs/foxglove-layout.json) serves live and recorded data; :
 alone, in files with or without them.
 
 Chunks are closed every CHUNK_BYTES, so a recording cut short (a killed recorder, a full
-disk) loses at most its last chunk: :func:`read` returns everything up to it.
+disk) loses at most its last chunk: :func:`read` returns everything up to it and says the file
+is cut, and :func:`daemon.recordings.mcap_repair.repair` finishes such a file for every other
+reader. How long a recording was meant to run is in its ``pneumad`` metadata
+(``planned_s``, ``planned_end_t``), so a reader of a cut one can say how much is missing.
 """
 from __future__ import annotations
 
 import json
+import math
 import signal
 import struct
 import threading
@@ -30,11 +34,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from mcap.exceptions import McapError
-from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from daemon.recordings.channels import Frames, json_bytes, json_schemas, ns, protobuf_schemas, schema_name
+from daemon.recordings.mcap_repair import CUT
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
@@ -144,9 +149,12 @@ STATE_CHANNEL = channel("state")
 class McapRecording:
     """Writes telemetry as the daemon publishes it (decoded messages, as a subscriber sees
     them) to an open binary file: encoded by ``encoder`` (shared between recordings of one
-    daemon; default: its own)."""
+    daemon; default: its own). ``plan``: how long it is meant to run, as far as known when it
+    starts: ``planned_s`` [s] from its first sample and/or ``planned_end_t`` [s] on the daemon's
+    clock (metadata a reader of a cut file says how much is missing by)."""
 
-    def __init__(self, f, describe: dict, controller: dict, encoder: TelemetryEncoder | None = None):
+    def __init__(self, f, describe: dict, controller: dict, encoder: TelemetryEncoder | None = None,
+                 plan: dict[str, float] | None = None):
         self.encoder = encoder or TelemetryEncoder(describe)
         self._writer = Writer(f, chunk_size=CHUNK_BYTES)
         self._writer.start(PROFILE, f"pneumad {describe.get('version', '?')}")
@@ -166,7 +174,8 @@ class McapRecording:
         self._writer.add_attachment(now, now, "rig.toml", "application/toml", describe["rig"]["source"].encode())
         self._writer.add_metadata("pneumad", {"software": str(describe.get("version")), "rig_hash": describe["rig"]["hash"],
                                               "rig_name": describe["rig"]["name"], "controller": controller["name"],
-                                              "started_unix_s": f"{now / 1e9:.3f}"})
+                                              "started_unix_s": f"{now / 1e9:.3f}",
+                                              **{k: repr(float(v)) for k, v in (plan or {}).items()}})
         self._writer.add_metadata("describe", {"json": json.dumps(describe)})
         self._writer.add_metadata("controller", {"json": json.dumps(controller)})
         self._last_seq: dict[str, int] = {}
@@ -204,7 +213,8 @@ class McapRecording:
 def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int, int]:
     """Record a daemon's telemetry for ``seconds`` (or until the event ``stop`` is set) through
     ``client`` (a :class:`daemon.client.client.Client`) to ``path``; (messages, messages lost). An
-    OSError (a full disk) propagates, the file readable up to its last complete chunk.
+    OSError (a full disk) propagates, the file readable up to its last complete chunk (and
+    finished so by :func:`daemon.recordings.mcap_repair.repair`).
     ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second.
     Ctrl-C ends it early with the file finished, then raises KeyboardInterrupt: in the main
     thread it is taken between two messages (within half a second), never inside a record's
@@ -217,7 +227,7 @@ def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int,
     previous = signal.signal(signal.SIGINT, lambda *_: interrupted.set()) if in_main else None
     try:
         with open(path, "wb") as f:
-            rec = McapRecording(f, describe, controller)
+            rec = McapRecording(f, describe, controller, plan={"planned_s": seconds} if math.isfinite(seconds) else None)
             start = time.monotonic()
             while time.monotonic() < start + seconds and not (stop is not None and stop.is_set()) \
                     and not interrupted.is_set():
@@ -239,7 +249,7 @@ def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int,
 @dataclass
 class Contents:
     """What :func:`read` found: messages per topic in file order, attachments, metadata, and
-    whether the file ended early (a recording cut short)."""
+    whether the file ended early (a recording cut short: ``truncated`` says how, "" if not)."""
 
     messages: dict[str, list[dict]] = field(default_factory=lambda: {t: [] for t in TOPICS})
     attachments: dict[str, bytes] = field(default_factory=dict)
@@ -253,6 +263,12 @@ class Contents:
     @property
     def controller(self) -> dict:
         return json.loads(self.metadata["controller"]["json"])
+
+    @property
+    def plan(self) -> dict[str, float]:
+        """How long the recording was meant to run (``planned_s``, ``planned_end_t``), where it says."""
+        pneumad = self.metadata.get("pneumad", {})
+        return {k: float(pneumad[k]) for k in ("planned_s", "planned_end_t") if k in pneumad}
 
 
 def _null_to_nan(sample: dict) -> None:
@@ -268,10 +284,12 @@ def _null_to_nan(sample: dict) -> None:
 
 def read(path) -> Contents:
     """Everything in a pneumad MCAP recording, up to its last complete record: a truncated
-    file yields what was written before the cut, with ``truncated`` saying so."""
+    file yields what was written before the cut, with ``truncated`` saying so, as does a cut file
+    finished afterwards (:mod:`daemon.recordings.mcap_repair`)."""
     out = Contents()
     ours = {channel(t): t for t in TOPICS}  # the Foxglove channels beside them are the viewers'
     topics: dict[int, str] = {}
+    data_whole = False  # its data end came: whatever is cut after it is the index alone
     with open(path, "rb") as f:
         try:
             for record in StreamReader(f).records:
@@ -288,10 +306,15 @@ def read(path) -> Contents:
                     out.attachments[record.name] = record.data
                 elif isinstance(record, Metadata):
                     out.metadata[record.name] = dict(record.metadata)
-                elif isinstance(record, Schema):
-                    continue
-        except (McapError, EOFError, ValueError, struct.error) as exc:  # cut short: keep what came before
-            out.truncated = f"{type(exc).__name__}: {exc}" or "cut short"
+                elif isinstance(record, DataEnd):
+                    data_whole = True
+        except (McapError, EOFError, ValueError, struct.error):  # cut short: keep what came before
+            out.truncated = ("no footer: the index after its data is cut; no message is missing" if data_whole else
+                             "no footer or index: the file ends inside a record")
+    if CUT in out.metadata and not out.truncated:
+        cut = out.metadata[CUT]
+        out.truncated = (f"{cut.get('cause', 'cut')}; closed at its last complete chunk on "
+                         f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(float(cut.get('repaired_unix_s', 0))))}")
     if "describe" not in out.metadata:
         raise ValueError(f"{path}: not a pneumad MCAP recording (no describe metadata{': ' + out.truncated if out.truncated else ''})")
     return out
