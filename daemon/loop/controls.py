@@ -14,6 +14,7 @@ from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.safety import StateError
+from daemon.loop.settle import SettleGate
 from daemon.loop.shadow import ShadowRun
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
@@ -164,6 +165,8 @@ class LoopControls:
         self.reference = trajectory.sample(0.0)
         self.tracking.clear()
         self._reference_running = trajectory.duration > 0.0 or record is not None  # a recorded step: its response
+        approach = getattr(trajectory, "approach_s", None)  # a path after its approach: settle in between
+        self._settle = SettleGate(approach, trajectory.sample(approach)[0], self.period) if approach is not None else None
         if getattr(trajectory, "open_loop", False):
             self.open_loop = OpenLoopRun(trajectory, self.trajectory_t0, self.io.joint_names[trajectory.joint])
         if self._reference_running:
@@ -172,6 +175,17 @@ class LoopControls:
                              "duration_s": trajectory.duration, "record": record,
                              "signal": getattr(trajectory, "definition", None),
                              "approach_s": getattr(trajectory, "approach_s", None)})
+
+    def _settle_or_start_path(self, now: float) -> None:
+        """At and after the approach's end (``_settle``'s time): hold the path's start, the
+        trajectory's clock stopped there, until the joints have settled on it or the wait is up;
+        then the path runs from its first sample, with a ``reference`` event ``settled``."""
+        gate = self._settle
+        self.trajectory_t0 = now - gate.at
+        if not gate.waiting(self.angles):
+            self._settle = None
+            self.events.add({"kind": "reference", "action": "settled", "name": self.trajectory_name,
+                             "generation": self.trajectory_generation, **gate.summary(self.angles)})
 
     def reference_remaining(self) -> float:
         """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""
