@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from controllers.base import Controller
 from controllers.trajectory import Hold as HoldPosition
-from controllers.trajectory import Trajectory
+from controllers.trajectory import JointMove, Trajectory
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.safety import StateError
 from daemon.loop.settle import SettleGate
@@ -24,14 +24,18 @@ SHADOW_COMMIT_RMS = 0.5  # a shadow run's RMS difference, as a fraction of a com
 
 class LoopControls:
     def enable(self) -> None:
-        """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is."""
-        self.supervisor.enable()
+        """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is;
+        a joint outside its limits is moved back inside first (:mod:`daemon.loop.recovery`)."""
+        recovery = self.supervisor.enable(self.angles)
         self.u = list(self.actuation.neutral)
         state = self._state()
         self.controller.reset(state, self.u)
         if self.shadow_run is not None:
             self.shadow_run.controller.reset(state, self.u)
-        self.hold()
+        if recovery is None:
+            self.hold()
+        else:
+            self.set_trajectory(JointMove(list(self.angles), recovery.targets, recovery.move_s), "recover")
 
     def disable(self) -> None:
         self.supervisor.disable()

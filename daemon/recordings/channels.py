@@ -37,7 +37,7 @@ TRACKING, COMMANDS, PRESSURES, TIP = "/pneumad/tracking", "/pneumad/commands", "
 CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/contact_estimate"
 SAFE_STATE = "safe state"
 ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warnings below
-WARNINGS = ("tracking", "experiment", "unleased", "messenger", "recorder")
+WARNINGS = ("tracking", "experiment", "unleased", "messenger", "recorder", "recover")
 _PROTOBUF = {JOINT_STATES: JointStates, LOG: Log, EVENTS: Event}
 
 _NUMBER = {"type": ["number", "null"]}  # null: not finite, or not measured (json_bytes)
