@@ -173,7 +173,7 @@ def test_a_seized_joint_under_a_sweep_the_error_band_never_sees_trips_as_stuck()
             assert loop.state.value == "enabled", loop.supervisor.cause
 
 
-SEIZED_BOTTOM = "\n[transport.options.joints.bottom]\noverrides = { Fs = 1000.0, Fc = 1000.0 }\n"  # no cylinder breaks it
+SEIZED_BOTTOM = "\n[transport.options.joints.bottom]\noverrides = { Fs = 1000.0, Fc = 1000.0 }\n"  # none moves it
 
 
 def chirp_under_pid(joint: str, amplitude_deg: float, rig_text: str | None = None, seconds: float = 31.0):

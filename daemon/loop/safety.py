@@ -78,7 +78,8 @@ class Supervisor:
                              + (f" ({self.cause}); reset first" if self.state in (State.FAULT, State.ESTOP) else ""))
         self._bad_sensor = self._bad_speed = 0
         self.enables += 1
-        recovery = Recovery([j.name for j in self.rig.joints], self._limits, angles, self.dt) if angles is not None else None
+        recovery = None if angles is None else Recovery([j.name for j in self.rig.joints], self._limits, angles,
+                                                        self.dt)
         self.recovery = recovery if recovery is not None and not recovery.finished else None
         self._enter(State.ENABLED, "enabled")
         if self.recovery is not None:
