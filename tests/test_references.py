@@ -12,7 +12,9 @@ from controllers import signals, trajectory
 from daemon.wire import protocol as P
 from daemon.client.client import read_waypoints
 from hal import config, kinematics
+from daemon.loop.settle import SETTLE_MAX_S, SettleGate
 from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
+from tests.schemas import schema
 
 
 @pytest.fixture
@@ -88,7 +90,10 @@ def test_a_joint_waypoint_path_is_followed_to_its_last_point(armed):
     result = ok(loop, sock, "waypoints", {"angles_deg": points, "durations_s": [10.0, 10.0], "approach_s": 0.5},
                 lease)
     assert result["points"] == 3 and result["duration_s"] == 20.0
-    # to the first waypoint on the path's own clock: the loop runs on while the reply comes back
+    # to the first waypoint on the path's own clock, which starts once the arm has settled on
+    # the path's start (the loop runs on while the reply comes back)
+    while "settled" not in reference_events(captured, "waypoints"):
+        loop.run(10)
     run_seconds(loop, 10.5 - (loop.clock.now() - loop.trajectory_t0))
     assert [math.degrees(q) for q in loop.reference[0]] == pytest.approx(points[1], abs=1e-6)
     run_seconds(loop, 20.0)
@@ -224,6 +229,49 @@ def test_a_plan_overtaken_while_it_is_prepared_is_discarded_not_started(armed, o
     assert loop.trajectory_name == "hold"
     loop.run(100)
     assert loop.trajectory_name == "hold" and loop.reference_remaining() == 0.0
+
+
+def reference_events(captured, name: str) -> dict:
+    return {e["action"]: e for e in captured.of("event") if e["kind"] == "reference" and e["name"] == name}
+
+
+@pytest.mark.slow(seconds=30)
+def test_a_path_starts_once_the_arm_has_settled_on_its_start_so_its_first_sample_is_not_its_worst(armed):
+    """PID lags its approach to the path's start by over a degree; the path's clock starts
+    only once every joint has been within 0.3 deg of the start for 0.25 s (an event says how
+    long that took), so the path's worst error is the path's own, not the approach's lag."""
+    loop, captured, sock, lease = armed
+    result = ok(loop, sock, "path", {"name": "translation"}, lease)
+    for _ in range(600):  # up to 60 s: approach, settling, the 15 s path
+        run_seconds(loop, 0.1)
+        if "end" in reference_events(captured, "translation"):
+            break
+    events = reference_events(captured, "translation")
+    assert events["end"]["cut"] == ""
+    settled = events.get("settled")  # when the path's clock started; straight after the approach before
+    start = settled["cycle"] if settled else events["start"]["cycle"] + 1 + round(result["approach_s"] / loop.period)
+    rows = [(c, [abs(math.degrees(x)) for x in e]) for m in captured.of("state")
+            for c, e in zip(m["cycle"], m["error_rad"]) if start <= c <= events["end"]["cycle"]]
+    first, worst = rows[0][1], [max(e[j] for _, e in rows) for j in range(loop.n)]
+    early = [max(e[j] for c, e in rows if c < start + 500) for j in range(loop.n)]  # the path's first 0.5 s
+    assert all(f <= 0.3 for f in first), (first, worst)
+    assert all(a < 0.8 * w for a, w in zip(early, worst)), (early, worst)
+    assert settled["settled"] and 0.25 <= settled["waited_s"] < 10.0
+    assert [abs(e) for e in settled["error_deg"]] == pytest.approx(first, abs=1e-6)
+    schema("telemetry", "event").validate(settled)
+
+
+def test_a_path_whose_joints_never_settle_starts_after_the_bounded_wait_and_says_so():
+    gate = SettleGate(2.0, [0.0, 0.0], 0.001)
+    off = [0.0, math.radians(0.5)]  # the middle joint held 0.5 deg off (friction, a load): never in the band
+    assert all(gate.waiting(off) for _ in range(round(SETTLE_MAX_S / 0.001) - 1))
+    assert not gate.waiting(off)
+    assert gate.summary(off) == {"waited_s": pytest.approx(SETTLE_MAX_S), "settled": False,
+                                 "error_deg": [0.0, pytest.approx(-0.5)]}
+    noisy = SettleGate(2.0, [0.0], 0.001)  # in the band, out for a cycle: the settling time starts again
+    assert all(noisy.waiting([0.0]) for _ in range(200)) and noisy.waiting([0.01])
+    assert all(noisy.waiting([0.0]) for _ in range(249)) and not noisy.waiting([0.0])
+    assert noisy.summary([0.0])["waited_s"] == pytest.approx(0.451) and noisy.settled
 
 
 @pytest.mark.parametrize("elbow", [-1, 1])

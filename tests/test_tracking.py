@@ -11,7 +11,7 @@ from controllers.trajectory import JointMove, JointWaypoints
 from daemon.loop.tracking import TrackingGuard
 from hal import config
 from hal.errors import ConfigError
-from daemon.testing.loop import make_loop
+from daemon.testing.loop import dealer, make_loop, ok, run_seconds
 
 LOST_RIG = {'tracking_action = "trip"': 'tracking_action = "fallback"'}
 
@@ -171,6 +171,57 @@ def test_a_seized_joint_under_a_sweep_the_error_band_never_sees_trips_as_stuck()
             assert loop.state.value == "fault" and "controller pid: joint middle stuck" in loop.supervisor.cause
         else:
             assert loop.state.value == "enabled", loop.supervisor.cause
+
+
+SEIZED_BOTTOM = "\n[transport.options.joints.bottom]\noverrides = { Fs = 1000.0, Fc = 1000.0 }\n"  # none moves it
+
+
+def chirp_under_pid(joint: str, amplitude_deg: float, rig_text: str | None = None, seconds: float = 31.0):
+    """The thesis's closed-loop chirp (0.1-1 Hz log sweep over 30 s, on the reference) on
+    ``joint`` under PID, asked of a served in-process loop as a client would; the loop run
+    ``seconds`` past the request or until it leaves enabled. (loop, captured, cycle of the
+    chirp's start)."""
+    loop, captured, srv = make_loop(rig_text, server=True)
+    try:
+        sock = dealer(srv)
+        lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+        ok(loop, sock, "enable", lease=lease)
+        run_seconds(loop, 2.0)
+        started = ok(loop, sock, "excite", {"signal": "chirp", "joint": joint, "amplitude_deg": amplitude_deg,
+                                            "f0_hz": 0.1, "f1_hz": 1.0, "duration_s": 30.0}, lease)
+        assert started["side"] == "reference" and started["duration_s"] == 30.0
+        for _ in range(int(seconds * 10)):
+            loop.run(100)
+            if loop.state.value != "enabled":
+                break
+        return loop, captured, started["cycle"]
+    finally:
+        srv.close()
+
+
+@pytest.mark.slow(seconds=60)
+@pytest.mark.parametrize("joint", ["bottom", "middle"])
+def test_a_loop_that_follows_the_thesis_chirp_with_lag_and_attenuation_is_not_stuck(joint):
+    """Up to 1 Hz the PID loop lags its reference by a large phase and follows it at about
+    half its amplitude (the middle joint): that is tracking, not a joint that does not move."""
+    loop, captured, _ = chirp_under_pid(joint, 1.0)
+    assert loop.state.value == "enabled", loop.supervisor.cause
+    assert not [e for e in captured.of("event") if e["kind"] == "tracking"]
+    ends = [e for e in captured.of("event") if e["kind"] == "reference" and e["action"] == "end"]
+    assert [(e["name"], e["cut"]) for e in ends] == [("chirp", "")]  # ran to its end
+
+
+@pytest.mark.slow(seconds=40)
+def test_a_seized_joint_under_the_thesis_chirp_trips_once_its_reference_has_travelled_20_deg():
+    """The same chirp at 2 deg (the most the rig's authority allows at 1 Hz; inside the 10 deg
+    error band: only the travel rule can see it) on a bottom joint that cannot move: the
+    reference travels 4 x (2 - 0.25) deg a cycle through the play, 20 deg after 2.9 cycles of
+    the sweep (N(t) = f0 T / ln(f1 / f0) ((f1 / f0)^(t / T) - 1)), at 15.1 s."""
+    loop, captured, start = chirp_under_pid("bottom", 2.0, config.load().source + SEIZED_BOTTOM, seconds=18.0)
+    assert abs(math.degrees(loop.angles[0] - loop.reference[0][0])) < 2.5  # never near the band
+    assert loop.state.value == "fault" and "controller pid: joint bottom stuck: moved 0.0 deg" in loop.supervisor.cause
+    trip = [e for e in captured.of("event") if e["kind"] == "trip"][-1]
+    assert 14.0 < (trip["cycle"] - start) * loop.period < 16.5
 
 
 def test_a_fallback_controller_that_cannot_be_built_is_a_configuration_error():

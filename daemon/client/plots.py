@@ -132,11 +132,15 @@ def _distinct(runs):
 
 
 def path_starts(run: recording.Run) -> list[float]:
-    """Where each path's approach ended and the path began [s from the run's first sample]:
-    the ``reference`` start events that carry ``approach_s`` (recordings before it: none)."""
+    """Where each path began after its approach [s from the run's first sample]: its
+    ``reference`` event ``settled`` (the daemon holds the path's start until the arm has settled
+    there), or, in recordings made before the daemon waited, the start event's time plus its
+    ``approach_s`` (recordings before that: none)."""
     t0, period = run.samples[0]["t"], run.describe.get("period_s", 0.001)
-    return [e["t"] + period + e["approach_s"] - t0 for e in run.messages.get("event", [])
-            if e.get("kind") == "reference" and e.get("action") == "start" and e.get("approach_s")]
+    events = [e for e in run.messages.get("event", []) if e.get("kind") == "reference"]
+    settled = {e.get("generation"): e["t"] for e in events if e.get("action") == "settled"}
+    return [settled.get(e.get("generation"), e["t"] + period + e["approach_s"]) - t0 for e in events
+            if e.get("action") == "start" and e.get("approach_s") is not None]
 
 
 def _per_joint_figure(runs, title: str, ylabel: str, draw) -> plt.Figure:

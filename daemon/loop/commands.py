@@ -259,7 +259,7 @@ class Commands:
 
     def enable(self, args):
         _in_state(self.loop.enable)
-        return {"state": self.view.state.value}
+        return {"state": self.view.state.value, "recover": self.view.recovery()}
 
     def disable(self, args):
         self.loop.disable()

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from controllers.base import Controller
 from controllers.trajectory import Hold as HoldPosition
-from controllers.trajectory import Trajectory
+from controllers.trajectory import JointMove, Trajectory
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.safety import StateError
+from daemon.loop.settle import SettleGate
 from daemon.loop.shadow import ShadowRun
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
@@ -23,14 +24,18 @@ SHADOW_COMMIT_RMS = 0.5  # a shadow run's RMS difference, as a fraction of a com
 
 class LoopControls:
     def enable(self) -> None:
-        """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is."""
-        self.supervisor.enable()
+        """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is;
+        a joint outside its limits is moved back inside first (:mod:`daemon.loop.recovery`)."""
+        recovery = self.supervisor.enable(self.angles)
         self.u = list(self.actuation.neutral)
         state = self._state()
         self.controller.reset(state, self.u)
         if self.shadow_run is not None:
             self.shadow_run.controller.reset(state, self.u)
-        self.hold()
+        if recovery is None:
+            self.hold()
+        else:
+            self.set_trajectory(JointMove(list(self.angles), recovery.targets, recovery.move_s), "recover")
 
     def disable(self) -> None:
         self.supervisor.disable()
@@ -164,6 +169,8 @@ class LoopControls:
         self.reference = trajectory.sample(0.0)
         self.tracking.clear()
         self._reference_running = trajectory.duration > 0.0 or record is not None  # a recorded step: its response
+        approach = getattr(trajectory, "approach_s", None)  # a path after its approach: settle in between
+        self._settle = None if approach is None else SettleGate(approach, trajectory.sample(approach)[0], self.period)
         if getattr(trajectory, "open_loop", False):
             self.open_loop = OpenLoopRun(trajectory, self.trajectory_t0, self.io.joint_names[trajectory.joint])
         if self._reference_running:
@@ -172,6 +179,17 @@ class LoopControls:
                              "duration_s": trajectory.duration, "record": record,
                              "signal": getattr(trajectory, "definition", None),
                              "approach_s": getattr(trajectory, "approach_s", None)})
+
+    def _settle_or_start_path(self, now: float) -> None:
+        """At and after the approach's end (``_settle``'s time): hold the path's start, the
+        trajectory's clock stopped there, until the joints have settled on it or the wait is up;
+        then the path runs from its first sample, with a ``reference`` event ``settled``."""
+        gate = self._settle
+        self.trajectory_t0 = now - gate.at
+        if not gate.waiting(self.angles):
+            self._settle = None
+            self.events.add({"kind": "reference", "action": "settled", "name": self.trajectory_name,
+                             "generation": self.trajectory_generation, **gate.summary(self.angles)})
 
     def reference_remaining(self) -> float:
         """How long the present reference runs on [s] (0 once it has ended, or for a hold)."""

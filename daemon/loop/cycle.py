@@ -63,6 +63,7 @@ class ControlLoop(LoopControls):
         self.trajectory_t0 = 0.0
         self.trajectory_generation = 0  # counts every change of reference: a plan made before one is stale
         self._reference_running = False  # a timed reference whose end event is still to come
+        self._settle = None  # a path's wait at its start after the approach (daemon.loop.settle), until it runs
         self.open_loop: OpenLoopRun | None = None  # an input-side experiment in progress
         self.u = list(self.actuation.neutral)  # last commands applied (V_MV [V] per cylinder joint: the
         #                                        controller's plus a known load's feed-forward; a muscle pair's [Pa])
@@ -256,6 +257,8 @@ class ControlLoop(LoopControls):
     def _control(self, now: float) -> None:
         if self._reference_running and now - self.trajectory_t0 >= self.trajectory.duration:
             self._end_reference()
+        if self._settle is not None and now - self.trajectory_t0 >= self._settle.at:
+            self._settle_or_start_path(now)
         ref = self.trajectory.sample(now - self.trajectory_t0)
         self.reference = ref
         state = JointState(now, self.angles, self.velocities, self.pressures)

@@ -17,6 +17,7 @@ from hal.config import RigConfig
 
 from daemon.wire.states import State
 from daemon.loop.events import EventLog
+from daemon.loop.recovery import Recovery
 
 
 class StateError(RuntimeError):
@@ -40,6 +41,7 @@ class Supervisor:
         self._dp = rig.limits.max_pressure_rate_mpa_s * 1e6 * dt  # per-cycle step limit [Pa]
         self.trips = 0
         self.enables = 0  # times the arm was enabled: tells one enabled period from the next
+        self.recovery: Recovery | None = None  # joints enabled outside their limits, on their way back
 
     # -- state changes --------------------------------------------------------------------
     def _enter(self, state: State, cause: str = "") -> None:
@@ -55,6 +57,7 @@ class Supervisor:
         """Go to FAULT (unless already latched) with ``cause``; True if this was a new trip."""
         if self.state in (State.FAULT, State.ESTOP):
             return False
+        self.recovery = None
         self.cause = cause
         self.trips += 1
         self.events.add({"kind": "trip", "cause": cause})
@@ -67,16 +70,26 @@ class Supervisor:
             self.events.add({"kind": "estop", "cause": self.cause})
             self._enter(State.ESTOP, self.cause)
 
-    def enable(self) -> None:
+    def enable(self, angles=None) -> Recovery | None:
+        """IDLE -> ENABLED with the joints at ``angles`` [rad]; a joint outside its limits
+        there is allowed on its way back (:mod:`daemon.loop.recovery`): the recovery, or None."""
         if self.state is not State.IDLE:
             raise StateError(f"cannot enable from {self.state.value}"
                              + (f" ({self.cause}); reset first" if self.state in (State.FAULT, State.ESTOP) else ""))
         self._bad_sensor = self._bad_speed = 0
         self.enables += 1
+        recovery = None if angles is None else Recovery([j.name for j in self.rig.joints], self._limits, angles,
+                                                        self.dt)
+        self.recovery = recovery if recovery is not None and not recovery.finished else None
         self._enter(State.ENABLED, "enabled")
+        if self.recovery is not None:
+            self.events.add({"kind": "recover", "action": "start", **self.recovery.summary,
+                             "cause": "enabled with joints outside their limits: moving them back inside"})
+        return self.recovery
 
     def disable(self) -> None:
         if self.state is State.ENABLED:
+            self.recovery = None
             self._enter(State.IDLE, "disabled")
 
     def reset(self, current_faults: tuple[str, ...]) -> None:
@@ -109,7 +122,12 @@ class Supervisor:
             return
         if self.state is not State.ENABLED:
             return
-        for joint, q, (lo, hi) in zip(self.rig.joints, angles, self._limits):
+        limits = self._limits
+        if self.recovery is not None:  # joints enabled outside their limits: their own rule until back
+            limits = self._recovering(angles)
+            if limits is None:
+                return
+        for joint, q, (lo, hi) in zip(self.rig.joints, angles, limits):
             if not lo <= q <= hi:
                 self.trip(f"joint {joint.name} at {math.degrees(q):.1f} deg is outside its limits "
                           f"{joint.min_angle_deg:.1f}..{joint.max_angle_deg:.1f} deg")
@@ -125,6 +143,20 @@ class Supervisor:
             joint = self.rig.joints[fast]
             self.trip(f"joint {joint.name} moving at {math.degrees(velocities[fast]):.1f} deg/s, "
                       f"over its {joint.max_speed_deg_s:.1f} deg/s limit")
+
+    def _recovering(self, angles) -> list | None:
+        """One cycle of the recovery: the limits the usual rule checks now (none for the joints
+        still on their way back), or None after a trip (further out, or not back in time)."""
+        recovery = self.recovery
+        cause = recovery.check(angles)
+        if cause is not None:
+            self.trip(cause)
+            return None
+        if recovery.finished:
+            self.recovery = None
+            self.events.add({"kind": "recover", "action": "done", "after_s": recovery.cycles * self.dt,
+                             "cause": "every joint back inside its limits"})
+        return recovery.limits
 
     def clamp(self, pressures: list[float], previous: list[float]) -> list[float]:
         """Limit each chamber command [Pa] to the rig's maximum and its slew rate."""

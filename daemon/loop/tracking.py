@@ -1,6 +1,6 @@
-"""The supervisor's rule for a controller that has lost a joint (issue: controllers at the
-rig's edges; after ros2_control's fallback controllers), and for a joint that does not move
-at all while its reference does (issue 32: a stuck joint).
+"""The supervisor's rule for a controller that has lost a joint (after ros2_control's fallback
+controllers), and for a joint that does not move at all while its reference does (a stuck
+joint).
 
 Two rules per joint, both O(1) per cycle (a handful of float operations on preallocated
 per-joint lists; nothing grows with the path):
@@ -12,70 +12,89 @@ per-joint lists; nothing grows with the path):
   long before the joint reaches its limits: at the authority's few deg/s a window of 2 s
   costs a few degrees.
 - **Stuck.** The error rule misses a joint that never moves under a reference that sweeps
-  back and forth (a circle): the error leaves the band for less than the window at a time.
-  So the guard also weighs the joint's travel against its reference's: over each stretch of
-  ``2 * tracking_error_deg`` of reference travel R = sum |dr| (a continuous move; a jump of
-  more than half the band in one cycle is a step, left to the error rule), the joint's
-  progress P = sum dth * sgn(dr) (its travel in the direction the reference last moved) must
-  be at least R / 2. A joint within the band of a monotonic reference always passes
-  (P >= R - band = R / 2); one following a sinusoid with gain g and phase lag phi makes
-  P / R ~ g cos(phi); a stuck joint makes P ~ 0 (sensor noise telescopes: the sign changes
-  only where the reference turns).
+  back and forth (a circle, a chirp): the error leaves the band for less than the window at
+  a time. So the guard also weighs how far the joint travels against how far its reference
+  does, each through a play (backlash) operator of width ``NOISE_PLAY_DEG`` (Krasnosel'skii
+  and Pokrovskii's play: the output moves only when the input pushes it from one side of the
+  gap; sensor noise narrower than the gap adds nothing, however long it lasts). Over each
+  stretch of ``2 * tracking_error_deg`` of reference travel R (a continuous move; a jump of
+  more than half the band in one cycle is a step, carried through the play uncounted and left
+  to the error rule), the joint's travel Q must be at least ``FOLLOW_FRACTION`` of R. Travel is
+  blind to phase: over any half period a sinusoid of amplitude a travels 2a whatever its
+  phase, so a loop that follows a sweep with gain g and any lag makes Q / R ~ g (the play
+  takes b/2 off each amplitude: (g a - b/2) / (a - b/2)); a seized joint makes Q ~ 0. The
+  thesis's 0.1-1 Hz chirp under PID keeps Q / R above 0.49 on the simulated rig (the middle
+  joint at 1 deg and 1 Hz); a lag read as lack of progress, as a signed progress count did,
+  tripped it at 0.6-0.68 Hz.
 """
 from __future__ import annotations
 
 import math
 
 NAN = math.nan
+NOISE_PLAY_DEG = 0.5  # the play's width [deg]: motion narrower than this is sensor noise, not travel
+FOLLOW_FRACTION = 0.25  # a joint that travels less than this share of its reference's travel is stuck
 
 
 class TrackingGuard:
-    """Watches the tracking error and progress per joint while the arm is enabled; ``check``
+    """Watches the tracking error and the travel per joint while the arm is enabled; ``check``
     says when a joint is lost or stuck and why (once per finding: it restarts after)."""
 
     def __init__(self, joint_names, bound_deg: float, window_s: float):
         self.names = tuple(joint_names)
         self.bound = math.radians(bound_deg)  # [rad]; 0: off
         self.window = window_s  # [s]
-        self.travel = 2.0 * self.bound  # reference travel per progress verdict [rad]
+        self.travel = 2.0 * self.bound  # reference travel per verdict [rad]
         self.jump = 0.5 * self.bound  # a reference change above this in one cycle is a step [rad]
+        self.half_play = 0.5 * math.radians(NOISE_PLAY_DEG)  # [rad]
         n = len(self.names)
         self._since = [NAN] * n  # when the error left the band [s], NaN while inside
         self._at_start = [0.0] * n  # |error| when this window began [rad]
         self._r = [NAN] * n  # last cycle's reference [rad], NaN: none yet
-        self._q = [NAN] * n  # last cycle's angle [rad]
-        self._sign = [0.0] * n  # direction the reference last moved (+1, -1; 0: not yet)
+        self._r_play = [0.0] * n  # the reference's play output [rad]
+        self._q_play = [0.0] * n  # the joint's play output [rad]
         self._ref_travel = [0.0] * n  # R [rad]
-        self._progress = [0.0] * n  # P [rad]
+        self._travel = [0.0] * n  # Q [rad]
 
     def clear(self) -> None:
-        """Forget every window and every progress count (a new controller, a new enable)."""
+        """Forget every window and every travel count (a new controller, a new enable)."""
         n = len(self.names)
         for j in range(n):
-            self._since[j] = self._r[j] = self._q[j] = NAN
-            self._sign[j] = self._ref_travel[j] = self._progress[j] = 0.0
+            self._since[j] = self._r[j] = NAN
+            self._ref_travel[j] = self._travel[j] = 0.0
 
     def check(self, t: float, reference, angles) -> str | None:
         """The cause if a joint is lost or stuck at time ``t`` [s], else None."""
         if not self.bound:
             return None
-        bound, jump = self.bound, self.jump
-        last_r, last_q, sign, ref_travel, progress = self._r, self._q, self._sign, self._ref_travel, self._progress
+        bound, jump, h = self.bound, self.jump, self.half_play
+        last_r, r_play, q_play, ref_travel, travel = self._r, self._r_play, self._q_play, self._ref_travel, self._travel
         for j, (r, q) in enumerate(zip(reference, angles)):
-            # stuck: the joint's progress along its reference's travel (inline: this runs every cycle)
-            r0, q0 = last_r[j], last_q[j]
-            last_r[j], last_q[j] = r, q
-            if r0 == r0:  # not NaN: a cycle since clear()
+            # stuck: the joint's travel against its reference's, each through the play (inline:
+            # this runs every cycle)
+            r0 = last_r[j]
+            last_r[j] = r
+            if r0 != r0:  # NaN: the first cycle since clear(): both plays start centred
+                r_play[j], q_play[j] = r, q
+            else:
                 dr = r - r0
-                if dr > 0.0:
-                    sign[j] = 1.0
-                    if dr <= jump:
-                        ref_travel[j] += dr
-                elif dr < 0.0:
-                    sign[j] = -1.0
-                    if dr >= -jump:
-                        ref_travel[j] -= dr
-                progress[j] += (q - q0) * sign[j]
+                if -jump <= dr <= jump:
+                    y = r_play[j]
+                    if r > y + h:
+                        ref_travel[j] += r - h - y
+                        r_play[j] = r - h
+                    elif r < y - h:
+                        ref_travel[j] += y - h - r
+                        r_play[j] = r + h
+                else:  # a step: carried through the play, not counted
+                    r_play[j] += dr
+                y = q_play[j]
+                if q > y + h:
+                    travel[j] += q - h - y
+                    q_play[j] = q - h
+                elif q < y - h:
+                    travel[j] += y - h - q
+                    q_play[j] = q + h
                 if ref_travel[j] >= self.travel:
                     stuck = self._verdict(j)
                     if stuck is not None:
@@ -99,10 +118,10 @@ class TrackingGuard:
 
     def _verdict(self, j: int) -> str | None:
         """A stretch of reference travel is complete for joint ``j``: its cause if the joint
-        made less than half that progress; the counts start again either way."""
-        travel, progress = self._ref_travel[j], self._progress[j]
-        self._ref_travel[j] = self._progress[j] = 0.0
-        if progress >= 0.5 * travel:
+        travelled less than FOLLOW_FRACTION of it; the counts start again either way."""
+        ref_travel, travel = self._ref_travel[j], self._travel[j]
+        self._ref_travel[j] = self._travel[j] = 0.0
+        if travel >= FOLLOW_FRACTION * ref_travel:
             return None
-        return (f"joint {self.names[j]} stuck: moved {math.degrees(progress):.1f} deg along a reference "
-                f"that travelled {math.degrees(travel):.1f} deg (less than half)")
+        return (f"joint {self.names[j]} stuck: moved {math.degrees(travel):.1f} deg while its reference travelled "
+                f"{math.degrees(ref_travel):.1f} deg (less than {FOLLOW_FRACTION:.0%} of it)")

@@ -73,6 +73,12 @@ class LoopView:
         """The reference's name and how long it runs on [s] (0 once ended, or for a hold)."""
         return self._loop.trajectory_name, self._loop.reference_remaining()
 
+    def recovery(self) -> dict | None:
+        """Joints enabled outside their limits on their way back, as enabled
+        (:meth:`daemon.loop.recovery.Recovery.describe`), or None."""
+        recovery = self._loop.supervisor.recovery
+        return None if recovery is None else recovery.summary
+
     def load(self) -> dict | None:
         """The known load fed forward and its feed-forward per joint [V], or None."""
         ff = self._loop.feed_forward

@@ -11,7 +11,7 @@ From the telemetry as subscribers see it (``state`` columns, ``internals``, ``st
   pressure difference head - rod (a muscle pair's a - b) [Pa]: the torque needs a moment arm and areas
   the daemon does not publish, the pressure difference is what drives the joint.
 - JSON-schema channels, one message per cycle: ``/pneumad/tracking`` (angle, set-point, error,
-  velocity [deg, deg/s], the loop's mode and the reference's phase: approach, path or hold),
+  velocity [deg, deg/s], the loop's mode and the reference's phase: approach, settle, path or hold),
   ``/pneumad/commands`` (each command interface in force with its limits: V_MV [V], a muscle
   pair's pressures [Pa], brake [N m]; the output volts actually written; ``output`` says
   ``safe state`` whenever the safe state is written instead of the controller's output),
@@ -37,7 +37,7 @@ TRACKING, COMMANDS, PRESSURES, TIP = "/pneumad/tracking", "/pneumad/commands", "
 CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/contact_estimate"
 SAFE_STATE = "safe state"
 ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warnings below
-WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder")
+WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder", "recover")
 _PROTOBUF = {JOINT_STATES: JointStates, LOG: Log, EVENTS: Event}
 
 _NUMBER = {"type": ["number", "null"]}  # null: not finite, or not measured (json_bytes)
@@ -153,6 +153,7 @@ class Frames:
         lengths = describe.get("arm", {}).get("link_lengths_mm", [])
         self._links = lengths[:2] if len(lengths) >= 2 and len(self.joints) >= 2 else None
         self._reference: tuple[float, float, float] | None = None  # start, approach end, end [s]
+        self._settling = False  # a path's approach has ended and its clock has not started (its `settled` event)
         self._started: dict[int, float] = {}  # reference generation -> start [s]
 
     def state(self, m: dict, wanted=None, rows=None) -> list[tuple[str, int, bytes]]:
@@ -211,9 +212,14 @@ class Frames:
         return l1 * math.cos(q[0]) + l2 * math.cos(a), l1 * math.sin(q[0]) + l2 * math.sin(a)
 
     def _phase(self, t: float) -> str:
-        if self._reference is None or not self._reference[0] <= t <= self._reference[2]:
+        ref = self._reference
+        if ref is None or t < ref[0]:
             return "hold"
-        return "approach" if t < self._reference[1] else "path"
+        if t < ref[1]:
+            return "approach"
+        if self._settling:  # the path's start held until the arm settles there
+            return "settle"
+        return "path" if t <= ref[2] else "hold"
 
     def internals(self, m: dict) -> list[tuple[str, int, bytes]]:
         signals = {name: dict(zip(self.joints, values)) for name, values in m.get("signals", {}).items()}
@@ -243,8 +249,14 @@ class Frames:
                 duration = m.get("duration_s") or 0.0
                 approach = m.get("approach_s") or 0.0
                 self._reference = (t, t + approach, t + duration)
+                self._settling = m.get("approach_s") is not None
+            elif m.get("action") == "settled":  # the path's clock starts now, waited_s late
+                self._settling = False
+                if self._reference is not None:
+                    self._reference = (self._reference[0], t, self._reference[2] + (m.get("waited_s") or 0.0))
             else:
                 start = self._started.pop(generation, t)
+                self._settling = False
                 if self._reference is not None:
                     self._reference = (self._reference[0], self._reference[1], t)
         level = LogLevel.Error if kind in ERRORS else LogLevel.Warning if kind in WARNINGS else LogLevel.Info

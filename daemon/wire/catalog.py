@@ -173,7 +173,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("ttl_s", "number", "renew within this", 0.1, 60.0, "s"),), role=OPERATOR, errors=(P.LEASE_HELD,)),
     Command("lease.renew", "loop", "renew the lease", ("ttl_s",), lease=True),
     Command("lease.release", "loop", "give the lease back", ("unleased",), lease=True),
-    Command("enable", "loop", "idle -> enabled, holding the present position", _STATE, lease=True,
+    Command("enable", "loop", "idle -> enabled, holding the present position", ("state", "recover"), lease=True,
             errors=(P.BAD_STATE,)),
     Command("disable", "loop", "to idle, safe outputs", _STATE, sockets=BOTH, lease=True),
     Command("estop", "loop", "latch the e-stop: safe outputs this cycle", _STATE, (
