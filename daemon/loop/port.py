@@ -33,7 +33,7 @@ from daemon.wire.ring import Ring, RingError
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
-MESSENGER_CHECK_CYCLES = 100  # how often the messenger process is looked at: 0.1 s
+MESSENGER_CHECK_CYCLES = 100  # how often the messenger process (and the planner's worker) is looked at: 0.1 s
 HELPER_CHECK_EVERY = 10  # the other helpers at every 10th of those looks: 1 s
 RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
 log = logging.getLogger("pneumad")
@@ -112,12 +112,14 @@ class ZmqServer:
         health = {"messenger": self.messenger.health()}
         if self.recorder is not None:
             health["recorder"] = self.recorder.health()
+        if self.commands is not None:
+            health["planner"] = self.commands.preparer.health()
         return health
 
     def poll(self, loop) -> None:
         """Once a cycle, at its end: the lease clock, then the control requests, then a few
-        commands; every 0.1 s the messenger process, every second the recorder. The heartbeat
-        tells the messenger the loop is cycling."""
+        commands; every 0.1 s the messenger process and the planner's worker, every second
+        the other helpers. The heartbeat tells the messenger the loop is cycling."""
         self.heartbeat.beat(loop.cycle)
         self.commands.tick()
         if self._waiting:
@@ -133,10 +135,13 @@ class ZmqServer:
             self._look_after_helpers(loop)
 
     def _look_after_helpers(self, loop) -> None:
-        """A helper that died is restarted (by its own handle, never waiting): the messenger at
-        every look, the recorder at every HELPER_CHECK_EVERY-th; each restart is an event of the
-        helper's kind, which the messenger logs as it publishes it."""
+        """A helper that died is restarted (by its own handle, never waiting): the messenger and
+        the planner's worker at every look, the recorder at every HELPER_CHECK_EVERY-th; each
+        restart is an event of the helper's kind, which the messenger logs as it publishes it."""
         self._check_messenger()
+        notice = self.commands.preparer.check()
+        if notice is not None:
+            loop.events.add({"kind": "planner", "cause": notice})
         self._helper_round = (self._helper_round + 1) % HELPER_CHECK_EVERY
         if self._helper_round:
             return
