@@ -114,6 +114,8 @@ class ZmqServer:
             health["recorder"] = self.recorder.health()
         if self.commands is not None:
             health["planner"] = self.commands.preparer.health()
+            if self.commands.loop.contact_sensor is not None:
+                health["contact"] = self.commands.loop.contact_sensor.health()
         return health
 
     def poll(self, loop) -> None:
@@ -136,8 +138,9 @@ class ZmqServer:
 
     def _look_after_helpers(self, loop) -> None:
         """A helper that died is restarted (by its own handle, never waiting): the messenger and
-        the planner's worker at every look, the recorder at every HELPER_CHECK_EVERY-th; each
-        restart is an event of the helper's kind, which the messenger logs as it publishes it."""
+        the planner's worker at every look, the recorder and the contact sensor's process at
+        every HELPER_CHECK_EVERY-th; each restart is an event of the helper's kind, which the
+        messenger logs as it publishes it."""
         self._check_messenger()
         notice = self.commands.preparer.check()
         if notice is not None:
@@ -148,6 +151,9 @@ class ZmqServer:
         notice = self.recorder.check() if self.recorder is not None else None
         if notice is not None:
             loop.events.add({"kind": "recorder", "cause": notice})
+        notice = loop.contact_sensor.check() if loop.contact_sensor is not None else None
+        if notice is not None:
+            loop.events.add({"kind": "contact", "cause": notice})
 
     def _check_messenger(self) -> None:
         """The messenger's look: a restart started, or finished (the lease's holder then has its
