@@ -116,6 +116,9 @@ class ZmqServer:
             health["planner"] = self.commands.preparer.health()
             if self.commands.loop.contact_sensor is not None:
                 health["contact"] = self.commands.loop.contact_sensor.health()
+            worker = self.commands.loop.io.transport.worker_health()
+            if worker is not None:
+                health["exchange"] = worker
         return health
 
     def poll(self, loop) -> None:
@@ -138,9 +141,9 @@ class ZmqServer:
 
     def _look_after_helpers(self, loop) -> None:
         """A helper that died is restarted (by its own handle, never waiting): the messenger and
-        the planner's worker at every look, the recorder and the contact sensor's process at
-        every HELPER_CHECK_EVERY-th; each restart is an event of the helper's kind, which the
-        messenger logs as it publishes it."""
+        the planner's worker at every look, the recorder, the contact sensor's process and an
+        off-loop transport's exchange worker at every HELPER_CHECK_EVERY-th; each restart is an
+        event of the helper's kind, which the messenger logs as it publishes it."""
         self._check_messenger()
         notice = self.commands.preparer.check()
         if notice is not None:
@@ -154,6 +157,9 @@ class ZmqServer:
         notice = loop.contact_sensor.check() if loop.contact_sensor is not None else None
         if notice is not None:
             loop.events.add({"kind": "contact", "cause": notice})
+        notice = loop.io.transport.check_worker()
+        if notice is not None:
+            loop.events.add({"kind": "exchange", "cause": notice})
 
     def _check_messenger(self) -> None:
         """The messenger's look: a restart started, or finished (the lease's holder then has its

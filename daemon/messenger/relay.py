@@ -29,7 +29,7 @@ from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import internals_message, state_message
 
-HELPER_DEATHS = ("messenger", "recorder", "planner", "contact")  # event kinds: a process beside the loop was restarted
+HELPER_DEATHS = ("messenger", "recorder", "planner", "contact", "exchange")  # event kinds: a process beside the loop was restarted
 log = logging.getLogger("pneumad")
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
