@@ -193,8 +193,9 @@ def test_a_killed_exchange_worker_is_an_event_a_log_line_and_restarted_and_the_a
     try:
         with open(log, "w") as stderr:
             daemon, eps = real_daemon(tmp_path, "--transport", "modbus", "--transport-option", f"port={port}",
-                                      "--transport-option", "open_timeout_s=60", "--safety", "stale_after_s=1.0",
-                                      stderr=stderr)  # (the wire tests' relaxed limit: a loaded machine's Modbus)
+                                      "--transport-option", "open_timeout_s=60", "--transport-option", "timeout_s=0.5",
+                                      "--safety", "stale_after_s=1.0",
+                                      stderr=stderr)  # (relaxed limits, as the wire tests': a loaded machine's Modbus)
         try:
             with Client(**eps, timeout=10.0) as client:
                 wait_for_own_daemon(client, daemon)
@@ -219,16 +220,18 @@ def test_a_killed_exchange_worker_is_an_event_a_log_line_and_restarted_and_the_a
                     assert time.monotonic() < end, after
                     time.sleep(0.2)
                 assert after["restarts"] == 1 and after["pid"] != before["pid"] and after["last_exit_code"] == -9
-                while True:  # the first fresh samples end the stale input; reset is refused until then
+                status = {"cause": "never reset"}
+                while True:  # fresh samples end the stale input (reset is refused until then), and stay
                     try:
                         client.reset()
                         client.enable()
-                        break
+                        time.sleep(0.5)
+                        if (status := client.status())["state"] == "enabled":
+                            break
                     except RemoteError:
-                        assert time.monotonic() < end
-                        time.sleep(0.2)
-                time.sleep(0.5)
-                assert (status := client.status())["state"] == "enabled", status["cause"]
+                        pass
+                    assert time.monotonic() < end, status["cause"]
+                    time.sleep(0.2)
                 sub.close()
         finally:
             daemon.terminate()
