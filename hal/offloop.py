@@ -20,9 +20,9 @@ Malformed replies (exception responses, wrong lengths) are counted, never fatal.
 
 The worker is a helper process (:class:`hal.process.Helper`): it dies with the daemon and says
 it is ready with its first sample. If it dies, no new sample comes (the supervisor trips on
-stale input) until the loop's next look (:meth:`OffLoopTransport.check_worker`, once a second)
-starts another, which reconnects to the peer; then ``reset`` and ``enable``, as after the
-peer's own death.
+stale input) until the loop's next look (:meth:`OffLoopTransport.check_worker`, every 0.1 s:
+meanwhile nothing writes to the peer) starts another, which reconnects to the peer; then
+``reset`` and ``enable``, as after the peer's own death.
 """
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ from daemon.wire.ring import Ring, RingError
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
-MESSENGER_CHECK_CYCLES = 100  # how often the messenger process (and the planner's worker) is looked at: 0.1 s
+MESSENGER_CHECK_CYCLES = 100  # how often the messenger process (the planner's and exchange workers) is looked at: 0.1 s
 HELPER_CHECK_EVERY = 10  # the other helpers at every 10th of those looks: 1 s
 RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
 log = logging.getLogger("pneumad")
@@ -123,8 +123,8 @@ class ZmqServer:
 
     def poll(self, loop) -> None:
         """Once a cycle, at its end: the lease clock, then the control requests, then a few
-        commands; every 0.1 s the messenger process and the planner's worker, every second
-        the other helpers. The heartbeat tells the messenger the loop is cycling."""
+        commands; every 0.1 s the messenger process, the planner's worker and a transport's
+        exchange worker, every second the other helpers. The heartbeat tells the messenger the loop is cycling."""
         self.heartbeat.beat(loop.cycle)
         self.commands.tick()
         if self._waiting:
@@ -140,14 +140,17 @@ class ZmqServer:
             self._look_after_helpers(loop)
 
     def _look_after_helpers(self, loop) -> None:
-        """A helper that died is restarted (by its own handle, never waiting): the messenger and
-        the planner's worker at every look, the recorder, the contact sensor's process and an
-        off-loop transport's exchange worker at every HELPER_CHECK_EVERY-th; each restart is an
+        """A helper that died is restarted (by its own handle, never waiting): the messenger, the
+        planner's worker and an off-loop transport's exchange worker at every look, the recorder
+        and the contact sensor's process at every HELPER_CHECK_EVERY-th; each restart is an
         event of the helper's kind, which the messenger logs as it publishes it."""
         self._check_messenger()
         notice = self.commands.preparer.check()
         if notice is not None:
             loop.events.add({"kind": "planner", "cause": notice})
+        notice = loop.io.transport.check_worker()  # (at once: while it is dead, nothing writes to the rig)
+        if notice is not None:
+            loop.events.add({"kind": "exchange", "cause": notice})
         self._helper_round = (self._helper_round + 1) % HELPER_CHECK_EVERY
         if self._helper_round:
             return
@@ -157,9 +160,6 @@ class ZmqServer:
         notice = loop.contact_sensor.check() if loop.contact_sensor is not None else None
         if notice is not None:
             loop.events.add({"kind": "contact", "cause": notice})
-        notice = loop.io.transport.check_worker()
-        if notice is not None:
-            loop.events.add({"kind": "exchange", "cause": notice})
 
     def _check_messenger(self) -> None:
         """The messenger's look: a restart started, or finished (the lease's holder then has its

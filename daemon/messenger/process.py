@@ -149,10 +149,6 @@ class Messenger:
         if self._proc is not None:
             self._proc.send_signal(signal.SIGHUP)
 
-    @property
-    def alive(self) -> bool:
-        return self._proc is not None and self._proc.alive
-
     def join(self, timeout: float = 2.0) -> None:
         """Wait for the process to end once the telemetry ring's END is queued; kill it if not."""
         if self._proc is not None:
