@@ -59,9 +59,7 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
     frames = [m["frame"] for m in messages]
     assert frames == sorted(frames) and frames[-1] - frames[0] > 3.0 * sensor.rate_hz  # the sensor kept running
     assert all(m["valid"] == (m["sensor"] == "running") for m in messages)
-    if sum(not m["valid"] for m in messages) > 0.2 * len(messages):  # a starved sensor process: say so, not judge
-        pytest.skip(f"the sensor process was starved (stale) in {sum(not m['valid'] for m in messages)} messages")
-    messages = [m for m in messages if m["valid"]]  # (a stale one carries NaN, never the last estimate)
+    messages = [m for m in messages if m["valid"]]  # (a stale one, its process starved, carries NaN: not judged)
     touching = [m for m in messages if m["contact"] is not None]
     assert 0.2 * len(messages) < len(touching) < 0.8 * len(messages)  # 0.5 s of every 1 s, give or take the edges
     # an estimate is judged once its track has estimated as many frames as its longest memory
