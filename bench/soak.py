@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import msgpack
 import zmq
 
-from bench.common import child_process, header, spawn_daemon
+from bench.common import header, spawn_daemon
 from daemon.client.client import Client, RemoteError
 
 KILL_SHADOW_S = 5.0  # a gap this soon after a messenger kill is the kill's
@@ -137,7 +137,7 @@ def soak(daemon_pid: int, eps: dict[str, str], seconds: float, kill_every: float
             except RemoteError:
                 done["refused"] += 1
             if now >= next_kill and messenger_restarts(client, at_least=done["kills"]) >= done["kills"]:
-                pid = child_process(daemon_pid, "daemon.messenger.process")
+                pid = client.status()["helpers"]["messenger"]["pid"]  # the one in service, not its spare
                 if pid is not None:
                     os.kill(pid, signal.SIGKILL)
                     kills.append(now)

@@ -19,7 +19,10 @@ What the loop sees:
 Malformed replies (exception responses, wrong lengths) are counted, never fatal.
 
 The worker is a helper process (:class:`hal.process.Helper`): it dies with the daemon and says
-it is ready with its first sample.
+it is ready with its first sample. If it dies, no new sample comes (the supervisor trips on
+stale input) until the loop's next look (:meth:`OffLoopTransport.check_worker`, every 0.1 s:
+meanwhile nothing writes to the peer) starts another, which reconnects to the peer; then
+``reset`` and ``enable``, as after the peer's own death.
 """
 from __future__ import annotations
 
@@ -168,9 +171,32 @@ class OffLoopTransport(Transport):
         shared = self._shared
         if shared is None:
             raise TransportError(f"{self.backend}: not open")
+        # posted also while the link is down: a worker that reconnects (or a new one) sends the
+        # newest outputs, the safe state after a trip, not those from before the link went
+        write_locked(shared.out_seq, shared.outputs, volts_to_counts(values, self.outputs, self.full_scale))
         if not shared.link_up.value:
             self._raise_link_down()
-        write_locked(shared.out_seq, shared.outputs, volts_to_counts(values, self.outputs, self.full_scale))
+
+    def check_worker(self) -> str | None:
+        process, shared = self._process, self._shared
+        if process is None:
+            return None
+        if process.exitcode() is None:
+            try:
+                process.poll_ready()  # (health: running once the new one has a sample)
+            except HelperFailed:
+                pass  # it exits: the next look starts another
+            return None
+        shared.link_up.value = False  # the new worker connects first; meanwhile the loop is told the link is down
+        if shared.in_seq.value & 1:  # it died writing a sample: the half-written one is never read
+            shared.in_seq.value += 1
+            self._last_seq = shared.in_seq.value
+        code = process.restart_if_dead()
+        return (f"the {self.backend} exchange worker exited (code {code}) and was restarted (restart "
+                f"{process.restarts}); it reconnects to its peer")
+
+    def worker_health(self) -> dict | None:
+        return self._process.health() if self._process is not None else None
 
     def _raise_link_down(self):
         alive = self._process is not None and self._process.alive

@@ -18,9 +18,17 @@ Then ``function(child, *args)`` runs; it calls :meth:`Child.ready` (with a paylo
 the endpoints it bound) once it serves, or raises :class:`HelperFailed` in its own words.
 The parent's :meth:`Helper.start` waits for that within a limit and raises
 :class:`HelperFailed` saying which happened: refused, exited, or silent.
+
+A helper whose restart must be quick (the messenger: clients wait on it) keeps a *spare*
+(``Helper(..., spare=True)``): a second child started ahead, which runs its function up to
+:meth:`Child.standby` (the interpreter started, the imports done, nothing of its
+predecessor's taken yet: no socket bound) and waits there on its stdin. When the running
+child dies the spare is put in service (one byte on that pipe: nothing in the parent
+waits) and the next spare is started once it is ready.
 """
 from __future__ import annotations
 
+import copy
 import ctypes
 import importlib
 import mmap
@@ -46,28 +54,34 @@ class Helper:
 
     ``target`` is ``"module:function"``; ``args`` must pickle. ``pass_fds``: descriptors the
     child keeps at the same numbers. ``death_signal``: what the child gets when its parent
-    dies. ``ignore``: signals the child ignores. ``nice``/``cpus``: see the module."""
+    dies. ``ignore``: signals the child ignores. ``nice``/``cpus``: see the module. ``spare``:
+    keep a spare child waiting at :meth:`Child.standby`, put in service when this one dies."""
 
     def __init__(self, target: str, args: tuple = (), *, name: str | None = None, pass_fds: Iterable[int] = (),
                  death_signal: int = signal.SIGKILL, ignore: Iterable[int] = (signal.SIGINT, signal.SIGTERM),
-                 nice: int | None = None, cpus: Iterable[int] | None = None):
+                 nice: int | None = None, cpus: Iterable[int] | None = None, spare: bool = False):
         self.target, self.args = target, tuple(args)
         self.name = name or target.partition(":")[0]
         self.pass_fds = tuple(pass_fds)
         self._setup = {"death_signal": int(death_signal), "ignore": [int(s) for s in ignore], "nice": nice,
                        "cpus": sorted(cpus) if cpus is not None else None}
         self.restarts = 0
+        self.last_exit_code: int | None = None  # the last child's that died
+        self.keeps_spare = spare
+        self._spare: Helper | None = None  # a child waiting at Child.standby
         self._proc: subprocess.Popen | None = None
         self._ready: Connection | None = None
         self.payload = None  # what the child said with ready()
         self.is_ready = False
 
     # -- starting ---------------------------------------------------------------------------
-    def spawn(self) -> None:
-        """Start the child and return at once (:meth:`poll_ready` or :meth:`wait_ready` follow)."""
+    def spawn(self, standby: bool = False) -> None:
+        """Start the child and return at once (:meth:`poll_ready` or :meth:`wait_ready` follow);
+        ``standby``: one that waits at :meth:`Child.standby` until :meth:`_put_in_service`."""
         args = pickle.dumps(self.args)  # one that will not pickle fails here, before any child
         read, write = os.pipe()
-        header = {"sys_path": list(sys.path), "parent": os.getpid(), "ready_fd": write, **self._setup}
+        header = {"sys_path": list(sys.path), "parent": os.getpid(), "ready_fd": write, "standby": standby,
+                  **self._setup}
         self._ready = Connection(read, writable=False)
         try:  # the interpreter's own flags (-B, -X ...) as multiprocessing passes them on
             self._proc = subprocess.Popen([sys.executable, *subprocess._args_from_interpreter_flags(), "-m", "hal.process",
@@ -81,7 +95,10 @@ class Helper:
         try:
             pickle.dump(header, self._proc.stdin)
             self._proc.stdin.write(args)
-            self._proc.stdin.close()
+            if standby:
+                self._proc.stdin.flush()  # kept open: the byte that puts it in service comes later
+            else:
+                self._proc.stdin.close()
         except BrokenPipeError:
             pass  # it died at once: wait_ready says so
 
@@ -132,15 +149,48 @@ class Helper:
         return self._proc.poll() if self._proc is not None else None
 
     def restart_if_dead(self) -> int | None:
-        """Never waits: if the child has ended, start another (not waiting for it to be ready)
-        and return the old one's exit code; None if it lives."""
+        """Never waits: if the child has ended, start another (the spare, if one waits, else a
+        new one; not waiting for it to be ready) and return the old one's exit code; None if
+        it lives. With ``spare``, a living child that has said it is ready gets its spare
+        started here, if it has none."""
         code = self.exitcode()
         if code is None:
+            if self.keeps_spare and self._spare is None and self.is_ready:
+                self._spare = copy.copy(self)
+                self._spare.keeps_spare, self._spare._spare = False, None
+                self._spare.spawn(standby=True)
             return None
         self._close_ready()
         self.restarts += 1
-        self.spawn()
+        self.last_exit_code = code
+        if not self._put_in_service():
+            self.spawn()
         return code
+
+    def _put_in_service(self) -> bool:
+        """The spare takes the dead child's place (one byte on its stdin: it goes on past
+        Child.standby); False if there is none alive."""
+        spare, self._spare = self._spare, None
+        if spare is None:
+            return False
+        try:
+            if not spare.alive:
+                raise BrokenPipeError
+            spare._proc.stdin.write(b"g")
+            spare._proc.stdin.close()
+        except (OSError, ValueError):  # it died while it waited
+            spare.kill()
+            spare._close_ready()
+            return False
+        self._proc, self._ready, self.is_ready, self.payload = spare._proc, spare._ready, False, None
+        return True
+
+    def health(self) -> dict:
+        """As of the last look (:meth:`restart_if_dead`, :meth:`poll_ready`): whether the child
+        serves (alive and said ready) and its pid, how often it was restarted, the last dead
+        one's exit code."""
+        return {"running": self.is_ready, "pid": self.pid if self.is_ready else None, "restarts": self.restarts,
+                "last_exit_code": self.last_exit_code}
 
     def send_signal(self, sig: int) -> None:
         if self.alive:
@@ -152,6 +202,7 @@ class Helper:
         SIGTERM and as long again (with ``terminate_first``), then SIGKILL. Its exit code."""
         if self._proc is None:
             return None
+        self._dismiss_spare()
         code = self._wait(timeout)
         if code is None and terminate_first:
             self._proc.terminate()
@@ -162,12 +213,19 @@ class Helper:
         return code
 
     def kill(self) -> int | None:
-        """SIGKILL and reap; the exit code."""
+        """SIGKILL and reap (the spare too); the exit code."""
+        self._dismiss_spare()
         if self._proc is None:
             return None
         if self._proc.poll() is None:
             self._proc.kill()
         return self._proc.wait()
+
+    def _dismiss_spare(self) -> None:
+        spare, self._spare = self._spare, None
+        if spare is not None:
+            spare.kill()
+            spare._close_ready()
 
     def _wait(self, timeout: float) -> int | None:
         try:
@@ -212,12 +270,27 @@ def _attach(spec: dict[str, tuple[type, int]], fd: int) -> SharedMemory:
 
 # -- in the helper process ---------------------------------------------------------------------
 class Child:
-    """What a helper's function is given: say it is ready, ask whether its parent lives."""
+    """What a helper's function is given: say it is ready, ask whether its parent lives, wait
+    as a spare."""
 
-    def __init__(self, ready_fd: int, parent: int):
+    def __init__(self, ready_fd: int, parent: int, go=None):
         self._ready = Connection(ready_fd, readable=False)
         self._parent = parent
+        self._go = go  # a spare's stdin, on which the byte that puts it in service comes
         self.said = False
+
+    def standby(self) -> None:
+        """Where a spare waits (its imports done, nothing of its predecessor's taken yet)
+        until it is put in service; at once in a child started the ordinary way. A spare
+        dismissed, or whose parent is gone, ends here."""
+        go, self._go = self._go, None
+        if go is None:
+            return
+        word = go.read(1)
+        go.close()
+        if word != b"g":
+            self.said = True  # nobody listens for a dismissed spare
+            raise SystemExit(0)
 
     def ready(self, payload=None) -> None:
         self._say("ready", payload)
@@ -268,7 +341,7 @@ def _child_main(target: str) -> int:
     for sig in header["ignore"]:
         signal.signal(sig, signal.SIG_IGN)
     die_with_parent(header["death_signal"])
-    child = Child(header["ready_fd"], header["parent"])
+    child = Child(header["ready_fd"], header["parent"], stdin if header["standby"] else None)
     if not child.parent_alive():
         return 1  # the parent died before the death signal was armed
     if header["nice"] is not None:
@@ -280,7 +353,8 @@ def _child_main(target: str) -> int:
     except Exception as exc:
         child.fail(f"{target}: cannot load: {type(exc).__name__}: {exc}")
         return 1
-    stdin.close()
+    if not header["standby"]:
+        stdin.close()
     try:
         code = function(child, *args)
     except HelperFailed as exc:

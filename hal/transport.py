@@ -115,6 +115,15 @@ class Transport(ABC):
     def health(self) -> TransportHealth:
         return self._health
 
+    def check_worker(self) -> str | None:
+        """A transport with a process of its own (hal.offloop) starts it again if it died,
+        never waiting; what happened, as an event's cause. None: nothing happened (or no process)."""
+        return None
+
+    def worker_health(self) -> dict | None:
+        """That process as of the last check (hal.process.Helper.health); None without one."""
+        return None
+
     def index(self, name: str, *, output: bool) -> int:
         """Position of channel ``name`` in the input or output sweep."""
         channels = self.outputs if output else self.inputs

@@ -5,7 +5,11 @@ daemon runs with the estimator made to fail in its own process (tests/forbid_pla
 so the loop's process structurally never runs it."""
 from __future__ import annotations
 
+import math
+import os
+import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -54,6 +58,8 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
         validate.validate(message)
     frames = [m["frame"] for m in messages]
     assert frames == sorted(frames) and frames[-1] - frames[0] > 3.0 * sensor.rate_hz  # the sensor kept running
+    assert all(m["valid"] == (m["sensor"] == "running") for m in messages)
+    messages = [m for m in messages if m["valid"]]  # (a stale one, its process starved, carries NaN: not judged)
     touching = [m for m in messages if m["contact"] is not None]
     assert 0.2 * len(messages) < len(touching) < 0.8 * len(messages)  # 0.5 s of every 1 s, give or take the edges
     # an estimate is judged once its track has estimated as many frames as its longest memory
@@ -91,3 +97,69 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
     assert all(m["bad_frames"] == 0 for m in messages)
     columns = recording.load(tmp_path / "run.mcap")  # recorded, and a notebook's columns
     assert len(columns["contact.a"]) > 100 and np.nanmax(columns["contact.a"]) > 0.01
+
+
+def _until(subscription, wanted, limit_s: float, seen: list) -> tuple[str, dict]:
+    """Telemetry until ``wanted(topic, message)``; every message on the way kept in ``seen``."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        got = subscription.receive(timeout=1.0)
+        if got is not None:
+            seen.append(got)
+            if wanted(*got):
+                return got
+    raise AssertionError("it never came")
+
+
+@pytest.mark.slow(seconds=25)
+def test_a_contact_process_that_stalls_or_dies_marks_its_estimate_not_valid_and_one_that_dies_is_restarted(tmp_path):
+    """Held still (a starved process), then killed: meanwhile the ``contact`` topic says the
+    estimate is not valid (``stale``, then ``restarting``) with NaN in every number, never the
+    last estimate again as if it were current; the death is a ``contact`` event, a line in the
+    daemon's log and the status's ``helpers.contact``, and a new process goes on with the
+    sensor's frame count."""
+    rig_path = tmp_path / "rig.toml"
+    rig_path.write_text(tolerant_rig_text() + SENSOR)
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, "--config", str(rig_path), stderr=stderr)
+    validate = schema("telemetry", "contact")
+    seen = []
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, daemon)
+            subscription = client.subscribe((b"contact", b"event"))
+            live = lambda topic, m: topic == "contact" and m["valid"]  # noqa: E731
+            _until(subscription, live, 60.0, seen)
+            before = client.status()["helpers"]["contact"]
+            assert before["running"] and before["restarts"] == 0
+            os.kill(before["pid"], signal.SIGSTOP)
+            try:
+                stale = _until(subscription, lambda topic, m: topic == "contact" and m["sensor"] == "stale", 30.0, seen)
+            finally:
+                os.kill(before["pid"], signal.SIGCONT)
+            _until(subscription, live, 60.0, seen)
+            last = seen[-1][1]["frame"]
+            os.kill(before["pid"], signal.SIGKILL)
+            event = _until(subscription, lambda topic, m: topic == "event" and m["kind"] == "contact", 30.0, seen)[1]
+            back = _until(subscription, live, 60.0, seen)[1]
+            end = time.monotonic() + 30.0
+            while not (after := client.status()["helpers"]["contact"])["running"] and time.monotonic() < end:
+                time.sleep(0.2)  # (as of the loop's last look: once a second)
+            subscription.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    contacts = [m for topic, m in seen if topic == "contact"]
+    for m in contacts:
+        validate.validate(m)
+    for m in [stale[1], *(m for m in contacts if not m["valid"])]:
+        assert m["contact"] is not None and all(math.isnan(v) for k, v in m["contact"].items()
+                                                if k not in ("taxels", "track_frames")), m
+    assert any(m["sensor"] == "restarting" for m in contacts)
+    assert "exited (code -9) and was restarted (restart 1)" in event["cause"]
+    assert back["frame"] > last  # the sensor's frame count goes on
+    assert after["running"] and after["restarts"] == 1 and after["pid"] != before["pid"]
+    assert after["last_exit_code"] == -signal.SIGKILL
+    assert "pneumad messenger ERROR: contact: the contact sensor's process exited (code -9) and was restarted " \
+           "(restart 1)" in log.read_text()

@@ -28,6 +28,14 @@ def _serve_until_told(child, shared):
     return 0
 
 
+def _serve_after_standby(child, shared):
+    """Import-time work done, then wait as a spare would; once in service, count the
+    standbys passed and serve as _serve_until_told."""
+    child.standby()
+    shared.served.value += 1
+    return _serve_until_told(child, shared)
+
+
 def _silent(child):
     time.sleep(600)
 
@@ -47,7 +55,8 @@ def _stubborn(child):
 
 
 def _shared():
-    return SharedMemory({"stop": ctypes.c_bool, "beats": ctypes.c_uint64, "trace": ctypes.c_double * 3})
+    return SharedMemory({"stop": ctypes.c_bool, "beats": ctypes.c_uint64, "trace": ctypes.c_double * 3,
+                         "served": ctypes.c_uint64})
 
 
 def _wait_gone(pid: int, limit_s: float = 10.0) -> bool:
@@ -93,6 +102,29 @@ def test_a_child_that_dies_is_seen_and_started_again():
     assert second != first and helper.alive
     shared.stop.value = True
     assert helper.join(10.0) == 0
+
+
+def test_a_spare_waits_past_its_imports_and_takes_a_dead_childs_place_at_once():
+    """``spare=True``: a second child waits at Child.standby (nothing of its predecessor's
+    taken) until the first dies; then it goes on, with no interpreter to start, and the next
+    spare follows once it is ready. Stopping the helper ends the spare too."""
+    shared = _shared()
+    helper = Helper(f"{HERE}:_serve_after_standby", (shared,), pass_fds=(shared.fd,), spare=True)
+    first = helper.start()["pid"]
+    assert helper.restart_if_dead() is None  # alive and ready: its spare is started
+    spare = helper._spare.pid
+    assert spare != first and running(spare)
+    time.sleep(0.5)
+    assert shared.served.value == 1  # the spare waits: it has not gone past its standby
+    os.kill(first, signal.SIGKILL)
+    assert _first_code(helper) == -signal.SIGKILL
+    assert helper.pid == spare and helper.wait_ready(30.0)["pid"] == spare and shared.served.value == 2
+    assert helper.health() == {"running": True, "pid": spare, "restarts": 1, "last_exit_code": -signal.SIGKILL}
+    assert helper.restart_if_dead() is None and helper._spare is not None  # the next spare
+    following = helper._spare.pid
+    shared.stop.value = True
+    assert helper.join(10.0) == 0
+    assert _wait_gone(following) and shared.served.value == 2  # dismissed, never served
 
 
 def test_a_child_that_never_says_ready_is_a_clear_error_within_its_limit():

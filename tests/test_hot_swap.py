@@ -3,6 +3,7 @@ at a cycle boundary, a candidate can run in shadow and be committed, and a faili
 candidate only ends its own run. The real loop on a virtual clock, real ZeroMQ sockets."""
 import math
 import os
+import signal
 import time
 
 import msgpack
@@ -12,7 +13,9 @@ from controllers import lti_design
 from daemon.planner.process import BUILD_NICE, Preparer
 from daemon.wire import protocol as P
 from tests import plugins
+from daemon.client.client import Client
 from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
+from tests.daemons import real_daemon, wait_for_own_daemon
 
 
 # the misbehaving controllers of tests/plugins.py, registered as the daemon's configuration would
@@ -230,6 +233,62 @@ def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_w
     assert loop.controller.name == "pid" and loop.state.value == "enabled"
     assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"
     assert loop.stats.overruns_total == 0
+
+
+def test_a_worker_that_dies_while_idle_is_reported_and_replaced_warm_before_the_next_request(enabled):
+    """Killed between two requests: the courier sees it end at once and starts another,
+    warmed; the loop's next look makes it a ``planner`` event and the status says so. The
+    next request is neither refused nor made to wait for a worker. (The log line: below, in
+    a real daemon.)"""
+    loop, captured, sock, lease = enabled
+    preparer = loop.server.commands.preparer
+    preparer.warm().result(timeout=120)
+    before = ok(loop, sock, "status")["helpers"]["planner"]
+    assert before["running"]
+    os.kill(before["pid"], signal.SIGKILL)
+    end = time.monotonic() + 180.0  # a worker's warm-up beside two CPU hogs: seconds, however long it takes
+    while preparer.health()["restarts"] == before["restarts"] or not preparer.health()["running"]:
+        assert time.monotonic() < end, "the dead worker was not replaced"
+        time.sleep(0.05)
+    loop.run(100)  # the loop's next look
+    event = next(m for m in captured.of("event") if m["kind"] == "planner")
+    assert "died while idle (exit code -9)" in event["cause"] and "started and warmed" in event["cause"]
+    after = ok(loop, sock, "status")["helpers"]["planner"]
+    assert after["running"] and after["pid"] != before["pid"] and after["restarts"] == before["restarts"] + 1
+    assert after["last_exit_code"] == -signal.SIGKILL
+    started = loop.cycle
+    assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"
+    assert loop.cycle - started < 5000  # built by a warm worker: no imports (a cold one: 1.5-20 s of them)
+
+
+@pytest.mark.slow(seconds=20)
+def test_a_daemon_logs_a_planner_worker_that_died_and_the_next_request_works(tmp_path):
+    """In a real daemon: the worker killed while idle is an event, a line in the daemon's log
+    (its stderr: the journal) and the status's ``helpers.planner``; the next switch works."""
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, stderr=stderr)
+    try:
+        with Client(**eps, timeout=10.0) as client:
+            wait_for_own_daemon(client, daemon)
+            sub = client.subscribe((b"event",))
+            time.sleep(0.3)  # the subscription reaches the publisher
+            before = client.status()["helpers"]["planner"]
+            os.kill(before["pid"], signal.SIGKILL)
+            end = time.monotonic() + 180.0  # a warm-up beside two CPU hogs: however long it takes
+            while (got := sub.receive(1.0)) is None or got[1]["kind"] != "planner":
+                assert time.monotonic() < end, "no planner event"
+            assert "died while idle (exit code -9)" in got[1]["cause"]
+            after = client.status()["helpers"]["planner"]
+            assert after["running"] and after["restarts"] == 1 and after["pid"] != before["pid"]
+            client.acquire_lease()
+            assert client.switch_controller("smc")["active"] == "smc"
+            sub.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    assert "pneumad messenger ERROR: planner: the planner worker died while idle (exit code -9); another was " \
+           "started and warmed (restart 1)" in log.read_text()
 
 
 def test_a_parameter_change_for_a_controller_built_from_options_is_derived_by_its_twin(enabled):

@@ -2,6 +2,8 @@
 process (python -m sim_backend.modbus_peer): tracking as in-process, a peer killed mid-move
 tripping the loop with the reason, recovery after it returns and a reset, exception replies
 counted, no server at start refused clearly."""
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -10,9 +12,10 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from bench.wires import listening
+from daemon.client.client import Client, RemoteError
 from daemon.testing.ports import free_tcp_port
 from hal.errors import TransportError
-from tests.daemons import running
+from tests.daemons import real_daemon, running, wait_for_own_daemon
 from tests.wirehelpers import (
     move_and_track,
     start_peer,
@@ -176,3 +179,64 @@ def test_a_transport_dropped_without_close_takes_its_worker_with_it():
     finally:
         stop_peer(proc)
 
+
+
+@pytest.mark.slow(seconds=30)
+def test_a_killed_exchange_worker_is_an_event_a_log_line_and_restarted_and_the_arm_comes_back_after_reset(tmp_path):
+    """In a real daemon over Modbus, the exchange worker process killed with the arm enabled:
+    no new sample, so a trip; the loop's next look starts another (an ``exchange`` event, a
+    line in the daemon's log, ``helpers.exchange``), which reconnects; ``reset`` and
+    ``enable`` work again."""
+    port = free_tcp_port()
+    proc = peer(port)
+    log = tmp_path / "daemon.log"
+    try:
+        with open(log, "w") as stderr:
+            daemon, eps = real_daemon(tmp_path, "--transport", "modbus", "--transport-option", f"port={port}",
+                                      "--transport-option", "open_timeout_s=60", "--transport-option", "timeout_s=0.5",
+                                      "--safety", "stale_after_s=1.0",
+                                      stderr=stderr)  # (relaxed limits, as the wire tests': a loaded machine's Modbus)
+        try:
+            with Client(**eps, timeout=10.0) as client:
+                wait_for_own_daemon(client, daemon)
+                sub = client.subscribe((b"event",))
+                time.sleep(0.3)  # the subscription reaches the publisher
+                before = client.status()["helpers"]["exchange"]
+                assert before["running"] and before["restarts"] == 0
+                client.acquire_lease()
+                client.keep_lease()
+                client.enable()
+                os.kill(before["pid"], signal.SIGKILL)
+                kinds, end = {}, time.monotonic() + 60.0
+                while not {"trip", "exchange"} <= set(kinds):
+                    assert time.monotonic() < end, kinds
+                    got = sub.receive(1.0)
+                    if got is not None:
+                        kinds.setdefault(got[1]["kind"], got[1])
+                assert "exited (code -9) and was restarted (restart 1)" in kinds["exchange"]["cause"]
+                assert "modbus" in kinds["trip"]["cause"] or "stale" in kinds["trip"]["cause"], kinds["trip"]
+                end = time.monotonic() + 60.0  # the new worker connected and exchanging, however slow
+                while not (after := client.status()["helpers"]["exchange"])["running"]:
+                    assert time.monotonic() < end, after
+                    time.sleep(0.2)
+                assert after["restarts"] == 1 and after["pid"] != before["pid"] and after["last_exit_code"] == -9
+                status = {"cause": "never reset"}
+                while True:  # fresh samples end the stale input (reset is refused until then), and stay
+                    try:
+                        client.reset()
+                        client.enable()
+                        time.sleep(0.5)
+                        if (status := client.status())["state"] == "enabled":
+                            break
+                    except RemoteError:
+                        pass
+                    assert time.monotonic() < end, status["cause"]
+                    time.sleep(0.2)
+                sub.close()
+        finally:
+            daemon.terminate()
+            daemon.wait(10)
+    finally:
+        stop_peer(proc)
+    assert "pneumad messenger ERROR: exchange: the modbus exchange worker exited (code -9) and was restarted " \
+           "(restart 1)" in log.read_text()

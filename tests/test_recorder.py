@@ -420,3 +420,41 @@ def test_a_recorder_finishes_only_the_files_no_live_recorder_is_writing(tmp_path
         assert sum(1 for _ in make_reader(f).iter_messages(topics=["/pneumad/state"])) > 1000
     b.finish_left_files()
     assert len(said_b) == 1  # once
+
+
+def test_a_recording_made_across_a_messenger_restart_keeps_its_time_order(daemon):
+    """The recorder behind its feed (held still, as a loaded PC holds a nice-5 process) when
+    the messenger is killed: what the old messenger handed on and the recorder had not read yet
+    comes before what the new one hands on (the messenger binds the feed, the recorder
+    connects: one queue, in order). With the feed bound on the recorder's side the two
+    messengers' queues were read in turns, and the file held hundreds of samples out of order."""
+    daemon, eps, client = daemon
+    sub = events(eps)
+    recorder = recorder_pid(daemon)
+    try:
+        started = client.record_start("across-a-restart")
+        holding(started["file"], 100)
+        os.kill(recorder, signal.SIGSTOP)
+        try:
+            time.sleep(0.5)  # the old messenger's feed queues up
+            os.kill(client.status()["helpers"]["messenger"]["pid"], signal.SIGKILL)
+            wait_event(sub, lambda e: e["kind"] == "messenger")  # the new one serves, and a second has passed
+        finally:
+            os.kill(recorder, signal.SIGCONT)
+        for _ in range(50):  # a request in flight as the messenger died is lost: asked again
+            try:
+                stopped = client.record_stop(started["name"])
+                break
+            except TimeoutError:
+                pass
+    finally:
+        sub.close()
+    assert stopped["gaps"] > 0  # what no messenger passed on, said where it is missing
+    with open(stopped["file"], "rb") as f:
+        times = {}
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):  # in the file's order
+            times.setdefault(channel.topic, []).append(message.log_time)
+    for topic in ("/pneumad/state", "/joint_states"):
+        t = times[topic]
+        late = sum(b < a for a, b in zip(t, t[1:]))
+        assert late == 0 and len(t) > 1500, (topic, late, len(t))

@@ -16,6 +16,7 @@ from daemon.messenger.process import MessengerError
 from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
 from daemon.testing.loop import dealer, make_loop, ok
+from daemon.wire import protocol
 from daemon.wire.telemetry_rows import HEADER, MODES, STATE_FIELDS, row_format, state_message
 
 
@@ -101,20 +102,123 @@ def test_a_state_batch_reads_back_column_by_column_in_the_documented_layout():
     assert message["shadow_u_volts"] == [None, [1.5] * k, None, [3.5] * k]
 
 
-def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served, caplog):
+def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served, capfd):
     loop, captured, srv = served
     sub = subscriber(srv)
     before = received(sub, loop, lambda topic, m: topic == "state")["seq"]
-    srv.messenger._proc.kill()
+    spare = _spare_waiting(loop, srv)
+    os.kill(srv.messenger._proc.pid, signal.SIGKILL)
     cycles = loop.cycle
     event = received(sub, loop, lambda topic, m: topic == "event" and m["kind"] == "messenger")
     assert "restarted" in event["cause"]
     after = received(sub, loop, lambda topic, m: topic == "state")["seq"]
     assert after > before + 1  # the messages sent while no messenger was there are missed, and seen to be
     assert loop.cycle > cycles and loop.state.value == "idle"  # the loop ran on, untouched
-    status = ok(loop, dealer(srv), "status")["telemetry"]  # the command sockets are back too
-    assert status["messenger_running"] and status["messenger_restarts"] == 1
-    assert "the messenger process exited (code -9); starting another (restart 1)" in caplog.text
+    status = ok(loop, dealer(srv), "status")  # the command sockets are back too
+    assert status["telemetry"]["messenger_running"] and status["telemetry"]["messenger_restarts"] == 1
+    helper = status["helpers"]["messenger"]
+    assert helper["running"] and helper["restarts"] == 1 and helper["last_exit_code"] == -signal.SIGKILL
+    assert helper["pid"] == spare  # the spare, started ahead, took over
+    assert "pneumad messenger ERROR: messenger: the messenger process exited (code -9) and was restarted " \
+           "(restart 1)" in capfd.readouterr().err  # the daemon's log: the new messenger's stderr
+
+
+def _spare_waiting(loop, srv, renew=None, limit_s: float = 60.0) -> int:
+    """Run the loop until the messenger's spare has been started (at a look after the
+    messenger said it was ready) and has reached its standby (``renew()`` called meanwhile);
+    its pid."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        loop.run(100)
+        if renew is not None:
+            renew()
+        spare = srv.messenger._proc._spare
+        if spare is not None and _waits_on_stdin(spare.pid):
+            return spare.pid
+        time.sleep(0.01)
+    raise AssertionError("no spare messenger was started")
+
+
+def _waits_on_stdin(pid: int) -> bool:
+    """Whether the process is blocked reading its stdin (a spare at Child.standby): its
+    system call is read(0, ...)."""
+    try:
+        with open(f"/proc/{pid}/syscall") as f:
+            call = f.read().split()
+    except OSError:
+        return False
+    return len(call) > 1 and call[0] == "0" and int(call[1], 16) == 0
+
+
+def _kill_messenger(srv) -> None:
+    """SIGKILL to the messenger in service, and wait until it has died (a child of this
+    process: its end is waited for, not reaped): the virtual clock runs the loop's second
+    faster than a loaded machine's kernel ends a process."""
+    pid = srv.messenger._proc.pid
+    os.kill(pid, signal.SIGKILL)
+    os.waitid(os.P_PID, pid, os.WEXITED | os.WNOWAIT)
+
+
+def _messenger_back(loop, srv) -> None:
+    """The new messenger (started by a look the loop's cycles ran) ready, waited for in real
+    time while the loop stands still, then the loop run to its next look, which sees it."""
+    assert srv.messenger.down
+    srv.messenger._proc.wait_ready(60.0)
+    loop.run(100)
+    assert not srv.messenger.down
+
+
+def _renewed(loop, sock, lease, limit_s: float = 60.0) -> dict:
+    """``lease.renew`` on ``sock``, sent again until a messenger passes it on and the loop
+    answers (one sent as the messenger died is lost with it)."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        sock.send(protocol.encode_request(1, "lease.renew", None, lease))
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            loop.run(1)  # the virtual clock moves by the cycles run, a cycle per poll below
+            if sock.poll(1):
+                return msgpack.unpackb(sock.recv_multipart()[-1], raw=False)
+    raise AssertionError("the renewal never came through")
+
+
+def test_a_messenger_restart_never_takes_a_held_lease_and_a_client_gone_meanwhile_still_loses_it(served):
+    """The lease's clock is held while the messenger that carries its renewals is down or
+    restarting; once a new one is ready the holder has its ttl from then. The restart is made
+    slow (its spare stopped: a loaded machine) while the loop runs three of the lease's ttls
+    on the virtual clock: without the hold, the arm trips."""
+    loop, captured, srv = served
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 0.3})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    renew = lambda: ok(loop, sock, "lease.renew", lease=lease)  # noqa: E731
+
+    def slow_restart() -> None:
+        """The messenger killed, its spare held back while the loop runs 1 s."""
+        spare = _spare_waiting(loop, srv, renew)
+        renew()
+        os.kill(spare, signal.SIGSTOP)
+        try:
+            _kill_messenger(srv)
+            loop.run(1000)  # 1 s of the loop's time with no messenger passing renewals on
+            assert srv.messenger.down and srv.messenger._proc.pid == spare
+        finally:
+            os.kill(spare, signal.SIGCONT)
+
+    slow_restart()
+    assert loop.state.value == "enabled", loop.supervisor.cause  # held while no messenger could pass a renewal on
+    _messenger_back(loop, srv)
+    assert _renewed(loop, sock, lease)["ok"] and loop.state.value == "enabled"  # the held lease, renewed
+    assert not any(m["kind"] == "trip" for m in captured.of("event"))
+    # A client that stops renewing during a restart loses its lease ttl after the new messenger is ready.
+    slow_restart()
+    assert loop.state.value == "enabled"
+    _messenger_back(loop, srv)
+    ready_seen = loop.clock.now()
+    loop.run(500)  # the ttl, and more
+    trip = next(m for m in captured.of("event") if m["kind"] == "trip")
+    assert "lease lost" in trip["cause"] and ready_seen - 0.1 + 0.3 <= trip["t"] <= ready_seen + 0.3 + 0.01
+    assert loop.state.value == "fault" and srv.messenger.restarts == 2
 
 
 def test_a_telemetry_endpoint_in_use_is_a_clear_error():

@@ -340,12 +340,14 @@ class Client:
     def keep_lease(self, every_s: float = 0.5) -> None:
         """Renew the lease from a background thread until close() or the lease is handed
         back, through sockets of its own (the lease is the key's, not the socket's): a renewal
-        never waits behind a request in progress, and a deferred one can take seconds."""
+        never waits behind a request in progress, and a deferred one can take seconds. A
+        renewal unanswered within ``2 * every_s`` is sent again (one lost with a messenger
+        that died is retried well within the lease's ttl after the new one is ready)."""
         self._stop_keeping = stop = threading.Event()
 
         def renew():
-            renewer = Client(**self.endpoints, timeout=self.timeout, context=self.context, key_file=self.key_file,
-                             server_key_file=self.server_key_file)
+            renewer = Client(**self.endpoints, timeout=min(self.timeout, 2.0 * every_s), context=self.context,
+                             key_file=self.key_file, server_key_file=self.server_key_file)
             try:
                 while not stop.is_set() and self.lease is not None:
                     renewer.lease = self.lease

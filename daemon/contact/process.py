@@ -12,6 +12,15 @@ be a reading is counted (``bad_frames``) and its reason kept, never estimated on
 Frames come from the source the rig file names (``contact_sensor.source``, loaded by name in
 this process: hal.taxel_array's FrameSource); the process is a helper (hal.process.Helper)
 that dies with the daemon and says it is ready with its first estimate.
+
+If it dies, the loop's port starts another at its next look (once a second: a ``contact``
+event), which goes on with the sensor's frame count (frames are numbered from the sensor's
+first start) and a fresh estimator. An estimate is *valid* while its process runs and it is
+no older than ``controllers.contact_force.STALE_MEMORIES`` of the estimator's memories (the
+gap after which the estimator itself starts its track again: 32 ms by default); otherwise
+the ``contact`` topic says why (``sensor``: ``stale`` or ``restarting``) and carries NaN for
+every number of the estimate, never the last one as if it were current, and never ``null``,
+which means that nothing touches the pad.
 """
 from __future__ import annotations
 
@@ -20,6 +29,7 @@ import math
 import time
 import weakref
 
+from controllers.contact_force import STALE_MEMORIES
 from hal.errors import TransportTimeout
 from hal.process import Child, Helper, HelperFailed, SharedMemory
 from hal.seqlock import try_read, write_locked
@@ -37,7 +47,8 @@ LOOP_READ_TRIES = 200  # the loop's side: a few microseconds, then the last whol
 def _shared() -> SharedMemory:
     return SharedMemory({"seq": ctypes.c_uint64, "values": ctypes.c_double * (HEAD + len(FIELDS)),
                          "counters": ctypes.c_uint64 * len(COUNTERS), "stop": ctypes.c_bool,
-                         "error": ctypes.c_char * _ERROR_BYTES})
+                         "error": ctypes.c_char * _ERROR_BYTES, "t0": ctypes.c_double})
+UNKNOWN = {name: (0 if name in INTEGER_FIELDS else math.nan) for name in FIELDS}  # an estimate not valid now
 
 
 class ContactSensor:
@@ -51,6 +62,8 @@ class ContactSensor:
         self._latest: dict | None = None  # the newest estimate, as the topic carries it (its age aside)
         self._latest_mono = 0.0  # its frame's time.monotonic()
         self._last_seq = 0
+        self.stale_s = STALE_MEMORIES * config.memory_ms / 1e3  # an estimate older than this is not valid [s]
+        self.restarting = False  # its process died and the next has not given an estimate yet
 
     def open(self) -> None:
         """Start the worker and wait for its first estimate (the frames are made up front),
@@ -74,20 +87,50 @@ class ContactSensor:
 
     def latest(self) -> dict | None:
         """The newest estimate as the ``contact`` topic carries it (its frame's time on the
-        loop's clock, and age); None before the first. Constant cost: a copy of 20 numbers."""
+        loop's clock, its age, whether it is valid and why not); None before the first.
+        Constant cost: a copy of 20 numbers."""
         shared = self._shared
         if shared is None:
             return None
         found = try_read(shared.seq, shared.values, tries=LOOP_READ_TRIES)
         if found is not None and found[0] != self._last_seq:
             self._last_seq = found[0]
-            frame, self._latest_mono, valid = found[1][:HEAD]
+            self.restarting = False
+            frame, self._latest_mono, touching = found[1][:HEAD]
             self._latest = {"frame": int(frame), "frame_t": self.clock() - self._age(),
                             "contact": ({name: (int(v) if name in INTEGER_FIELDS else v)
-                                         for name, v in zip(FIELDS, found[1][HEAD:])} if valid else None)}
+                                         for name, v in zip(FIELDS, found[1][HEAD:])} if touching else None)}
         if self._latest is None:
             return None
-        return {**self._latest, "age_s": self._age(), **self.counters()}
+        age = self._age()
+        sensor = "restarting" if self.restarting else "running" if age <= self.stale_s else "stale"
+        latest = self._latest if sensor == "running" else {**self._latest, "contact": UNKNOWN}
+        return {**latest, "age_s": age, "valid": sensor == "running", "sensor": sensor, **self.counters()}
+
+    def check(self) -> str | None:
+        """The loop's look (once a second, never waiting): a dead process is started again,
+        its estimate not valid until the new one's first; what happened, as an event's cause."""
+        process = self._process
+        if process is None:
+            return None
+        code = process.restart_if_dead()
+        if code is None:
+            try:
+                process.poll_ready()  # (health: running once the new one is)
+            except HelperFailed:
+                pass  # it exits: the next look starts another
+            return None
+        shared = self._shared
+        if shared.seq.value & 1:  # it died writing: the half-written estimate is never read
+            shared.seq.value += 1
+            self._last_seq = shared.seq.value
+        self.restarting = True
+        reason = self.last_error()
+        return (f"the contact sensor's process exited (code {code}) and was restarted (restart {process.restarts}); "
+                f"the contact estimate is not valid until its first frame{f' (its last error: {reason})' if reason else ''}")
+
+    def health(self) -> dict:
+        return self._process.health() if self._process is not None else {}
 
     def _age(self) -> float:
         return max(time.monotonic() - self._latest_mono, 0.0)
@@ -116,8 +159,9 @@ def serve(child: Child, shared: SharedMemory, config: ContactSensorConfig) -> No
     estimator = ContactEstimator(config.memory_ms / 1e3, config.beta_memory_ms / 1e3, frame_hz=config.rate_hz)
     counters = shared.counters
     period = 1.0 / config.rate_hz
-    start = time.monotonic()
-    last = -1
+    start = shared.t0.value or time.monotonic()  # a restarted process goes on with the sensor's frame count
+    shared.t0.value = start
+    last = int((time.monotonic() - start) / period) - 1  # (a restart's gap is not the estimator falling behind)
     while not shared.stop.value and child.parent_alive():
         due = int((time.monotonic() - start) / period)
         if due <= last:

@@ -9,14 +9,25 @@ holder it is disabled (``[safety] unleased_action = "disable"``, ``unleased_grac
 held until a client comes (``"hold"``). A key taken off the allow-list loses its lease at
 once (:meth:`Lease.revoke`). Everything here runs on the loop's thread, once a cycle or per
 request, in constant time.
+
+Renewals come through the messenger process. A lease whose time runs out while the messenger
+is down or restarting (its death seen, its successor not yet ready) is held over, and once
+the new messenger is ready its holder has the lease's full ttl from then to renew (requests
+it sent meanwhile wait in its socket, or were lost with the old messenger). A lease never
+outlives its own time by more than ``HOLD_S``, however the messenger fares: a client that
+really died during a restart loses its lease ttl after the new messenger was ready, at the
+latest ``HOLD_S`` past its time.
 """
 from __future__ import annotations
 
 import secrets
+from collections.abc import Callable
 
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
 from daemon.wire.keys import ANONYMOUS, OBSERVER, Identity
+
+HOLD_S = 5.0  # a lease held over across a messenger restart: at most this long past its own time [s]
 
 
 class Lease:
@@ -31,6 +42,10 @@ class Lease:
         self.unleased_since: float | None = None  # since when an enabled arm has held with no lease holder
         self._told_enable = 0  # the enabled period (Supervisor.enables) whose unleased note was given
         self.renewals, self.renewed_at = 0, 0.0  # the holder's renewals of this lease, the last one's time [s]
+        self.held_until = 0.0  # [s] a messenger restart's grace: the holder's ttl from the new one's readiness
+        # Whether the messenger that carries the renewals is down or restarting now (set by the
+        # loop's port, which looks at it when asked); None: a loop served by no messenger.
+        self.carrier_down: Callable[[], bool] | None = None
 
     @property
     def held(self) -> bool:
@@ -53,7 +68,7 @@ class Lease:
                                 {"reason": "held", "holder": self.holder.name})
         self.token, self.holder, self.ttl_active = secrets.token_hex(16), client, ttl
         self.expires = self.loop.clock.now() + ttl
-        self.renewals = 0
+        self.renewals, self.held_until = 0, 0.0
         return {"lease": self.token, "ttl_s": ttl}
 
     def renew(self) -> dict:
@@ -125,12 +140,25 @@ class Lease:
         for the grace time gets the rig file's action."""
         supervisor = self.loop.supervisor
         if self.token is not None:
-            if self.loop.clock.now() > self.expires:
+            now = self.loop.clock.now()
+            if now > self.expires and now > self.held_until and not self._held_over(now):
                 self.token = None
                 if supervisor.enabled:
                     supervisor.trip(f"lease lost: the controlling client ({self.holder}) stopped renewing it")
         elif supervisor.enabled:
             self._unleased()
+
+    def _held_over(self, now: float) -> bool:
+        """The lease ran out while the messenger, which carries its renewals, is down or
+        restarting: held, up to HOLD_S past its time (the port looks at the messenger once
+        more now, so a death since its last look counts)."""
+        return now - self.expires <= HOLD_S and self.carrier_down is not None and self.carrier_down()
+
+    def carried_again(self, now: float) -> None:
+        """A new messenger is ready: the holder has its ttl from ``now`` to renew (within HOLD_S
+        of the lease's own time)."""
+        if self.token is not None:
+            self.held_until = max(self.held_until, min(now + self.ttl_active, self.expires + HOLD_S))
 
     def _unleased(self) -> None:
         if self.safety.unleased_action == "hold" or self.loop.reference_remaining() > 0.0:

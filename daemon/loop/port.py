@@ -33,7 +33,8 @@ from daemon.wire.ring import Ring, RingError
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
-MESSENGER_CHECK_CYCLES = 1000  # how often the messenger process is looked at
+MESSENGER_CHECK_CYCLES = 100  # how often the messenger process (the planner's and exchange workers) is looked at: 0.1 s
+HELPER_CHECK_EVERY = 10  # the other helpers at every 10th of those looks: 1 s
 RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
 log = logging.getLogger("pneumad")
 _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
@@ -78,11 +79,13 @@ class ZmqServer:
         self.reply_failures = 0
         self.telemetry_dropped = 0
         self._until_check = MESSENGER_CHECK_CYCLES
+        self._helper_round = 0  # counts the messenger's looks up to the others'
         self._messenger_alive = True  # started above
         self._replied = False
 
     def attach(self, loop, preparer=None) -> None:
         self.commands = Commands(loop, preparer, self.security)
+        self.commands.lease.carrier_down = self._messenger_down
         loop.server = self
         if loop.stats.banks is not self.stats_banks:
             raise ValueError("the loop counts its timing elsewhere: build it with this port's stats_banks")
@@ -98,15 +101,30 @@ class ZmqServer:
             self.telemetry_dropped += 1
 
     def telemetry_health(self) -> dict:
-        """As of the messenger's last look (once a second: a request that reaches the loop came
+        """As of the messenger's last look (every 0.1 s: a request that reaches the loop came
         through a messenger, so a status never waits on a process table)."""
         return {"messenger_running": self._messenger_alive, "messenger_restarts": self.messenger.restarts,
                 "dropped": self.telemetry_dropped}
 
+    def helpers_health(self) -> dict:
+        """The status field ``helpers``: each process beside the loop as of its last look
+        (running, pid, restarts, the last dead one's exit code)."""
+        health = {"messenger": self.messenger.health()}
+        if self.recorder is not None:
+            health["recorder"] = self.recorder.health()
+        if self.commands is not None:
+            health["planner"] = self.commands.preparer.health()
+            if self.commands.loop.contact_sensor is not None:
+                health["contact"] = self.commands.loop.contact_sensor.health()
+            worker = self.commands.loop.io.transport.worker_health()
+            if worker is not None:
+                health["exchange"] = worker
+        return health
+
     def poll(self, loop) -> None:
         """Once a cycle, at its end: the lease clock, then the control requests, then a few
-        commands; once a second, the messenger process. The heartbeat tells the messenger the
-        loop is cycling."""
+        commands; every 0.1 s the messenger process, the planner's worker and a transport's
+        exchange worker, every second the other helpers. The heartbeat tells the messenger the loop is cycling."""
         self.heartbeat.beat(loop.cycle)
         self.commands.tick()
         if self._waiting:
@@ -119,13 +137,47 @@ class ZmqServer:
         self._until_check -= 1
         if self._until_check <= 0:
             self._until_check = MESSENGER_CHECK_CYCLES
-            notice = self.messenger.check()
-            self._messenger_alive = self.messenger.alive
-            if notice is not None:
-                loop.events.add({"kind": "messenger", "cause": notice})
-            notice = self.recorder.check() if self.recorder is not None else None
-            if notice is not None:
-                loop.events.add({"kind": "recorder", "cause": notice})
+            self._look_after_helpers(loop)
+
+    def _look_after_helpers(self, loop) -> None:
+        """A helper that died is restarted (by its own handle, never waiting): the messenger, the
+        planner's worker and an off-loop transport's exchange worker at every look, the recorder
+        and the contact sensor's process at every HELPER_CHECK_EVERY-th; each restart is an
+        event of the helper's kind, which the messenger logs as it publishes it."""
+        self._check_messenger()
+        notice = self.commands.preparer.check()
+        if notice is not None:
+            loop.events.add({"kind": "planner", "cause": notice})
+        notice = loop.io.transport.check_worker()  # (at once: while it is dead, nothing writes to the rig)
+        if notice is not None:
+            loop.events.add({"kind": "exchange", "cause": notice})
+        self._helper_round = (self._helper_round + 1) % HELPER_CHECK_EVERY
+        if self._helper_round:
+            return
+        notice = self.recorder.check() if self.recorder is not None else None
+        if notice is not None:
+            loop.events.add({"kind": "recorder", "cause": notice})
+        notice = loop.contact_sensor.check() if loop.contact_sensor is not None else None
+        if notice is not None:
+            loop.events.add({"kind": "contact", "cause": notice})
+
+    def _check_messenger(self) -> None:
+        """The messenger's look: a restart started, or finished (the lease's holder then has its
+        ttl from now to renew), or announced (an event)."""
+        was_down = self.messenger.down
+        notice = self.messenger.check()
+        self._messenger_alive = not self.messenger.down
+        if was_down and not self.messenger.down:
+            self.commands.lease.carried_again(self.commands.loop.clock.now())
+        if notice is not None:
+            self.commands.loop.events.add({"kind": "messenger", "cause": notice})
+
+    def _messenger_down(self) -> bool:
+        """For the lease, whose time ran out: is the messenger that carries its renewals down
+        or restarting? Looked at once more now (a death since the last look is seen here)."""
+        if not self.messenger.down:
+            self._check_messenger()
+        return self.messenger.down
 
     def _complete(self) -> None:
         """Reply to deferred commands whose work is done (applying it at this boundary)."""

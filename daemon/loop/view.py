@@ -109,6 +109,7 @@ class LoopView:
             "load": self.load(),
             "transport": vars(loop.io.transport.health()),
             "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
+            "helpers": loop.server.helpers_health() if loop.server is not None else None,
         }
 
     def _joint(self, i: int) -> dict:

@@ -23,8 +23,10 @@ It is a helper process (:class:`hal.process.Helper`): it runs at normal priority
 the daemon had before its real-time set-up, ends when the loop's telemetry ring says so or
 its parent is gone (SIGINT and SIGTERM, which reach the whole process group, are the
 daemon's to act on), and the daemon starts another if it dies (:meth:`Messenger.check`):
-clients reconnect by themselves and requests in flight are lost (a client's time-out says
-so); subscribers see the loss in ``seq``.
+a spare (:class:`hal.process.Helper`'s, waiting with its imports done) binds the same
+endpoints, clients reconnect by themselves and requests in flight are lost (a client's
+time-out says so); subscribers see the loss in ``seq``. While no messenger serves, the
+lease's clock is held (:mod:`daemon.loop.lease`): its renewals cannot come.
 
 With a key directory (``--keys``), every socket speaks CURVE and admits allowed client keys
 only (:mod:`daemon.messenger.guard`); each request goes to the loop with who sent it
@@ -36,6 +38,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import time
 
 import zmq
 
@@ -55,6 +58,7 @@ from hal.process import Child, Helper, HelperFailed
 
 __all__ = ["END", "STALL_S", "TOPICS", "Heartbeat", "Messenger", "MessengerError", "create_rings"]  # the loop's side
 RING_BYTES = {"telemetry": 1 << 20, "control": 1 << 20, "command": 1 << 20, "replies": 1 << 20}
+ANNOUNCE_S = 1.0  # a restart's event this long after the new messenger is ready: its subscribers are back [s]
 log = logging.getLogger("pneumad")
 
 
@@ -83,7 +87,9 @@ class Messenger:
         self.endpoints: dict[str, str] = {}  # as bound (wildcard ports resolved)
         self._cpus = os.sched_getaffinity(0)  # before the daemon's real-time set-up
         self._proc: Helper | None = None
-        self._restart = ""  # a restart under way: "starting", then "ready"
+        self.down = False  # from a death seen until its successor is ready: no requests, no renewals come
+        self._down_since = 0.0  # [s] monotonic, when the death was seen
+        self._announce: tuple[float, str] | None = None  # (when [s], what): the restart's event, once due
 
     @property
     def restarts(self) -> int:
@@ -96,45 +102,52 @@ class Messenger:
             self.endpoints = self._proc.start()
         except HelperFailed as exc:
             raise MessengerError(str(exc)) from None
-        self._proc.args = self._args(self.endpoints)  # a restarted one binds the same ports again
+        self._proc.args = self._args(self.endpoints)  # a restarted one (and the spare) binds the same ports again
         return self.endpoints
 
     def _helper(self, endpoints: dict[str, str]) -> Helper:
         return Helper("daemon.messenger.process:serve", self._args(endpoints), name="the messenger process",
-                      pass_fds=(self.doorbell,), nice=0, cpus=self._cpus)
+                      pass_fds=(self.doorbell,), nice=0, cpus=self._cpus, spare=True)
 
     def _args(self, endpoints: dict[str, str]) -> tuple:
         return self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints, self.foxglove
 
     def check(self) -> str | None:
-        """Called once a second from the loop, never blocking: if the process has died, start
-        another on the same endpoints without waiting for it, and log it (the 1st, 2nd, 4th ...
-        restart). One check after the new one is ready (time for subscribers to reconnect),
-        say what happened: an ``event``'s cause."""
+        """Called from the loop (every ``daemon.loop.port.MESSENGER_CHECK_CYCLES``), never
+        blocking: if the process has died, put its spare in service (or start another) on the
+        same endpoints without waiting for it; :attr:`down` until it is ready. ``ANNOUNCE_S``
+        after that (time for subscribers to reconnect), say what happened: an ``event``'s
+        cause, which the messenger logs as it publishes it."""
+        now = time.monotonic()
         code = self._proc.restart_if_dead()
         if code is not None:
-            if self.restarts & (self.restarts - 1) == 0:  # the 1st, 2nd, 4th, 8th ...: a stuck one does not flood the log
-                log.error("the messenger process exited (code %s); starting another (restart %d)", code, self.restarts)
-            self._restart = "starting"
-        elif self._restart == "ready":
-            self._restart = ""
-            return f"the messenger process stopped and was restarted (restart {self.restarts})"
-        elif self._restart == "starting":
+            if not self.down:
+                self.down, self._down_since = True, now
+            return None
+        if self.down:
             try:
-                if self._proc.poll_ready():
-                    self._restart = "ready"
+                ready = self._proc.poll_ready()
             except HelperFailed as exc:  # it refused (its endpoint taken meanwhile): the next check starts another
                 log.error("the restarted messenger process did not start: %s", exc)
+                return None
+            if ready:
+                self.down = False
+                self._announce = (now + ANNOUNCE_S, f"the messenger process exited (code {self._proc.last_exit_code}) "
+                                                    f"and was restarted (restart {self.restarts}); no messenger for "
+                                                    f"{now - self._down_since:.2f} s after its death was seen")
+        if self._announce is not None and now >= self._announce[0]:
+            cause, self._announce = self._announce[1], None
+            return cause
         return None
+
+    def health(self) -> dict:
+        """The process as of the last check (daemon.loop.port's status field ``helpers``)."""
+        return self._proc.health() if self._proc is not None else {}
 
     def reload_keys(self) -> None:
         """Ask the process to read its allow-list again (SIGHUP: no waiting)."""
         if self._proc is not None:
             self._proc.send_signal(signal.SIGHUP)
-
-    @property
-    def alive(self) -> bool:
-        return self._proc is not None and self._proc.alive
 
     def join(self, timeout: float = 2.0) -> None:
         """Wait for the process to end once the telemetry ring's END is queued; kill it if not."""
@@ -145,9 +158,20 @@ class Messenger:
 # -- in the messenger process ---------------------------------------------------------------
 def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str | None, recorder: bool,
           plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None) -> int:
-    """The messenger process's main: bind the sockets, say ready with their endpoints, relay
-    until the loop's END or the parent's end."""
+    """The messenger process's main: its imports (where a spare waits: Child.standby), then
+    bind the sockets, say ready with their endpoints, relay until the loop's END or the
+    parent's end."""
     logging.basicConfig(level=logging.INFO, format="pneumad messenger %(levelname)s: %(message)s")
+    from daemon.messenger.recorder_link import (
+        Recorder,  # the process's own work: the daemon's side never needs them
+    )
+    from daemon.messenger.relay import Relay
+    from daemon.wire.loop_stats import StatsBanks
+    if plotjuggler:
+        from daemon.messenger.plotjuggler import PlotJugglerFeed
+    if foxglove:
+        from daemon.messenger.foxglove_stream import FoxgloveStream
+    child.standby()
     ctx = zmq.Context()
     try:
         guard = Guard(ctx, keys) if keys else None
@@ -156,30 +180,26 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     signal.signal(signal.SIGHUP, lambda *_: reloads.append(1))  # systemctl reload, or the daemon's SIGHUP
     sockets = {}
     feed = None
+    link = None
     try:
         for name in ("command", "control", "telemetry"):
             sockets[name] = open_socket(ctx, name, endpoints[name], guard)
         if plotjuggler:
-            from daemon.messenger.plotjuggler import PlotJugglerFeed
             name = "plotjuggler"
             feed = PlotJugglerFeed(ctx, plotjuggler, rings_dir)
+        if recorder:
+            name = "recorder"
+            link = Recorder(ctx, rings_dir)
     except zmq.ZMQError as exc:
-        raise HelperFailed(f"cannot bind the {name} endpoint {plotjuggler if name == 'plotjuggler' else endpoints[name]}: "
-                           f"{exc}") from None
+        where = {"plotjuggler": plotjuggler, "recorder": "(its feed)"}.get(name) or endpoints[name]
+        raise HelperFailed(f"cannot bind the {name} endpoint {where}: {exc}") from None
     stream = None
     if foxglove:
-        from daemon.messenger.foxglove_stream import FoxgloveStream
         try:
             stream = FoxgloveStream(*foxglove, rings_dir)
         except RuntimeError as exc:
             raise HelperFailed(f"cannot serve Foxglove on {foxglove[0]}:{foxglove[1]}: {exc}") from None
-    from daemon.messenger.recorder_link import (
-        Recorder,  # the process's own work: the daemon's side never needs them
-    )
-    from daemon.messenger.relay import Relay
-    from daemon.wire.loop_stats import StatsBanks
     rings = {name: Ring(os.path.join(rings_dir, name)) for name in RING_BYTES}
-    link = Recorder(ctx, rings_dir) if recorder else None
     stats = StatsBanks.in_directory(rings_dir, create=False)
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})

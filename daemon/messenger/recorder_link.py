@@ -4,8 +4,14 @@ the feed, up to which the recorder takes in the telemetry before it answers) and
 passed back, and the recorder's events published.
 
 Nothing here waits: the feed is a PUSH that drops (and counts) when the recorder's queue is
-full, which the recording then shows as a gap; a request the recorder has not answered in
-``ANSWER_TIMEOUT_S`` is answered ``recorder_unavailable``.
+full or no recorder is connected (one restarting), which the recording then shows as a gap; a
+request the recorder has not answered in ``ANSWER_TIMEOUT_S`` is answered ``recorder_unavailable``.
+
+The messenger binds the feed and the recorder connects to it: a connecting ZeroMQ socket keeps
+one queue across its peer's restarts, so what a killed messenger sent and the recorder has not
+yet read comes before what the next messenger sends. Bound on the recorder's side, the two
+messengers' queues were read in turns, and a recording made across a messenger restart held
+messages out of time order.
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ class Recorder:
         self.control.setsockopt(zmq.ROUTING_ID, MESSENGER_ID)
         for sock in (self.feed_socket, self.control):
             sock.setsockopt(zmq.LINGER, 0)
-        self.feed_socket.connect(endpoint(rings_dir, FEED))
+        self.feed_socket.bind(endpoint(rings_dir, FEED))  # (a killed messenger's socket file is replaced)
         self.control.connect(endpoint(rings_dir, CONTROL))
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
         self.dropped = 0

@@ -2,9 +2,12 @@
 into the loop's rings, each with who sent it; replies and telemetry from the loop's rings
 onto the sockets; the loop's heartbeat watched, and answered for while it is stalled; the
 keys' allow-list reloaded (SIGHUP, ``keys.reload``), and the loop told of each key it lost
-(:mod:`daemon.messenger.revocation`)."""
+(:mod:`daemon.messenger.revocation`); the loop's events of a helper process's death written to
+the daemon's log (this process's stderr, the daemon's journal), so the loop never logs from its
+cycle."""
 from __future__ import annotations
 
+import logging
 import os
 import struct
 import sys
@@ -27,6 +30,9 @@ from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import internals_message, state_message
+
+HELPER_DEATHS = ("messenger", "recorder", "planner", "contact", "exchange")  # event kinds: a process beside the loop was restarted
+log = logging.getLogger("pneumad")
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
     from daemon.messenger.foxglove_stream import FoxgloveStream
@@ -311,11 +317,14 @@ class Relay:
                       flush=True)
 
     def _renumber(self, body: bytes) -> bytes:
-        """A loop event, its seq moved past the messenger's own events (events are rare)."""
+        """A loop event, its seq moved past the messenger's own events (events are rare); one
+        telling of a helper's death is logged."""
         try:
             event = msgpack.unpackb(body, raw=False)
         except Exception:
             return body
+        if event.get("kind") in HELPER_DEATHS:
+            log.error("%s: %s", event["kind"], event.get("cause"))
         event["seq"] += self._injected
         self._event_seq = event["seq"]
         return msgpack.packb(event) if self._injected else body

@@ -16,10 +16,13 @@ the daemon (the warm-up at the daemon's start, before the loop runs, at the norm
 at nice 19 beside two busy processes its imports took longer than the job limit and the
 daemon did not start). Nice 10, not 19: a waking nice-0 courier or --no-rt loop still takes
 the CPU from it at once and outweighs it 9 to 1, while beside two CPU hogs a 0.6 s build
-(the largest input multisine's) took 15-40 s at nice 19, and over 600 s in a loaded test run. It is started on the first job or by :meth:`Preparer.warm`, and started again
-if it dies or overruns its time limit, which fails only the job it was doing. One job at a
-time: a second request while one is prepared is refused, so a flood of expensive requests
-cannot queue up work.
+(the largest input multisine's) took 15-40 s at nice 19, and over 600 s in a loaded test run. It is started on the first job or by :meth:`Preparer.warm`.
+The courier watches it while it waits for a job: a worker that dies, idle or on a job (which
+fails that job alone), or overruns its time limit is replaced at once and warmed (the
+warm-up's imports at the normal priority), so the next request neither pays for the new
+worker nor is refused; each replacement is a notice the loop takes (:meth:`Preparer.check`)
+and publishes as a ``planner`` event. One job at a time: a second request while one is
+prepared is refused, so a flood of expensive requests cannot queue up work.
 """
 from __future__ import annotations
 
@@ -28,10 +31,11 @@ import queue
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
+from multiprocessing.connection import Connection, wait
 
 from hal.process import Child, Helper, HelperFailed
 
@@ -61,10 +65,14 @@ class Preparer:
     def __init__(self, time_limit_s: float = DEFAULT_TIME_LIMIT_S):
         self.time_limit_s = time_limit_s
         self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._wake, self._woken = socket.socketpair()  # a byte with every job: the courier waits on it and on the worker
+        self._wake.setblocking(False)
         self._current: Future | None = None
         self._cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
         self._worker: _Worker | None = None
         self.restarts = 0
+        self.last_exit_code: int | None = None
+        self._notices: deque[str] = deque()  # the courier's news of replaced workers, for the loop's events
         self._courier = threading.Thread(target=self._carry, name="pneumad-prepare", daemon=True)
         self._courier.start()
 
@@ -81,46 +89,101 @@ class Preparer:
         self._current = self._put(function, args)
         return Deferred(self._current, finish)
 
+    def check(self) -> str | None:
+        """The loop's look (never waiting): a worker replaced since the last look, said as an
+        event's cause; None if none was."""
+        try:
+            return self._notices.popleft()
+        except IndexError:
+            return None
+
+    def health(self) -> dict:
+        """The worker as the courier last left it (the status field ``helpers``)."""
+        worker = self._worker
+        return {"running": worker is not None and worker.warm, "pid": worker.pid if worker is not None else None,
+                "restarts": self.restarts, "last_exit_code": self.last_exit_code}
+
     def close(self) -> None:
         self._jobs.put(None)
+        self._ring()
 
     def _put(self, function: Callable, args: tuple) -> Future:
         future: Future = Future()
         self._jobs.put((future, function, args))
+        self._ring()
         return future
+
+    def _ring(self) -> None:
+        try:
+            self._wake.send(b"\0")
+        except OSError:
+            pass  # full: the courier has plenty of bytes to wake it (or closed: it has ended)
 
     # -- the courier thread -------------------------------------------------------------
     def _carry(self) -> None:
         try:
-            while (job := self._jobs.get()) is not None:
+            while (job := self._next_job()) is not None:
                 future, function, args = job
                 if future.set_running_or_notify_cancel():
                     self._run(future, function, args)
         finally:
             if self._worker is not None:
                 self._worker.stop()
+            self._woken.close()
+            self._wake.close()
+
+    def _next_job(self):
+        """The next job (None: closed), waited for; a worker that ends meanwhile is replaced."""
+        while True:
+            try:
+                return self._jobs.get_nowait()
+            except queue.Empty:
+                pass
+            watched = [self._woken] if self._worker is None else [self._woken, self._worker.conn]
+            ready = wait(watched)
+            if self._woken in ready:
+                self._woken.recv(4096)
+            if self._worker is not None and self._worker.conn in ready:  # idle, it never speaks: it ended
+                self._replace("the planner worker died while idle")
 
     def _run(self, future: Future, function: Callable, args: tuple) -> None:
         try:
-            if self._worker is None or not self._worker.alive:
-                if self._worker is not None:
-                    self._worker.stop()  # it died between jobs
+            if self._worker is None:
                 self._worker = _Worker(self._cpus, self.time_limit_s)
             ok, value = self._worker.call(function, args, self.time_limit_s)
         except PreparationFailed as exc:
+            future.set_exception(exc)  # the request's refusal first; then the replacement
             if self._worker is not None:
-                self._worker.stop()
-            self._worker = None
-            self.restarts += 1
-            future.set_exception(exc)
+                self._replace(f"the planner worker was stopped: {exc}")
             return
         except Exception as exc:  # the job itself would not pickle: refused, the worker is fine
             future.set_exception(exc)
             return
         if ok:
             future.set_result(value)
+            self._worker.warm = self._worker.warm or function is _warm
         else:
             future.set_exception(value)
+
+    def _replace(self, cause: str) -> None:
+        """Stop the worker and start another, warmed, at once (the next job waits for it)."""
+        code = self._worker.ended()
+        self._worker = None
+        self.restarts += 1
+        self.last_exit_code = code
+        cause = f"{cause} (exit code {code})"
+        try:
+            self._worker = _Worker(self._cpus, self.time_limit_s)
+            ok, value = self._worker.call(_warm, (), self.time_limit_s)
+            if not ok:
+                raise PreparationFailed(f"its warm-up failed: {value}")
+            self._worker.warm = True
+            self._notices.append(f"{cause}; another was started and warmed (restart {self.restarts})")
+        except PreparationFailed as exc:
+            if self._worker is not None:
+                self._worker.stop()
+            self._worker = None
+            self._notices.append(f"{cause}; another could not be started ({exc}): the next request starts one")
 
 
 class _Worker:
@@ -128,41 +191,48 @@ class _Worker:
 
     def __init__(self, cpus, start_limit_s: float):
         ours, theirs = socket.socketpair()
-        self._conn = Connection(ours.detach())
+        self.conn = Connection(ours.detach())
+        self.warm = False  # its warm-up done
         self._process = Helper("daemon.planner.process:serve", (theirs.fileno(),), name="the preparation worker",
                                pass_fds=(theirs.fileno(),), nice=0, cpus=cpus)
         try:
             self._process.start(start_limit_s)
         except HelperFailed as exc:
-            self._conn.close()
+            self.conn.close()
             raise PreparationFailed(f"{exc}; nothing was applied") from None
         finally:
             theirs.close()
 
     @property
-    def alive(self) -> bool:
-        return self._process.alive
+    def pid(self) -> int | None:
+        return self._process.pid
 
     def call(self, function: Callable, args: tuple, time_limit_s: float) -> tuple[bool, object]:
         """(True, result) or (False, the exception the job raised); PreparationFailed if
         the worker died or did not answer in time."""
-        self._conn.send((function, args))
         started = time.monotonic()
         try:
-            if not self._conn.poll(time_limit_s):
+            self.conn.send((function, args))  # (a job that will not pickle raises here, not as EOF or OSError)
+            if not self.conn.poll(time_limit_s):
                 raise PreparationFailed(f"the preparation took longer than {time_limit_s:g} s and was stopped; "
                                         f"nothing was applied (a PC busy with other work: pneumad run "
                                         f"--prepare-limit-s)")
-            return self._conn.recv()
+            return self.conn.recv()
         except (EOFError, OSError):
             code = self._process.join(1.0)
             raise PreparationFailed(f"the preparation worker died (exit code {code}) "
                                     f"after {time.monotonic() - started:.1f} s; nothing was applied; "
                                     f"a new worker takes the next request") from None
 
+    def ended(self) -> int | None:
+        """Make sure it has ended (SIGKILL); its exit code."""
+        code = self._process.kill()
+        self.conn.close()
+        return code
+
     def stop(self) -> None:
         self._process.kill()
-        self._conn.close()
+        self.conn.close()
 
 
 # -- in the worker process ----------------------------------------------------------------

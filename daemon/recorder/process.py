@@ -1,7 +1,8 @@
 """The recorder: the daemon's own recordings, written in a process of their own beside the loop.
 
 The messenger hands it every telemetry message as it leaves the loop's ring (a ZeroMQ PUSH
-on a private ipc socket in the rings' directory, before any network), so a recording never
+on a private ipc socket in the rings' directory, before any network; the messenger binds it and
+this process connects, so its queue keeps its order across a messenger's restart), so a recording never
 loses what a slow or stalled client would; what it does lose (its own queue full, a write
 slower than the telemetry) shows as a ``gap`` in the file, from the topics' ``seq``. It
 writes MCAP (:mod:`daemon.recordings.mcap_log`) into the daemon's recording directory.
@@ -30,7 +31,7 @@ import os
 import signal
 import time
 
-from hal.process import Child, Helper
+from hal.process import Child, Helper, HelperFailed
 
 FEED = "recorder-feed"  # ipc socket names in the rings' directory
 CONTROL = "recorder-control"
@@ -67,9 +68,16 @@ class RecorderProcess:
         (its recordings in progress end where they were); what happened, as an event's cause."""
         code = self._proc.restart_if_dead()
         if code is None:
+            try:
+                self._proc.poll_ready()  # (health: running once the new one is)
+            except HelperFailed:
+                pass  # it exits: the next check starts another
             return None
         return f"the recorder process exited (code {code}) and was restarted (restart {self.restarts}); " \
                f"its recordings in progress end where they were"
+
+    def health(self) -> dict:
+        return self._proc.health()
 
     @property
     def alive(self) -> bool:
@@ -105,7 +113,7 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     control.setsockopt(zmq.ROUTER_MANDATORY, 1)  # a send with no messenger connected fails (held, not lost)
     for sock in (feed, control):
         sock.setsockopt(zmq.LINGER, 0)
-    feed.bind(endpoint(rings_dir, FEED))
+    feed.connect(endpoint(rings_dir, FEED))  # the messenger's: one queue, in order, across its restarts
     control.bind(endpoint(rings_dir, CONTROL))
     held: list[list[bytes]] = []  # events no messenger has taken yet
     archive = Archive(rings_dir, directory, max_mb * 1e6, min_free_mb * 1e6,
