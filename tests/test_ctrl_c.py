@@ -15,7 +15,7 @@ import pytest
 from daemon.client.client import Client
 from daemon.recordings import mcap_log
 from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
-from tests.test_readme_tour import restore_sigint
+from tests.doc_runs import restore_sigint
 
 pytestmark = pytest.mark.slow
 
@@ -120,3 +120,4 @@ def test_ctrl_c_during_payload_identify_aborts_its_move_and_stores_nothing(daemo
     assert not reference.exists()
     status = client.status()
     assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0 and not status["lease_held"]
+
