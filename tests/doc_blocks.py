@@ -35,7 +35,6 @@ How to account for a line you add to a document:
 """
 from __future__ import annotations
 
-import inspect
 import json
 import re
 import sys
@@ -294,12 +293,14 @@ def _read(doc: str, section: str | None, kind: str, match: str | None, fill: dic
 
 
 def _calling_test_files() -> set[str]:
+    """The files of tests/ on the calling stack (this one left out)."""
     here = Path(__file__).resolve()
-    out = set()
-    for frame in inspect.stack():
-        path = Path(frame.filename).resolve()
+    out, frame = set(), sys._getframe(1)
+    while frame is not None:
+        path = Path(frame.f_code.co_filename).resolve()
         if path != here and path.parent == here.parent:
             out.add(f"tests/{path.name}")
+        frame = frame.f_back
     return out
 
 
