@@ -20,18 +20,23 @@ How to account for a line you add to a document:
 
 1. Run it in a test, reading it from the document through this module, never a copy:
    ``doc_blocks.commands("docs/x.md", "Its heading")`` gives the section's shell lines (a
-   ``match=`` regex picks some), ``doc_blocks.snippet(...)`` a Python snippet; each carries
-   ``.text`` (what to run, the declared substitutions made), ``.written`` (as the document
-   has it) and ``.line``. Then claim it in tests/doc_claims.toml: a ``[[run]]`` table with
-   ``doc``, ``section``, optionally ``lines`` (a regex the claimed lines match) and ``test``
-   (``tests/test_x.py::test_name``). The reading fails unless the calling test file claims it.
+   ``match=`` regex picks some; section None: the whole document's), ``doc_blocks.snippet(...)``
+   a Python snippet; each carries ``.text`` (what to run, the declared substitutions made),
+   ``.written`` (as the document has it) and ``.line``; tests/doc_runs.py runs one as a user
+   would. Then claim it in tests/doc_claims.toml: a ``[[run]]`` table with ``doc``,
+   ``section`` (optional: every section), ``lines`` (optional: a regex the claimed lines match)
+   and ``test`` (``tests/test_x.py::test_name``, a file that names the doc and section). The
+   reading fails unless the calling test file claims what it reads.
 2. What a test must change in a line to run it here (a private endpoint for the lab's, a
    scratch directory, a shorter ``--seconds``) is a ``[[substitute]]`` table of the same file:
-   ``pattern`` (a regex), ``with`` (its replacement; ``{name}`` is a value the test passes:
-   ``commands(..., link=...)``), ``reason``; ``interrupt_after`` (a regex of its output) says
-   the line is left with Ctrl-C once it has printed that (a live view, a run of minutes).
+   ``pattern`` (a regex), ``with`` (its replacement; ``{name}`` is a value the test passes,
+   ``commands(..., link=...)``, ``{m1}`` the pattern's first group), ``reason``;
+   ``interrupt_after`` (a regex of its output) says the line is left with Ctrl-C once it has
+   printed that (a live view, a run of minutes).
 3. A line no test can run here (real hardware, systemd as PID 1, an install from the
    network) is a ``[[cannot]]`` table with its ``reason``.
+
+``python -m tests.doc_blocks`` prints every line and who runs it, or why it cannot run.
 """
 from __future__ import annotations
 
