@@ -57,7 +57,7 @@ def leased_daemon(*options: str, timeout: float = 10.0):
     daemon, eps = spawn_daemon(*options)
     try:
         client = Client(**eps, timeout=timeout)
-        client.ping()
+        wait_answering(client, daemon)
         stats = stats_subscriber(eps)
         client.acquire_lease()
         client.keep_lease()
@@ -68,6 +68,21 @@ def leased_daemon(*options: str, timeout: float = 10.0):
     finally:
         daemon.terminate()
         daemon.wait(10)
+
+
+def wait_answering(client: Client, daemon: subprocess.Popen, limit_s: float = 60.0) -> None:
+    """Ping until the daemon just started answers: on a busy machine its start (the imports,
+    the helpers) takes more than one ping's wait (10 s seen beside other work)."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        if daemon.poll() is not None:
+            raise RuntimeError(f"pneumad exited with {daemon.returncode} before it answered")
+        try:
+            client.call("ping", timeout=2.0)
+            return
+        except TimeoutError:
+            if time.monotonic() > deadline:
+                raise
 
 
 def with_keys() -> tuple[str, ...]:

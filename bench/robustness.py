@@ -200,7 +200,7 @@ def summary(cases: list[Case]) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controllers", nargs="*", default=CONTROLLERS)
+    parser.add_argument("--controllers", nargs="*", default=CONTROLLERS, choices=CONTROLLERS)
     parser.add_argument("--quick", action="store_true", help="equal gains on both joints only (8 corners)")
     parser.add_argument("--csv", help="write every case here")
     args = parser.parse_args(argv)

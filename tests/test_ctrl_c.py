@@ -15,7 +15,7 @@ import pytest
 from daemon.client.client import Client
 from daemon.recordings import mcap_log
 from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
-from tests.test_readme_tour import restore_sigint
+from tests.doc_runs import restore_sigint
 
 pytestmark = pytest.mark.slow
 
@@ -120,3 +120,40 @@ def test_ctrl_c_during_payload_identify_aborts_its_move_and_stores_nothing(daemo
     assert not reference.exists()
     status = client.status()
     assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0 and not status["lease_held"]
+
+
+# Ctrl-C the moment the routine's lease is taken: the script sends itself SIGINT right after the
+# daemon granted it, before the routine renews it (where a terminal's Ctrl-C just after the
+# routine said its plan lands on a loaded machine), then exits as pneumactl would.
+TAKEN_THEN_CTRL_C = """
+import os, signal, sys
+from pathlib import Path
+from daemon.client import payload_routine
+from daemon.client.client import Client, Interrupted
+client = Client(timeout=5.0)
+take = client.acquire_lease
+def taken_then_ctrl_c(*args, **kwargs):
+    granted = take(*args, **kwargs)
+    print(granted["ttl_s"], flush=True)
+    os.kill(os.getpid(), signal.SIGINT)
+    return granted
+client.acquire_lease = taken_then_ctrl_c
+try:
+    payload_routine.run(client, Path(sys.argv[1]), True)
+except (KeyboardInterrupt, Interrupted):
+    sys.exit(130)
+"""
+
+
+def test_ctrl_c_while_a_routine_takes_its_lease_hands_the_lease_back(daemon):
+    """A lease taken and then never renewed lapses and trips the enabled arm ("lease lost"):
+    a Ctrl-C that comes while the routine takes it is held back until it is, and the lease
+    handed back with the rest."""
+    client, eps, tmp_path = daemon
+    enabled_and_still(client, eps)
+    done = subprocess.run([sys.executable, "-c", TAKEN_THEN_CTRL_C, str(tmp_path / "never.json")], cwd=tmp_path,
+                          env=endpoint_env(eps), capture_output=True, text=True, timeout=120, preexec_fn=restore_sigint)
+    assert done.returncode == 130, done.stderr
+    time.sleep(2 * float(done.stdout.split()[0]))  # the lease's time to lapse, twice
+    status = client.status()
+    assert status["state"] == "enabled" and status["trips"] == 0 and not status["lease_held"], status["cause"]

@@ -2,7 +2,8 @@
 the simulated plant, perturbed without the daemon's rig file knowing it, served by pymodbus's
 own server in its own process; a real daemon reaching it over Modbus TCP; the lines (enable,
 ``pneumactl identify``, ``pneumad --check`` on the file it wrote) running the experiments,
-fitting, writing the figures and a rig file; then the daemon run again with that file.
+fitting, writing the figures and a rig file; docs/identification.md's notebook lines on the
+experiments recorded; then the daemon run again with that file.
 
 The README runs its lines against the tour's daemon on the built-in rig. Here they run against
 a harder one, a plant the daemon was not told behind a wire, from a fresh working directory and
@@ -24,7 +25,7 @@ from daemon.client.client import Client
 from hal import config
 from hal.identified import IDENTIFIED
 from tests.daemons import endpoint_env, real_daemon, tolerant_rig_text, wait_for_own_daemon
-from tests.test_readme_tour import section_lines
+from tests import doc_blocks, doc_runs
 from tests.wirehelpers import start_peer, stop_peer
 
 pytestmark = pytest.mark.slow(seconds=120)  # its wall time on a 2-core machine: tests/conftest.py orders by it
@@ -59,8 +60,8 @@ def start(tmp_path, rig_path, port):
 
 
 def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_daemon_then_runs_with(tmp_path):
-    lines = section_lines("Identifying a joint")
-    assert [line.split()[1] for line in lines] == ["enable", "identify", "--no-rt"]
+    lines = doc_blocks.commands("README.md", "Identifying a joint")
+    assert [line.written.split()[1] for line in lines] == ["enable", "identify", "--no-rt"]
     work = tmp_path / "work"
     work.mkdir()
     prior = IDENTIFIED["bottom"]
@@ -75,9 +76,8 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         daemon, eps, client = start(tmp_path / "first", wired_rig(tmp_path, tolerant_rig_text()), port)
         try:
             for line in lines[:2]:
-                done = subprocess.run(["bash", "-c", line], cwd=work, env=endpoint_env(eps), capture_output=True,
-                                      text=True, timeout=900)
-                assert done.returncode == 0, (line, done.stderr[-3000:])
+                done = doc_runs.run(line, work, env=endpoint_env(eps), timeout=900)
+                assert done.returncode == 0, done.explain()
                 print(done.stderr[-4000:])
             assert client.status()["trips"] == 0
         finally:
@@ -87,8 +87,8 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         out = work / "identified"
         assert {p.name for p in out.iterdir()} >= {"rig.toml", "report.json", "experiments.mcap", "bode-bottom.png",
                                                    "time-bottom.png"}
-        checked = subprocess.run(["bash", "-c", lines[2]], cwd=work, capture_output=True, text=True, timeout=60)
-        assert checked.returncode == 0 and "model 'bottom-identified'" in checked.stdout, checked.stderr
+        checked = doc_runs.run(lines[2], work, timeout=60)
+        assert checked.returncode == 0 and "model 'bottom-identified'" in checked.stdout, checked.explain()
         report = json.loads((out / "report.json").read_text())
         assert [e["signal"] for e in report["experiments"]] == ["prbs", "chirp", "prbs"]
         assert all(e["side"] == "input" for e in report["experiments"])
@@ -113,6 +113,11 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
             assert truth - tolerance <= report["params"][name] <= truth + tolerance + wire, (name, stated, exchange_s)
         for figure in report["figures"]:
             assert (out / figure.rsplit("/", 1)[-1]).stat().st_size > 20_000
+        # docs/identification.md's notebook lines, on the experiments this run recorded
+        notebook = doc_blocks.snippet("docs/identification.md", "From a notebook")
+        done = subprocess.run([sys.executable, "-c", notebook.text], cwd=out, capture_output=True, text=True,
+                              timeout=600)
+        assert done.returncode == 0 and "JointParams(" in done.stdout, (notebook.text, done.stderr[-3000:])
         written = config.load(out / "rig.toml")
         bottom = written.joints[0]
         assert bottom.model == "bottom-identified"

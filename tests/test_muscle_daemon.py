@@ -1,7 +1,8 @@
 """The muscle rig in a real daemon behind a real wire: the simulated joint as a serial bridge
 on a pseudo-terminal (python -m sim_backend.serial_peer), ``pneumad`` reaching it, and the
-README's "The muscle rig" commands run as written against it (its daemon line is the one
-thing changed: this daemon reaches the rig over the wire)."""
+README's "The muscle rig" lines run as written against it (read through tests/doc_blocks.py;
+its daemon line is the one thing changed, as tests/doc_claims.toml declares: this daemon
+reaches the rig over the wire)."""
 import os
 import signal
 import subprocess
@@ -11,22 +12,18 @@ import pytest
 
 from daemon.client.client import Client, RemoteError
 from hal import config
+from tests import doc_blocks, doc_runs
 from tests.daemons import endpoint_env, private_endpoints, wait_for_own_daemon
-from tests.test_readme_tour import BIN, ROOT
+from tests.test_readme_tour import options
 from tests.wirehelpers import start_peer, stop_peer
-
-
-def readme_lines() -> list[str]:
-    text = (ROOT / "README.md").read_text()
-    section = text.split("## The muscle rig", 1)[1].split("\n## ", 1)[0]
-    return [line.strip() for line in section.splitlines() if line.strip().startswith(".venv/bin/pneumactl")]
 
 
 def relaxed_rig(tmp_path):
     """sim-muscle with this shared machine's stalls tolerated (tests.daemons says why) and a
     wire's sample age up to 1 s, the rig file's most (a loaded machine held the peer 180 ms,
     and beside two CPU hogs the arm tripped between two lines at 0.5 s; what this test checks is
-    the README's commands, not the machine's latency)."""
+    the README's commands, not the machine's latency): the peer's rig, and the daemon's
+    through its line's ``--safety`` options (tests/doc_claims.toml)."""
     text = config.load("sim-muscle").source
     text = text.replace("stall_after_s = 0.05", "stall_after_s = 5.0").replace("stale_after_s = 0.005",
                                                                                   "stale_after_s = 1.0")
@@ -37,17 +34,14 @@ def relaxed_rig(tmp_path):
 
 @pytest.mark.slow(seconds=14)
 def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(tmp_path):
-    lines = readme_lines()
-    assert any("--stiffness" in line for line in lines)
     rig, link = relaxed_rig(tmp_path), tmp_path / "bridge"
+    eps = private_endpoints(tmp_path)  # the lines reach it through the environment, never the default ports
+    daemon_line, *lines = doc_blocks.commands("README.md", "The muscle rig", link=str(link),
+                                              recordings=str(tmp_path / "rec"), endpoints=options(eps))
+    assert daemon_line.written.startswith(".venv/bin/pneumad ") and any("--stiffness" in c.written for c in lines)
     peer = start_peer("sim_backend.serial_peer", "--config", str(rig), "--link", str(link),
                       ready=lambda: os.path.exists(link))
-    eps = private_endpoints(tmp_path)  # the lines reach it through the environment, never the default ports
-    # the bridge may take seconds to answer on a loaded machine (two CPU hogs held the peer 6 s)
-    daemon = subprocess.Popen([BIN + "pneumad", "--no-rt", "--config", str(rig), "--transport", "serial",
-                               "--transport-option", f"port={link}", "--transport-option", "open_timeout_s=30",
-                               "--record-dir", str(tmp_path / "rec"),
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=tmp_path)
+    daemon = subprocess.Popen(["bash", "-c", "exec " + daemon_line.text], cwd=tmp_path)
     try:
         with Client(**eps, timeout=5.0) as client:
             wait_for_own_daemon(client, daemon)
@@ -55,10 +49,10 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
             joint, = describe["joints"]
             assert joint["actuation"] == "muscle_pair" and joint["setpoints"] == ["angle", "stiffness"]
             assert [c["name"] for c in describe["command_interfaces"]] == ["pressure_a", "pressure_b", "brake"]
-            for line in lines:
-                done = subprocess.run(["bash", "-c", line.replace(".venv/bin/", BIN, 1)], cwd=tmp_path,
-                                      env=endpoint_env(eps), capture_output=True, text=True, timeout=60)
-                assert done.returncode == 0, f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}"
+            for command in lines:
+                line = command.written
+                done = doc_runs.run(command, tmp_path, env=endpoint_env(eps), timeout=60)
+                assert done.returncode == 0, f"{done.explain()}\n{client.status()['cause']}"
                 status = client.status()
                 assert status["state"] == "enabled", (line, status["cause"])
                 if " controller switch " in line:  # the brake damping set on muscle_eq: not dropped silently

@@ -1,5 +1,6 @@
-"""README.md's tour, read from README.md and run line by line against a real daemon, as a
-user would type it: so the README cannot drift from what the daemon does.
+"""README.md's tour, read from README.md (through tests/doc_blocks.py) and run line by line
+against a real daemon, as a user would type it: so the README cannot drift from what the
+daemon does. What each line is changed by to run here is declared in tests/doc_claims.toml.
 
 Each ``pneumactl`` line runs through bash as written (``.venv/bin/`` is this interpreter's
 bin directory) and must exit 0. It runs in a temporary directory holding copies of what the
@@ -9,7 +10,7 @@ touched; its daemon is on private endpoints that the lines reach through ``PNEUM
 ``PNEUMAD_CONTROL`` and ``PNEUMAD_TELEMETRY``, so a daemon on the default endpoints (the lab's
 own) is never spoken to. Before a motion line the test waits for
 the reference in force to end, as a user would (a motion command while another runs is
-refused by design); ``watch`` is left with Ctrl-C after a moment. The lines that only read
+refused by design); ``watch`` is left with Ctrl-C once it has shown a cycle. The lines that only read
 the tour's own recording (``export``, ``plot``) run beside the lines after them, as a user
 could in another terminal; each still has to exit 0.
 """
@@ -27,11 +28,10 @@ import pytest
 
 from daemon.recordings import mcap_log
 from daemon.client.client import Client
+from tests import doc_blocks, doc_runs
 from tests.daemons import (endpoint_env, free_tcp_ports, private_endpoints, tolerant_rig_text,
                            wait_for_own_daemon)
-
-ROOT = Path(__file__).resolve().parents[1]
-BIN = str(Path(sys.executable).parent) + "/"
+from tests.doc_blocks import BIN, ROOT
 MOTION = ("set", "path", "waypoints", "steps", "excite")
 FILES_ONLY = ("export", "plot")  # lines that read a finished recording and never speak to the daemon
 TOUR_GRACE_S = 600.0  # [s] an unleased, holding arm's grace in the tour's rig (start_daemon says why)
@@ -39,12 +39,9 @@ TOUR_GRACE_S = 600.0  # [s] an unleased, holding arm's grace in the tour's rig (
 pytestmark = pytest.mark.slow
 
 
-def tour_lines() -> list[str]:
-    """The ``pneumactl`` lines of the README's tour, comments stripped, continuations joined."""
-    text = (ROOT / "README.md").read_text()
-    section = text.split("## A short tour", 1)[1].split("\n## ", 1)[0]
-    lines = [re.sub(r"\s+#.*$", "", line.strip()) for line in section.splitlines()]
-    return [line for line in lines if line.startswith(".venv/bin/pneumactl ")]
+def tour_lines() -> list[doc_blocks.Command]:
+    """The ``pneumactl`` lines of the README's tour."""
+    return doc_blocks.commands("README.md", "A short tour", match=r"^\.venv/bin/pneumactl ")
 
 
 def wait_for_reference_end(client: Client, limit_s: float = 60.0) -> None:
@@ -73,8 +70,9 @@ def tour_directory(tmp_path: Path) -> Path:
 def start_daemon(tmp_path: Path, cwd: Path) -> tuple[subprocess.Popen, dict[str, str]]:
     """The tour's daemon line on private endpoints (the lines reach it through the environment)."""
     eps = private_endpoints(tmp_path)
-    # As the README advises it: real-time scheduling where the test may have it (root, as in
-    # CI), --no-rt otherwise. Two changes to the rig, both for a loaded machine: its stall limit
+    # The README's line, with what tests/doc_claims.toml declares. As the README advises it:
+    # real-time scheduling where the test may have it (root, as in CI), --no-rt otherwise.
+    # Two changes to the rig, both for a loaded machine: its stall limit
     # (tests.daemons says why), and its grace for an arm holding with no lease holder. `path
     # translation --record --wait` hands the lease back once the path is in force and then
     # follows it to its recording's file; beside two CPU hogs the recorder (nice 5) wrote that
@@ -84,51 +82,46 @@ def start_daemon(tmp_path: Path, cwd: Path) -> tuple[subprocess.Popen, dict[str,
     assert f"unleased_grace_s = {TOUR_GRACE_S}" in text
     rig = tmp_path / "tour-rig.toml"
     rig.write_text(text)
-    daemon = subprocess.Popen([BIN + "pneumad", *([] if os.geteuid() == 0 else ["--no-rt"]), "--config",
-                               str(rig), "--record-dir", str(tmp_path / "recordings"),
-                               *sum(([f"--{k}", v] for k, v in eps.items()), [])], cwd=cwd)
+    line, = doc_blocks.commands("README.md", "A short tour", match=r"^\.venv/bin/pneumad ", no_rt=no_rt(),
+                                rig=str(rig), recordings=str(tmp_path / "recordings"), endpoints=options(eps))
+    daemon = subprocess.Popen(["bash", "-c", "exec " + line.text], cwd=cwd)
     return daemon, eps
 
 
-def restore_sigint() -> None:
-    """In the child before exec: SIGINT's default action (a terminal's Ctrl-C stops it)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+def no_rt(match=None) -> str:
+    """``--no-rt`` where the test may not have real-time scheduling (not root), else nothing."""
+    return "" if os.geteuid() == 0 else " --no-rt"
 
 
-def section_lines(title: str) -> list[str]:
-    """The command lines of README.md's section ``title`` (those starting ``.venv/bin/``),
-    comments stripped, ``.venv/bin/`` made this interpreter's bin directory."""
-    section = (ROOT / "README.md").read_text().split(f"## {title}", 1)[1].split("\n## ", 1)[0]
-    return [re.sub(r"\s+#.*$", "", line.strip()).replace(".venv/bin/", BIN, 1)
-            for line in section.splitlines() if line.strip().startswith(".venv/bin/")]
+def options(eps: dict[str, str]) -> str:
+    """The daemon's options for the endpoints ``eps``."""
+    return " ".join(f"--{name} {address}" for name, address in eps.items())
 
 
 def test_the_readme_keys_example_runs_as_written(tmp_path):
     """The "From a laptop: keys" lines, in a fresh directory: keys made, a daemon on every
     interface with them, and Alice's key answered by name."""
-    lines = section_lines("From a laptop: keys")
-    assert len(lines) == 4 and " --keys " in lines[2] and "--key alice.key_secret" in lines[3]
     # The README's ports are the lab daemon's: the test's daemon takes free ones, and Alice's
     # line reaches it through the environment, as a laptop's shell would set it.
     ports = dict(zip(("5560", "5561", "5562"), map(str, free_tcp_ports(3))))
-    daemon_line = re.sub(r":(556[0-2])\b", lambda m: ":" + ports[m.group(1)], lines[2])
+    lines = doc_blocks.commands("README.md", "From a laptop: keys", ports=lambda m: ports[m.group(1)], no_rt=no_rt)
+    assert len(lines) == 4 and " --keys " in lines[2].text and "--key alice.key_secret" in lines[3].text
+    daemon_line = lines[2].text
     assert daemon_line.count("tcp://0.0.0.0:") == 3 and not re.search(r":556[0-2]\b", daemon_line)
     env = endpoint_env({name: f"tcp://127.0.0.1:{ports[default]}" for name, default in
                         (("command", "5560"), ("control", "5561"), ("telemetry", "5562"))})
     for line in lines[:2]:
-        done = subprocess.run(["bash", "-c", line], cwd=tmp_path, capture_output=True, text=True, timeout=60)
-        assert done.returncode == 0, (line, done.stderr)
-    daemon = subprocess.Popen(["bash", "-c", "exec " + daemon_line + ("" if os.geteuid() == 0 else " --no-rt")],
-                              cwd=tmp_path)
+        done = doc_runs.run(line, tmp_path, timeout=60)
+        assert done.returncode == 0, done.explain()
+    daemon = subprocess.Popen(["bash", "-c", "exec " + daemon_line], cwd=tmp_path)
     try:
         deadline = time.monotonic() + 60
         while True:
             assert daemon.poll() is None, "pneumad exited (is another daemon on the default endpoints?)"
-            done = subprocess.run(["bash", "-c", lines[3]], cwd=tmp_path, env=env, capture_output=True, text=True,
-                                  timeout=60)
+            done = doc_runs.run(lines[3], tmp_path, env=env, timeout=60)
             if done.returncode == 0:
                 break
-            assert time.monotonic() < deadline, done.stderr
+            assert time.monotonic() < deadline, done.explain()
         assert '"name": "alice"' in done.stdout and '"mode": "curve"' in done.stdout
         assert json.loads(done.stdout)["daemon"]["pid"] == daemon.pid  # bash exec'd pneumad: the same process
     finally:
@@ -156,7 +149,7 @@ def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tour):
     _, work, daemon, eps = tour
     with Client(**eps, timeout=5.0) as client:
         ours = wait_for_own_daemon(client, daemon)
-    for what in ("ping", "status"):
+    for what in ("ping", "status"):  # (the tour's own status line, and ping beside it)
         done = subprocess.run(["bash", "-c", f"{BIN}pneumactl {what}"], cwd=work, env=endpoint_env(eps),
                               capture_output=True, text=True, timeout=60)
         assert done.returncode == 0, done.stderr
@@ -166,7 +159,7 @@ def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tour):
 @pytest.mark.slow(seconds=65)
 def test_the_readme_tour_runs_as_written(tour):
     lines = tour_lines()
-    assert len(lines) >= 15 and any(" watch" in line for line in lines)
+    assert len(lines) >= 15 and any(" watch" in line.text for line in lines)
     tmp_path, work, daemon, eps = tour
     env = endpoint_env(eps, PYTHONUNBUFFERED="1")
     beside = []  # (line, process) of the FILES_ONLY lines
@@ -176,32 +169,21 @@ def test_the_readme_tour_runs_as_written(tour):
             wait_for_own_daemon(client, daemon)
             events = client.subscribe((b"event",))  # what the daemon did, for a failure's message
             for line in lines:
-                command = line.replace(".venv/bin/", BIN, 1)
-                words = line.split()
+                words = line.written.split()
                 if words[1] in MOTION:
                     wait_for_reference_end(client)
-                if words[1] == "watch":
-                    # Ctrl-C as a terminal sends it. A test run started in the background by a
-                    # script has SIGINT ignored, and children inherit that (a shell cannot undo
-                    # it): give the command the default action a terminal's would have.
-                    proc = subprocess.Popen(["bash", "-c", "exec " + command], cwd=work, env=env,
-                                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                            preexec_fn=restore_sigint)
-                    time.sleep(2.0)
-                    proc.send_signal(signal.SIGINT)
-                    out, err = proc.communicate(timeout=10)
-                    assert proc.returncode == 0 and "cycle" in out, (line, out, err)
-                    continue
                 if words[1] in FILES_ONLY:
-                    beside.append((line, subprocess.Popen(["bash", "-c", command], cwd=work, env=env, text=True,
+                    beside.append((line, subprocess.Popen(["bash", "-c", line.text], cwd=work, env=env, text=True,
                                                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)))
                     continue
-                done = subprocess.run(["bash", "-c", command], cwd=work, capture_output=True, text=True, timeout=120,
-                                      env=env)
-                assert done.returncode == 0, (f"{line}\n{done.stdout}\n{done.stderr}\n{client.status()['cause']}\n"
+                done = doc_runs.run(line, work, env=env, timeout=120)  # `watch`: Ctrl-C once it shows a cycle
+                assert done.returncode == 0, (f"{done.explain()}\n{client.status()['cause']}\n"
                                               f"the daemon's last events: {last_events(events)}")
+                if words[1] == "watch":
+                    assert "cycle" in done.stdout, done.explain()
+                    continue
                 notes += done.stderr.count("note: the arm stays enabled")
-                if line.endswith("path translation --record --wait"):  # the thesis's 15 s runs as it is (issue 32)
+                if line.written.endswith("path translation --record --wait"):  # the thesis's 15 s runs as it is
                     assert "is beyond this rig" not in done.stderr, done.stderr
                 state = client.status()["state"]
                 expected = {"enable": "enabled", "estop": "estop", "reset": "idle", "disable": "idle"}.get(words[1])
@@ -211,15 +193,13 @@ def test_the_readme_tour_runs_as_written(tour):
             assert notes == 1  # told once, by the line that enabled the arm
             for line, proc in beside:
                 out, err = proc.communicate(timeout=120)
-                assert proc.returncode == 0, f"{line}\n{out}\n{err}"
+                assert proc.returncode == 0, f"README.md:{line.line}: {line.written}\n{out}\n{err}"
             # the daemon's own recording of the translation, whole
             recorded, = (tmp_path / "recordings").glob("*-path-translation.mcap")
             cycles = [m["cycle"] for m in mcap_log.read(recorded).messages["state"]]
             assert len(cycles) > 20_000 and cycles == list(range(cycles[0], cycles[0] + len(cycles)))
             # the notebook lines, on the recording the tour made
-            text = (ROOT / "README.md").read_text()
-            snippet = "\n".join(line.strip() for line in text.splitlines()
-                                 if "from daemon import recordings" in line or "recordings.load(" in line)
+            snippet = doc_blocks.snippet("README.md", "A short tour", match=r"recordings\.load\(").text
             shown = re.findall(r'data\["([^"]+)"\]', snippet)  # every key its comment shows is in the recording
             assert "middle.angle_rad" in shown
             check = f"\nmissing = [k for k in {shown!r} if k not in data]\nassert not missing, missing" \

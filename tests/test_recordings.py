@@ -281,6 +281,7 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
     import sys
     from pathlib import Path
 
+    from tests import doc_blocks
     from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
     root = Path(__file__).resolve().parents[1]
     daemon, eps = real_daemon(tmp_path)
@@ -289,8 +290,7 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
             wait_for_own_daemon(client, daemon)
         # the README's Python snippet first, as written (its client finds the daemon through the
         # environment): it leaves the arm enabled and the translation running, which a user stops
-        readme = (root / "README.md").read_text().split("From Python:", 1)[1].split("\n\n", 2)[1]
-        snippet = "\n".join(line[4:] for line in readme.splitlines())
+        snippet = doc_blocks.snippet("README.md", "A short tour", match=r"from daemon\.client import Client").text
         assert "c.enable()" in snippet and "Client()" in snippet
         done = subprocess.run([sys.executable, "-c", snippet], cwd=tmp_path, env=endpoint_env(eps),
                               capture_output=True, text=True, timeout=60)

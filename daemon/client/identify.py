@@ -29,6 +29,7 @@ from daemon.recordings import reading as recording
 from daemon.wire import protocol as P
 from daemon.wire.signals import recorded
 from daemon.client.client import Client, Interrupted, RemoteError, abort_started
+from daemon.client.routine_lease import routine_lease
 from hal import config
 from hal.identified import UNITS
 
@@ -86,33 +87,32 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
         raise SystemExit("the arm is not enabled: `pneumactl enable` first (identification moves it)")
     j = names.index(joint)
     prior = experiments_of.prior_of(rig, joint)
-    client.acquire_lease()
-    client.keep_lease()
-    stop = threading.Event()
-    recorder = threading.Thread(target=mcap_log.record, args=(client, str(path), math.inf, None, stop),
-                                name="identify-record", daemon=True)
-    recorder.start()
-    time.sleep(0.5)  # the subscription reaches the publisher
-    try:
-        here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
-        target = operating_point(rig, j, at_deg or here, band_deg)
-        if any(abs(a - b) > 0.01 for a, b in zip(target, here)):
-            reply = _move(client, target, here)
-            _wait(client, reply.get("duration_s", 0.0), "the move to the operating point")
-            _wait_for_rest(client, joint)
-        for signal, settings in plan.experiments:
-            u_op = holding_volts(rig, joint, client.status()["joints"][joint]["setpoint_deg"])
-            reply = _excite(client, joint, j, describe, prior, signal, settings, plan.settle_s, amplitude, band_deg,
-                            u_op)
-            _wait(client, reply["duration_s"], f"{signal} on {joint}")
-            _wait_for_rest(client, joint)  # each experiment starts at rest: the fit assumes it
-    except (KeyboardInterrupt, Interrupted):  # it stops what it started: the experiment running
-        raise Interrupted(f"interrupted: identification stopped; {abort_started(client, 'the experiment running')}; "
-                          f"the experiments so far are in {path}; nothing was fitted") from None
-    finally:
-        stop.set()
-        recorder.join(5.0)
-        client.release_lease()
+    with routine_lease(client):  # handed back at the end, Ctrl-C included (a lapsed one trips the enabled arm)
+        stop = threading.Event()
+        recorder = threading.Thread(target=mcap_log.record, args=(client, str(path), math.inf, None, stop),
+                                    name="identify-record", daemon=True)
+        recorder.start()
+        try:
+            time.sleep(0.5)  # the subscription reaches the publisher
+            here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
+            target = operating_point(rig, j, at_deg or here, band_deg)
+            if any(abs(a - b) > 0.01 for a, b in zip(target, here)):
+                reply = _move(client, target, here)
+                _wait(client, reply.get("duration_s", 0.0), "the move to the operating point")
+                _wait_for_rest(client, joint)
+            for signal, settings in plan.experiments:
+                u_op = holding_volts(rig, joint, client.status()["joints"][joint]["setpoint_deg"])
+                reply = _excite(client, joint, j, describe, prior, signal, settings, plan.settle_s, amplitude, band_deg,
+                                u_op)
+                _wait(client, reply["duration_s"], f"{signal} on {joint}")
+                _wait_for_rest(client, joint)  # each experiment starts at rest: the fit assumes it
+        except (KeyboardInterrupt, Interrupted):  # it stops what it started: the experiment running
+            stopped = abort_started(client, "the experiment running")
+            raise Interrupted(f"interrupted: identification stopped; {stopped}; "
+                              f"the experiments so far are in {path}; nothing was fitted") from None
+        finally:
+            stop.set()
+            recorder.join(5.0)
 
 
 def operating_point(rig, j: int, angles_deg: list[float], band_deg: float) -> list[float]:

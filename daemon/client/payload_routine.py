@@ -38,6 +38,7 @@ from pathlib import Path
 
 from controllers.payload import PayloadEstimate, Posture, identify
 from daemon.client.client import Interrupted, abort_started
+from daemon.client.routine_lease import routine_lease
 from hal import config
 from hal.config import RigConfig
 from hal.regulator import ITV0051
@@ -266,8 +267,6 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
     estimates = posture_estimates_s(rig, targets, here)
     print(f"payload identify: {len(targets)} postures, each a move and a {dither_s(rig, names[0]):.0f} s dither per "
           f"joint: about {sum(estimates) / 60:.0f} min (Ctrl-C stops it)", file=sys.stderr, flush=True)
-    client.acquire_lease()
-    client.keep_lease()
     started = time.monotonic()
 
     def show(k, n, target, torques):
@@ -276,7 +275,7 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
               f"{', '.join(f'{t:.3f}' for t in torques)} N m ({(time.monotonic() - started) / 60:.1f} min in, "
               f"about {left / 60:.1f} min left)", file=sys.stderr, flush=True)
 
-    try:  # the lease handed back at the end (a lapsed one trips the enabled arm)
+    with routine_lease(client):  # handed back at the end, Ctrl-C included (a lapsed one trips the enabled arm)
         try:
             readings = measure(client_arm(client, rig), rig, targets, show)
         except (KeyboardInterrupt, Interrupted):  # it stops what it started: the move or dither running
@@ -290,5 +289,3 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
         if apply:
             found["applied"] = client.set_load(found["mass_kg"], found["com_mm"])
         return found
-    finally:
-        client.release_lease()
