@@ -7,8 +7,6 @@ the simulation, and a closed-loop sanity check."""
 import dataclasses
 import math
 import random
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -34,8 +32,8 @@ from hal.linear_axis import (
 )
 from hal.linear_axis_facts import balance_pressure, facts, linearise, null_spool, null_volts, rest_state, steady_motion
 from sim_backend.axis_model import AxisModel
+from tests import doc_blocks
 
-ROOT = Path(__file__).resolve().parents[1]
 H = 1e-3
 FRICTIONLESS = AxisParams(coulomb_n=0.0, static_n=0.0)
 
@@ -362,10 +360,7 @@ def test_a_pd_position_loop_settles_a_50_mm_step_within_1_mm_in_under_2_s(start_
 
 
 def test_the_documented_snippet_runs():
-    text = (ROOT / "docs" / "simulator.md").read_text()
-    section = text.split("## The linear axis", 1)[1].split("\n## ", 1)[0]
-    block = re.search(r"((?:^    from hal\.linear_axis.*\n)(?:^    .*\n|^\n)*)", section, re.M).group(1)
-    code = "\n".join(line[4:] for line in block.splitlines())
+    code = doc_blocks.snippet("docs/simulator.md", "The linear axis", match=r"from hal\.linear_axis").text
     namespace: dict = {}
     exec(compile(code, "docs/simulator.md", "exec"), namespace)
     assert abs(namespace["model"].position_m - 0.1) > 0.001
