@@ -74,7 +74,7 @@ def test_reply_carries_the_request_id_and_works_for_req_clients(served):
     (msgpack.packb({"v": 99, "id": 1, "cmd": "ping"}), P.BAD_VERSION),
     (msgpack.packb({"v": 1, "id": 1, "cmd": "self_destruct"}), P.UNKNOWN_COMMAND),
     (msgpack.packb({"v": 1, "id": 1, "cmd": "ping", "args": {"x": [[[[]]]] * 5000}}), P.BAD_MESSAGE),
-    (msgpack.packb({"v": 1, "id": 1, "cmd": "set", "args": {"angles_deg": ["a", 1]}}), P.NO_LEASE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "set", "args": {"angles_deg": ["a", 1]}}), P.BAD_ARGS),  # before the lease
 ])
 def test_bad_messages_get_clear_errors(served, payload, code):
     loop, _, srv = served
@@ -88,7 +88,7 @@ def test_bad_messages_get_clear_errors(served, payload, code):
 
 
 @pytest.mark.parametrize("args, code, words", [
-    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite numbers"),
+    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite number"),
     ({"angles_deg": [120.0]}, P.BAD_ARGS, "list of 2"),
     ({"angles_deg": [120.0, -80.0], "xy_mm": [1, 2]}, P.BAD_ARGS, "exactly one"),
     ({"angles_deg": [180.0, -80.0]}, P.REFUSED, "outside its limits"),
@@ -376,6 +376,41 @@ def test_the_order_of_checks_is_the_documented_one(daemon):
     ok(loop, sock, "enable", lease=lease)
     refused = call(loop, sock, "set", three, lease)["error"]
     assert refused["code"] == P.BAD_ARGS and refused["data"] == {"argument": "angles_deg", "expected_items": 2}
+
+
+CATALOG_REFUSED = [  # each argument the catalog refuses, and the data its refusal carries
+    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, -80.0]], "durations_s": [0.001]},
+     {"argument": "durations_s", "index": [0], "low": 0.01, "high": 3600.0}),
+    ("steps", {"angles_deg": [[120.0, -80.0]], "hold_s": [0.0001]},
+     {"argument": "hold_s", "index": [0], "low": 0.001, "high": 3600.0}),
+    ("excite", {"side": "input", "signal": "steps", "joint": "middle", "amplitude_v": 0.5, "levels": [2]},
+     {"argument": "levels", "index": [0], "low": -1.0, "high": 1.0}),
+    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, "x"]], "durations_s": [1.0]},
+     {"argument": "angles_deg", "index": [1, 1], "expected": "number"}),
+    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, -80.0], [122.0, -80.0]], "durations_s": [1.0]},
+     {"argument": "durations_s", "expected_items": 2}),
+    ("excite", {"signal": "steps", "joint": "middle", "amplitude_deg": 1.0, "levels": [0.5]},
+     {"argument": "signal", "allowed": ["chirp", "prbs", "multisine"]}),
+    ("excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 1.0, "order": 8}, {"argument": "order"}),
+    ("set", {"duration_s": 1.0}, {"argument": "angles_deg"}),  # none of angles_deg, angles_rad, xy_mm
+    ("load.set", {"mass_kg": 0}, {"argument": "mass_kg", "low": 0.0, "high": 1000.0}),
+]
+
+
+def test_a_list_element_out_of_its_catalog_bounds_is_bad_args_in_every_state(daemon):
+    """What the catalog refuses (a list's element out of its bounds or not a number, lengths
+    that do not go together, a variant's arguments) is bad_args in every state, idle and
+    enabled alike: the messenger checks it before the loop checks the state."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    for state in ("idle", "enabled"):
+        if state == "enabled":
+            ok(loop, sock, "enable", lease=lease)
+        for cmd, args, data in CATALOG_REFUSED:
+            error = call(loop, sock, cmd, args, lease)["error"]
+            assert (error["code"], error["data"]) == (P.BAD_ARGS, data), (state, cmd, args, error)
+            assert loop.state.value == state
 
 
 def test_estop_events_and_their_state_event_say_who_sent_it(daemon):

@@ -107,13 +107,13 @@ class Relay:
                              {"reason": "revoked", "key": frames[-1].get("User-Id")})
                 continue
             try:
-                request = protocol.decode_request(body)
-                command = self._admit(name, request, identity)
+                command, request = self._admit(name, protocol.decode_request(body), identity)
             except protocol.ProtocolError as exc:
                 self._send(sock, envelope, protocol.encode_error(exc.request_id, exc.code, exc.message))
                 continue
             except CommandFailed as exc:
-                self._send(sock, envelope, protocol.encode_error(request["id"], exc.code, exc.message, exc.data))
+                self._send(sock, envelope, protocol.encode_error(protocol.request_id_of(body), exc.code, exc.message,
+                                                                 exc.data))
                 continue
             if command.server == "messenger":
                 self._served[command.name](sock, envelope, request["id"])
@@ -132,17 +132,18 @@ class Relay:
                 self.owed[token] = (sock, envelope, time.monotonic(), request["id"])
 
     @staticmethod
-    def _admit(socket: str, request: dict, identity) -> catalog.Command:
-        """The request's catalog entry, checked in the documented order after its envelope:
-        the command (on this socket), its arguments, the key's role; a refusal raises
-        CommandFailed (or ProtocolError for arguments that cannot be read)."""
+    def _admit(socket: str, request: dict, identity) -> tuple[catalog.Command, dict]:
+        """The request's catalog entry and the request to pass on, checked in the documented
+        order after its envelope: the command (on this socket), its arguments, the key's role; a
+        refusal raises CommandFailed (or ProtocolError for arguments that cannot be read)."""
         command = catalog.find(request["cmd"], socket)
-        catalog.check_args(command, protocol.decode_args(request))
+        args = protocol.decode_args(request)
+        catalog.check_args(command, args)
         if command.role == OPERATOR and identity.role != OPERATOR:
             raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
                                                     f"may send {command.name}",
                                 {"reason": "role", "role": identity.role})
-        return command
+        return command, request
 
     # -- keys ------------------------------------------------------------------------------
     def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:
