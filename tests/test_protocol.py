@@ -1,8 +1,10 @@
 """The command protocol over real ZeroMQ sockets, with the loop on a virtual clock: bad input
 of every kind gets its error (or is refused) while the loop keeps its cycles."""
 import math
+import re
 import threading
 import time
+from pathlib import Path
 
 import msgpack
 import pytest
@@ -12,6 +14,8 @@ from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.loop.safety import State
 from daemon.testing.loop import call, dealer, exchange, make_loop, ok, run_seconds
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
 
 @pytest.fixture
@@ -183,6 +187,38 @@ def test_lease_expiry_trips_an_enabled_arm(daemon):
     run_seconds(loop, 0.6)
     assert loop.state is State.FAULT and "lease lost" in loop.supervisor.cause
     assert list(loop.io.transport.output_volts) == pytest.approx(list(loop.io.safe_volts), abs=1e-3)
+
+
+def test_disable_leaves_a_latched_fault_or_estop_as_it_is_and_the_document_says_so(daemon):
+    """A fault or an e-stop latches until reset (docs/protocol.md, "States"): disable, a safety
+    command, is never refused for the state, and from either answers the state it leaves as it is."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 0.5})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    run_seconds(loop, 0.6)  # the lease lapses: a trip
+    assert loop.state is State.FAULT
+    lease = leased(loop, sock)
+    assert ok(loop, sock, "disable", lease=lease) == {"state": "fault"} and loop.state is State.FAULT
+    ok(loop, sock, "reset", lease=lease)
+    ok(loop, sock, "enable", lease=lease)
+    ok(loop, dealer(srv, "control"), "estop", {"who": "test"})
+    assert ok(loop, dealer(srv, "control"), "disable", lease=lease) == {"state": "estop"}
+    assert loop.state is State.ESTOP
+    assert ok(loop, sock, "reset", lease=lease) == {"state": "idle"}
+    row = next(line for line in DOC.read_text().splitlines() if line.startswith("| `disable` |"))
+    assert "a `fault` or an `estop` stays latched" in row and "never refused for the state" in row
+
+
+def test_the_sockets_table_lists_every_telemetry_topic():
+    from daemon.messenger.shared import TOPICS
+
+    topics = {t.decode() for t in TOPICS if t}
+    text = DOC.read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| telemetry | PUB |"))
+    assert set(re.findall(r"`([a-z]+)`", row.split("|")[4])) == topics
+    telemetry = text.split("## Telemetry", 1)[1].split("\n", 2)[1]
+    assert set(re.findall(r"`([a-z]+)`", telemetry.split(")", 1)[0])) == topics
 
 
 def test_estop_on_the_control_socket_does_not_queue_behind_a_flood(daemon):
