@@ -236,10 +236,10 @@ class Commands:
 
     # -- state ------------------------------------------------------------------------------
     def estop(self, args):
-        """Latch the e-stop. Never refused for its arguments: a ``who`` that is not a string is
-        recorded as its repr, anything else is ignored. The key that sent it is recorded first."""
+        """Latch the e-stop. Never refused for its arguments: the messenger passes on only ``who``,
+        a string of at most 64 characters (a value that was not a string: its repr; anything else
+        sent beside it is dropped). The key that sent it is recorded first."""
         said = args.get("who", "")
-        said = (said if isinstance(said, str) else repr(said))[:64]
         who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
         self.loop.estop(who)
         return {"state": self.view.state.value}

@@ -135,7 +135,9 @@ class Relay:
     def _admit(socket: str, request: dict, identity) -> tuple[catalog.Command, dict]:
         """The request's catalog entry and the request to pass on, checked in the documented
         order after its envelope: the command (on this socket), its arguments, the key's role; a
-        refusal raises CommandFailed (or ProtocolError for arguments that cannot be read)."""
+        refusal raises CommandFailed (or ProtocolError for arguments that cannot be read). An
+        e-stop, never refused for its arguments, is passed on with only what the loop reads of
+        them (:func:`~daemon.wire.catalog.lenient_args`): a few bytes, whatever was sent."""
         command = catalog.find(request["cmd"], socket)
         args = protocol.decode_args(request)
         catalog.check_args(command, args)
@@ -143,6 +145,9 @@ class Relay:
             raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
                                                     f"may send {command.name}",
                                 {"reason": "role", "role": identity.role})
+        if not command.strict:
+            request = protocol.decode_request(protocol.encode_request(
+                request["id"], command.name, catalog.lenient_args(command, args), request["lease"]))
         return command, request
 
     # -- keys ------------------------------------------------------------------------------

@@ -245,7 +245,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             errors=(P.BAD_STATE,)),
     Command("disable", "loop", "to idle, safe outputs", _STATE, sockets=BOTH, lease=True),
     Command("estop", "loop", "latch the e-stop: safe outputs this cycle", _STATE, (
-        Arg("who", "string", "who stops it (first 64 characters kept)"),), sockets=BOTH, strict=False),
+        Arg("who", "string", "who stops it (first 64 characters kept)", high=64),), sockets=BOTH, strict=False),
     Command("abort", "loop", "stop any reference, hold the present position", ("reference",), sockets=BOTH),
     Command("reset", "loop", "fault/estop -> idle", _STATE, lease=True, errors=(P.BAD_STATE,)),
     Command("set", "planner", "move to joint angles or a tip point", ("target_deg", "duration_s", "stiffness_nm_deg",
@@ -366,7 +366,7 @@ def check_args(command: Command, args: dict) -> None:
     """bad_args unless ``args`` fit the catalog (names, types, bounds, list lengths and
     elements, one of, lengths that go together, a variant's arguments). In the messenger,
     beside the loop: its cost grows with the request (up to the decoder's limits: 64 KiB). An
-    e-stop's arguments are never refused."""
+    e-stop's arguments are never refused (:func:`lenient_args`)."""
     if not command.strict:
         return
     names = {a.name for a in command.args}
@@ -415,6 +415,18 @@ def _check_variants(command: Command, args: dict) -> None:
             if args.get(name, command.arg(name).default) not in allowed:
                 raise bad_args(f"'{name}' must be one of {', '.join(allowed)} with {on} {value}", name,
                                allowed=list(allowed))
+
+
+def lenient_args(command: Command, args: dict) -> dict:
+    """What a command that is never refused for its arguments (an e-stop) keeps of them, as the
+    messenger passes them on: its own arguments only, a string cut to its ``high`` characters
+    and anything else as its repr, so the loop reads a few bytes whatever was sent."""
+    kept = {}
+    for arg in command.args:
+        if arg.name in args:
+            value = args[arg.name]
+            kept[arg.name] = (value if isinstance(value, str) else repr(value)[:arg.high])[:arg.high]
+    return kept
 
 
 def check_handlers(servers: tuple[str, ...], handlers) -> None:
