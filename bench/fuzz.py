@@ -149,6 +149,14 @@ def restore(client: Client, state: str = "enabled") -> dict:
     """Back to ``state`` (enabled, holding; or idle), PID, no load, with the lease (a fuzzed
     lease.release is a valid command): the state rejected frames must not change."""
     status = client.status()
+    if status["lease_held"] and client.lease is not None:
+        try:
+            client.renew_lease()
+        except RemoteError:  # a fuzzed lease.acquire took it (a flood's): it lapses within its ttl (60 s at most)
+            deadline = time.monotonic() + 70.0
+            while client.status()["lease_held"] and time.monotonic() < deadline:
+                time.sleep(0.5)
+            status = client.status()
     if not status["lease_held"]:
         client.lease = None
         client.acquire_lease(ttl_s=60.0)
