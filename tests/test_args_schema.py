@@ -142,7 +142,7 @@ def served():
     srv.close()
 
 
-@pytest.mark.slow(seconds=240)
+@pytest.mark.slow(seconds=30)
 @pytest.mark.parametrize("state", ["idle", "enabled"])
 def test_the_args_schema_and_the_daemon_agree_at_every_bound(served, state):
     loop, srv = served
