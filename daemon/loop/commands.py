@@ -28,6 +28,7 @@ every event a request causes records who asked (:meth:`daemon.loop.events.EventL
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import secrets
 import time
@@ -45,6 +46,7 @@ from daemon.planner.process import Deferred, Preparer
 from daemon.loop.safety import State, StateError
 
 VERSION = "0.1.0"
+log = logging.getLogger("pneumad")
 
 
 class Commands:
@@ -76,6 +78,11 @@ class Commands:
         self.preparer = preparer or Preparer()
         self.view = loop.view  # what the handlers read; they change the loop only through its controls
         self._controllers = self._describe_controllers(self.view.controller_plugins)
+        self.refused_controllers = [c for c in self._controllers if "error" in c]  # status.controllers_refused
+        for refused in self.refused_controllers:  # at start-up, before the loop cycles: logged once, and an event
+            log.warning("controller %s refused: %s (requests for it are refused; controller.list and status say so)",
+                        refused["name"], refused["error"])
+            loop.events.add({"kind": "plugin", "name": refused["name"], "cause": refused["error"]})
         self.described = self._build_describe()  # what describe answers, packed once: it is large and never changes
         self._describe_packed = P.Packed.of(self.described)
         self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
@@ -184,6 +191,7 @@ class Commands:
         fields["unleased_disable_in_s"] = self.lease.disable_in()
         fields["client"] = {"name": self.client.name, "role": self.client.role}
         fields["security"] = self.security
+        fields["controllers_refused"] = self.refused_controllers
         fields["daemon"] = self.daemon
         return fields
 
@@ -315,12 +323,16 @@ class Commands:
 
     @staticmethod
     def _describe_controllers(plugins: dict[str, str]) -> list[dict]:
+        """Every registered controller described, or refused: ``{name, error}`` for a plugin
+        that cannot be loaded or described (whatever its module raises: never fatal)."""
         available = []
         for name in registry.available(plugins):
             try:
                 available.append(registry.load(name, plugins).describe())
             except LookupError as exc:
                 available.append({"name": name, "error": str(exc)})
+            except Exception as exc:  # a plugin's module or describe() that raises: refused, the daemon starts
+                available.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
         return available
 
     def controller_get(self, args):

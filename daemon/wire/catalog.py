@@ -232,7 +232,8 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("status", "loop", "the daemon's state now", (
         "state", "cause", "cycle", "t", "controller", "shadow", "reference", "reference_remaining_s", "joints",
         "force_n", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
-        "overruns_total", "scheduling", "load", "transport", "telemetry", "daemon"), sockets=BOTH),
+        "overruns_total", "scheduling", "load", "transport", "telemetry", "controllers_refused", "daemon"),
+            sockets=BOTH),
     Command("describe", "loop", "the rig, its limits and what the daemon serves", (
         "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "arm", "limits", "tracking",
         "transport", "units", "controllers", "states", "commands", "control_commands", "deferred_commands",
