@@ -107,13 +107,13 @@ class Relay:
                              {"reason": "revoked", "key": frames[-1].get("User-Id")})
                 continue
             try:
-                command, request = self._admit(name, protocol.decode_request(body), identity)
+                request = protocol.decode_request(body)
+                command, request = self._admit(name, request, identity)
             except protocol.ProtocolError as exc:
                 self._send(sock, envelope, protocol.encode_error(exc.request_id, exc.code, exc.message))
                 continue
             except CommandFailed as exc:
-                self._send(sock, envelope, protocol.encode_error(protocol.request_id_of(body), exc.code, exc.message,
-                                                                 exc.data))
+                self._send(sock, envelope, protocol.encode_error(request["id"], exc.code, exc.message, exc.data))
                 continue
             if command.server == "messenger":
                 self._served[command.name](sock, envelope, request["id"])
