@@ -157,3 +157,18 @@ def test_ctrl_c_while_a_routine_takes_its_lease_hands_the_lease_back(daemon):
     time.sleep(2 * float(done.stdout.split()[0]))  # the lease's time to lapse, twice
     status = client.status()
     assert status["state"] == "enabled" and status["trips"] == 0 and not status["lease_held"], status["cause"]
+
+
+@pytest.mark.parametrize("command", ["status", "describe", "controller list"])
+def test_pneumactl_piped_into_a_reader_that_stops_ends_quietly(daemon, command):
+    """``pneumactl status | head`` ended in a BrokenPipeError traceback: piped into a reader
+    that has gone (``true`` reads nothing), it ends as a Unix tool does, silently, with the
+    status a SIGPIPE gives (128 + 13); into ``head -n 1``, with its first line."""
+    _, eps, tmp_path = daemon
+    pneumactl = f"{sys.executable} -m daemon.client.ctl {command}"
+    gone = subprocess.run(["bash", "-c", f"{pneumactl} | true; exit ${{PIPESTATUS[0]}}"], cwd=tmp_path,
+                          env=endpoint_env(eps), capture_output=True, text=True, timeout=120)
+    assert (gone.returncode, gone.stderr) == (128 + signal.SIGPIPE, "")
+    head = subprocess.run(["bash", "-c", f"{pneumactl} | head -n 1"], cwd=tmp_path, env=endpoint_env(eps),
+                          capture_output=True, text=True, timeout=120)
+    assert head.stdout == "{\n" and head.stderr == ""

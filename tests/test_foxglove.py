@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 
 import pytest
+import websockets.exceptions
+import websockets.sync.client
 
 from mcap.reader import make_reader
 
@@ -227,6 +229,33 @@ def test_a_recording_made_by_the_daemon_has_the_live_streams_channels_and_old_re
     out = path.parent / "fox-plots"
     assert any(p.name.endswith("-joints.png") for p in plots.plot_runs([path], out))
     assert recording.export_csv(path, path.parent / "fox.csv") == len(data["t"])
+
+
+@pytest.mark.slow(seconds=15)
+def test_a_viewer_offering_only_the_older_subprotocol_is_refused_and_the_log_says_the_fix(tmp_path):
+    """foxglove-sdk refuses foxglove.websocket.v1 (an older Foxglove, Lichtblick before 1.22.1)
+    with a bare HTTP 400 and logs only "handshake failed": the daemon's log says why and what to
+    use. A real client (websockets) offering only that subprotocol, a real daemon's log."""
+    (port,) = free_tcp_ports(1)
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as out:
+        daemon, eps = real_daemon(tmp_path, "--foxglove", f"127.0.0.1:{port}", stderr=out)
+    try:
+        with Client(**eps, timeout=10.0) as client:
+            wait_for_own_daemon(client, daemon)
+        FoxgloveClient(port).ws.close()  # listening (the current subprotocol is served)
+        with pytest.raises(websockets.exceptions.InvalidStatus) as refused:
+            websockets.sync.client.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v1"],
+                                           open_timeout=30)
+        assert refused.value.response.status_code == 400
+        deadline = time.monotonic() + 30.0
+        while "handshake failed" not in log.read_text() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        line = next(line for line in log.read_text().splitlines() if "handshake failed" in line)
+        assert "foxglove.sdk.v1" in line and "foxglove.websocket.v1" in line and "Lichtblick 1.22.1" in line
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
 
 
 def test_foxglove_listens_on_loopback_unless_insecure():

@@ -1,6 +1,7 @@
 """Hot swap through the command protocol: controllers are built off the loop and swapped in
 at a cycle boundary, a candidate can run in shadow and be committed, and a failing
 candidate only ends its own run. The real loop on a virtual clock, real ZeroMQ sockets."""
+import logging
 import math
 import os
 import signal
@@ -329,3 +330,31 @@ def test_the_worker_warms_at_the_daemons_priority_and_builds_at_build_nice():
         assert build.future.result(timeout=120.0) == BUILD_NICE == 10 > os.getpriority(os.PRIO_PROCESS, 0)
     finally:
         preparer.close()
+
+
+def test_a_plugin_that_fails_to_load_is_said_at_start_in_the_log_an_event_and_the_status(caplog):
+    """Said before only in controller.list's answer: a plugin that cannot be loaded (no such
+    class, or a module that raises as it is imported) is refused, the daemon starts, and its log,
+    a ``plugin`` event and ``status.controllers_refused`` say which and why."""
+    from tests.schemas import schema
+
+    caplog.set_level(logging.WARNING, logger="pneumad")
+    loop, captured, srv = make_loop(server=True, plugins={"missing": "tests.plugins:NoSuchController",
+                                                          "raises": "tests.broken_plugin:Controller"})
+    try:
+        loop.run(20)
+        status = ok(loop, dealer(srv), "status")
+        listed = ok(loop, dealer(srv), "controller.list")["available"]
+    finally:
+        srv.close()
+    refused = {c["name"]: c["error"] for c in status["controllers_refused"]}
+    assert set(refused) == {"missing", "raises"}, refused
+    assert "NoSuchController" in refused["missing"] and "fails as it is imported" in refused["raises"]
+    assert [c for c in listed if "error" in c] == status["controllers_refused"]
+    schema("results", "status").validate(status)
+    events = [e for e in captured.of("event") if e["kind"] == "plugin"]
+    assert {e["name"]: e["cause"] for e in events} == refused
+    for event in events:
+        schema("telemetry", "event").validate(event)
+    logged = [r.getMessage() for r in caplog.records if r.name == "pneumad"]
+    assert all(any(f"controller {name} refused: {error}" in line for line in logged) for name, error in refused.items())

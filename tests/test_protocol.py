@@ -1,8 +1,10 @@
 """The command protocol over real ZeroMQ sockets, with the loop on a virtual clock: bad input
 of every kind gets its error (or is refused) while the loop keeps its cycles."""
 import math
+import re
 import threading
 import time
+from pathlib import Path
 
 import msgpack
 import pytest
@@ -12,6 +14,8 @@ from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.loop.safety import State
 from daemon.testing.loop import call, dealer, exchange, make_loop, ok, run_seconds
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
 
 @pytest.fixture
@@ -74,7 +78,7 @@ def test_reply_carries_the_request_id_and_works_for_req_clients(served):
     (msgpack.packb({"v": 99, "id": 1, "cmd": "ping"}), P.BAD_VERSION),
     (msgpack.packb({"v": 1, "id": 1, "cmd": "self_destruct"}), P.UNKNOWN_COMMAND),
     (msgpack.packb({"v": 1, "id": 1, "cmd": "ping", "args": {"x": [[[[]]]] * 5000}}), P.BAD_MESSAGE),
-    (msgpack.packb({"v": 1, "id": 1, "cmd": "set", "args": {"angles_deg": ["a", 1]}}), P.NO_LEASE),
+    (msgpack.packb({"v": 1, "id": 1, "cmd": "set", "args": {"angles_deg": ["a", 1]}}), P.BAD_ARGS),  # before the lease
 ])
 def test_bad_messages_get_clear_errors(served, payload, code):
     loop, _, srv = served
@@ -88,7 +92,7 @@ def test_bad_messages_get_clear_errors(served, payload, code):
 
 
 @pytest.mark.parametrize("args, code, words", [
-    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite numbers"),
+    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite number"),
     ({"angles_deg": [120.0]}, P.BAD_ARGS, "list of 2"),
     ({"angles_deg": [120.0, -80.0], "xy_mm": [1, 2]}, P.BAD_ARGS, "exactly one"),
     ({"angles_deg": [180.0, -80.0]}, P.REFUSED, "outside its limits"),
@@ -183,6 +187,38 @@ def test_lease_expiry_trips_an_enabled_arm(daemon):
     run_seconds(loop, 0.6)
     assert loop.state is State.FAULT and "lease lost" in loop.supervisor.cause
     assert list(loop.io.transport.output_volts) == pytest.approx(list(loop.io.safe_volts), abs=1e-3)
+
+
+def test_disable_leaves_a_latched_fault_or_estop_as_it_is_and_the_document_says_so(daemon):
+    """A fault or an e-stop latches until reset (docs/protocol.md, "States"): disable, a safety
+    command, is never refused for the state, and from either answers the state it leaves as it is."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = ok(loop, sock, "lease.acquire", {"ttl_s": 0.5})["lease"]
+    ok(loop, sock, "enable", lease=lease)
+    run_seconds(loop, 0.6)  # the lease lapses: a trip
+    assert loop.state is State.FAULT
+    lease = leased(loop, sock)
+    assert ok(loop, sock, "disable", lease=lease) == {"state": "fault"} and loop.state is State.FAULT
+    ok(loop, sock, "reset", lease=lease)
+    ok(loop, sock, "enable", lease=lease)
+    ok(loop, dealer(srv, "control"), "estop", {"who": "test"})
+    assert ok(loop, dealer(srv, "control"), "disable", lease=lease) == {"state": "estop"}
+    assert loop.state is State.ESTOP
+    assert ok(loop, sock, "reset", lease=lease) == {"state": "idle"}
+    row = next(line for line in DOC.read_text().splitlines() if line.startswith("| `disable` |"))
+    assert "a `fault` or an `estop` stays latched" in row and "never refused for the state" in row
+
+
+def test_the_sockets_table_lists_every_telemetry_topic():
+    from daemon.messenger.shared import TOPICS
+
+    topics = {t.decode() for t in TOPICS if t}
+    text = DOC.read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| telemetry | PUB |"))
+    assert set(re.findall(r"`([a-z]+)`", row.split("|")[4])) == topics
+    telemetry = text.split("## Telemetry", 1)[1].split("\n", 2)[1]
+    assert set(re.findall(r"`([a-z]+)`", telemetry.split(")", 1)[0])) == topics
 
 
 def test_estop_on_the_control_socket_does_not_queue_behind_a_flood(daemon):
@@ -376,6 +412,41 @@ def test_the_order_of_checks_is_the_documented_one(daemon):
     ok(loop, sock, "enable", lease=lease)
     refused = call(loop, sock, "set", three, lease)["error"]
     assert refused["code"] == P.BAD_ARGS and refused["data"] == {"argument": "angles_deg", "expected_items": 2}
+
+
+CATALOG_REFUSED = [  # each argument the catalog refuses, and the data its refusal carries
+    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, -80.0]], "durations_s": [0.001]},
+     {"argument": "durations_s", "index": [0], "low": 0.01, "high": 3600.0}),
+    ("steps", {"angles_deg": [[120.0, -80.0]], "hold_s": [0.0001]},
+     {"argument": "hold_s", "index": [0], "low": 0.001, "high": 3600.0}),
+    ("excite", {"side": "input", "signal": "steps", "joint": "middle", "amplitude_v": 0.5, "levels": [2]},
+     {"argument": "levels", "index": [0], "low": -1.0, "high": 1.0}),
+    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, "x"]], "durations_s": [1.0]},
+     {"argument": "angles_deg", "index": [1, 1], "expected": "number"}),
+    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, -80.0], [122.0, -80.0]], "durations_s": [1.0]},
+     {"argument": "durations_s", "expected_items": 2}),
+    ("excite", {"signal": "steps", "joint": "middle", "amplitude_deg": 1.0, "levels": [0.5]},
+     {"argument": "signal", "allowed": ["chirp", "prbs", "multisine"]}),
+    ("excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 1.0, "order": 8}, {"argument": "order"}),
+    ("set", {"duration_s": 1.0}, {"argument": "angles_deg"}),  # none of angles_deg, angles_rad, xy_mm
+    ("load.set", {"mass_kg": 0}, {"argument": "mass_kg", "low": 0.0, "high": 1000.0}),
+]
+
+
+def test_a_list_element_out_of_its_catalog_bounds_is_bad_args_in_every_state(daemon):
+    """What the catalog refuses (a list's element out of its bounds or not a number, lengths
+    that do not go together, a variant's arguments) is bad_args in every state, idle and
+    enabled alike: the messenger checks it before the loop checks the state."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    for state in ("idle", "enabled"):
+        if state == "enabled":
+            ok(loop, sock, "enable", lease=lease)
+        for cmd, args, data in CATALOG_REFUSED:
+            error = call(loop, sock, cmd, args, lease)["error"]
+            assert (error["code"], error["data"]) == (P.BAD_ARGS, data), (state, cmd, args, error)
+            assert loop.state.value == state
 
 
 def test_estop_events_and_their_state_event_say_who_sent_it(daemon):

@@ -113,7 +113,7 @@ def test_a_waypoint_path_too_fast_for_the_rig_is_refused_with_the_duration_that_
 
 @pytest.mark.parametrize("args, text", [
     ({"angles_deg": [[0, -100]], "durations_s": []}, "2 to 1000 items"),
-    ({"angles_deg": [[0, -100], [1, -100]], "durations_s": [1, 2]}, "one fewer than points"),
+    ({"angles_deg": [[0, -100], [1, -100]], "durations_s": [1, 2]}, "one fewer than the items of angles_deg"),
     ({"angles_deg": [[0, -100], [1, "x"]], "durations_s": [1]}, "angles_deg[1]"),
     ({"xy_mm": [[0, 0], [500, 0]], "durations_s": [5]}, "out of reach"),
     ({"angles_deg": [[0, -100], [180, -100]], "durations_s": [5]}, "outside its limits"),

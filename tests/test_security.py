@@ -93,6 +93,10 @@ def test_an_observer_reads_and_may_estop_but_never_takes_the_lease(lab):
         with pytest.raises(RemoteError) as record_refused:  # the lab PC's disk is an operator's to fill
             bob.record_start()
         assert record_refused.value.code == P.FORBIDDEN and record_refused.value.data["role"] == "observer"
+        for name in ("../etc/passwd", "x" * 81, ".hidden"):  # but the arguments come first (the order of checks)
+            with pytest.raises(RemoteError) as malformed:
+                bob.record_start(name)
+            assert (malformed.value.code, malformed.value.data) == (P.BAD_ARGS, {"argument": "name"}), name
         assert bob.record_list()["active"] == []  # but he may see what is recorded
         alice.acquire_lease()
         alice.keep_lease()

@@ -88,3 +88,23 @@ def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_contro
     assert "safe state" in text and f"{last_u:+6.2f} V" not in text
     written = "  ".join(f"{name} {v:.2f} V" for name, v in safe.items())
     assert f"outputs written: {written}  (safe state)" in text
+
+
+def test_no_tracking_error_is_shown_while_the_arm_is_not_enabled():
+    """Disabled halfway through a move, the arm vents away from the set-point the move left:
+    nothing tracks it, so the view shows no error (it showed a red one, e.g. 11.7 deg, while idle)."""
+    loop, captured, srv, sock, describe, lease = moving_bottom(10.0, 1.0)
+    loop.run(500)
+    ok(loop, sock, "disable", lease=lease)
+    loop.run(2000)
+    status = ok(loop, sock, "status")
+    srv.close()
+    last = captured.of("state")[-1]
+    assert last["mode"][-1] == "idle"
+    stale = [math.degrees(e) for e in last["error_rad"][-1]]
+    assert max(abs(e) for e in stale) > 2.0  # what the old view showed, in red
+    _, console = rendered(describe, captured, status)
+    rows = [line for line in console.export_text().splitlines() if line.strip(" │").startswith(("bottom", "middle"))]
+    assert len(rows) == 2
+    for row, error in zip(rows, stale):
+        assert f"{error:7.2f}".strip() not in row and " - " in row, row

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 
 from daemon.wire import keys
@@ -254,6 +255,20 @@ def key_values(items) -> dict:
 
 
 def main(argv=None) -> int:
+    """pneumactl's exit status. Its output piped into a reader that stops early (``| head``)
+    ends it quietly, as a Unix tool killed by SIGPIPE ends (status 128 + SIGPIPE), instead of a
+    BrokenPipeError's traceback; stdout is flushed here, so nothing is left to fail at exit."""
+    try:
+        try:
+            return _main(argv)
+        finally:
+            sys.stdout.flush()
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # what is still buffered goes nowhere
+        return 128 + signal.SIGPIPE
+
+
+def _main(argv=None) -> int:
     args = parser().parse_args(argv)
     if args.what == "identify" and args.source:
         return identify(None, args)

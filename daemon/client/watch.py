@@ -3,7 +3,8 @@
 State and its cause, the controller and the running reference with the time it has left,
 the lease holder, per joint the angle, set-point, error and V_MV with a bar over the joint's
 output range (``safe state`` instead outside ``enabled``, where the safe state is written and
-no V_MV is), the output volts actually written, the loop's health from the ``stats`` topic,
+no V_MV is; nor is there a tracking error then: the set-point is the last reference's, which
+nothing tracks, so the error shows ``-``), the output volts actually written, the loop's health from the ``stats`` topic,
 faults, the daemon's recordings in progress and the last events. Piped
 or redirected (no terminal), it prints one line every 100 ms instead, which a script can read.
 """
@@ -55,7 +56,8 @@ def _lines(sub, end) -> None:
         elif topic == "state" and time.monotonic() - last_print >= 0.1:
             last_print = time.monotonic()
             q = "  ".join(f"{math.degrees(a):8.2f}" for a in m["angle_rad"][-1])
-            e = "  ".join(f"{math.degrees(a):6.2f}" for a in m["error_rad"][-1])
+            e = "  ".join(f"{math.degrees(a):6.2f}" if m["mode"][-1] == "enabled" else f"{'-':>6s}"
+                          for a in m["error_rad"][-1])
             print(f"{m['mode'][-1]:8s} cycle {m['cycle'][-1]:9d}  angle deg {q}   error deg {e}  "
                   f"lost {sub.lost}", flush=True)
 
@@ -135,7 +137,8 @@ class View:
                 err = math.degrees(m["error_rad"][-1][j])
                 table.add_row(joint["name"], f"{math.degrees(m['angle_rad'][-1][j]):8.2f}",
                               f"{math.degrees(m['setpoint_rad'][-1][j]):8.2f}",
-                              Text(f"{err:7.2f}", style="red" if abs(err) > 2.0 else ""),
+                              Text("-", style="dim") if safe else Text(f"{err:7.2f}", style="red" if abs(err) > 2.0
+                                                                         else ""),
                               Text("safe state", style="bold red") if safe else f"{u:+6.2f} V",
                               Text("") if safe else _bar(u, joint["u_min_volts"], joint["u_max_volts"]))
             written = Text("outputs written: " + "  ".join(f"{name} {v:.2f} V" for name, v in

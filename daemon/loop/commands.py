@@ -28,6 +28,7 @@ every event a request causes records who asked (:meth:`daemon.loop.events.EventL
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import secrets
 import time
@@ -45,6 +46,7 @@ from daemon.planner.process import Deferred, Preparer
 from daemon.loop.safety import State, StateError
 
 VERSION = "0.1.0"
+log = logging.getLogger("pneumad")
 
 
 class Commands:
@@ -76,6 +78,11 @@ class Commands:
         self.preparer = preparer or Preparer()
         self.view = loop.view  # what the handlers read; they change the loop only through its controls
         self._controllers = self._describe_controllers(self.view.controller_plugins)
+        self.refused_controllers = [c for c in self._controllers if "error" in c]  # status.controllers_refused
+        for refused in self.refused_controllers:  # at start-up, before the loop cycles: logged once, and an event
+            log.warning("controller %s refused: %s (requests for it are refused; controller.list and status say so)",
+                        refused["name"], refused["error"])
+            loop.events.add({"kind": "plugin", "name": refused["name"], "cause": refused["error"]})
         self.described = self._build_describe()  # what describe answers, packed once: it is large and never changes
         self._describe_packed = P.Packed.of(self.described)
         self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
@@ -191,6 +198,7 @@ class Commands:
         fields["unleased_disable_in_s"] = self.lease.disable_in()
         fields["client"] = {"name": self.client.name, "role": self.client.role}
         fields["security"] = self.security
+        fields["controllers_refused"] = self.refused_controllers
         fields["daemon"] = self.daemon
         return fields
 
@@ -243,10 +251,10 @@ class Commands:
 
     # -- state ------------------------------------------------------------------------------
     def estop(self, args):
-        """Latch the e-stop. Never refused for its arguments: a ``who`` that is not a string is
-        recorded as its repr, anything else is ignored. The key that sent it is recorded first."""
+        """Latch the e-stop. Never refused for its arguments: the messenger passes on only ``who``,
+        a string of at most 64 characters (a value that was not a string: its repr; anything else
+        sent beside it is dropped). The key that sent it is recorded first."""
         said = args.get("who", "")
-        said = (said if isinstance(said, str) else repr(said))[:64]
         who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
         self.loop.estop(who)
         return {"state": self.view.state.value}
@@ -322,12 +330,16 @@ class Commands:
 
     @staticmethod
     def _describe_controllers(plugins: dict[str, str]) -> list[dict]:
+        """Every registered controller described, or refused: ``{name, error}`` for a plugin
+        that cannot be loaded or described (whatever its module raises: never fatal)."""
         available = []
         for name in registry.available(plugins):
             try:
                 available.append(registry.load(name, plugins).describe())
             except LookupError as exc:
                 available.append({"name": name, "error": str(exc)})
+            except Exception as exc:  # a plugin's module or describe() that raises: refused, the daemon starts
+                available.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
         return available
 
     def controller_get(self, args):

@@ -4,7 +4,12 @@ The sockets themselves live in the messenger process (:mod:`daemon.messenger.pro
 reaches them through shared-memory rings, so all it does per message is a memory copy.
 Each cycle, at its end, it serves every pending control-socket request (e-stop, abort,
 disable, status, ping; at most ``MAX_CONTROL_PER_CYCLE``), then at most ``max_per_cycle``
-command-socket requests, and queues each reply; telemetry is queued the same way. A ring
+command-socket requests, and queues each reply; telemetry is queued the same way. The
+command stage has a budget in time too (``COMMAND_BUDGET_S``): once it is spent, what is
+left waits for the next cycle, so a flood of the dearest requests (a status is about 100 us
+on a loaded 2-core VM) costs a cycle about the budget and one request, never ten requests.
+The first request of a cycle is always served: an e-stop at the head of its ring never
+waits for a budget. A ring
 that is full refuses: the message is dropped and counted (``telemetry_dropped``,
 ``reply_failures``), never waited for. Frames over ``protocol.MAX_MESSAGE_BYTES`` are refused
 by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
@@ -16,6 +21,7 @@ to, and refuses to bind past loopback with nobody's key checked unless told ``in
 """
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
 import shutil
@@ -33,23 +39,35 @@ from daemon.wire.ring import Ring, RingError
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
+COMMAND_BUDGET_S = 250e-6  # the command stage's time for requests in a cycle, of 1 ms (docs/benchmarks.md)
 MESSENGER_CHECK_CYCLES = 100  # how often the messenger process (the planner's and exchange workers) is looked at: 0.1 s
 HELPER_CHECK_EVERY = 10  # the other helpers at every 10th of those looks: 1 s
 RINGS_PREFIX = "pneumad-rings-"  # then the owning daemon's pid: <prefix><pid>-<random>
 log = logging.getLogger("pneumad")
 _TOPIC_TAG = {topic: tag for tag, topic in enumerate(TOPICS)}
+# write(2) called with the GIL held (a PyDLL function keeps it): os.write lets the GIL go for
+# the call, another thread of the daemon (the planner's courier, at the normal priority) can
+# take it, and the loop then waits until that thread gives it back: 8-69 ms under a flood on a
+# loaded machine, a stall trip. The doorbell pipe never blocks (O_NONBLOCK: a full pipe is
+# EAGAIN, and the messenger has plenty to wake it then).
+_WRITE = ctypes.PyDLL(None).write
+_WRITE.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t)
+_WRITE.restype = ctypes.c_ssize_t
 
 
 class ZmqServer:
     def __init__(self, command: str = DEFAULT_COMMAND, control: str = DEFAULT_CONTROL,
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
                  keys: str | None = None, insecure: bool = False, recording: dict | None = None,
-                 plotjuggler: str | None = None, foxglove: str | None = None):
-        """``recording``: where and how the daemon records (``directory``, ``max_mb``,
+                 plotjuggler: str | None = None, foxglove: str | None = None,
+                 command_budget_s: float = COMMAND_BUDGET_S):
+        """``command_budget_s``: the time the command stage may spend on requests in a cycle
+        (on the loop's clock: a virtual one never spends it). ``recording``: where and how the daemon records (``directory``, ``max_mb``,
         ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
         ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`);
         ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`)."""
         self.max_per_cycle = max_per_cycle
+        self.command_budget_s = command_budget_s
         self.recording = recording
         self.recorder: RecorderProcess | None = None
         self.security = security((command, control, telemetry), keys, insecure)
@@ -125,12 +143,13 @@ class ZmqServer:
         """Once a cycle, at its end: the lease clock, then the control requests, then a few
         commands; every 0.1 s the messenger process, the planner's worker and a transport's
         exchange worker, every second the other helpers. The heartbeat tells the messenger the loop is cycling."""
+        until = loop.clock.now() + self.command_budget_s
         self.heartbeat.beat(loop.cycle)
         self.commands.tick()
         if self._waiting:
             self._complete()
-        self._serve(self.rings["control"], True, MAX_CONTROL_PER_CYCLE)
-        self._serve(self.rings["command"], False, self.max_per_cycle)
+        served = self._serve(self.rings["control"], True, MAX_CONTROL_PER_CYCLE, loop.clock, until, 0)
+        self._serve(self.rings["command"], False, self.max_per_cycle, loop.clock, until, served)
         if self._replied:
             self._replied = False
             self._ring_doorbell()
@@ -185,16 +204,22 @@ class ZmqServer:
             self._waiting.remove(item)
             self._reply(item[0], self.commands.complete(item[1]))
 
-    def _serve(self, ring: Ring, control: bool, limit: int) -> None:
+    def _serve(self, ring: Ring, control: bool, limit: int, clock, until: float, served: int) -> int:
+        """Up to ``limit`` requests from ``ring`` while the cycle's budget lasts (``until`` on
+        ``clock``; the cycle's first request whatever the budget): how many were served in the
+        cycle, ``served`` before these included."""
         for _ in range(limit):
+            if served and clock.now() >= until:
+                return served
             try:
                 entry = ring.get()
             except RingError as exc:  # only a bug or a stranger in the daemon's memory: stop the arm
                 ring.discard()
                 self.commands.loop.supervisor.trip(f"{exc}; the requests queued in it were dropped")
-                return
+                return served
             if entry is None:
-                return
+                return served
+            served += 1
             token, payload = entry
             try:
                 client, request = routed.unpack(payload)
@@ -207,6 +232,7 @@ class ZmqServer:
                 self._waiting.append((token, reply))
             else:
                 self._reply(token, reply)
+        return served
 
     def _reply(self, token: int, reply: bytes) -> None:
         if self.rings["replies"].put(token, reply):
@@ -215,10 +241,7 @@ class ZmqServer:
             self.reply_failures += 1  # the messenger is not taking replies: the client's time-out tells it
 
     def _ring_doorbell(self) -> None:
-        try:
-            os.write(self._doorbell, b"\0")
-        except BlockingIOError:
-            pass  # the pipe is full of rings already: the messenger has plenty to wake it
+        _WRITE(self._doorbell, b"\0", 1)  # with the GIL held (_WRITE); a full pipe (-1, EAGAIN) wakes it already
 
     def close(self) -> None:
         """Stop the preparer (one of its own), then the messenger once it has passed on what

@@ -18,10 +18,16 @@ up (a starved machine) drops Foxglove's oldest messages, never the relay's telem
 The protocol has no CURVE: the address must be loopback (from a laptop, ``ssh -L
 8765:127.0.0.1:8765 LAB-PC``, then connect Foxglove to ``ws://localhost:8765``) unless the
 daemon runs ``--insecure`` (checked by :func:`daemon.loop.port.foxglove_address`).
+
+A viewer that offers only the older subprotocol ``foxglove.websocket.v1`` (Foxglove Studio
+1.x, Lichtblick before 1.22.1) is refused by the SDK with a bare HTTP 400, which it logs as
+"handshake failed" and nothing more (it has no hook for it): :class:`HandshakeAdvice` adds
+the likely cause and the fix to that log line.
 """
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sys
 import time
@@ -44,8 +50,30 @@ PENDING = 1000  # telemetry messages waiting to be encoded (10 s of state batche
 SLICE_S = 2e-4  # encoding done at a time before the relay looks at its sockets again [s]
 
 
+SUBPROTOCOL = "foxglove.sdk.v1"  # the one foxglove-sdk 0.30 speaks (and refuses any other)
+ADVICE = (f"a Foxglove viewer's WebSocket handshake was refused (HTTP 400): this server speaks only the subprotocol "
+          f"{SUBPROTOCOL}, and a viewer that offers only foxglove.websocket.v1 (Foxglove Studio 1.x, Lichtblick before "
+          f"1.22.1) is refused: use Lichtblick 1.22.1 or later, or a current Foxglove app (docs/protocol.md, Foxglove)")
+
+
+class HandshakeAdvice(logging.Filter):
+    """foxglove-sdk logs a refused handshake ("Dropping client ADDR: handshake failed") through
+    Python's logging, without the subprotocol the client offered: the line gets the likely
+    cause and the fix."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if message.endswith("handshake failed"):
+            record.msg, record.args = f"{message}; {ADVICE}", ()
+        return True
+
+
+_ADVICE = HandshakeAdvice()
+
+
 class FoxgloveStream:
     def __init__(self, host: str, port: int, rings_dir: str):
+        logging.getLogger("foxglove.websocket.server").addFilter(_ADVICE)  # the SDK's server logs there
         self.context = foxglove.Context()
         self.server = foxglove.start_server(name="pneumad", host=host, port=port, context=self.context,
                                             message_backlog_size=BACKLOG)  # RuntimeError if it cannot bind

@@ -123,7 +123,7 @@ class Relay:
                 continue
             try:
                 request = protocol.decode_request(body)
-                command = self._admit(name, request, identity)
+                command, request = self._admit(name, request, identity)
             except protocol.ProtocolError as exc:
                 self._send(sock, envelope, protocol.encode_error(exc.request_id, exc.code, exc.message))
                 continue
@@ -147,17 +147,23 @@ class Relay:
                 self.owed[token] = (sock, envelope, time.monotonic(), request["id"])
 
     @staticmethod
-    def _admit(socket: str, request: dict, identity) -> catalog.Command:
-        """The request's catalog entry, checked in the documented order after its envelope:
-        the command (on this socket), its arguments, the key's role; a refusal raises
-        CommandFailed (or ProtocolError for arguments that cannot be read)."""
+    def _admit(socket: str, request: dict, identity) -> tuple[catalog.Command, dict]:
+        """The request's catalog entry and the request to pass on, checked in the documented
+        order after its envelope: the command (on this socket), its arguments, the key's role; a
+        refusal raises CommandFailed (or ProtocolError for arguments that cannot be read). An
+        e-stop, never refused for its arguments, is passed on with only what the loop reads of
+        them (:func:`~daemon.wire.catalog.lenient_args`): a few bytes, whatever was sent."""
         command = catalog.find(request["cmd"], socket)
-        catalog.check_args(command, protocol.decode_args(request))
+        args = protocol.decode_args(request)
+        catalog.check_args(command, args)
         if command.role == OPERATOR and identity.role != OPERATOR:
             raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
                                                     f"may send {command.name}",
                                 {"reason": "role", "role": identity.role})
-        return command
+        if not command.strict:
+            request = protocol.decode_request(protocol.encode_request(
+                request["id"], command.name, catalog.lenient_args(command, args), request["lease"]))
+        return command, request
 
     # -- keys ------------------------------------------------------------------------------
     def _refuse(self, sock: zmq.Socket, envelope: list, body: bytes, message: str, data: dict) -> None:

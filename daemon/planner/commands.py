@@ -27,7 +27,6 @@ from controllers.profile import first_outside_limits
 from daemon.planner import excitation
 from daemon.planner.plans import Plan, PlanContext, check_authority
 from daemon.wire import catalog
-from daemon.wire.catalog import MAX_DURATION_S
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args, checked_number, checked_numbers, number, numbers
 from hal import kinematics
@@ -71,10 +70,7 @@ def prepare_change(cls: type[Controller], context: ControllerContext, options: d
                    request: dict):
     """``controller.set``: the running controller's change, derived whole by a twin; and the
     parameters the request set (which a later switch back to it carries)."""
-    args = P.decode_args(request)
-    params = args["params"]  # a map: checked against the catalog by the messenger
-    if not params:
-        raise bad_args("'params' must name at least one parameter", "params")
+    params = P.decode_args(request)["params"]  # a map of at least one: checked against the catalog by the messenger
     return registry.prepare_change(cls, context, options, values, params), params
 
 
@@ -94,16 +90,13 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """Move to joint angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
     ``duration_s`` with cubic time scaling (0: a step); where the joints take one, with a new
     stiffness set-point (``stiffness_nm_deg``, one number or one per joint)."""
-    given = [k for k in ("angles_deg", "angles_rad", "xy_mm") if k in args]
-    if len(given) != 1:
-        raise bad_args("give exactly one of angles_deg, angles_rad, xy_mm", "angles_deg")
-    duration = _number("set", args, "duration_s")
-    if given[0] == "angles_deg":
+    duration = _number("set", args, "duration_s")  # exactly one of the three, numbers: the catalog's (the messenger)
+    if "angles_deg" in args:
         target = [math.radians(a) for a in numbers(args, "angles_deg", ctx.n)]
-    elif given[0] == "angles_rad":
+    elif "angles_rad" in args:
         target = numbers(args, "angles_rad", ctx.n)
     else:
-        target = tip_angles(ctx, numbers(args, "xy_mm", 2)) + setpoint[2:]
+        target = tip_angles(ctx, [float(v) for v in args["xy_mm"]]) + setpoint[2:]
     check_limits(ctx, target)
     stiffness = stiffness_setpoint(ctx, args, target) if "stiffness_nm_deg" in args else None
     move = trajectory.JointMove(setpoint, target, duration)
@@ -160,19 +153,12 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A path through waypoints, joint (``angles_deg``: one row per point) or Cartesian
     (``xy_mm``), after an approach to the first; ``durations_s[i]`` is the time from point
     i to point i + 1, with cubic time scaling on each segment."""
-    given = [k for k in ("angles_deg", "xy_mm") if k in args]
-    if len(given) != 1:
-        raise bad_args("give exactly one of angles_deg (joint waypoints) or xy_mm (Cartesian waypoints)", "angles_deg")
-    key = given[0]
-    rows = args[key]
-    if not isinstance(rows, list) or not 2 <= len(rows) <= 1000:
-        raise bad_args(f"'{key}' must be a list of 2 to 1000 points", key)
-    points = [checked_numbers(key, row, ctx.n if key == "angles_deg" else 2, i) for i, row in enumerate(rows)]
-    durations = args.get("durations_s")
-    if not isinstance(durations, list) or len(durations) != len(points) - 1:
-        raise bad_args(f"'durations_s' must list {len(points) - 1} segment durations (one fewer than points)",
-                       "durations_s")
-    durations = [checked_number("durations_s", d, 0.01, MAX_DURATION_S, i) for i, d in enumerate(durations)]
+    # One of angles_deg or xy_mm, 2-1000 points of numbers, a duration in bounds per segment: the catalog's (the
+    # messenger's); one angle per joint is the rig's
+    key = "angles_deg" if "angles_deg" in args else "xy_mm"
+    points = [checked_numbers(key, row, ctx.n, i) if key == "angles_deg" else [float(v) for v in row]
+              for i, row in enumerate(args[key])]
+    durations = [float(d) for d in args["durations_s"]]
     if key == "angles_deg":
         points = [[math.radians(a) for a in p] for p in points]
         for p in points:
@@ -188,13 +174,11 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A step sequence: jump to ``angles_deg[i]`` and hold it ``hold_s[i]`` seconds."""
-    rows, holds = args.get("angles_deg"), args.get("hold_s")
-    if not isinstance(rows, list) or not 1 <= len(rows) <= 1000:
-        raise bad_args("'angles_deg' must be a list of 1 to 1000 levels, one angle per joint each", "angles_deg")
-    if not isinstance(holds, list) or len(holds) != len(rows):
-        raise bad_args("'hold_s' must give one hold time per level", "hold_s")
-    levels = [[math.radians(a) for a in checked_numbers("angles_deg", row, ctx.n, i)] for i, row in enumerate(rows)]
-    holds = [checked_number("hold_s", h, 0.001, MAX_DURATION_S, i) for i, h in enumerate(holds)]
+    # 1-1000 levels of numbers, one hold in bounds per level: the catalog's (the messenger's); one angle per
+    # joint is the rig's
+    levels = [[math.radians(a) for a in checked_numbers("angles_deg", row, ctx.n, i)]
+              for i, row in enumerate(args["angles_deg"])]
+    holds = [float(h) for h in args["hold_s"]]
     for level in levels:
         check_limits(ctx, level)
     seq = trajectory.Steps(levels, holds)

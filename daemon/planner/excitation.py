@@ -19,30 +19,20 @@ import math
 import numpy as np
 
 from controllers.experiment import InputExperiment
-from daemon.wire.catalog import MAX_DURATION_S
+from daemon.wire.catalog import MAX_DURATION_S, SIGNAL_SETTINGS
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed, bad_args, choice
+from daemon.wire.arguments import CommandFailed, choice
 from daemon.wire.signals import MAX_INPUT_DURATION_S, excite_number as _number, signal_of
 from daemon.planner.plans import Plan, PlanContext, check_authority
 
-SIGNAL_KEYS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", "bit_s", "periods"),
-               "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"), "steps": ("levels", "hold_s")}
 PREDICTION_STEP_S = 0.005  # the excursion prediction's grid [s]
 
 
 def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     args = dict(args)
-    side = args.pop("side", "reference")  # names, types and bounds: checked against the catalog by the messenger
+    # names, types, bounds, and which arguments a side and a signal take: checked against the catalog by the messenger
+    side = args.pop("side", "reference")
     signal = args["signal"]
-    if side == "reference" and signal == "steps":
-        raise bad_args("the steps signal is for the input side only (side: input)", "signal",
-                       allowed=["chirp", "prbs", "multisine"])
-    common = ("signal", "joint", "amplitude_v", "settle_s", "band_deg", "centre_hz") if side == "input" else \
-        ("signal", "joint", "amplitude_deg")
-    stray = sorted(k for k in args if k not in common and k not in SIGNAL_KEYS[signal])
-    if stray:
-        raise bad_args(f"unknown argument {stray[0]!r} for a {side}-side {signal} (it takes: "
-                       f"{', '.join((*common, *SIGNAL_KEYS[signal]))})", stray[0])
     joint = choice(args, "joint", ctx.joint_names)
     j = ctx.joint_names.index(joint)
     if side == "input":
@@ -71,7 +61,7 @@ def _outermost(centre: float, half: float, lo: float, hi: float) -> float:
 
 
 def _settings(args: dict, signal: str) -> dict:
-    return {k: args[k] for k in SIGNAL_KEYS[signal] if k in args}
+    return {k: args[k] for k in SIGNAL_SETTINGS[signal] if k in args}
 
 
 def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str, joint: str, j: int) -> Plan:

@@ -22,7 +22,6 @@ import fcntl
 import json
 import logging
 import os
-import re
 import time
 from collections import deque
 from collections.abc import Callable
@@ -32,13 +31,12 @@ import msgpack
 
 from daemon.wire import catalog
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed, bad_args
+from daemon.wire.arguments import CommandFailed
 from daemon.recordings.mcap_log import McapRecording, TelemetryEncoder
 from daemon.recordings.mcap_repair import repair
 
 TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
 MAX_ACTIVE = 4
-NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,79}$")
 LIST_LIMIT = 100  # files record.list shows, newest first
 PREROLL_BATCHES = 50  # state batches (10 cycles each) a new recording starts with: 0.5 s before its start
 DISK_CHECK_S = 1.0
@@ -128,8 +126,8 @@ class Archive:
 
     def _start_request(self, args: dict, who: str) -> dict:
         name = args.get("name")
-        if name is not None and not (isinstance(name, str) and NAME.match(name)):
-            raise bad_args("a name is 1-80 letters, digits, '.', '_' or '-', starting with a letter or digit", "name")
+        if name is not None:  # the messenger checked it (the catalog's): checked again where it becomes a file name
+            catalog.COMMANDS["record.start"].arg("name").check(name)
         seconds = args.get("seconds")
         active = self.start(name or f"{time.strftime('%Y%m%d-%H%M%S')}-record", who, seconds)
         return active.summary(self.feed_t)
