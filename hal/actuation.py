@@ -16,26 +16,12 @@ A controller's output is the flat vector of every joint's commands in joint orde
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 from hal.config import CYLINDER, RigConfig
+from hal.interfaces import CommandInterface
 from hal.regulator import V_MAX, V_MIN
 from hal.rig import PressureDrivers
 from hal.valve import ProportionalValve
-
-
-@dataclass(frozen=True)
-class CommandInterface:
-    """One value a controller commands: its joint, name, unit and range."""
-
-    joint: str
-    name: str
-    unit: str
-    low: float
-    high: float
-
-    def describe(self) -> dict:
-        return {"joint": self.joint, "name": self.name, "unit": self.unit, "low": self.low, "high": self.high}
 
 
 class RigActuation:
