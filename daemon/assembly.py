@@ -87,7 +87,8 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
             raise ConfigError(f"safety.fallback_controller: {exc}") from None
     names = tuple(j.name for j in rig.joints)
     return LoopParts(actuation, context, Supervisor(rig, period), active, fallback,
-                     TrackingGuard(names, safety.tracking_error_deg, safety.tracking_window_s),
+                     TrackingGuard(names, safety.tracking_error_deg, safety.tracking_window_s, safety.tracking_error_mm,
+                                   tuple(j.position_unit for j in rig.joints)),
                      LoadFeedForward(context), plugins)
 
 

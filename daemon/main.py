@@ -21,6 +21,7 @@ from daemon.planner.process import BUILD_NICE, DEFAULT_TIME_LIMIT_S
 from daemon.service import realtime
 from daemon.service.notify import Notifier
 from hal import config
+from hal.declare import declare, summary
 from hal.errors import ConfigError, TransportError
 from hal.rig import RigIO
 from hal.taxel_array import load_frame_source
@@ -36,31 +37,39 @@ def check_config(args) -> int:
     contact sensor's frame source found, the starting controller built on it (with the joints'
     models); a summary printed."""
     rig = assembly.rig_of(args)
-    RigIO(rig, create_transport(rig, time.monotonic))
+    transport = create_transport(rig, time.monotonic)
+    RigIO(rig, transport)
     if rig.contact_sensor is not None:
         try:
             load_frame_source(rig.contact_sensor.source)
         except LookupError as exc:
             raise ConfigError(f"contact_sensor.source: {exc}") from None
-    assembly.loop_parts(rig, args.period, args.controller, assembly.controller_plugins(args.controller_plugin))
+    parts = assembly.loop_parts(rig, args.period, args.controller, assembly.controller_plugins(args.controller_plugin))
     print(f"{rig.origin}: rig {rig.rig.name!r} ({rig.hash[:12]}), transport {rig.transport.backend}, "
           f"controller {assembly.starting_controller(args.controller, rig)}")
-    for j in rig.joints:
+    lines = summary(declare(rig, [ch.name for ch in transport.outputs], parts.actuation))
+    for line, j in zip(lines, rig.joints):
+        print(f"  {line}")
         params = rig.joint_params(j)
         if j.muscles is not None:
             m = j.muscles
-            print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, muscle pair ({m.per_side} a side, "
-                  f"L0 {m.rest_length_mm:g} mm, pulley {m.pulley_radius_mm:g} mm), link {j.link.mass_kg:g} kg"
-                  + (f", MR brake {j.brake.max_nm:g} N m" if j.brake is not None else ""))
-            continue
-        print(f"  joint {j.name}: {j.min_angle_deg:g}..{j.max_angle_deg:g} deg, model "
-              + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
-                 if params is not None else "none"))
+            print(f"    muscle pair ({m.per_side} a side, L0 {m.rest_length_mm:g} mm, pulley {m.pulley_radius_mm:g} mm), "
+                  f"link {j.link.mass_kg:g} kg" + (f", MR brake {j.brake.max_nm:g} N m" if j.brake is not None else ""))
+        elif j.linear_axis is not None:
+            a = j.linear_axis
+            print(f"    cylinder bore {a.bore_m * 1e3:g} mm, rod {a.rod_m * 1e3:g} mm, stroke {a.stroke_m * 1e3:g} mm, "
+                  f"{a.moving_mass_kg:g} kg moving, valve {a.nominal_flow_l_min:g} l/min")
+        elif j.kind == "rotary":
+            print("    model " + (f"{j.model_name!r} (D {params.D:.4g} N m s/deg, T_dly {params.T_dly * 1e3:.1f} ms)"
+                                  if params is not None else "none"))
+    for line in lines[len(rig.joints):]:
+        print(f"  {line}")
     safety = rig.safety
     print(f"  safety: input stale after {safety.stale_after_s * 1e3:g} ms, a cycle woken "
           f"{safety.stall_after_s * 1e3:g} ms late trips")
-    print(f"  arm: links {', '.join(f'{l:g}' for l in rig.arm.link_lengths_mm)} mm, gravity in its plane "
-          f"({', '.join(f'{g:g}' for g in rig.arm.gravity_m_s2)}) m/s^2")
+    if rig.arm.link_lengths_mm:
+        print(f"  arm: links {', '.join(f'{l:g}' for l in rig.arm.link_lengths_mm)} mm, gravity in its plane "
+              f"({', '.join(f'{g:g}' for g in rig.arm.gravity_m_s2)}) m/s^2")
     if rig.contact_sensor is not None:
         sensor = rig.contact_sensor
         print(f"  contact sensor: {sensor.source} pad, {sensor.rate_hz:g} frames/s, {len(sensor.dead)} dead taxel(s), "

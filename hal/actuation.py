@@ -1,7 +1,7 @@
 """Command interfaces: what a controller commands each joint with, and how that becomes the
 joint's pressure pair (after ros2_control's command interfaces).
 
-A joint declares its actuation by the devices its rig file names (:class:`hal.config.JointConfig`):
+A joint declares its actuation by the devices its rig file names (:class:`hal.joints.JointConfig`):
 
 - a **cylinder** joint takes one command, ``v_mv`` [V]: the manipulated variable of rig-facts §1
   [2-30..2-35]. The head chamber is commanded ``V_H = V_INI,H + V_MV``, the rod chamber held
@@ -9,6 +9,10 @@ A joint declares its actuation by the devices its rig file names (:class:`hal.co
   The constant force due to the biases is an offset the controller's integral absorbs.
 - a **muscle pair** joint (rig-facts §2) takes its two muscle pressures, ``pressure_a`` and
   ``pressure_b`` [Pa, gauge], and, where it has an MR brake, ``brake`` [N m].
+- a **valve** joint (a 5/3 proportional directional valve, rig-facts §5) takes ``valve`` [V]
+  about the valve's centre: the volts written are ``centre_volts + valve``
+  (:mod:`hal.directional_valve`), over -centre..10 V - centre. Its neutral (what a controller
+  starts from when the joint is enabled) is its safe command, so enabling is bumpless.
 
 A controller's output is the flat vector of every joint's commands in joint order
 (:attr:`RigActuation.commands`); on the cylinder rig that is one V_MV per joint.
@@ -17,8 +21,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from hal.config import CYLINDER, RigConfig
+from hal.config import RigConfig
+from hal.directional_valve import DirectionalValve
 from hal.interfaces import CommandInterface
+from hal.joints import CYLINDER, VALVE
 from hal.regulator import V_MAX, V_MIN
 from hal.rig import PressureDrivers
 from hal.valve import ProportionalValve
@@ -26,8 +32,9 @@ from hal.valve import ProportionalValve
 
 class RigActuation:
     """The flat command vector of a rig -> each joint's (first, second) chamber pressure
-    commands [Pa] and its brake torques [N m]. Runs every cycle: plain lists, no allocation
-    beyond the three it returns."""
+    commands [Pa] and the direct commands (brake torques [N m], valve volts about the centre
+    [V], in the order of :func:`hal.rig.direct_outputs`). Runs every cycle: plain lists, no
+    allocation beyond the three it returns."""
 
     def __init__(self, rig: RigConfig, drivers: PressureDrivers | None = None):
         """``drivers``: the rig's pressure drivers when they are shared with its I/O
@@ -36,13 +43,21 @@ class RigActuation:
         commands: list[CommandInterface] = []
         self._cylinders = []  # (command index, joint index, head regulator, bias [V], rod pressure [Pa])
         self._muscles = []  # (command index, joint index)
-        self._brakes = []  # command index of each brake, in joint order
+        self._direct = []  # command index of each brake and valve, in joint order
+        neutral = []
         for i, j in enumerate(rig.joints):
             k = len(commands)
+            if j.actuation == VALVE:
+                valve = DirectionalValve(j.valve)
+                commands.append(CommandInterface(j.name, "valve", "V", valve.low, valve.high))
+                neutral.append(valve.safe_volts - valve.centre)
+                self._direct.append(k)
+                continue
             if j.actuation == CYLINDER:
                 head, rod = drivers.head[i], drivers.rod[i]  # the ITV0051 regulators
                 bias = j.head.bias_volts
                 commands.append(CommandInterface(j.name, "v_mv", "V", V_MIN - bias, V_MAX - bias))
+                neutral.append(0.0)
                 self._cylinders.append((k, i, head, bias, rod.bias_pa))
                 continue
             p_max = min(rig.limits.max_pressure_mpa, j.valve_a.max_mpa, j.valve_b.max_mpa) * 1e6
@@ -50,22 +65,25 @@ class RigActuation:
                 commands.append(CommandInterface(j.name, f"pressure_{side}", "Pa",
                                                  ProportionalValve(valve).pressure(V_MIN), p_max))
             self._muscles.append((k, i))
+            neutral += [0.0, 0.0]
             if j.brake is not None:
-                self._brakes.append(len(commands))
+                self._direct.append(len(commands))
                 commands.append(CommandInterface(j.name, "brake", "N m", 0.0, j.brake.max_nm))
+                neutral.append(0.0)
         self.commands = tuple(commands)
         self.width = len(commands)
         self.n = len(rig.joints)
         self.u_min = tuple(c.low for c in commands)
         self.u_max = tuple(c.high for c in commands)
-        self.neutral = tuple(0.0 for _ in commands)  # the output a controller starts from when enabled
+        self.neutral = tuple(neutral)  # the output a controller starts from when enabled
 
     def outputs(self, u: Sequence[float]) -> tuple[list[float], list[float], list[float]]:
-        """(first chamber per joint, second chamber per joint) [Pa] and brake torques [N m]."""
+        """(first chamber per joint, second chamber per joint) [Pa] (0 for a joint on a 5/3
+        valve, which commands no pressure) and the direct commands (brakes [N m], valves [V])."""
         first, second = [0.0] * self.n, [0.0] * self.n
         for k, i, head, bias, rod_pa in self._cylinders:
             first[i], second[i] = head.pressure(bias + u[k]), rod_pa
         for k, i in self._muscles:
             first[i], second[i] = u[k], u[k + 1]
-        return first, second, [u[k] for k in self._brakes]
+        return first, second, [u[k] for k in self._direct]
 

@@ -1,9 +1,11 @@
 """The rig configuration: one TOML file names the transport, the channel map, every device's
-calibration, joint limits, pressure limits and the safe state.
+calibration, joint limits, pressure limits and the safe state (docs/rigs.md: every key).
 
 Config files use engineering units named in each key (``_deg``, ``_mpa``, ``_mm``); the
 properties here give SI values to the code. With no file the daemon runs a built-in rig
-(:data:`BUILTIN_RIGS`): the simulated 2-joint arm, or the 3-joint one with the top joint.
+(:data:`BUILTIN_RIGS`): the simulated 2-joint arm, the 3-joint one with the top joint, the
+muscle joint, or the linear axis. A joint's keys are :mod:`hal.joints`'; sensors are device
+kinds found by name (:mod:`hal.devices`).
 """
 from __future__ import annotations
 
@@ -15,117 +17,23 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from hal.devices import parse_sensor
 from hal.errors import ConfigError
-from hal.force_sensor import ForceSensorConfig
 from hal.identified import IDENTIFIED, JointParams, parse_models
-from hal.mr_brake import BrakeConfig
-from hal.muscle import MuscleConfig
-from hal.potentiometer import PotentiometerConfig
-from hal.pressure_sensor import PressureSensorConfig
-from hal.regulator import RegulatorConfig
+from hal.interfaces import LINEAR
+from hal.joints import JointConfig, parse_input
 from hal.schema import build, require
 from hal.taxel_array import ContactSensorConfig
-from hal.valve import ValveConfig
 
-BUILTIN_RIGS = {"sim": "sim_2joint.toml", "sim-3joint": "sim_3joint.toml", "sim-muscle": "sim_muscle.toml"}
-CYLINDER, MUSCLE_PAIR = "cylinder", "muscle_pair"  # the actuations a joint can declare
-
-
-@dataclass(frozen=True)
-class LinkConfig:
-    """The link a joint carries, for its gravity and inertia (rig-facts §2 gives the muscle
-    joint's: 0.168 kg, centre of gravity 240 mm, 4.80e-3 kg m^2 about the joint)."""
-
-    mass_kg: float
-    com_mm: float
-    inertia_kg_m2: float
-
-    def __post_init__(self):
-        require(0 < self.mass_kg <= 100, "mass_kg", "must be within (0, 100] kg")
-        require(0 <= self.com_mm <= 5000, "com_mm", "must be within 0-5000 mm")
-        require(0 < self.inertia_kg_m2 <= 100, "inertia_kg_m2", "must be within (0, 100] kg m^2")
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """One joint: its angle sensor, its limits, and its actuation, which the devices it names
-    declare: a cylinder's two chamber regulators (``head``, ``rod``), or an antagonistic
-    muscle pair (``muscles``, ``valve_a``, ``valve_b``, their ``pressure_a``, ``pressure_b``
-    sensors, the ``link`` it carries, and optionally an MR ``brake``)."""
-
-    name: str
-    min_angle_deg: float  # software limits the supervisor enforces [deg]
-    max_angle_deg: float
-    sensor: PotentiometerConfig
-    head: RegulatorConfig | None = None  # head-side chamber, commanded V_INI + V_MV [2-30]
-    rod: RegulatorConfig | None = None  # rod-side chamber, held at V_INI [2-31]
-    max_speed_deg_s: float = 60.0  # faster than this is a trip [deg/s]
-    model: str = ""  # the joint's model: a [models.NAME] table or a built-in set (hal/models.toml); default: name
-    neutral_angle_deg: float | None = None  # th_0 of the joint's spring; default: mid-range [deg]
-    muscles: MuscleConfig | None = None  # muscle a pulls the angle up, muscle b down
-    valve_a: ValveConfig | None = None
-    valve_b: ValveConfig | None = None
-    pressure_a: PressureSensorConfig | None = None
-    pressure_b: PressureSensorConfig | None = None
-    link: LinkConfig | None = None
-    brake: BrakeConfig | None = None
-
-    def __post_init__(self):
-        require(bool(self.name), "name", "must not be empty")
-        require(self.min_angle_deg < self.max_angle_deg, "max_angle_deg",
-                f"limits inverted: min {self.min_angle_deg} >= max {self.max_angle_deg}")
-        require(self.max_speed_deg_s > 0, "max_speed_deg_s", "must be > 0")
-        cylinder = [k for k in ("head", "rod") if getattr(self, k) is not None]
-        muscle = [k for k in ("muscles", "valve_a", "valve_b", "pressure_a", "pressure_b", "link", "brake")
-                  if getattr(self, k) is not None]
-        require(not (cylinder and muscle), muscle[0] if muscle else "head",
-                f"a joint is a cylinder (head, rod) or a muscle pair ({', '.join(muscle)}), not both")
-        needed = ("head", "rod") if not muscle else ("muscles", "valve_a", "valve_b", "pressure_a", "pressure_b", "link")
-        missing = [k for k in needed if getattr(self, k) is None]
-        require(not missing, missing[0] if missing else "",
-                f"missing: a {'cylinder' if not muscle else 'muscle-pair'} joint names {', '.join(needed)}")
-
-    @property
-    def actuation(self) -> str:
-        return MUSCLE_PAIR if self.muscles is not None else CYLINDER
-
-    @property
-    def pressure_outputs(self) -> tuple:
-        """The two pressure-commanding devices' configs: (head, rod) or (valve_a, valve_b)."""
-        return (self.head, self.rod) if self.muscles is None else (self.valve_a, self.valve_b)
-
-    @property
-    def chambers(self) -> tuple[str, str]:
-        return ("head", "rod") if self.muscles is None else ("muscle_a", "muscle_b")
-
-    def output_channels(self) -> list[tuple[str, str]]:
-        """(where, channel) of every output the joint drives, in sweep order."""
-        keys = ("head", "rod") if self.muscles is None else ("valve_a", "valve_b", "brake")
-        return [(f"joints.{self.name}.{k}", getattr(self, k).channel) for k in keys if getattr(self, k) is not None]
-
-    def pressure_inputs(self) -> list[tuple[str, str]]:
-        """(where, channel) of the joint's chamber pressure sensors (none on a cylinder joint)."""
-        return [(f"joints.{self.name}.{k}", getattr(self, k).channel) for k in ("pressure_a", "pressure_b")
-                if getattr(self, k) is not None]
-
-    @property
-    def limits_rad(self) -> tuple[float, float]:
-        return math.radians(self.min_angle_deg), math.radians(self.max_angle_deg)
-
-    @property
-    def model_name(self) -> str:
-        return self.model or self.name
-
-    @property
-    def neutral_deg(self) -> float:
-        if self.neutral_angle_deg is not None:
-            return self.neutral_angle_deg
-        return 0.5 * (self.min_angle_deg + self.max_angle_deg)
+BUILTIN_RIGS = {"sim": "sim_2joint.toml", "sim-3joint": "sim_3joint.toml", "sim-muscle": "sim_muscle.toml",
+                "sim-axis": "sim_axis.toml"}
+RIG_INPUT_NAMES = ("cycle", "t", "mode", "out", "force", "supply_pressure")  # the record's own names
 
 
 @dataclass(frozen=True)
 class ArmConfig:
-    """Planar arm geometry (rig-facts §1; link lengths are an interpretation, default 100 mm)."""
+    """Planar arm geometry (rig-facts §1; link lengths are an interpretation, default 100 mm):
+    one link per joint of a rig of rotary joints; a rig with a linear joint has none."""
 
     link_lengths_mm: tuple[float, ...] = (100.0, 100.0)
     elbow: int = -1  # IK branch: sign of the second joint angle
@@ -175,10 +83,12 @@ class SafetyConfig:
     # "disable" it once it has held position that long, or "hold" it until a client comes.
     unleased_action: str = "disable"
     unleased_grace_s: float = 60.0  # [s] of holding with no lease holder before the action
-    # A controller that has lost a joint: its tracking error outside this band [deg] for the
-    # window [s] without closing in. "trip" to the safe state, or "fallback": the configured
-    # fallback controller takes over and holds the arm where it is. 0 turns the rule off.
+    # A controller that has lost a joint: its tracking error outside this band [deg; mm on a
+    # linear joint] for the window [s] without closing in. "trip" to the safe state, or
+    # "fallback": the configured fallback controller takes over and holds the arm where it is.
+    # 0 turns the rule off.
     tracking_error_deg: float = 10.0
+    tracking_error_mm: float = 10.0
     tracking_window_s: float = 2.0
     tracking_action: str = "trip"
     fallback_controller: str = "pid"
@@ -192,6 +102,7 @@ class SafetyConfig:
         require(self.unleased_action in ("disable", "hold"), "unleased_action", 'must be "disable" or "hold"')
         require(1.0 <= self.unleased_grace_s <= 3600, "unleased_grace_s", "must be within 1-3600 s")
         require(0 <= self.tracking_error_deg <= 180, "tracking_error_deg", "must be within 0-180 deg (0: off)")
+        require(0 <= self.tracking_error_mm <= 5000, "tracking_error_mm", "must be within 0-5000 mm (0: off)")
         require(0.01 <= self.tracking_window_s <= 60, "tracking_window_s", "must be within 0.01-60 s")
         require(self.tracking_action in ("trip", "fallback"), "tracking_action", 'must be "trip" or "fallback"')
         require(isinstance(self.fallback_controller, str) and bool(self.fallback_controller), "fallback_controller",
@@ -218,10 +129,12 @@ class RigConfig:
     rig: RigInfo
     transport: TransportConfig
     joints: tuple[JointConfig, ...]
-    arm: ArmConfig = ArmConfig()
+    arm: ArmConfig | None = None  # a rig of rotary joints: its planar arm (default: 2 links of 100 mm)
     limits: LimitsConfig = LimitsConfig()
     safety: SafetyConfig = SafetyConfig()
-    force_sensor: ForceSensorConfig | None = None
+    force_sensor: Any = None  # the tip force sensor's table (device default "asfs")
+    supply_pressure: Any = None  # a transmitter on the supply line (device default "pressure_transmitter")
+    inputs: tuple[Any, ...] = ()  # [[inputs]]: further analog inputs of the rig
     contact_sensor: ContactSensorConfig | None = None  # the array pressure sensor, beside the loop
     models: dict[str, Any] = field(default_factory=dict)  # [models.NAME] tables (hal.identified.parse_models)
     joint_models: dict[str, JointParams] = field(default_factory=dict, init=False, compare=False)  # built-in + own
@@ -241,26 +154,72 @@ class RigConfig:
         names = [j.name for j in self.joints]
         dup = _first_duplicate(names)
         require(dup is None, "joints", f"joint name {dup!r} is used twice")
+        self._check_arm()
+        self._parse_sensors()
+        self._check_channels()
+        for j in self.joints:
+            for device, (where, _) in zip(j.pressure_outputs, j.output_channels()):
+                require(device.safe_mpa <= self.limits.max_pressure_mpa, f"{where}.safe_mpa",
+                        f"{device.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
+
+    def _check_arm(self) -> None:
+        linear = [j.name for j in self.joints if j.kind == LINEAR]
+        if linear:
+            require(self.arm is None or not self.arm.link_lengths_mm, "arm",
+                    f"a rig with a linear joint ({', '.join(linear)}) is not a planar arm of rotary joints: "
+                    f"leave [arm] out")
+            object.__setattr__(self, "arm", ArmConfig(link_lengths_mm=()))
+            return
+        if self.arm is None:
+            object.__setattr__(self, "arm", ArmConfig())
         require(len(self.arm.link_lengths_mm) == len(self.joints), "arm.link_lengths_mm",
                 f"{len(self.arm.link_lengths_mm)} links given for {len(self.joints)} joints")
-        outputs = [o for j in self.joints for o in j.output_channels()]
-        signals = [(f"joints.{j.name}.sensor", j.sensor.channel) for j in self.joints]
-        signals += [s for j in self.joints for s in j.pressure_inputs()]
+
+    def _parse_sensors(self) -> None:
         if self.force_sensor is not None:
-            signals.append(("force_sensor", self.force_sensor.channel))
+            object.__setattr__(self, "force_sensor", parse_sensor(self.force_sensor, "force_sensor", "asfs", "N",
+                                                                  "the tip force"))
+        if self.supply_pressure is not None:
+            object.__setattr__(self, "supply_pressure", parse_sensor(
+                self.supply_pressure, "supply_pressure", "pressure_transmitter", "Pa", "the supply's pressure"))
+        inputs = tuple(parse_input(t, f"inputs[{k}]", RIG_INPUT_NAMES) for k, t in enumerate(self.inputs))
+        object.__setattr__(self, "inputs", inputs)
+        names = [i.name for i in inputs]
+        dup = _first_duplicate(names)
+        require(dup is None, "inputs", f"input name {dup!r} is used twice")
+        clash = set(names) & {j.name for j in self.joints}
+        require(not clash, "inputs", f"input {sorted(clash)!r} has a joint's name: name it apart")
+
+    def input_devices(self) -> list[tuple[str, Any]]:
+        """(where, config) of every input device the rig file names, in the sweep's order
+        (:func:`hal.transport.rig_channels`): the joints' position sensors, each joint's chamber
+        transmitters and inputs, then the rig's force sensor, supply transmitter and inputs."""
+        out = [(f"joints.{j.name}.sensor", j.sensor) for j in self.joints]
+        for j in self.joints:
+            out += [(f"joints.{j.name}.pressure_{c}", s) for c, s in j.chamber_sensors()]
+            out += [(f"joints.{j.name}.inputs.{i.name}", i.sensor) for i in j.inputs]
+        if self.force_sensor is not None:
+            out.append(("force_sensor", self.force_sensor))
+        if self.supply_pressure is not None:
+            out.append(("supply_pressure", self.supply_pressure))
+        out += [(f"inputs.{i.name}", i.sensor) for i in self.inputs]
+        return out
+
+    def supply_channels(self) -> list[str]:
+        """The distinct supply channels ratiometric sensors read, in order of first use."""
+        return list(dict.fromkeys(ch for _, c in self.input_devices() if (ch := getattr(c, "supply_channel", ""))))
+
+    def _check_channels(self) -> None:
+        outputs = [o for j in self.joints for o in j.output_channels()]
+        signals = [(where, config.channel) for where, config in self.input_devices()]
         for group in (outputs, signals):
             seen: dict[str, str] = {}
             for where, channel in group:
                 require(channel not in seen, where + ".channel",
                         f"channel {channel!r} is already mapped to {seen.get(channel)}")
                 seen[channel] = where
-        supplies = {j.sensor.supply_channel for j in self.joints} - {""}
-        clash = supplies & {c for _, c in signals}
+        clash = set(self.supply_channels()) & {c for _, c in signals}
         require(not clash, "joints", f"channel {sorted(clash)} is both a supply and a signal channel")
-        for j in self.joints:
-            for device, (where, _) in zip(j.pressure_outputs, j.output_channels()):
-                require(device.safe_mpa <= self.limits.max_pressure_mpa, f"{where}.safe_mpa",
-                        f"{device.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
 
     def joint_params(self, joint: JointConfig) -> JointParams | None:
         """The model a joint names (``model``, else its own name), or None when there is none."""
@@ -299,6 +258,7 @@ def parse(text: str, origin: str = "<string>") -> RigConfig:
 
 
 STATED = {"transport": "backend", "safety": None, "arm": None, "limits": None}  # what a rig file must say itself
+# ([arm]: a rig of rotary joints only)
 STATED_TYPES = {"transport": TransportConfig, "safety": SafetyConfig, "arm": ArmConfig, "limits": LimitsConfig}
 
 
@@ -306,7 +266,10 @@ def _require_stated(data: dict, origin: str) -> None:
     """A rig file states its transport backend, its safety limits, its arm and its pressure
     limits: defaults for them are the built-in rigs' alone, so a mistyped real rig's file never
     quietly runs the simulator, another arm's geometry or the simulator's pressure limits."""
+    linear = any(isinstance(j, dict) and j.get("kind") == LINEAR for j in data.get("joints") or ())
     for section, key in STATED.items():
+        if section == "arm" and linear:
+            continue
         if not isinstance(data.get(section), dict):
             keys = ", ".join(f.name for f in fields(STATED_TYPES[section]) if f.init)
             raise ConfigError(f"{origin}: [{section}]: missing: a rig file must state it (only the built-in rigs "
@@ -318,7 +281,7 @@ def _require_stated(data: dict, origin: str) -> None:
 
 
 def load(path: str | Path | None = None) -> RigConfig:
-    """Load a rig file, a built-in rig by name (``sim``, ``sim-3joint``, ``sim-muscle``), or the default."""
+    """Load a rig file, a built-in rig by name (:data:`BUILTIN_RIGS`), or the default (``sim``)."""
     if path is None or str(path) in BUILTIN_RIGS:
         name = "sim" if path is None else str(path)
         text = resources.files("hal").joinpath(BUILTIN_RIGS[name]).read_text()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hal.devices import Sensor
 from hal.schema import require
 
 RANGE_N = 27.44
@@ -24,6 +25,7 @@ class ForceSensorConfig:
     offset_volts: float = 0.5  # amplifier output at zero force [V]
     range_n: float = RANGE_N
     margin_n: float = 1.0  # tolerance outside 0..range before a reading is flagged [N]
+    device: str = "asfs"
 
     def __post_init__(self):
         require(bool(self.channel), "channel", "must name a transport channel")
@@ -32,20 +34,25 @@ class ForceSensorConfig:
         require(self.margin_n >= 0, "margin_n", "must be >= 0")
 
 
-class ASFS:
+class ASFS(Sensor):
     """Converts amplifier volts to tip force [N]; :meth:`tare` zeroes the current load."""
 
+    Config = ForceSensorConfig
+    unit = "N"
+
     def __init__(self, config: ForceSensorConfig):
-        self.config = config
+        super().__init__(config)
+        self.low, self.high = 0.0, config.range_n
         self.tare_n = 0.0
 
     def raw_force(self, volts: float) -> float:
         """Force [N] from the calibration alone, before tare."""
         return self.config.newtons_per_volt * (volts - self.config.offset_volts)
 
-    def force(self, volts: float) -> float:
-        """Tared force [N]."""
-        return self.raw_force(volts) - self.tare_n
+    def convert(self, volts: float) -> float:
+        """Tared force [N]; NaN when the reading cannot be trusted (:meth:`diagnose`)."""
+        f, c = self.raw_force(volts), self.config
+        return f - self.tare_n if -c.margin_n <= f <= c.range_n + c.margin_n else math.nan  # NaN fails both
 
     def volts_for(self, force_n: float) -> float:
         """Amplifier volts this calibration expects for a raw force (for simulators, checks)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hal.devices import Ratiometric
 from hal.schema import require
 
 ELECTRICAL_HALF_TRAVEL_DEG = 160.0
@@ -29,6 +30,7 @@ class PotentiometerConfig:
     supply_volts: float = 5.0  # nominal supply when none is measured [V]
     rail_margin: float = 0.02  # a ratio this close to 0 or 1 is a disconnected/shorted wiper
     plausible_margin_deg: float = 15.0  # tolerance beyond the joint limits before "implausible"
+    device: str = "rdc506"
 
     def __post_init__(self):
         require(bool(self.channel), "channel", "must name a transport channel")
@@ -54,11 +56,15 @@ def two_point_calibration(ratio_a: float, angle_a_deg: float, ratio_b: float, an
     }
 
 
-class RDC506:
+class RDC506(Ratiometric):
     """Converts one potentiometer's volts to a joint angle within ``[min_rad, max_rad]``."""
 
+    Config = PotentiometerConfig
+    unit = "rad"
+
     def __init__(self, config: PotentiometerConfig, min_rad: float, max_rad: float):
-        self.config = config
+        super().__init__(config)
+        self.low, self.high = min_rad, max_rad
         self._gain = math.radians(config.direction * config.deg_per_ratio)  # [rad per ratio]
         self._angle0 = math.radians(config.angle_at_zero_deg)
         margin = math.radians(config.plausible_margin_deg)
@@ -67,7 +73,11 @@ class RDC506:
         half = ELECTRICAL_HALF_TRAVEL_DEG / 333.3  # electrical travel as a ratio span about 0.5
         self._travel_lo, self._travel_hi = 0.5 - half, 0.5 + half
 
-    def angle(self, volts: float, supply_volts: float) -> float:
+    @classmethod
+    def create(cls, config: PotentiometerConfig, limits: tuple[float, float] = (-math.pi, math.pi)) -> "RDC506":
+        return cls(config, *limits)
+
+    def convert(self, volts: float, supply_volts: float) -> float:
         """Joint angle [rad], or NaN when the reading cannot be true (see :meth:`diagnose`)."""
         if not (0.5 * self.config.supply_volts < supply_volts < 1.5 * self.config.supply_volts):
             return math.nan

@@ -1,4 +1,6 @@
-"""A muscle's pressure sensor (rig-facts §2: each valve has one): volts -> gauge pressure [Pa].
+"""A pressure transmitter (device kind ``pressure_transmitter``): volts -> gauge pressure [Pa].
+The muscle rig's valves each have one (rig-facts §2); a cylinder's chambers and the supply line
+may have one too (``pressure_head``, ``pressure_rod``, ``[supply_pressure]``).
 
 Linear: ``P = mpa_per_volt * (V - offset_volts)``, the defaults a 1-5 V sensor over
 0-1 MPa. A reading more than ``margin_mpa`` outside 0..range cannot be true (a broken wire
@@ -10,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hal.devices import Sensor
 from hal.schema import require
 
 
@@ -20,6 +23,7 @@ class PressureSensorConfig:
     offset_volts: float = 1.0  # output at 0 MPa gauge (a live zero) [V]
     range_mpa: float = 1.0
     margin_mpa: float = 0.05  # tolerance outside 0..range before a reading is flagged [MPa]
+    device: str = "pressure_transmitter"
 
     def __post_init__(self):
         require(bool(self.channel), "channel", "must name a transport channel")
@@ -28,14 +32,18 @@ class PressureSensorConfig:
         require(self.margin_mpa >= 0, "margin_mpa", "must be >= 0")
 
 
-class PressureSensor:
+class PressureSensor(Sensor):
+    Config = PressureSensorConfig
+    unit = "Pa"
+
     def __init__(self, config: PressureSensorConfig):
-        self.config = config
+        super().__init__(config)
+        self.low, self.high = 0.0, config.range_mpa * 1e6
         self._slope = config.mpa_per_volt * 1e6  # [Pa/V]
         self._low = -config.margin_mpa * 1e6
         self._high = (config.range_mpa + config.margin_mpa) * 1e6
 
-    def pressure(self, volts: float) -> float:
+    def convert(self, volts: float) -> float:
         """Gauge pressure [Pa]; NaN when the reading cannot be true (see :meth:`diagnose`)."""
         p = self._slope * (volts - self.config.offset_volts)
         return p if self._low <= p <= self._high else math.nan  # NaN fails both
@@ -44,7 +52,9 @@ class PressureSensor:
         """What this calibration reads for a pressure (the simulator's sensor)."""
         return self.config.offset_volts + pressure_pa / self._slope
 
-    def diagnose(self, volts: float) -> str:
+    def diagnose(self, volts: float) -> str | None:
+        if self.convert(volts) == self.convert(volts):  # not NaN: plausible
+            return None
         if not math.isfinite(volts):
             return f"reading {volts!r} is not a number"
         p = self._slope * (volts - self.config.offset_volts) * 1e-6

@@ -5,8 +5,9 @@ each way per cycle. It declares its channels up front so the rig configuration c
 checked against it before anything moves. Values cross the contract as plain tuples of
 floats in the declared channel order, so the 1 ms path allocates no per-channel objects.
 
-Backends are plugins, named in the rig file (``transport.backend``): the built-in names in
-:data:`BACKENDS` or any ``module:Class`` path.
+Backends are plugins, named in the rig file (``transport.backend``): a class registered under
+the entry-point group ``pneumad.transports`` (the built-ins, ``sim``, ``serial``, ``modbus``,
+``can``, in pneumad's pyproject.toml; a lab's in its own package's), or a ``module:Class`` path.
 """
 from __future__ import annotations
 
@@ -16,8 +17,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 
+from hal import sensors
 from hal.errors import CommandError, ConfigError
-from hal.plugins import load_class
+from hal.plugins import load_entry_point
+
+GROUP = "pneumad.transports"
 
 
 class ChannelKind(str, Enum):
@@ -152,42 +156,30 @@ def counts_to_volts(counts: Sequence[int], channels: Sequence[Channel],
     return tuple(ch.low + c * (ch.high - ch.low) / full_scale for c, ch in zip(counts, channels))
 
 
-def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple[tuple[str, int], ...]]:
+def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple]:
     """The channels a rig file names, in the order every built-in transport carries them:
-    inputs are each joint's angle sensor, each muscle-pair joint's two pressure sensors, each
-    distinct supply monitor, the force sensor; outputs are each joint's in its own order (head,
-    rod; or valve a, valve b, brake). Also what each input measures, as (what, joint)."""
-    inputs, sources = [], []
-    for i, j in enumerate(rig.joints):
-        inputs.append(Channel(j.sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
-        sources.append(("angle", i))
-    for i, j in enumerate(rig.joints):
-        for where, channel in j.pressure_inputs():
-            inputs.append(Channel(channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
-            sources.append((where.rpartition(".")[2], i))  # pressure_a, pressure_b
-    for supply in dict.fromkeys(j.sensor.supply_channel for j in rig.joints if j.sensor.supply_channel):
-        inputs.append(Channel(supply, ChannelKind.ANALOG_IN, 0.0, 10.0))
-        sources.append(("supply", 0))
-    if rig.force_sensor is not None:
-        inputs.append(Channel(rig.force_sensor.channel, ChannelKind.ANALOG_IN, 0.0, 10.0))
-        sources.append(("force", 0))
+    inputs are each joint's position sensor, each joint's further sensors (chamber transmitters,
+    inputs), each distinct supply a ratiometric sensor reads, then the rig's sensors (force,
+    supply pressure, inputs) (:mod:`hal.sensors`); outputs are each joint's in its own order (head,
+    rod; valve a, valve b, brake; a 5/3 valve). Also what each input is: its
+    :class:`hal.sensors.Placed`, or None for a supply channel."""
+    placed = sensors.positions(rig) + sensors.measured(rig)
+    joints = [p for p in placed if p.joint >= 0]
+    order = joints + [None] * len(rig.supply_channels()) + [p for p in placed if p.joint < 0]
+    names = [p.config.channel for p in joints] + rig.supply_channels() + [p.config.channel for p in placed
+                                                                          if p.joint < 0]
+    inputs = tuple(Channel(name, ChannelKind.ANALOG_IN, 0.0, 10.0) for name in names)
     outputs = tuple(Channel(channel, ChannelKind.ANALOG_OUT, 0.0, 10.0)
                     for j in rig.joints for _, channel in j.output_channels())
-    return tuple(inputs), outputs, tuple(sources)
-
-
-BACKENDS: dict[str, str] = {
-    "sim": "sim_backend.transport:SimTransport",
-    "serial": "hal.serial_bridge:SerialBridgeTransport",
-    "modbus": "hal.modbus:ModbusTransport",
-    "can": "hal.can_bus:CanTransport",
-}
+    return inputs, outputs, tuple(order)
 
 
 def load_backend(name: str) -> type[Transport]:
-    """The transport class for a backend name or a ``module:Class`` path."""
+    """The transport class registered as ``name`` (entry-point group ``pneumad.transports``) or
+    at a ``module:Class`` path; a ConfigError naming ``transport.backend`` otherwise, with the
+    plugin's own error if it fails to import."""
     try:
-        return load_class(name, BACKENDS, Transport, "backend")
+        return load_entry_point(name, GROUP, Transport, "backend")
     except LookupError as exc:
         raise ConfigError(f"transport.backend: {exc}") from None
 

@@ -62,6 +62,17 @@ class AxisModel:
         self.external_force_n = 0.0
         self.reset(state if state is not None else self.rest_state())
 
+    @property
+    def supply_pa(self) -> float:
+        """The supply's absolute pressure [Pa] (the simulator's loss of supply sets it to the atmosphere's)."""
+        return self._const[4]
+
+    @supply_pa.setter
+    def supply_pa(self, value: float) -> None:
+        const = list(self._const)
+        const[4] = value
+        self._const = tuple(const)
+
     def rest_state(self, position_m: float | None = None) -> AxisState:
         """At rest at a position [m] (default mid-stroke), the valve at its null
         (:func:`hal.linear_axis_facts.rest_state`)."""

@@ -175,6 +175,10 @@ class SimMuscleRig:
         self.disturbance_nm = [0.0]
         self.contact_force_n = 0.0
 
+    def position(self, joint: int) -> float:
+        """The joint's angle [rad]."""
+        return self.joint.theta
+
     def chamber_gauge(self, joint: int, side: int) -> float:
         return self.joint.gauge(side)
 

@@ -19,7 +19,10 @@ class SimJointOptions:
     neutral_angle_deg: float | None = None  # th_0 of the spring; default: the rig's joint neutral angle
     initial_angle_deg: float | None = None  # default: equilibrium at the bias pressures
     end_stop_margin_deg: float = 10.0  # mechanical stops this far beyond the software limits
-    overrides: dict[str, float] = field(default_factory=dict)  # e.g. {T_dly = 0.04}
+    # the plant's parameters where they differ from the rig file's: a rotary joint's model
+    # (e.g. {T_dly = 0.04}), a linear joint's [joints.linear_axis] (e.g. {load_mass_kg = 3.0})
+    overrides: dict[str, float] = field(default_factory=dict)
+    initial_position_mm: float | None = None  # a linear joint's; default: mid-way between its limits
 
     def __post_init__(self):
         require(self.end_stop_margin_deg >= 0, "end_stop_margin_deg", "must be >= 0")

@@ -72,6 +72,15 @@ class SimArm:
         self._payload = (options.payload.mass_kg, tuple(c * 1e-3 for c in options.payload.com_mm),
                          tuple(rig.arm.gravity_m_s2))
 
+    def position(self, joint: int) -> float:
+        """Joint ``joint``'s angle [rad]."""
+        return math.radians(self.joints[joint].th)
+
+    def chamber_gauge(self, joint: int, second: bool) -> float:
+        """The head (or rod: ``second``) chamber's pressure [Pa gauge], after the regulator's lag."""
+        j = self.joints[joint]
+        return j.p_rod if second else j.p_head
+
     def angles_rad(self) -> list[float]:
         return [math.radians(j.th) for j in self.joints]
 

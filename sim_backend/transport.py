@@ -14,6 +14,12 @@ latest sweep for the loop's read
 (:mod:`sim_backend.plant_thread`), as a DAQ samples on its own processor; outputs written
 in between take effect from when they were written, as in lockstep.
 
+The plant is the rig's kind: the planar arm of regulator-driven rotary joints
+(:mod:`sim_backend.plant`), the muscle joint (:mod:`sim_backend.muscle_plant`), or linear axes on
+5/3 valves (:mod:`sim_backend.axis_plant`). Every sensor the rig file names reads the plant's
+truth through its own calibration (positions, chamber and supply pressures, the tip force); a
+further input the plant has no model of reads the middle of its plausible range.
+
 Faults can be injected to exercise the supervisor: a disconnected sensor (reads the 0 V
 rail), a stuck sensor, a noise burst, a transport timeout, and loss of supply pressure.
 """
@@ -28,12 +34,15 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from hal.config import RigConfig
+from hal.devices import Ratiometric
+from hal.directional_valve import DirectionalValve
 from hal.errors import ConfigError, TransportError, TransportTimeout
-from hal.force_sensor import ASFS
-from hal.potentiometer import RDC506
-from hal.pressure_sensor import PressureSensor
+from hal.interfaces import LINEAR, ROTARY
+from hal.joints import CYLINDER, MUSCLE_PAIR, VALVE
 from hal.schema import build
+from hal.sensors import Placed
 from hal.transport import InputSweep, Transport, rig_channels
+from sim_backend.axis_plant import SimAxisRig
 from sim_backend.muscle_plant import SimMuscleRig
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
@@ -67,6 +76,35 @@ def linear(volts_for) -> tuple[float, float]:
     return offset, volts_for(1.0) - offset
 
 
+def plant_for(rig: RigConfig, options: SimOptions):
+    """The plant of the rig's kind (module docstring); ConfigError for a rig the simulator has
+    no model of."""
+    kinds = {(j.kind, j.actuation) for j in rig.joints}
+    if kinds == {(ROTARY, CYLINDER)}:
+        return SimArm(rig, options)
+    if kinds == {(ROTARY, MUSCLE_PAIR)}:
+        return SimMuscleRig(rig, options)
+    if kinds == {(LINEAR, VALVE)}:
+        return SimAxisRig(rig, options)
+    raise ConfigError("transport.backend: the simulator models a planar arm of rotary joints on regulator pairs, "
+                      "a muscle-pair joint, or linear joints on 5/3 valves; this rig has "
+                      + ", ".join(sorted(f"{kind} joints on {actuation}" for kind, actuation in kinds)))
+
+
+def initial_outputs(rig: RigConfig) -> list[float]:
+    """What the DACs drive before the first write [V]: a regulator pair its biases, a muscle
+    pair's valves and brake 0 V (vented, released), a 5/3 valve its safe command."""
+    out = []
+    for j in rig.joints:
+        if j.actuation == CYLINDER:
+            out += [j.head.bias_volts, j.rod.bias_volts]
+        elif j.actuation == VALVE:
+            out.append(DirectionalValve(j.valve).safe_volts)
+        else:
+            out += [0.0] * len(j.output_channels())
+    return out
+
+
 class SimTransport(Transport):
     backend = "sim"
     rate_hz = 1000.0
@@ -77,24 +115,15 @@ class SimTransport(Transport):
         super().__init__()
         self.options = options
         self.clock = clock
-        muscle_rig = any(j.muscles is not None for j in rig.joints)
-        self.arm = SimMuscleRig(rig, options) if muscle_rig else SimArm(rig, options)
+        self.arm = plant_for(rig, options)  # the plant, whatever the rig's kind
+        self._supply_pa = self.arm.supply_pa  # [Pa gauge] restored when a lost supply comes back
         self._rng = random.Random(options.seed)
-        vsup = options.supply_volts
+        self._vsup = options.supply_volts
         self.inputs, self.outputs, self._sources = rig_channels(rig)
-        # The "true" sensors: the rig file's calibrations, read backwards.
-        self._pots = [RDC506(j.sensor, *j.limits_rad) for j in rig.joints]
-        self._force = ASFS(rig.force_sensor) if rig.force_sensor else None
-        self._pressure_sensors = {(f"pressure_{side}", i): PressureSensor(sensor) for i, j in enumerate(rig.joints)
-                                  for side, sensor in (("a", j.pressure_a), ("b", j.pressure_b)) if sensor is not None}
-        self._vsup = vsup
-        self._out = [0.0] * len(self.outputs)  # the muscle rig's valves at 0 V: vented
-        if not muscle_rig:
-            for i, j in enumerate(rig.joints):
-                self._out[2 * i], self._out[2 * i + 1] = j.head.bias_volts, j.rod.bias_volts
+        self._out = initial_outputs(rig)
         self._adc = [converter(ch.low, ch.high, options.adc_bits) for ch in self.inputs]
         self._dac = [converter(ch.low, ch.high, options.dac_bits) for ch in self.outputs]
-        self._sensing = [self._sensed(what, i) for what, i in self._sources]
+        self._sensing = [self._sensed(placed) for placed in self._sources]
         self._faults: dict[tuple[str, str], dict] = {}
         self._last = [0.0] * len(self.inputs)
         self._seq = 0
@@ -230,31 +259,42 @@ class SimTransport(Transport):
         self._steps += max(due, 0)
         self._next_step_t = self._t0 + h * (self._steps + 1 - 1e-6)
 
-    def _sensed(self, what: str, i: int) -> tuple[str, int, float, float]:
-        """How input ``what`` of joint ``i`` reads the plant: (quantity, joint, offset [V],
-        slope [V per unit]), from the rig file's calibrations read backwards (all linear)."""
-        if what == "angle":  # the plant's angle is in degrees
-            pot = self._pots[i]
-            return ("angle", i, *linear(lambda deg: self._vsup * pot.ratio_for(math.radians(deg))))
-        if what == "supply":
+    def _sensed(self, placed: Placed | None) -> tuple[str, int, float, float]:
+        """How an input reads the plant: (quantity, joint, offset [V], slope [V per SI unit]),
+        from the rig file's calibrations read backwards (all linear). A supply channel reads
+        the potentiometers' supply; an input the plant has no model of, its range's middle."""
+        if placed is None:
             return ("supply", 0, self._vsup, 0.0)
-        if what in ("pressure_a", "pressure_b"):
-            return (what, i, *linear(self._pressure_sensors[(what, i)].volts_for))
-        return ("force", 0, *linear(self._force.volts_for))
+        sensor, name = placed.sensor, placed.name
+        if isinstance(sensor, Ratiometric):
+            offset, slope = linear(lambda x: self._vsup * sensor.ratio_for(x))
+        else:
+            offset, slope = linear(sensor.volts_for)
+        if name == "position":
+            return ("position", placed.joint, offset, slope)
+        if placed.owner and name in ("p_head", "p_a", "p_rod", "p_b"):
+            return ("second" if name in ("p_rod", "p_b") else "first", placed.joint, offset, slope)
+        if not placed.owner and name in ("force", "supply_pressure"):
+            return (name, 0, offset, slope)
+        low, high = sensor.low, sensor.high
+        middle = 0.5 * (low + high) if math.isfinite(low) and math.isfinite(high) else 0.0
+        return ("constant", 0, offset + slope * middle, 0.0)
 
     def _sample(self) -> tuple[float, ...]:
         arm, gauss, sigma = self.arm, self._rng.gauss, self.options.adc_noise_volts
-        joints, faults = arm.joints, self._faults
+        faults = self._faults
         out = []
         for idx, ((what, i, offset, slope), adc) in enumerate(zip(self._sensing, self._adc)):
-            if what == "angle":
-                v = offset + slope * joints[i].th
-            elif what == "supply":
-                v = offset
+            if what == "position":
+                v = offset + slope * arm.position(i)
+            elif what == "first" or what == "second":
+                v = offset + slope * arm.chamber_gauge(i, what == "second")
             elif what == "force":
                 v = offset + slope * arm.contact_force_n
-            else:
-                v = offset + slope * arm.chamber_gauge(i, what == "pressure_b")
+            elif what == "supply_pressure":
+                v = offset + slope * arm.supply_pa
+            else:  # a supply channel, a constant
+                v = offset
             s = sigma
             if faults:
                 fault_v, s = self._apply_faults(self.inputs[idx].name, idx, v, s)
@@ -309,4 +349,4 @@ class SimTransport(Transport):
             for key in [k for k in self._faults if fault in (None, k[0])]:
                 del self._faults[key]
             if fault in (None, "supply_lost"):
-                self.arm.supply_pa = self.options.supply_mpa * 1e6
+                self.arm.supply_pa = self._supply_pa

@@ -33,10 +33,10 @@ def test_the_valve_converts_both_ways_clamps_to_its_range_and_refuses_nan():
 
 def test_the_pressure_sensor_flags_what_cannot_be_true():
     sensor = PressureSensor(PressureSensorConfig("ai1"))
-    assert sensor.pressure(sensor.volts_for(0.25e6)) == pytest.approx(0.25e6)
-    assert math.isnan(sensor.pressure(0.0))  # a broken wire reads 0 V, below the 1 V live zero
+    assert sensor.convert(sensor.volts_for(0.25e6)) == pytest.approx(0.25e6)
+    assert math.isnan(sensor.convert(0.0))  # a broken wire reads 0 V, below the 1 V live zero
     assert "below zero" in sensor.diagnose(0.0)
-    assert math.isnan(sensor.pressure(9.9)) and "over the sensor" in sensor.diagnose(9.9)
+    assert math.isnan(sensor.convert(9.9)) and "over the sensor" in sensor.diagnose(9.9)
 
 
 @pytest.mark.parametrize("exponent", [1.0, 2.0])

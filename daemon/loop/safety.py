@@ -11,8 +11,6 @@ Trips carry a cause in plain words. Sensor and speed checks trip only after
 """
 from __future__ import annotations
 
-import math
-
 from hal.config import RigConfig
 
 from daemon.wire.states import State
@@ -35,8 +33,8 @@ class Supervisor:
         self._n_bad = cfg.bad_samples_to_trip
         self._bad_sensor = 0
         self._bad_speed = 0
-        self._limits = [j.limits_rad for j in rig.joints]
-        self._max_speed = [math.radians(j.max_speed_deg_s) for j in rig.joints]
+        self._limits = [j.limits for j in rig.joints]  # [rad or m]
+        self._max_speed = [j.max_speed for j in rig.joints]  # [rad/s or m/s]
         self._p_max = rig.limits.max_pressure_mpa * 1e6
         self._dp = rig.limits.max_pressure_rate_mpa_s * 1e6 * dt  # per-cycle step limit [Pa]
         self.trips = 0
@@ -129,8 +127,7 @@ class Supervisor:
                 return
         for joint, q, (lo, hi) in zip(self.rig.joints, angles, limits):
             if not lo <= q <= hi:
-                self.trip(f"joint {joint.name} at {math.degrees(q):.1f} deg is outside its limits "
-                          f"{joint.min_angle_deg:.1f}..{joint.max_angle_deg:.1f} deg")
+                self.trip(f"joint {joint.name} at {joint.shown(q)} is outside its limits {joint.shown_limits()}")
                 return
         for fast, (w, limit) in enumerate(zip(velocities, self._max_speed)):
             if abs(w) > limit:
@@ -141,8 +138,8 @@ class Supervisor:
         self._bad_speed += 1
         if self._bad_speed >= self._n_bad:
             joint = self.rig.joints[fast]
-            self.trip(f"joint {joint.name} moving at {math.degrees(velocities[fast]):.1f} deg/s, "
-                      f"over its {joint.max_speed_deg_s:.1f} deg/s limit")
+            self.trip(f"joint {joint.name} moving at {joint.shown(velocities[fast], True)}, "
+                      f"over its {joint.shown(joint.max_speed, True)} limit")
 
     def _recovering(self, angles) -> list | None:
         """One cycle of the recovery: the limits the usual rule checks now (none for the joints

@@ -5,7 +5,8 @@ joint).
 Two rules per joint, both O(1) per cycle (a handful of float operations on preallocated
 per-joint lists; nothing grows with the path):
 
-- **Lost.** A joint whose tracking error |r - th| stays outside ``tracking_error_deg`` for
+- **Lost.** A joint whose tracking error |r - th| stays outside ``tracking_error_deg`` (a linear
+  joint's: ``tracking_error_mm``) for
   ``tracking_window_s`` without closing in (the error now no smaller than when the window
   began) is lost: a step or a large move that the joint is catching up on closes in and is
   left alone; one pushed off, saturated the wrong way, or running away is not. The rule acts
@@ -33,6 +34,8 @@ import math
 
 NAN = math.nan
 NOISE_PLAY_DEG = 0.5  # the play's width [deg]: motion narrower than this is sensor noise, not travel
+NOISE_PLAY_MM = 0.5  # on a linear joint [mm]
+SHOWN = {"rad": ("deg", 180.0 / math.pi), "m": ("mm", 1000.0)}  # how a cause states an error
 FOLLOW_FRACTION = 0.25  # a joint that travels less than this share of its reference's travel is stuck
 
 
@@ -40,14 +43,19 @@ class TrackingGuard:
     """Watches the tracking error and the travel per joint while the arm is enabled; ``check``
     says when a joint is lost or stuck and why (once per finding: it restarts after)."""
 
-    def __init__(self, joint_names, bound_deg: float, window_s: float):
+    def __init__(self, joint_names, bound_deg: float, window_s: float, bound_mm: float = 0.0, units=()):
+        """``units``: each joint's position unit, "rad" (default) or "m" (a linear joint, whose
+        band is ``bound_mm``)."""
         self.names = tuple(joint_names)
-        self.bound = math.radians(bound_deg)  # [rad]; 0: off
-        self.window = window_s  # [s]
-        self.travel = 2.0 * self.bound  # reference travel per verdict [rad]
-        self.jump = 0.5 * self.bound  # a reference change above this in one cycle is a step [rad]
-        self.half_play = 0.5 * math.radians(NOISE_PLAY_DEG)  # [rad]
         n = len(self.names)
+        self.units = tuple(units) or ("rad",) * n
+        self.bounds = [math.radians(bound_deg) if u == "rad" else bound_mm * 1e-3 for u in self.units]  # [SI]; 0: off
+        self.window = window_s  # [s]
+        self.travels = [2.0 * b for b in self.bounds]  # reference travel per verdict [SI]
+        self.jumps = [0.5 * b for b in self.bounds]  # a reference change above this in one cycle is a step [SI]
+        self.half_plays = [0.5 * (math.radians(NOISE_PLAY_DEG) if u == "rad" else NOISE_PLAY_MM * 1e-3)
+                           for u in self.units]  # [SI]
+        self.on = any(self.bounds)
         self._since = [NAN] * n  # when the error left the band [s], NaN while inside
         self._at_start = [0.0] * n  # |error| when this window began [rad]
         self._r = [NAN] * n  # last cycle's reference [rad], NaN: none yet
@@ -65,11 +73,14 @@ class TrackingGuard:
 
     def check(self, t: float, reference, angles) -> str | None:
         """The cause if a joint is lost or stuck at time ``t`` [s], else None."""
-        if not self.bound:
+        if not self.on:
             return None
-        bound, jump, h = self.bound, self.jump, self.half_play
+        bounds, jumps, plays = self.bounds, self.jumps, self.half_plays
         last_r, r_play, q_play, ref_travel, travel = self._r, self._r_play, self._q_play, self._ref_travel, self._travel
         for j, (r, q) in enumerate(zip(reference, angles)):
+            bound, jump, h = bounds[j], jumps[j], plays[j]
+            if not bound:
+                continue
             # stuck: the joint's travel against its reference's, each through the play (inline:
             # this runs every cycle)
             r0 = last_r[j]
@@ -95,7 +106,7 @@ class TrackingGuard:
                 elif q < y - h:
                     travel[j] += y - h - q
                     q_play[j] = q + h
-                if ref_travel[j] >= self.travel:
+                if ref_travel[j] >= self.travels[j]:
                     stuck = self._verdict(j)
                     if stuck is not None:
                         return stuck
@@ -112,8 +123,9 @@ class TrackingGuard:
                     self._since[j], self._at_start[j] = t, e
                     continue
                 self._since[j] = NAN
-                return (f"joint {self.names[j]} lost: tracking error {math.degrees(e):.1f} deg, outside "
-                        f"{math.degrees(bound):g} deg for {self.window:g} s without closing in")
+                unit, scale = SHOWN[self.units[j]]
+                return (f"joint {self.names[j]} lost: tracking error {e * scale:.1f} {unit}, outside "
+                        f"{bound * scale:g} {unit} for {self.window:g} s without closing in")
         return None
 
     def _verdict(self, j: int) -> str | None:
@@ -123,5 +135,6 @@ class TrackingGuard:
         self._ref_travel[j] = self._travel[j] = 0.0
         if travel >= FOLLOW_FRACTION * ref_travel:
             return None
-        return (f"joint {self.names[j]} stuck: moved {math.degrees(travel):.1f} deg while its reference travelled "
-                f"{math.degrees(ref_travel):.1f} deg (less than {FOLLOW_FRACTION:.0%} of it)")
+        unit, scale = SHOWN[self.units[j]]
+        return (f"joint {self.names[j]} stuck: moved {travel * scale:.1f} {unit} while its reference travelled "
+                f"{ref_travel * scale:.1f} {unit} (less than {FOLLOW_FRACTION:.0%} of it)")

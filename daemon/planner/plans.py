@@ -17,7 +17,7 @@ class PlanContext:
     """What the planner knows of the rig: built once in the daemon, sent with each job (small)."""
 
     joint_names: tuple[str, ...]
-    limits: tuple[tuple[float, float], ...]  # [rad]
+    limits: tuple[tuple[float, float], ...]  # [rad; m on a linear joint]
     link_lengths_m: tuple[float, ...]
     elbow: int
     authority: Authority | None  # None when a joint has no identified model: no authority check
@@ -26,7 +26,7 @@ class PlanContext:
     @classmethod
     def of(cls, rig, context) -> "PlanContext":
         models_known = all(m is not None for m in context.models)
-        return cls(tuple(context.joint_names), tuple(j.limits_rad for j in rig.joints), tuple(rig.arm.link_lengths_m),
+        return cls(tuple(context.joint_names), tuple(j.limits for j in rig.joints), tuple(rig.arm.link_lengths_m),
                    rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None,
                    tuple(context.muscles))
 
