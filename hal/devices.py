@@ -157,6 +157,8 @@ def parse_sensor(table: Any, key: str, default: str, unit: str = "", slot: str =
         kind = sensor_kind(name)
     except LookupError as exc:
         raise Invalid(f"{key}.device", str(exc)) from None
+    if unit and kind.unit and kind.unit != unit:
+        raise _wrong_unit(key, name, kind.unit, unit, slot)
     if "device" not in {f.name for f in dataclasses.fields(kind.Config)}:
         raise Invalid(f"{key}.device", f"device kind {name!r}: its Config has no `device` field (a kind's Config "
                       f"names its kind: device: str = {name!r})")
@@ -170,10 +172,14 @@ def parse_sensor(table: Any, key: str, default: str, unit: str = "", slot: str =
     if not kind.unit:
         check_si(read, f"{key}.unit")
     if unit and read != unit:
-        raise Invalid(f"{key}.device", f"device kind {name!r} reads {read or 'no unit'}, but {slot} is in {unit}: "
-                      f"name a kind that reads {unit}" + (f" (device = {suggest_for(unit)!r})" if suggest_for(unit)
-                                                          else ""))
+        raise _wrong_unit(key, name, read, unit, slot)
     return config
+
+
+def _wrong_unit(key: str, name: str, read: str, unit: str, slot: str) -> Invalid:
+    fix = suggest_for(unit)
+    return Invalid(f"{key}.device", f"device kind {name!r} reads {read or 'no unit'}, but {slot} is in {unit}: "
+                   f"name a kind that reads {unit}" + (f" (device = {fix!r})" if fix else ""))
 
 
 def suggest_for(unit: str) -> str:

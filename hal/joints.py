@@ -39,9 +39,8 @@ LIMIT_KEYS = {ROTARY: ("min_angle_deg", "max_angle_deg", "max_speed_deg_s"),
               LINEAR: ("min_position_mm", "max_position_mm", "max_speed_mm_s")}
 ONLY = {ROTARY: ("neutral_angle_deg", "model"), LINEAR: ("linear_axis",)}  # keys of one kind alone, beside its limits
 DEFAULT_SPEED = {ROTARY: 60.0, LINEAR: 500.0}  # [deg/s], [mm/s]
-ACTUATION_KEYS = {CYLINDER: ("head", "rod"),
-                  MUSCLE_PAIR: ("muscles", "valve_a", "valve_b", "pressure_a", "pressure_b", "link", "brake"),
-                  VALVE: ("valve",)}
+ACTUATION_KEYS = {CYLINDER: ("head", "rod"), MUSCLE_PAIR: ("muscles", "valve_a", "valve_b", "link", "brake"),
+                  VALVE: ("valve",)}  # the devices that make a joint's actuation (its sensors aside)
 REQUIRED = {CYLINDER: ("head", "rod"), MUSCLE_PAIR: ("muscles", "valve_a", "valve_b", "pressure_a", "pressure_b", "link"),
             VALVE: ("valve",)}
 ACTUATION_WORDS = {CYLINDER: "a cylinder (head, rod)", MUSCLE_PAIR: "a muscle pair (muscles, valve_a, ...)",
@@ -154,15 +153,15 @@ class JointConfig:
             raise Invalid("head", "missing: a joint names its actuation: head and rod (a regulator pair), muscles, "
                                   "valve_a, valve_b ... (a muscle pair), or valve (a 5/3 proportional valve)")
         actuation = named[0]
-        missing = [k for k in REQUIRED[actuation] if getattr(self, k) is None]
-        words = {CYLINDER: "cylinder", MUSCLE_PAIR: "muscle-pair", VALVE: "valve"}[actuation]
-        require(not missing, missing[0] if missing else "",
-                f"missing: a {words} joint names {', '.join(REQUIRED[actuation])}")
         for other, keys in CHAMBER_SENSORS.items():
             for key in keys:
                 if getattr(self, key) is not None and key not in CHAMBER_SENSORS[actuation]:
                     raise Invalid(key, f"{ACTUATION_WORDS[actuation]}'s chamber transmitters are "
                                        f"{' and '.join(CHAMBER_SENSORS[actuation])} ({key} is {ACTUATION_WORDS[other]}'s)")
+        missing = [k for k in REQUIRED[actuation] if getattr(self, k) is None]
+        words = {CYLINDER: "cylinder", MUSCLE_PAIR: "muscle-pair", VALVE: "valve"}[actuation]
+        require(not missing, missing[0] if missing else "",
+                f"missing: a {words} joint names {', '.join(REQUIRED[actuation])}")
         if self.kind == LINEAR:
             require(actuation == VALVE, named and present[actuation][0],
                     "a linear joint is driven by a 5/3 proportional valve ([joints.valve]); regulator pairs and "

@@ -49,8 +49,8 @@ def load_entry_point(name: str, group: str, base: type, kind: str) -> type:
     known = installed(group)
     ep = known.get(name)
     if ep is None:
-        raise LookupError(f"unknown {kind} {name!r:.80} (installed: {', '.join(sorted(known)) or 'none'}; a kind of "
-                          f"your own is a package with an entry point in the group {group!r}, docs/rigs.md)")
+        raise LookupError(f"unknown {kind} {name!r:.80} (installed: {', '.join(sorted(known)) or 'none'}; a {kind} of "
+                          f"your own is a package with an entry point in the group {group!r}: docs/rigs.md)")
     try:
         cls = ep.load()
     except Exception as exc:  # a plugin's own import failure, whatever it is
