@@ -24,12 +24,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from hal.devices import parse_sensor
-from hal.directional_valve import DirectionalValveConfig
+from hal.directional_valve import DirectionalValve, DirectionalValveConfig
 from hal.interfaces import DISPLAY, LINEAR, POSITION_UNIT, ROTARY
 from hal.linear_axis import AxisParams
-from hal.mr_brake import BrakeConfig
+from hal.mr_brake import BrakeConfig, MRBrake
 from hal.muscle import MuscleConfig
-from hal.regulator import RegulatorConfig
+from hal.regulator import LinearPressureCommand, RegulatorConfig
 from hal.schema import Invalid, require
 from hal.valve import ValveConfig
 
@@ -233,6 +233,17 @@ class JointConfig:
         keys = {CYLINDER: ("head", "rod"), MUSCLE_PAIR: ("valve_a", "valve_b", "brake"), VALVE: ("valve",)}
         return [(f"joints.{self.name}.{k}", getattr(self, k).channel) for k in keys[self.actuation]
                 if getattr(self, k) is not None]
+
+    def safe_volts(self) -> list[float]:
+        """What each of the joint's outputs is held at in its safe state [V], in the order of
+        :meth:`output_channels`: a pressure device's ``safe_mpa``, a brake's ``safe_nm``, a
+        valve's ``safe_volts``."""
+        if self.actuation == VALVE:
+            return [DirectionalValve(self.valve).safe_volts]
+        out = [LinearPressureCommand(device).safe_volts for device in self.pressure_outputs]
+        if self.brake is not None:
+            out.append(MRBrake(self.brake).volts(self.brake.safe_nm))
+        return out
 
     @property
     def model_name(self) -> str:

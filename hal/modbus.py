@@ -26,7 +26,7 @@ from pymodbus.framer import FramerType
 
 from hal.offloop import BadReply, Link, LinkDown, LinkTimeout, OffLoopTransport
 from hal.schema import build, require
-from hal.transport import rig_channels
+from hal.transport import rig_channels, safe_outputs
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ class ModbusTransport(OffLoopTransport):
         self.inputs, self.outputs, _ = rig_channels(rig)
         self.full_scale = options.full_scale_counts
         super().__init__(clock, options.rate_hz, options.open_timeout_s, options.reopen_every_s,
-                         options.worker_priority)
+                         options.worker_priority, safe_outputs(rig))
 
     @classmethod
     def from_config(cls, rig, clock):

@@ -95,9 +95,12 @@ class OffLoopTransport(Transport):
     full_scale: int = FULL_SCALE_COUNTS
 
     def __init__(self, clock: Callable[[], float], rate_hz: float, open_timeout_s: float,
-                 reopen_every_s: float, worker_priority: int):
+                 reopen_every_s: float, worker_priority: int, safe_outputs: Sequence[float] = ()):
+        """``safe_outputs``: the rig's safe state [V], what the worker writes until the loop
+        writes (default: 0 V, which a 5/3 valve takes as full speed one way)."""
         super().__init__()
         self.clock = clock
+        self.safe_outputs = tuple(safe_outputs) or (0.0,) * len(self.outputs)
         self.rate_hz = rate_hz
         self.open_timeout_s = open_timeout_s
         self.reopen_every_s = reopen_every_s
@@ -116,6 +119,7 @@ class OffLoopTransport(Transport):
         """Spawn the worker and wait for its first sample: a peer that is not there stops
         the daemon at start with the worker's reason."""
         self._shared = shared = _shared(len(self.inputs), len(self.outputs))
+        write_locked(shared.out_seq, shared.outputs, volts_to_counts(self.safe_outputs, self.outputs, self.full_scale))
         factory, args = self.link_factory()
         self._process = Helper("hal.offloop:serve", (shared, factory, args, 1.0 / self.rate_hz, self.reopen_every_s,
                                                     self.worker_priority),

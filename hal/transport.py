@@ -174,6 +174,12 @@ def rig_channels(rig) -> tuple[tuple[Channel, ...], tuple[Channel, ...], tuple]:
     return inputs, outputs, tuple(order)
 
 
+def safe_outputs(rig) -> tuple[float, ...]:
+    """The rig's safe state as an output sweep [V] (:func:`rig_channels`' order): what a transport
+    that writes before the loop does (a Modbus worker's first exchange) writes."""
+    return tuple(v for j in rig.joints for v in j.safe_volts())
+
+
 def load_backend(name: str) -> type[Transport]:
     """The transport class registered as ``name`` (entry-point group ``pneumad.transports``) or
     at a ``module:Class`` path; a ConfigError naming ``transport.backend`` otherwise, with the

@@ -14,7 +14,9 @@ from pymodbus.client import ModbusTcpClient
 from bench.wires import listening
 from daemon.client.client import Client, RemoteError
 from daemon.testing.ports import free_tcp_port
+from hal import config
 from hal.errors import TransportError
+from hal.transport import create_transport, volts_to_counts
 from tests.daemons import real_daemon, running, wait_for_own_daemon
 from tests.wirehelpers import (
     move_and_track,
@@ -110,6 +112,28 @@ def test_the_dead_man_command_writes_the_safe_state_through_modbus():
         assert client.read_holding_registers(100, count=4, device_id=1).registers == [0, 0, 0, 0]
         client.close()
     finally:
+        stop_peer(proc)
+
+
+@pytest.mark.slow(seconds=5)
+def test_from_its_first_exchange_the_worker_writes_the_rigs_safe_state_not_zero_volts():
+    """Before the loop writes anything, the Modbus worker's exchanges carry the rig's safe
+    state: on the linear axis, 0 V would drive its 5/3 valve fully open, the piston to its end
+    stop; its safe state is the valve's null (4.99 V)."""
+    port = free_tcp_port()
+    proc = start_peer("sim_backend.modbus_peer", "--config", "sim-axis", "--port", str(port),
+                      ready=lambda: listening(port))
+    rig = config.with_transport(config.load("sim-axis"), "modbus", {"port": port, "open_timeout_s": 60.0})
+    transport = create_transport(rig, time.monotonic)
+    try:
+        transport.open()  # it waits for the first exchange
+        client = ModbusTcpClient("127.0.0.1", port=port, timeout=5.0)
+        client.connect()
+        assert client.read_holding_registers(100, count=1, device_id=1).registers == \
+            volts_to_counts([4.99], transport.outputs)
+        client.close()
+    finally:
+        transport.close()
         stop_peer(proc)
 
 

@@ -14,7 +14,7 @@ from hal import config
 from hal.declare import declare
 from hal.errors import ConfigError
 from hal.rig import RigIO
-from hal.transport import create_transport
+from hal.transport import create_transport, safe_outputs
 
 ROOT = Path(__file__).resolve().parents[1]
 ONE_JOINT = ROOT / "examples" / "rigs" / "one_joint.toml"
@@ -195,3 +195,11 @@ def test_the_valve_is_the_command_the_io_writes_about_its_centre_and_its_safe_st
     assert io.volts_for(*parts.actuation.outputs([-7.0])) == [0.0]  # clamped to the valve's 0-10 V
     centred = with_(AXIS, "safe_volts = 4.99", "")
     assert RigIO(centred, create_transport(centred, lambda: 0.0)).safe_volts == (5.0,)  # default: the closed centre
+
+
+@pytest.mark.parametrize("name", [*sorted(BUILT_IN), str(ONE_JOINT)])
+def test_the_safe_state_a_transport_writes_before_the_loop_is_the_ios_own(name):
+    """hal.transport.safe_outputs (what a Modbus worker writes until the loop writes) and the
+    drivers' safe state (what the loop writes outside enabled) are one sweep."""
+    rig = config.load(name)
+    assert safe_outputs(rig) == pytest.approx(RigIO(rig, create_transport(rig, lambda: 0.0)).safe_volts)
