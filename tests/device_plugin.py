@@ -4,7 +4,7 @@ made as a wheel under the test's directory and installed by pip (no network, no 
 a wheel is what a package's build makes) into a directory the test puts on the path
 (``sys.path`` in the test's process, ``PYTHONPATH`` for a daemon's).
 
-The kind, ``ad8495``: a type K thermocouple through an Analog Devices AD8495 amplifier, whose
+The kind, ``ad8495`` (docs/rigs.md, "Add a device kind", shows the same module): a type K thermocouple through an Analog Devices AD8495 amplifier, whose
 output is 1.25 V + 5 mV/degC (its datasheet's reference-junction-compensated transfer), read in
 K. ``broken=True`` makes a package whose module fails to import (an ImportError of a dependency
 it lacks), as a half-installed plugin does.
@@ -67,11 +67,11 @@ BROKEN = '''import lab_sensors_missing_dependency  # noqa: F401  (a dependency t
 '''
 
 
-def wheel(directory: Path, broken: bool = False) -> Path:
-    """The package as a wheel (PEP 427) in ``directory``."""
+def wheel(directory: Path, broken: bool = False, module: str = MODULE) -> Path:
+    """The package (its module's text ``module``) as a wheel (PEP 427) in ``directory``."""
     dist = f"{NAME}-{VERSION}.dist-info"
     files = {
-        f"{NAME}/__init__.py": BROKEN if broken else MODULE,
+        f"{NAME}/__init__.py": BROKEN if broken else module,
         f"{dist}/METADATA": f"Metadata-Version: 2.1\nName: {NAME.replace('_', '-')}\nVersion: {VERSION}\n"
                             f"Summary: a lab's own sensor kinds for pneumad\n",
         f"{dist}/WHEEL": "Wheel-Version: 1.0\nGenerator: tests/device_plugin.py\nRoot-Is-Purelib: true\n"
@@ -87,10 +87,10 @@ def wheel(directory: Path, broken: bool = False) -> Path:
     return path
 
 
-def install(directory: Path, broken: bool = False) -> Path:
+def install(directory: Path, broken: bool = False, module: str = MODULE) -> Path:
     """The plugin installed by pip into ``directory/site`` (returned: put it on the path)."""
     site = Path(directory) / "site"
-    made = wheel(Path(directory), broken)
+    made = wheel(Path(directory), broken, module)
     subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-index", "--no-deps", "--target",
                     str(site), str(made)], check=True, timeout=300, capture_output=True)
     return site

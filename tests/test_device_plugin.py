@@ -16,7 +16,7 @@ from hal.errors import ConfigError
 from hal.plugins import installed
 from hal.transport import GROUP, load_backend
 from sim_backend.transport import SimTransport
-from tests import device_plugin
+from tests import device_plugin, doc_blocks
 
 AXIS = config.load("sim-axis").source
 
@@ -29,10 +29,13 @@ def check(rig_path, site) -> subprocess.CompletedProcess:
 
 
 def test_a_kind_installed_from_outside_the_tree_is_declared_read_and_checked(tmp_path, monkeypatch):
+    """The kind docs/rigs.md shows ("Add a device kind"), installed as its package."""
+    module = doc_blocks.snippet("docs/rigs.md", "Add a device kind").text
+    assert module == device_plugin.MODULE.rstrip()  # the helper's copy (for other tests) is the document's
     text = device_plugin.rig_text(AXIS)
     with pytest.raises(ConfigError, match=r"inputs\[0\]\.device: unknown device kind 'ad8495'"):
         config.parse(text)  # not installed yet
-    site = device_plugin.install(tmp_path)
+    site = device_plugin.install(tmp_path, module=module)
     monkeypatch.syspath_prepend(str(site))
     assert "ad8495" in kinds()
     rig = config.parse(text)

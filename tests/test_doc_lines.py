@@ -153,6 +153,10 @@ def test_every_toml_block_parses_and_a_rig_files_tables_pass_its_checks(block, t
         path.write_text(rig_with(block.text))
         code, said = main(["--check", "--config", str(path)]), capsys.readouterr()
         assert code == 0 and "rig 'sim-2joint'" in said.out, f"{block.doc}:{block.line}: {caplog.text}{said.err}"
+    elif set(data) == {"project"} and set(data["project"]) == {"entry-points"}:  # a plugin's pyproject.toml
+        groups = data["project"]["entry-points"]
+        assert set(groups) <= {"pneumad.devices", "pneumad.transports", "pneumad.controllers"}, (block.line, groups)
+        assert all(re.fullmatch(r"[\w.]+:\w+", v) for g in groups.values() for v in g.values()), (block.line, groups)
     elif set(data) == {"joints"} and all(isinstance(v, dict) for v in data["joints"].values()):
         designs = lti_design.parse(data, tuple(data["joints"]), 0.001)  # an LTI design (docs/controllers.md)
         assert len(designs) == len(data["joints"])

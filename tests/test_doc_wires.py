@@ -110,6 +110,7 @@ SECTIONS = [
     ("docs/transports.md", 'Modbus TCP and RTU (`backend = "modbus"`)'),
     ("docs/transports.md", 'CAN (`backend = "can"`)'),
     ("docs/muscle-rig.md", "Behind a real wire"),
+    ("docs/rigs.md", "The axis behind a real wire"),
 ]
 
 
