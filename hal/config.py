@@ -4,7 +4,7 @@ calibration, joint limits, pressure limits and the safe state (docs/rigs.md: eve
 Config files use engineering units named in each key (``_deg``, ``_mpa``, ``_mm``); the
 properties here give SI values to the code. With no file the daemon runs a built-in rig
 (:data:`BUILTIN_RIGS`): the simulated 2-joint arm, the 3-joint one with the top joint, the
-muscle joint, or the linear axis. A joint's keys are :mod:`hal.joints`'; sensors are device
+muscle joint, or the linear axis. A joint's keys are in :mod:`hal.joints`; sensors are device
 kinds found by name (:mod:`hal.devices`).
 """
 from __future__ import annotations
