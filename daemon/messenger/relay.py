@@ -4,7 +4,8 @@ onto the sockets; the loop's heartbeat watched, and answered for while it is sta
 keys' allow-list reloaded (SIGHUP, ``keys.reload``), and the loop told of each key it lost
 (:mod:`daemon.messenger.revocation`); every event published written to the daemon's log (this
 process's stderr, the daemon's journal: :mod:`daemon.messenger.journal`), so the loop never logs
-from its cycle."""
+from its cycle; the loop's timing judged from its stats windows, and the verdict told to the loop
+(:mod:`daemon.messenger.timing`)."""
 from __future__ import annotations
 
 import os
@@ -26,10 +27,12 @@ from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TO
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.messenger.revocation import Revocations
 from daemon.messenger.journal import Journal
+from daemon.messenger.timing import TimingJudge
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import internals_message, state_message
+from hal.config import TimingConfig
 
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
@@ -44,7 +47,8 @@ class Relay:
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
                  stats: StatsBanks, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
-                 plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None):
+                 plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None,
+                 timing: TimingConfig | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.stats = stats  # the loop's timing histograms, summarised here once a window
         self.recorder = recorder
@@ -60,6 +64,7 @@ class Relay:
         self._tokens = iter(range(1, 1 << 62))
         self.revocations = Revocations(rings, heartbeat, self._tokens)  # keys a reload removed, told to the loop
         self.journal = Journal()  # every event published, a line of the daemon's log
+        self.timing = TimingJudge(timing or TimingConfig(), rings, self._tokens)  # the rig file's [timing]
         self.poller = zmq.Poller()
         for name in ("control", "command"):
             self.poller.register(sockets[name], zmq.POLLIN)
@@ -102,6 +107,7 @@ class Relay:
                     return
                 self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
                 self.revocations.expire(now)
+                self.timing.expire()
                 self.journal.flush()
                 if self.recorder is not None:
                     self.recorder.expire(now)
@@ -261,8 +267,8 @@ class Relay:
             owed = self.owed.pop(token, None)
             if owed is not None:
                 send_reply(owed[0], owed[1], reply)
-            else:
-                self.revocations.answer(token, reply)
+            elif not self.revocations.answer(token, reply):
+                self.timing.answer(token, reply)
 
     def _publish(self) -> bool:
         """Pass the telemetry on; False at the END of the stream."""
@@ -282,7 +288,9 @@ class Relay:
             try:
                 columns = state_message(body) if topic == b"state" else None
                 if topic == b"stats":
-                    body = msgpack.packb(summarise(self.stats, body))
+                    summary = summarise(self.stats, body)
+                    body = msgpack.packb(summary)
+                    self.timing.take(summary)
                 elif topic == b"internals":
                     body = msgpack.packb(internals_message(body))
             except (struct.error, IndexError, ValueError) as exc:
