@@ -177,7 +177,8 @@ def test_under_trip_a_5_ms_controller_step_trips_the_enabled_arm_saying_why(tmp_
 def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_rate_it_achieved(tmp_path):
     """A --no-rt daemon on a loaded PC, made so on purpose: its loop pinned to one CPU and put
     below everything there (SCHED_IDLE), and a busy process (nice 19) on that CPU. The loop
-    cannot keep its 1 kHz; the verdict says degraded, with the rate it achieved."""
+    cannot keep its 1 kHz; the verdict says degraded, with the rate it achieved, and the start
+    line says it runs without real-time scheduling."""
     cpu = max(os.sched_getaffinity(0))
     log = tmp_path / "daemon.log"
     with open(log, "w") as stderr:
@@ -206,6 +207,7 @@ def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_ra
             hog.wait()
         daemon.terminate()
         daemon.wait(10)
+    logged(log, ("pneumad WARNING: this PC: no real-time scheduling (--no-rt) on CPUs", "the loop's timing is at risk"))
     logged(log, ("pneumad messenger WARNING: timing: degraded (the loop ran at",))
 
 
