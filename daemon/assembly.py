@@ -155,7 +155,7 @@ def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
                                                          "min_free_mb": args.record_min_free_mb}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
                        recording=recording, plotjuggler=args.plotjuggler,
-                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig))
+                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing)
     try:
         yield server
     finally:

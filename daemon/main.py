@@ -18,7 +18,7 @@ from daemon.loop.cycle import ControlLoop
 from daemon.loop.port import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
 from daemon.messenger.process import MessengerError
 from daemon.planner.process import BUILD_NICE, DEFAULT_TIME_LIMIT_S
-from daemon.service import realtime
+from daemon.service import host, realtime
 from daemon.service.notify import Notifier
 from hal import config
 from hal.declare import declare, summary
@@ -118,6 +118,7 @@ def _run_loop(args, loop: ControlLoop, server: ZmqServer) -> int:
         loop.heartbeat_interval = min(1.0, notifier.watchdog_interval)
     for warning in assembly.realtime_setup(args):
         log.warning(warning)
+    log.log(*host.start_verdict(realtime.describe(), args.no_rt))  # one line: what this PC grants the loop
     gc.collect()
     gc.freeze()  # start-up objects never scanned again
     gc.disable()  # and no collection inside the loop

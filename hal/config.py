@@ -110,6 +110,32 @@ class SafetyConfig:
 
 
 @dataclass(frozen=True)
+class TimingConfig:
+    """When the loop's timing is degraded, and what then (the messenger judges it beside the
+    loop from its stats windows: docs/faults.md, "the loop is degraded"). Over the last
+    ``window_s``: the achieved rate below ``min_rate_fraction`` of 1/period, or more than
+    ``max_overrun_fraction`` of the deadlines missed (overruns), or the control stage's median
+    time in the last stats window (the controller's step, chiefly) above
+    ``step_budget_fraction`` of the period. ``policy``: ``"warn"`` (an event, a log line and
+    the status field), ``"hold"`` (also: a running reference is stopped and the arm held, motion
+    commands refused while it lasts) or ``"trip"`` (also: an enabled arm trips)."""
+
+    window_s: float = 5.0  # the sliding window judged [s]
+    min_rate_fraction: float = 0.9  # of the loop's rate (1/period)
+    max_overrun_fraction: float = 0.02  # of the deadlines in the window
+    step_budget_fraction: float = 0.5  # of the period, for the control stage's median time
+    policy: str = "warn"
+
+    def __post_init__(self):
+        require(1.0 <= self.window_s <= 600.0, "window_s", "must be within 1-600 s")
+        require(0.0 <= self.min_rate_fraction <= 1.0, "min_rate_fraction", "must be within 0-1 (0: not judged)")
+        require(0.0 <= self.max_overrun_fraction <= 1.0, "max_overrun_fraction", "must be within 0-1 (1: not judged)")
+        require(0.0 < self.step_budget_fraction <= 100.0, "step_budget_fraction",
+                "must be above 0, at most 100 (periods)")
+        require(self.policy in ("warn", "hold", "trip"), "policy", 'must be "warn", "hold" or "trip"')
+
+
+@dataclass(frozen=True)
 class TransportConfig:
     """Which backend moves the raw values; ``options`` are validated by that backend."""
 
@@ -132,6 +158,7 @@ class RigConfig:
     arm: ArmConfig | None = None  # a rig of rotary joints: its planar arm (default: 2 links of 100 mm)
     limits: LimitsConfig = LimitsConfig()
     safety: SafetyConfig = SafetyConfig()
+    timing: TimingConfig = TimingConfig()  # when the loop's timing is degraded, and what then
     force_sensor: Any = None  # the tip force sensor's table (device default "asfs")
     supply_pressure: Any = None  # a transmitter on the supply line (device default "pressure_transmitter")
     inputs: tuple[Any, ...] = ()  # [[inputs]]: further analog inputs of the rig

@@ -9,6 +9,7 @@ import sys
 import time
 
 from controllers.base import Controller
+from controllers.pid import PID
 from hal.schema import build
 from sim_backend.options import SimOptions
 from sim_backend.transport import SimTransport
@@ -114,6 +115,17 @@ class Slow(Controller):
         if self.steps % 100 == 0:
             self.clock.t += 3.5 * self.context.dt
         return [0.0] * self.context.n
+
+
+class SlowStep(PID):
+    """PID whose every step takes 5 ms of wall time more (a sleep): a lab's own controller too
+    heavy for a 1 ms loop."""
+
+    name = "slow_step"
+
+    def step(self, state, reference):
+        time.sleep(0.005)
+        return super().step(state, reference)
 
 
 class _BuildsBadly(Controller):

@@ -10,6 +10,7 @@ import sys
 from daemon.wire import keys
 from daemon.wire.catalog import COMMANDS
 
+from daemon.client import doctor
 from daemon.client.client import ENDPOINT_VARIABLES, Client, Interrupted, KeyRefused, RemoteError, read_waypoints
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -212,6 +213,7 @@ def parser() -> argparse.ArgumentParser:
     k.add_argument("action", choices=["new", "reload"])
     k.add_argument("name", nargs="?", help="new: your key's name (e.g. your login)")
     k.add_argument("--dir", default=os.path.expanduser("~/.config/pneumad"), help="new: where (default ~/.config/pneumad)")
+    doctor.add_parser(sub)
     return p
 
 
@@ -274,6 +276,8 @@ def _main(argv=None) -> int:
         return identify(None, args)
     if args.what in ("export", "plot"):
         return export_or_plot(args)
+    if args.what == "doctor":
+        return doctor.run(args)
     try:
         if args.what == "keys" and args.action == "new":
             return new_key(args)

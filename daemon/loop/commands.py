@@ -42,6 +42,7 @@ from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed, bad_args
 from daemon.wire.keys import ANONYMOUS, Identity
 from daemon.loop.lease import Lease
+from daemon.loop.timing import TimingVerdicts
 from daemon.planner.process import Deferred, Preparer
 from daemon.loop.safety import State, StateError
 
@@ -61,6 +62,7 @@ class Commands:
         "controller.commit": "controller_commit", "controller.discard": "controller_discard",
         "load.set": "load_set", "load.clear": "load_clear", "lease.acquire": "lease_acquire",
         "lease.renew": "lease_renew", "lease.release": "lease_release", "lease.revoke": "lease_revoke",
+        "timing.verdict": "timing_verdict",
     }
     catalog.check_handlers(("loop", "planner"), HANDLERS)
 
@@ -69,6 +71,7 @@ class Commands:
         self.security = security or {"mode": "local", "warning": None}
         self.client = ANONYMOUS  # who sent the request being handled
         self.lease = Lease(loop)
+        self.timing = TimingVerdicts(loop, loop.view, loop.events)  # the messenger's verdicts on the loop's timing
         self.requests = 0
         self.errors = 0
         # Which daemon answers (ping, status): a client on a shared machine can tell its own.
@@ -186,6 +189,10 @@ class Commands:
         """The messenger's word that a key left the allow-list (internal, at a reload)."""
         return self.lease.revoke(args["key"])
 
+    def timing_verdict(self, args):
+        """The messenger's verdict on the loop's timing (internal, every stats window)."""
+        return self.timing.take(args)
+
     # -- reading ----------------------------------------------------------------------------
     def ping(self, args):
         return {"pong": True, "t": self.view.now(), "version": VERSION, "daemon": self.daemon}
@@ -199,6 +206,7 @@ class Commands:
         fields["client"] = {"name": self.client.name, "role": self.client.role}
         fields["security"] = self.security
         fields["controllers_refused"] = self.refused_controllers
+        fields["timing"] = self.timing.status
         fields["daemon"] = self.daemon
         return fields
 
@@ -283,6 +291,7 @@ class Commands:
         force now; the loop installs it at the cycle boundary after the plan is done, unless the
         reference or the state changed meanwhile (:meth:`~daemon.loop.cycle.ControlLoop.install`)."""
         self.loop.require_enabled()
+        self.timing.check_motion()
         name, remaining = self.view.reference_running()
         if remaining > 0:
             raise CommandFailed(P.BAD_STATE, f"a reference ({name}) is running for {remaining:.1f} s "

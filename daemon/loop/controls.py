@@ -1,5 +1,5 @@
 """The loop's named controls: the only ways a command changes what the loop does (enable,
-disable, estop, reset, hold, install, set_load, switch, set_params, shadow, commit, discard),
+disable, estop, trip, reset, hold, install, set_load, switch, set_params, shadow, commit, discard),
 each taking effect at a cycle boundary: the handlers call them at the end of a cycle; estop
 writes the safe outputs at once. The loop's own turns (a fallback taking over, an
 experiment's end) go through them too.
@@ -45,6 +45,10 @@ class LoopControls:
         self.supervisor.estop(who)
         self._write_safe()
         self._drain_events()
+
+    def trip(self, cause: str) -> None:
+        """Trip to the safe state (written from the next cycle) with ``cause`` (e.g. a lapsed lease)."""
+        self.supervisor.trip(cause)
 
     def reset(self) -> None:
         faults = self.snapshot.faults if self.snapshot is not None else ("no reading yet",)

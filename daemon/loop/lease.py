@@ -7,8 +7,9 @@ was in charge has gone. An arm left enabled by a client that handed the lease ba
 reference to the end and holds; after the rig file's grace time of holding with no lease
 holder it is disabled (``[safety] unleased_action = "disable"``, ``unleased_grace_s``), or
 held until a client comes (``"hold"``). A key taken off the allow-list loses its lease at
-once (:meth:`Lease.revoke`). Everything here runs on the loop's thread, once a cycle or per
-request, in constant time.
+once (:meth:`Lease.revoke`). Each change of holder is an event (``lease``: acquired, released,
+lapsed; ``lease_revoked``), so the journal tells who held the arm when. Everything here runs on
+the loop's thread, once a cycle or per request, in constant time.
 
 Renewals come through the messenger process. A lease whose time runs out while the messenger
 is down or restarting (its death seen, its successor not yet ready) is held over, and once
@@ -69,6 +70,7 @@ class Lease:
         self.token, self.holder, self.ttl_active = secrets.token_hex(16), client, ttl
         self.expires = self.loop.clock.now() + ttl
         self.renewals, self.held_until = 0, 0.0
+        self._tell("acquire", f"for {ttl:g} s at a time")
         return {"lease": self.token, "ttl_s": ttl}
 
     def renew(self) -> dict:
@@ -82,6 +84,7 @@ class Lease:
         of it, and whether this is the first time in this enabled period (``first``: one-shot
         commands each hand the lease back, and their user is told once)."""
         self.token, self.unleased_since = None, None
+        self._tell("release", "handed back")
         supervisor = self.loop.supervisor
         if not supervisor.enabled:
             return {}
@@ -143,10 +146,15 @@ class Lease:
             now = self.loop.clock.now()
             if now > self.expires and now > self.held_until and not self._held_over(now):
                 self.token = None
+                self._tell("expire", f"not renewed within {self.ttl_active:g} s")
                 if supervisor.enabled:
                     supervisor.trip(f"lease lost: the controlling client ({self.holder}) stopped renewing it")
         elif supervisor.enabled:
             self._unleased()
+
+    def _tell(self, action: str, cause: str) -> None:
+        """The ``lease`` event: ``action`` (acquire, release, expire) by its holder."""
+        self.loop.events.add({"kind": "lease", "action": action, "holder": str(self.holder), "cause": cause})
 
     def _held_over(self, now: float) -> bool:
         """The lease ran out while the messenger, which carries its renewals, is down or

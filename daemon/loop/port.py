@@ -36,6 +36,7 @@ from daemon.recorder.process import RecorderProcess, write_metadata
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
+from hal.config import TimingConfig
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
@@ -60,12 +61,13 @@ class ZmqServer:
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
                  keys: str | None = None, insecure: bool = False, recording: dict | None = None,
                  plotjuggler: str | None = None, foxglove: str | None = None,
-                 command_budget_s: float = COMMAND_BUDGET_S):
+                 command_budget_s: float = COMMAND_BUDGET_S, timing: TimingConfig | None = None):
         """``command_budget_s``: the time the command stage may spend on requests in a cycle
         (on the loop's clock: a virtual one never spends it). ``recording``: where and how the daemon records (``directory``, ``max_mb``,
         ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
         ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`);
-        ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`)."""
+        ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`);
+        ``timing``: the rig file's ``[timing]``, by which the messenger judges the loop's timing."""
         self.max_per_cycle = max_per_cycle
         self.command_budget_s = command_budget_s
         self.recording = recording
@@ -86,7 +88,7 @@ class ZmqServer:
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
                                    keys, recorder=recording is not None, plotjuggler=plotjuggler,
-                                   foxglove=fox)
+                                   foxglove=fox, timing=timing)
         try:
             self.endpoints = self.messenger.start()
         except Exception:

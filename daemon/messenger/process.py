@@ -17,7 +17,10 @@ count stops for ``stall_s`` (``STALL_S``) the messenger answers for it instead o
 silence (``loop_stalled``: command-socket requests are refused and never reach the loop;
 control-socket requests, e-stop first, are still queued for the moment it resumes and said to
 be so), and publishes a ``loop_stalled`` event, then ``loop_resumed``. Its events share the
-``event`` topic's ``seq`` with the loop's (later loop events are renumbered after them).
+``event`` topic's ``seq`` with the loop's (later loop events are renumbered after them). Every
+event it publishes is a line of the daemon's log (:mod:`daemon.messenger.journal`), and from
+the loop's stats windows it judges the loop's timing against the rig file's ``[timing]``
+(:mod:`daemon.messenger.timing`).
 
 It is a helper process (:class:`hal.process.Helper`): it runs at normal priority on the CPUs
 the daemon had before its real-time set-up, ends when the loop's telemetry ring says so or
@@ -54,6 +57,7 @@ from daemon.messenger.shared import (
 )
 from daemon.wire.keys import KeyFileError
 from daemon.wire.ring import Ring
+from hal.config import TimingConfig
 from hal.process import Child, Helper, HelperFailed
 
 __all__ = ["END", "STALL_S", "TOPICS", "Heartbeat", "Messenger", "MessengerError", "create_rings"]  # the loop's side
@@ -75,8 +79,10 @@ class Messenger:
 
     def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
                  stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False,
-                 plotjuggler: str | None = None, foxglove: tuple[str, int] | None = None):
+                 plotjuggler: str | None = None, foxglove: tuple[str, int] | None = None,
+                 timing: TimingConfig | None = None):
         self.rings_dir = rings_dir
+        self.timing = timing  # the rig file's [timing]: the messenger judges the loop's timing by it
         self.foxglove = foxglove  # (host, port) of the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.plotjuggler = plotjuggler  # an endpoint for PlotJuggler's rows (daemon.messenger.plotjuggler)
         self.recorder = recorder  # hand telemetry and record.* requests to the recorder process
@@ -110,7 +116,8 @@ class Messenger:
                       pass_fds=(self.doorbell,), nice=0, cpus=self._cpus, spare=True)
 
     def _args(self, endpoints: dict[str, str]) -> tuple:
-        return self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints, self.foxglove
+        return (self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints,
+                self.foxglove, self.timing)
 
     def check(self) -> str | None:
         """Called from the loop (every ``daemon.loop.port.MESSENGER_CHECK_CYCLES``), never
@@ -157,7 +164,8 @@ class Messenger:
 
 # -- in the messenger process ---------------------------------------------------------------
 def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str | None, recorder: bool,
-          plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None) -> int:
+          plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None,
+          timing: TimingConfig | None = None) -> int:
     """The messenger process's main: its imports (where a spare waits: Child.standby), then
     bind the sockets, say ready with their endpoints, relay until the loop's END or the
     parent's end."""
@@ -203,7 +211,8 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     stats = StatsBanks.in_directory(rings_dir, create=False)
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})
-    Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, stall_s, guard, link, feed, stream).run(child.parent_alive)
+    Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, stall_s, guard, link, feed, stream,
+          timing=timing).run(child.parent_alive)
     for helper in (link, feed, stream):
         if helper is not None:
             helper.close()

@@ -2,12 +2,12 @@
 into the loop's rings, each with who sent it; replies and telemetry from the loop's rings
 onto the sockets; the loop's heartbeat watched, and answered for while it is stalled; the
 keys' allow-list reloaded (SIGHUP, ``keys.reload``), and the loop told of each key it lost
-(:mod:`daemon.messenger.revocation`); the loop's events of a helper process's death written to
-the daemon's log (this process's stderr, the daemon's journal), so the loop never logs from its
-cycle."""
+(:mod:`daemon.messenger.revocation`); every event published written to the daemon's log (this
+process's stderr, the daemon's journal: :mod:`daemon.messenger.journal`), so the loop never logs
+from its cycle; the loop's timing judged from its stats windows, and the verdict told to the loop
+(:mod:`daemon.messenger.timing`)."""
 from __future__ import annotations
 
-import logging
 import os
 import struct
 import sys
@@ -26,13 +26,14 @@ from daemon.wire.keys import ANONYMOUS, OPERATOR, Identity
 from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.messenger.revocation import Revocations
+from daemon.messenger.journal import Journal
+from daemon.messenger.timing import TimingJudge
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.telemetry_rows import internals_message, state_message
+from hal.config import TimingConfig
 
-HELPER_DEATHS = ("messenger", "recorder", "planner", "contact", "exchange")  # event kinds: a process beside the loop was restarted
-log = logging.getLogger("pneumad")
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
     from daemon.messenger.foxglove_stream import FoxgloveStream
@@ -46,7 +47,8 @@ class Relay:
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
                  stats: StatsBanks, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
-                 plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None):
+                 plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None,
+                 timing: TimingConfig | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.stats = stats  # the loop's timing histograms, summarised here once a window
         self.recorder = recorder
@@ -61,6 +63,8 @@ class Relay:
         self._injected = 0  # events of this process's own so far: loop events are renumbered after them
         self._tokens = iter(range(1, 1 << 62))
         self.revocations = Revocations(rings, heartbeat, self._tokens)  # keys a reload removed, told to the loop
+        self.journal = Journal()  # every event published, a line of the daemon's log
+        self.timing = TimingJudge(timing or TimingConfig(), rings, self._tokens)  # the rig file's [timing]
         self.poller = zmq.Poller()
         for name in ("control", "command"):
             self.poller.register(sockets[name], zmq.POLLIN)
@@ -103,6 +107,8 @@ class Relay:
                     return
                 self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
                 self.revocations.expire(now)
+                self.timing.expire()
+                self.journal.flush()
                 if self.recorder is not None:
                     self.recorder.expire(now)
 
@@ -245,8 +251,9 @@ class Relay:
         event sequence."""
         self._injected += 1
         self._event_seq += 1
-        body = msgpack.packb({"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq,
-                              "source": source})
+        event = {"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq, "source": source}
+        self.journal.write(event)
+        body = msgpack.packb(event)
         self.sockets["telemetry"].send_multipart((b"event", body))
         if self.recorder is not None:
             self.recorder.feed(b"event", body)
@@ -260,8 +267,8 @@ class Relay:
             owed = self.owed.pop(token, None)
             if owed is not None:
                 send_reply(owed[0], owed[1], reply)
-            else:
-                self.revocations.answer(token, reply)
+            elif not self.revocations.answer(token, reply):
+                self.timing.answer(token, reply)
 
     def _publish(self) -> bool:
         """Pass the telemetry on; False at the END of the stream."""
@@ -281,7 +288,9 @@ class Relay:
             try:
                 columns = state_message(body) if topic == b"state" else None
                 if topic == b"stats":
-                    body = msgpack.packb(summarise(self.stats, body))
+                    summary = summarise(self.stats, body)
+                    body = msgpack.packb(summary)
+                    self.timing.take(summary)
                 elif topic == b"internals":
                     body = msgpack.packb(internals_message(body))
             except (struct.error, IndexError, ValueError) as exc:
@@ -323,14 +332,13 @@ class Relay:
                       flush=True)
 
     def _renumber(self, body: bytes) -> bytes:
-        """A loop event, its seq moved past the messenger's own events (events are rare); one
-        telling of a helper's death is logged."""
+        """A loop event, its seq moved past the messenger's own events (events are rare), and
+        written to the journal."""
         try:
             event = msgpack.unpackb(body, raw=False)
         except Exception:
             return body
-        if event.get("kind") in HELPER_DEATHS:
-            log.error("%s: %s", event["kind"], event.get("cause"))
+        self.journal.write(event)
         event["seq"] += self._injected
         self._event_seq = event["seq"]
         return msgpack.packb(event) if self._injected else body

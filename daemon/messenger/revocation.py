@@ -1,5 +1,5 @@
 """Keys a reload removed, in the messenger: the loop told of each (``lease.revoke``, an
-internal command of the catalog: a lease the key holds ends at once), its answers said in the
+internal command of the catalog: a lease the key holds ends at once), a refusal said in the
 daemon's log, and the moment the telemetry socket may be bound again.
 
 Binding the publisher again is what cuts a revoked subscriber off; every allowed one must then
@@ -53,17 +53,16 @@ class Revocations:
         self._rebind_cycle = None
 
     def answer(self, token: int, reply: bytes) -> bool:
-        """Take the loop's reply ``token`` if it answers a ``lease.revoke`` (a lease ended is
-        said in the log, as its event says it); whether it did."""
+        """Take the loop's reply ``token`` if it answers a ``lease.revoke`` (a lease it ended is
+        its ``lease_revoked`` event, and so a line of the journal); whether it did."""
         asked = self.asked.pop(token, None)
         if asked is None:
             return False
         key, who, _ = asked
         answer = msgpack.unpackb(reply, raw=False)
         if not answer.get("ok"):
-            log.error("keys: the loop did not end the lease of revoked key %r: %s", key, answer.get("error"))
-        elif answer["result"]["ended"]:
-            log.warning("keys: %s (keys reloaded by %s)", answer["result"]["cause"], who)
+            log.error("keys: the loop did not end the lease of revoked key %r (keys reloaded by %s): %s", key, who,
+                      answer.get("error"))
         if token in self._awaited:
             self._awaited.discard(token)
             if not self._awaited:  # its events are on the telemetry ring once it has cycled again

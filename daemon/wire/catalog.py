@@ -250,7 +250,8 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("status", "loop", "the daemon's state now", (
         "state", "cause", "cycle", "t", "controller", "shadow", "reference", "reference_remaining_s", "joints",
         "force_n", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
-        "overruns_total", "scheduling", "load", "transport", "telemetry", "helpers", "controllers_refused", "daemon"),
+        "overruns_total", "scheduling", "load", "transport", "telemetry", "helpers", "controllers_refused", "daemon",
+        "timing"),
             sockets=BOTH),
     Command("describe", "loop", "the rig, its limits and what the daemon serves", (
         "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "arm", "limits", "tracking",
@@ -362,6 +363,21 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
 INTERNAL: dict[str, Command] = {c.name: c for c in (
     Command("lease.revoke", "loop", "a key left the allow-list (the messenger, at a reload): its lease ends now",
             ("ended", "cause"), (Arg("key", "string", "the removed key's name", required=True),), sockets=()),
+    Command("timing.verdict", "loop", "the messenger's verdict on the loop's timing over the rig file's [timing] "
+            "window (every stats window): kept for status, a timing event when it changes, the policy applied",
+            ("degraded", "action"), (
+                Arg("degraded", "boolean", "a limit is crossed", required=True),
+                Arg("reasons", "list", "which: rate, overruns, step", item=element("string")),
+                Arg("rate_hz", "number", "cycles a second achieved over the window", unit="Hz"),
+                Arg("expected_hz", "number", "1/period", unit="Hz"),
+                Arg("overruns", "integer", "deadlines missed in the window"),
+                Arg("deadlines", "integer", "deadlines in the window (cycles run and missed)"),
+                Arg("control_us", "number", "the control stage's median time in the last stats window (null: none)",
+                    unit="us"),
+                Arg("step_budget_us", "number", "the control stage's budget", unit="us"),
+                Arg("window_s", "number", "the window judged", unit="s"),
+                Arg("since_t", "number", "its start, the daemon's clock", unit="s"),
+                Arg("t", "number", "its end, the daemon's clock", unit="s")), sockets=()),
 )}
 
 DEFERRED = tuple(sorted(name for name, c in COMMANDS.items() if c.deferred))

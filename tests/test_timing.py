@@ -1,0 +1,223 @@
+"""A loop that says when its timing is degraded: the messenger judges the loop's rate, missed
+deadlines and control-stage time over the rig file's ``[timing]`` window, and the loop raises
+a ``timing`` event, keeps a ``status`` field and applies the policy (warn, hold, trip), naming a
+controller whose step is over its budget (daemon/messenger/timing.py, daemon/loop/timing.py)."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from daemon.client.client import Client, RemoteError
+from daemon.messenger.timing import judge
+from hal.config import TimingConfig
+from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
+from tests.schemas import schema
+
+SLOW_STEP = "slow_step=tests.plugins:SlowStep"
+
+
+def timing_rig(tmp_path, **timing) -> str:
+    """The tolerant built-in rig with a ``[timing]`` table of ``timing``."""
+    path = tmp_path / "timing-rig.toml"
+    table = "".join(f"{key} = {value!r}\n".replace("'", '"') for key, value in timing.items())
+    path.write_text(tolerant_rig_text() + "\n[timing]\n" + table)
+    return str(path)
+
+
+def step_only(tmp_path, policy: str) -> str:
+    """A rig whose timing is judged by the control stage's time alone (the rate and the missed
+    deadlines not judged: a loaded test machine misses deadlines of its own), over 2 s."""
+    return timing_rig(tmp_path, window_s=2.0, min_rate_fraction=0.0, max_overrun_fraction=1.0, policy=policy)
+
+
+class Events:
+    """A subscription's events in the order they came, each taken once: an event the policy
+    causes (a trip, a reference's end) comes before the ``timing`` event that says why."""
+
+    def __init__(self, client: Client):
+        self.sub = client.subscribe((b"event",))
+        self.seen: list[dict] = []
+        self.taken: set[int] = set()
+        time.sleep(0.3)  # the subscription reaches the publisher
+
+    def next(self, kind: str, limit_s: float = 90.0, **fields) -> dict:
+        deadline = time.monotonic() + limit_s
+        while True:
+            for i, event in enumerate(self.seen):
+                if i not in self.taken and event["kind"] == kind and all(event.get(k) == v for k, v in fields.items()):
+                    self.taken.add(i)
+                    return event
+            assert time.monotonic() < deadline, f"no {kind} event {fields} within {limit_s} s: {self.seen}"
+            got = self.sub.receive(1.0)
+            if got is not None:
+                self.seen.append(got[1])
+
+    def close(self) -> None:
+        self.sub.close()
+
+
+def logged(log, words: tuple[str, ...], limit_s: float = 30.0) -> str:
+    deadline = time.monotonic() + limit_s
+    while True:
+        for line in log.read_text().splitlines():
+            if all(w in line for w in words):
+                return line
+        assert time.monotonic() < deadline, f"no log line with {words} in:\n{log.read_text()}"
+        time.sleep(0.1)
+
+
+def check_degraded_by_the_slow_step(event: dict, policy: str, action: str) -> None:
+    schema("telemetry", "event").validate(event)
+    assert event["degraded"] and event["reasons"] == ["step"] and event["policy"] == policy
+    assert event["action"] == action and event["controller"] == "slow_step" and event["who"] == "messenger"
+    assert event["control_us"] > 4000.0 and event["step_budget_us"] == 500.0  # a 5 ms sleep; half a 1 ms period
+    assert event["rate_hz"] < 400.0 and event["expected_hz"] == 1000.0  # a 5 ms step: 200 cycles a second at most
+    assert event["since_t"] < event["t"] and "controller slow_step's step took" in event["cause"]
+
+
+@pytest.mark.slow(seconds=60)
+def test_under_warn_a_5_ms_controller_step_is_an_event_naming_it_a_status_field_and_a_log_line(tmp_path):
+    """The arm runs on (warn); once the controller is switched back to PID the verdict comes
+    back within the limits, an event again."""
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, "--config", step_only(tmp_path, "warn"), "--controller-plugin", SLOW_STEP,
+                                  "--controller", "slow_step", stderr=stderr)
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            wait_for_own_daemon(client, daemon)
+            events = Events(client)
+            client.acquire_lease()
+            client.keep_lease()
+            client.enable()
+            degraded = events.next("timing")
+            check_degraded_by_the_slow_step(degraded, "warn", "warn")
+            status = client.status()
+            schema("results", "status").validate(status)
+            timing = status["timing"]
+            assert status["state"] == "enabled" and timing["degraded"] and timing["controller"] == "slow_step"
+            assert timing["since"] == pytest.approx(degraded["since_t"] + degraded["window_s"])
+            assert timing["cause"] == degraded["cause"] and timing["policy"] == "warn"
+            client.switch_controller("pid")
+            recovered = events.next("timing", degraded=False)
+            schema("telemetry", "event").validate(recovered)
+            assert recovered["action"] == "none" and recovered["controller"] is None
+            assert "back within the rig file's [timing] limits" in recovered["cause"]
+            assert client.status()["timing"]["degraded"] is False and client.status()["state"] == "enabled"
+            events.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    line = logged(log, ("pneumad messenger WARNING: timing: degraded (", "controller slow_step's step took"))
+    assert line.endswith(f"[cycle {degraded['cycle']}, messenger]")
+    logged(log, ("pneumad messenger INFO: timing: recovered (",))
+
+
+@pytest.mark.slow(seconds=60)
+def test_under_hold_a_5_ms_controller_step_stops_the_running_reference_and_motion_is_refused(tmp_path):
+    """A move runs under PID; the slow controller is switched in beneath it: the verdict stops
+    the move and holds the arm where it is, and a new move is refused while it lasts."""
+    with open(tmp_path / "daemon.log", "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, "--config", step_only(tmp_path, "hold"), "--controller-plugin", SLOW_STEP,
+                                  stderr=stderr)
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            wait_for_own_daemon(client, daemon)
+            events = Events(client)
+            client.acquire_lease()
+            client.keep_lease()
+            client.enable()
+            client.set(angles_deg=[130.0, -75.0], duration_s=120.0)
+            client.switch_controller("slow_step")
+            degraded = events.next("timing")
+            check_degraded_by_the_slow_step(degraded, "hold", "hold")
+            cut = events.next("reference", action="end")
+            assert cut["cut"] == "replaced by hold"
+            status = client.status()
+            assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0
+            with pytest.raises(RemoteError) as refused:
+                client.set(angles_deg=[131.0, -75.0], duration_s=5.0)
+            assert refused.value.code == "bad_state" and refused.value.data["reason"] == "timing"
+            assert "policy = \"hold\"" in refused.value.message
+            events.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+
+
+@pytest.mark.slow(seconds=60)
+def test_under_trip_a_5_ms_controller_step_trips_the_enabled_arm_saying_why(tmp_path):
+    with open(tmp_path / "daemon.log", "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, "--config", step_only(tmp_path, "trip"), "--controller-plugin", SLOW_STEP,
+                                  "--controller", "slow_step", stderr=stderr)
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            wait_for_own_daemon(client, daemon)
+            events = Events(client)
+            client.acquire_lease()
+            client.keep_lease()
+            client.enable()
+            degraded = events.next("timing")
+            check_degraded_by_the_slow_step(degraded, "trip", "trip")
+            trip = events.next("trip")
+            assert trip["cause"] == f"timing degraded: {degraded['cause']}" and trip["who"] == "messenger"
+            status = client.status()
+            assert status["state"] == "fault" and status["cause"] == trip["cause"] and status["timing"]["degraded"]
+            events.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+
+
+@pytest.mark.slow(seconds=90)
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs a CPU for the loop and one for the rest")
+def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_rate_it_achieved(tmp_path):
+    """A --no-rt daemon on a loaded PC, made so on purpose: its loop pinned to one CPU and put
+    below everything there (SCHED_IDLE), and a busy process (nice 19) on that CPU. The loop
+    cannot keep its 1 kHz; the verdict says degraded, with the rate it achieved, and the start
+    line says it runs without real-time scheduling."""
+    cpu = max(os.sched_getaffinity(0))
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, "--config", timing_rig(tmp_path, window_s=2.0), "--cpus", str(cpu),
+                                  stderr=stderr)
+    hog = None
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            wait_for_own_daemon(client, daemon)
+            events = Events(client)
+            os.sched_setscheduler(daemon.pid, os.SCHED_IDLE, os.sched_param(0))  # the loop's thread (the main one)
+            hog = subprocess.Popen([sys.executable, "-c", f"import os\nos.sched_setaffinity(0, {{{cpu}}})\nos.nice(19)\n"
+                                                          "while True: pass"])
+            deadline = time.monotonic() + 90.0
+            while not ((timing := client.status()["timing"])["degraded"] and "rate" in timing["reasons"]):
+                assert time.monotonic() < deadline, f"the starved loop was never judged slow: {timing}"
+                time.sleep(0.5)
+            assert timing["rate_hz"] < 900.0 and timing["overruns"] > 0.02 * timing["deadlines"]
+            degraded = events.next("timing", degraded=True)  # when it crossed (on this machine, maybe before)
+            schema("telemetry", "event").validate(degraded)
+            assert f"the loop ran at {degraded['rate_hz']:.0f} Hz of 1000 Hz" in degraded["cause"]
+            events.close()
+    finally:
+        if hog is not None:
+            hog.send_signal(signal.SIGKILL)
+            hog.wait()
+        daemon.terminate()
+        daemon.wait(10)
+    logged(log, ("pneumad WARNING: this PC: no real-time scheduling (--no-rt) on CPUs", "the loop's timing is at risk"))
+    logged(log, ("pneumad messenger WARNING: timing: degraded (the loop ran at",))
+
+
+def test_the_verdict_judges_the_rate_the_missed_deadlines_and_the_control_stage_against_each_limit():
+    """judge() on figures: each limit crossed alone, and none."""
+    limits = TimingConfig(window_s=5.0, min_rate_fraction=0.9, max_overrun_fraction=0.02, step_budget_fraction=0.5)
+    calm = judge(limits, 0.001, 10.0, 15.0, 5000, 0, 40.0)
+    assert not calm["degraded"] and calm["rate_hz"] == 1000.0 and calm["window_s"] == 5.0
+    assert judge(limits, 0.001, 10.0, 15.0, 4400, 0, 40.0)["reasons"] == ["rate"]  # 880 Hz, though nothing overran
+    assert judge(limits, 0.001, 10.0, 15.0, 4600, 150, 40.0)["reasons"] == ["overruns"]  # 920 Hz; 3.2 % missed
+    assert judge(limits, 0.001, 10.0, 15.0, 5000, 0, 600.0)["reasons"] == ["step"]
+    assert judge(limits, 0.002, 10.0, 15.0, 2500, 0, 600.0)["reasons"] == []  # a 2 ms period: a 1 ms budget
+    assert judge(limits, 0.001, 10.0, 15.0, 5000, 0, float("nan"))["control_us"] is None  # no control stage timed
