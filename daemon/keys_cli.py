@@ -12,6 +12,7 @@ Changes to the allow-list take effect at ``systemctl reload pneumad`` (SIGHUP) o
 from __future__ import annotations
 
 import os
+import sys
 
 from daemon.wire import keys
 
@@ -44,10 +45,12 @@ def run(args) -> int:
         public, secret = keys.init_server(directory)
         print(f"the daemon's key pair: {secret} (mode 0600, stays here)\nits public key for clients: {public}\n"
               f"start the daemon with --keys {directory}")
+        warn_if_committable(secret)
     elif args.action == "client":
         path = keys.make_client(directory, args.name, args.role, args.out)
         print(f"{path}: {args.name}'s key ({args.role}), with the daemon's public key inside. Hand it over privately "
               f"(it is a secret); they use it as `pneumactl --key {os.path.basename(path)}`.\n{RELOAD}")
+        warn_if_committable(path)
     elif args.action == "allow":
         public, _ = keys.read_key_pair(args.file, need_secret=False)
         name = args.name or keys.read_metadata(args.file).get("name") or os.path.basename(args.file).split(".")[0]
@@ -64,3 +67,10 @@ def run(args) -> int:
         if not allowed.clients:
             print(f"no client keys are allowed in {directory}")
     return 0
+
+
+def warn_if_committable(secret_path: str) -> None:
+    """On stderr: a secret key file just written inside a git work tree must never be committed."""
+    warning = keys.commit_warning(secret_path)
+    if warning:
+        print(warning, file=sys.stderr)

@@ -14,6 +14,7 @@ Once per session (in the controlling process under pytest-xdist, never in its wo
 """
 from __future__ import annotations
 
+import re
 import selectors
 import socket
 import subprocess
@@ -22,6 +23,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+
+from tests import extras
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_PORTS = (5560, 5561, 5562)
@@ -128,12 +131,12 @@ def pytest_sessionfinish(session):
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
-WHOLE_FILE_SLOW = "pytestmark = pytest.mark.slow"
+WHOLE_FILE_SLOW = re.compile(r"pytestmark = \[?pytest\.mark\.slow\b")
 
 
 def pytest_ignore_collect(collection_path, config):
     """Under ``-m 'not slow'``, a test file marked slow as a whole (a line ``pytestmark =
-    pytest.mark.slow...``) is not imported: every test in it would be deselected, and importing
+    pytest.mark.slow...``, or a list starting with it) is not imported: every test in it would be deselected, and importing
     test_bluesky.py alone (Bluesky, ophyd-async, Tiled) costs each xdist worker 5 s. None
     otherwise: pytest decides."""
     if " ".join(config.option.markexpr.split()) != "not slow" or collection_path.suffix != ".py":
@@ -141,11 +144,14 @@ def pytest_ignore_collect(collection_path, config):
     if not collection_path.name.startswith("test_"):
         return None
     lines = collection_path.read_text().splitlines()
-    return any(line.startswith(WHOLE_FILE_SLOW) for line in lines) or None
+    return any(WHOLE_FILE_SLOW.match(line) for line in lines) or None
 
 
 def pytest_collection_modifyitems(items):
-    """Whole files go to xdist's workers (``--dist loadfile``), the longest first and in this
+    """A test marked with an extra's name (``bluesky``) is skipped, saying how to install it,
+    where that extra is not installed (tests/extras.py).
+
+    Whole files go to xdist's workers (``--dist loadfile``), the longest first and in this
     order (``--no-loadscope-reorder``; xdist's own order is by number of tests): a long file
     started last would finish alone while the other workers idle. A file's length is the sum
     of its tests': the wall time a long test states in ``slow(seconds=...)`` (measured on a
@@ -154,6 +160,11 @@ def pytest_collection_modifyitems(items):
         mark = item.get_closest_marker("slow")
         return 0.0 if mark is None else float(mark.kwargs.get("seconds", 1.0))
 
+    for extra in extras.EXTRAS:
+        if extras.missing(extra):
+            for item in items:
+                if item.get_closest_marker(extra):
+                    item.add_marker(pytest.mark.skip(reason=extras.reason(extra)))
     per_file: dict = defaultdict(float)
     for item in items:
         per_file[item.path] += length(item)

@@ -15,8 +15,10 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip("ophyd_async", reason="the Bluesky extra is not installed: pip install -e '.[bluesky]'")
-pytest.importorskip("tiled.server", reason="the Bluesky extra is not installed: pip install -e '.[bluesky]'")
+from tests import extras
+
+if extras.missing("bluesky"):
+    pytest.skip(extras.reason("bluesky"), allow_module_level=True)
 
 import bluesky.plan_stubs as bps  # noqa: E402
 import bluesky.preprocessors as bpp  # noqa: E402
@@ -31,8 +33,8 @@ from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client, RemoteError  # noqa: E402
 from tests.daemons import real_daemon, wait_for_own_daemon  # noqa: E402
 
-pytestmark = pytest.mark.slow(seconds=32)  # each test's share of the file's ~160 s on a 2-core machine: tests/conftest.py
-# orders files by the sum
+# slow: each test's share of the file's ~160 s on a 2-core machine (tests/conftest.py orders files by the sum)
+pytestmark = [pytest.mark.slow(seconds=32), pytest.mark.bluesky]
 
 
 @pytest.fixture(scope="module")

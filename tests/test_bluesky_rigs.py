@@ -15,8 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("ophyd_async", reason="the Bluesky extra is not installed: pip install -e '.[bluesky]'")
-pytest.importorskip("tiled.server", reason="the Bluesky extra is not installed: pip install -e '.[bluesky]'")
+from tests import extras
+
+if extras.missing("bluesky"):
+    pytest.skip(extras.reason("bluesky"), allow_module_level=True)
 
 import bluesky.plan_stubs as bps  # noqa: E402
 from bluesky import RunEngine  # noqa: E402
@@ -28,8 +30,8 @@ from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client  # noqa: E402
 from tests.daemons import free_tcp_ports, real_daemon, tolerant_rig_text, wait_for_own_daemon  # noqa: E402
 
-pytestmark = pytest.mark.slow(seconds=40)  # each test's share of the file's ~80 s on a 2-core machine: tests/conftest.py
-# orders files by the sum
+# slow: each test's share of the file's ~80 s on a 2-core machine (tests/conftest.py orders files by the sum)
+pytestmark = [pytest.mark.slow(seconds=40), pytest.mark.bluesky]
 
 
 def test_a_rig_with_an_array_sensor_reads_its_contact_estimate(tmp_path):

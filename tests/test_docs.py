@@ -1,7 +1,13 @@
 """The fault matrix (docs/faults.md) names tests that exist: a row cannot point at a test that
-was renamed or removed."""
+was renamed or removed; and every import a document shows imports."""
+import importlib
+import importlib.util
 import re
 from pathlib import Path
+
+import pytest
+
+from tests import extras
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -21,24 +27,34 @@ def test_every_test_the_fault_matrix_names_exists():
         assert test is None or re.search(rf"^def {test}\(", source, re.M), f"{file}::{test} is not there"
 
 
-def test_every_import_a_document_shows_imports():
+def shown_imports() -> list:
+    """Each code line ``from X import Y`` or ``import X`` of README.md, docs/*.md and
+    systemd/*.md, as a test case; one that needs an extra (``from bluesky import RunEngine``)
+    is marked with it, so it is skipped, saying so, where the extra is not installed."""
+    shown = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "systemd").glob("*.md"))]:
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            found = re.match(r"^ {4}(from ([\w.]+) import ([\w, ]+)|import ([\w.]+))\s*(#.*)?$", line)
+            if found:
+                extra = extras.extra_of(found.group(4) or found.group(2))
+                shown.append(pytest.param(path.name, found, id=f"{path.name}:{number}",
+                                          marks=[getattr(pytest.mark, extra)] if extra else []))
+    return shown
+
+
+def test_the_documents_show_imports():
+    assert len(shown_imports()) >= 4
+
+
+@pytest.mark.parametrize("name, found", shown_imports())
+def test_every_import_a_document_shows_imports(name, found):
     """A code line `from X import Y` or `import X` in README.md or docs/*.md names what is there
     (docs/recordings.md showed `from daemon import recording` after the module had become
     daemon.recordings)."""
-    import importlib
-    import importlib.util
-    shown = []
-    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "systemd").glob("*.md"))]:
-        for line in path.read_text().splitlines():
-            found = re.match(r"^ {4}(from ([\w.]+) import ([\w, ]+)|import ([\w.]+))\s*(#.*)?$", line)
-            if found:
-                shown.append((path.name, found))
-    assert len(shown) >= 4
-    for name, found in shown:
-        if found.group(4):
-            importlib.import_module(found.group(4))
-            continue
-        module = importlib.import_module(found.group(2))
-        for attr in (a.strip() for a in found.group(3).split(",")):
-            assert hasattr(module, attr) or importlib.util.find_spec(f"{found.group(2)}.{attr}"), \
-                f"{name}: {found.group(0).strip()}: no {attr}"
+    if found.group(4):
+        importlib.import_module(found.group(4))
+        return
+    module = importlib.import_module(found.group(2))
+    for attr in (a.strip() for a in found.group(3).split(",")):
+        assert hasattr(module, attr) or importlib.util.find_spec(f"{found.group(2)}.{attr}"), \
+            f"{name}: {found.group(0).strip()}: no {attr}"

@@ -234,6 +234,34 @@ def test_key_files_are_private_and_bad_ones_are_named(tmp_path):
         keys.read_key_pair(public, need_secret=True)
 
 
+def test_a_secret_key_written_inside_a_git_work_tree_is_said_never_to_be_committed(tmp_path):
+    """README.md's keys lines run in a checkout (a git work tree): each secret key file they
+    write is named on stderr with the warning, 0600 as ever; the public ones get none, nor do
+    the same lines outside a work tree. So does ``pneumactl keys new``."""
+    checkout, elsewhere = tmp_path / "checkout", tmp_path / "elsewhere"
+    for where in (checkout, elsewhere):
+        where.mkdir()
+    subprocess.run(["git", "init", "-q", str(checkout)], check=True)
+
+    def run(where, *args, module="daemon.main"):
+        done = subprocess.run([sys.executable, "-m", module, *args], cwd=where, capture_output=True, text=True,
+                              timeout=60)
+        assert done.returncode == 0, done.stderr
+        return [line for line in done.stderr.splitlines() if "must never be committed" in line]
+
+    for where, warned in ((checkout, True), (elsewhere, False)):
+        said = run(where, "keys", "--keys", "lab-keys", "init") + run(where, "keys", "--keys", "lab-keys", "client",
+                                                                      "alice")
+        said += run(where, "keys", "new", "carol", "--dir", "mine", module="daemon.client.ctl")
+        secrets = ("lab-keys/server.key_secret", "alice.key_secret", "mine/carol.key_secret")
+        if warned:
+            assert len(said) == 3 and all(name in line and str(checkout) in line for name, line in zip(secrets, said)), said
+        else:
+            assert said == []
+        for name in secrets:
+            assert os.stat(where / name).st_mode & 0o777 == 0o600
+
+
 def test_a_request_never_makes_the_daemon_open_a_file(lab):
     """Designs travel as content; a path where a design belongs is refused, never read."""
     _, eps, files = lab

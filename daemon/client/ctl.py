@@ -345,6 +345,8 @@ def new_key(args) -> int:
     print(f"your key: {secret} (mode 0600: keep it to yourself)\n"
           f"send {public} to the lab, who allow it with `pneumad keys allow {os.path.basename(public)}`"
           + ("" if args.server_key else "; use it with --server-key server.key (the daemon's public key)"))
+    if warning := keys.commit_warning(secret):
+        print(warning, file=sys.stderr)
     return 0
 
 

@@ -86,6 +86,27 @@ def write_certificate(path: str, public: bytes, secret: bytes | None = None, met
     return path
 
 
+def git_work_tree(path: str) -> str | None:
+    """The git work tree ``path`` lies in (the nearest directory above it holding ``.git``), or None."""
+    directory = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(os.path.join(directory, ".git")):
+        if os.path.dirname(directory) == directory:
+            return None
+        directory = os.path.dirname(directory)
+    return directory
+
+
+def commit_warning(secret_path: str) -> str | None:
+    """What to tell whoever just wrote a secret key file inside a git work tree (a checkout, where
+    a ``git add -A`` would take it); None elsewhere."""
+    tree = git_work_tree(secret_path)
+    if tree is None:
+        return None
+    return (f"warning: {secret_path} holds a secret key and lies in the git work tree {tree}: it must never be "
+            f"committed (keep it out with a .gitignore line `*.key_secret`, as pneumad's own checkout does, or keep "
+            f"keys outside the work tree)")
+
+
 def read_metadata(path: str) -> dict[str, str]:
     """The ``metadata`` section of a certificate file."""
     meta, section = {}, None
