@@ -18,6 +18,14 @@ it sent meanwhile wait in its socket, or were lost with the old messenger). A le
 outlives its own time by more than ``HOLD_S``, however the messenger fares: a client that
 really died during a restart loses its lease ttl after the new messenger was ready, at the
 latest ``HOLD_S`` past its time.
+
+The lease's clock stops while the loop does not cycle: a pause of the loop (a loaded PC holding a
+loop without real-time scheduling off the CPU for a second or more) is not the holder's
+silence. Its renewals wait in the rings meanwhile (or are refused by the messenger answering for
+a stalled loop, and sent again), and the first cycle after the pause comes before the rings are
+served; the pause (past ``PAUSE_S``) is added to the lease's time, so a client that renewed all
+along keeps it. Jitter under ``PAUSE_S`` counts as time, so a dead client's lease is not
+stretched by a loop that is merely late.
 """
 from __future__ import annotations
 
@@ -29,6 +37,7 @@ from daemon.wire.arguments import CommandFailed
 from daemon.wire.keys import ANONYMOUS, OBSERVER, Identity
 
 HOLD_S = 5.0  # a lease held over across a messenger restart: at most this long past its own time [s]
+PAUSE_S = 0.1  # a gap between two cycles longer than this is a pause of the loop: not the lease's time [s]
 
 
 class Lease:
@@ -47,6 +56,7 @@ class Lease:
         # Whether the messenger that carries the renewals is down or restarting now (set by the
         # loop's port, which looks at it when asked); None: a loop served by no messenger.
         self.carrier_down: Callable[[], bool] | None = None
+        self._ticked = loop.clock.now()  # [s] the last tick: a longer gap than PAUSE_S is a pause of the loop
 
     @property
     def held(self) -> bool:
@@ -142,8 +152,11 @@ class Lease:
         """Once a cycle: a lapsed lease trips an enabled arm; an unleased one that has held
         for the grace time gets the rig file's action."""
         supervisor = self.loop.supervisor
+        now = self.loop.clock.now()
+        paused, self._ticked = now - self._ticked, now
         if self.token is not None:
-            now = self.loop.clock.now()
+            if paused > PAUSE_S:  # the loop did not cycle: its holder's renewals could not be taken
+                self.expires += paused
             if now > self.expires and now > self.held_until and not self._held_over(now):
                 self.token = None
                 self._tell("expire", f"not renewed within {self.ttl_active:g} s")
