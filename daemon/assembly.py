@@ -152,7 +152,7 @@ def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
     """The messenger's sockets from ``pneumad run``'s options, closed on the way out. Made
     before the real-time set-up: the messenger keeps normal priority and every CPU."""
     recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
-                                                         "min_free_mb": args.record_min_free_mb}
+                                                         "min_free_mb": args.record_min_free_mb, "flight": rig.flight_recorder}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
                        recording=recording, plotjuggler=args.plotjuggler,
                        foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing)

@@ -136,6 +136,21 @@ class TimingConfig:
 
 
 @dataclass(frozen=True)
+class FlightRecorderConfig:
+    """The flight recorder beside the loop (the recorder process; docs/recordings.md, "The flight
+    recorder"): the last ``seconds`` of every telemetry topic held in memory as published, and
+    written to an MCAP file on each trip, e-stop and stalled loop, from ``seconds`` before the
+    event to ``after_s`` after it. Only a daemon that records (``--record-dir``) has one."""
+
+    seconds: float = 30.0  # [s] of telemetry before the event each file holds
+    after_s: float = 3.0  # [s] after it: what the safe state did
+
+    def __post_init__(self):
+        require(1.0 <= self.seconds <= 600.0, "seconds", "must be within 1-600 s")
+        require(0.0 <= self.after_s <= 60.0, "after_s", "must be within 0-60 s")
+
+
+@dataclass(frozen=True)
 class TransportConfig:
     """Which backend moves the raw values; ``options`` are validated by that backend."""
 
@@ -159,6 +174,7 @@ class RigConfig:
     limits: LimitsConfig = LimitsConfig()
     safety: SafetyConfig = SafetyConfig()
     timing: TimingConfig = TimingConfig()  # when the loop's timing is degraded, and what then
+    flight_recorder: FlightRecorderConfig = FlightRecorderConfig()  # the last seconds, written on each trip
     force_sensor: Any = None  # the tip force sensor's table (device default "asfs")
     supply_pressure: Any = None  # a transmitter on the supply line (device default "pressure_transmitter")
     inputs: tuple[Any, ...] = ()  # [[inputs]]: further analog inputs of the rig

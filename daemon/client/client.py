@@ -286,6 +286,11 @@ class Client:
     def record_list(self):
         return self.call("record.list")
 
+    def record_snapshot(self, name: str | None = None):
+        """The flight recorder's last seconds (the rig file's ``[flight_recorder] seconds``) written
+        to a file in the daemon's recording directory; a ``record`` event (``flight``) says when it is."""
+        return self.call("record.snapshot", {"name": name} if name else {})
+
     @staticmethod
     def candidate(name: str, params: dict | None, design: str | None) -> dict:
         """A controller.switch/shadow request's arguments, the design file read (scipy: slow to

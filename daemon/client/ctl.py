@@ -203,6 +203,8 @@ def parser() -> argparse.ArgumentParser:
     rt = sub.add_parser("record.stop", help="end a recording the daemon is making")
     rt.add_argument("--name", default=None, help=_help("record.stop", "name"))
     sub.add_parser("record.list", help=COMMANDS["record.list"].doc)
+    rn = sub.add_parser("record.snapshot", help=COMMANDS["record.snapshot"].doc)
+    rn.add_argument("--name", default=None, help=_help("record.snapshot", "name"))
     e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")
@@ -385,6 +387,8 @@ def run(client: Client, args):
         return client.record_stop(args.name)
     if w == "record.list":
         return client.record_list()
+    if w == "record.snapshot":
+        return client.record_snapshot(args.name)
     if w == "controller":
         if args.action == "list":
             return client.controllers()

@@ -36,7 +36,7 @@ from daemon.recorder.process import RecorderProcess, write_metadata
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
-from hal.config import TimingConfig
+from hal.config import FlightRecorderConfig, TimingConfig
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
@@ -64,7 +64,8 @@ class ZmqServer:
                  command_budget_s: float = COMMAND_BUDGET_S, timing: TimingConfig | None = None):
         """``command_budget_s``: the time the command stage may spend on requests in a cycle
         (on the loop's clock: a virtual one never spends it). ``recording``: where and how the daemon records (``directory``, ``max_mb``,
-        ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
+        ``min_free_mb``, and ``flight``: the rig file's ``[flight_recorder]``, default its defaults), in a recorder
+        process started at :meth:`attach`; None: it does not.
         ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`);
         ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`);
         ``timing``: the rig file's ``[timing]``, by which the messenger judges the loop's timing."""
@@ -88,7 +89,8 @@ class ZmqServer:
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
                                    keys, recorder=recording is not None, plotjuggler=plotjuggler,
-                                   foxglove=fox, timing=timing)
+                                   foxglove=fox, timing=timing,
+                                   flight=(recording.get("flight") or FlightRecorderConfig()) if recording else None)
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -112,7 +114,7 @@ class ZmqServer:
         write_metadata(self._rings_dir, self.commands.described, self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
-                                            self.recording["min_free_mb"])
+                                            self.recording["min_free_mb"], self.recording.get("flight"))
             self.recorder.start()
 
     def publish(self, topic: bytes, body: bytes | bytearray | memoryview) -> None:

@@ -57,7 +57,7 @@ from daemon.messenger.shared import (
 )
 from daemon.wire.keys import KeyFileError
 from daemon.wire.ring import Ring
-from hal.config import TimingConfig
+from hal.config import FlightRecorderConfig, TimingConfig
 from hal.process import Child, Helper, HelperFailed
 
 __all__ = ["END", "STALL_S", "TOPICS", "Heartbeat", "Messenger", "MessengerError", "create_rings"]  # the loop's side
@@ -80,8 +80,9 @@ class Messenger:
     def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
                  stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False,
                  plotjuggler: str | None = None, foxglove: tuple[str, int] | None = None,
-                 timing: TimingConfig | None = None):
+                 timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None):
         self.rings_dir = rings_dir
+        self.flight = flight  # the rig file's [flight_recorder] (with a recorder): trips name their flight files
         self.timing = timing  # the rig file's [timing]: the messenger judges the loop's timing by it
         self.foxglove = foxglove  # (host, port) of the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.plotjuggler = plotjuggler  # an endpoint for PlotJuggler's rows (daemon.messenger.plotjuggler)
@@ -117,7 +118,7 @@ class Messenger:
 
     def _args(self, endpoints: dict[str, str]) -> tuple:
         return (self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints,
-                self.foxglove, self.timing)
+                self.foxglove, self.timing, self.flight)
 
     def check(self) -> str | None:
         """Called from the loop (every ``daemon.loop.port.MESSENGER_CHECK_CYCLES``), never
@@ -165,7 +166,7 @@ class Messenger:
 # -- in the messenger process ---------------------------------------------------------------
 def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str | None, recorder: bool,
           plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None,
-          timing: TimingConfig | None = None) -> int:
+          timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None) -> int:
     """The messenger process's main: its imports (where a spare waits: Child.standby), then
     bind the sockets, say ready with their endpoints, relay until the loop's END or the
     parent's end."""
@@ -212,7 +213,7 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})
     Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, stall_s, guard, link, feed, stream,
-          timing=timing).run(child.parent_alive)
+          timing=timing, flight=flight).run(child.parent_alive)
     for helper in (link, feed, stream):
         if helper is not None:
             helper.close()

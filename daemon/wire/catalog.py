@@ -352,8 +352,11 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("record.stop", "recorder", "end a recording the daemon makes", (*_RECORDING, "cause"), (
         _recording_name("which (needed when several run)"),), role=OPERATOR,
             errors=(P.BAD_STATE,)),
-    Command("record.list", "recorder", "the daemon's recordings", ("directory", "feed_t", "active", "files", "more"),
-            errors=(P.BAD_STATE,)),
+    Command("record.list", "recorder", "the daemon's recordings", ("directory", "feed_t", "active", "files", "more",
+                                                                   "flight"), errors=(P.BAD_STATE,)),
+    Command("record.snapshot", "recorder", "the flight recorder's last seconds written to a file now",
+            ("name", "from_t", "to_t", "seconds"), (_recording_name("the file's name without .mcap"),),
+            role=OPERATOR, errors=(P.BAD_STATE,)),
     Command("keys.reload", "messenger", "read the keys' allow-list again", (
         "allowed", "added", "removed", "problems"), role=OPERATOR, errors=(P.BAD_STATE,)),
 )}
