@@ -47,7 +47,7 @@ def test_the_check_lines_print_what_the_document_shows(tmp_path):
 def test_every_key_a_rig_file_takes_is_named_in_the_document():
     text = (ROOT / DOC).read_text()
     tables = [config.RigInfo, config.TransportConfig, config.ArmConfig, config.LimitsConfig, config.SafetyConfig,
-              config.RigConfig, JointConfig, LinkConfig, RegulatorConfig, ValveConfig, BrakeConfig,
+              config.TimingConfig, config.FlightRecorderConfig, config.RigConfig, JointConfig, LinkConfig, RegulatorConfig, ValveConfig, BrakeConfig,
               DirectionalValveConfig, *(sensor_kind(name).Config for name in kinds())]
     def named(key: str) -> bool:  # as a key (`channel`) or a table (`[joints.head]`, `[[inputs]]`)
         return re.search(rf"`\[{{0,2}}(?:[\w.]+\.)?{re.escape(key)}\]{{0,2}}`", text) is not None
