@@ -10,13 +10,16 @@ import subprocess
 import sys
 import time
 
+import msgpack
 import pytest
 from mcap.reader import make_reader
 
 from daemon.client.client import Client
-from daemon.recorder.flight import MAX_FILES_PER_HOUR
+from daemon.recorder.flight import KEEP_MARGIN_S, MAX_FILES_PER_HOUR, MEMORY_CAP_BYTES, FlightRecorder
 from daemon.recordings import mcap_log
+from daemon.testing.loop import dealer, make_loop, ok
 from daemon.wire.flight import FlightNames, Window
+from hal.config import FlightRecorderConfig
 from tests.daemons import TOLERANT_STALL, real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.test_journal import journal_line, next_event
 
@@ -168,3 +171,51 @@ def test_events_close_together_share_a_flight_file_and_only_trips_estops_and_sta
         if window.covers(t):
             window.extend(t, 3.0)
     assert window.end_t == 60.0
+
+
+@pytest.fixture(scope="module")
+def published():
+    """A second of an in-process loop's telemetry as published (msgpack bytes), its describe
+    and controller."""
+    loop, captured, srv = make_loop(server=True)
+    sock = dealer(srv)
+    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
+    start = len(captured.messages)
+    loop.enable()
+    loop.run(1000)
+    srv.close()
+    return describe, controller, [(topic, msgpack.packb(m)) for topic, m in captured.messages[start:]]
+
+
+def test_a_storm_longer_than_the_held_seconds_keeps_its_files_start_and_memory_stays_bounded(tmp_path, published):
+    """The flight recorder on a clock of the test's: 30 s of e-stops 0.5 s apart share one file,
+    which still begins ``seconds`` before the first (held past the usual span while the file is
+    due), and what is held otherwise spans ``seconds + after_s`` and a margin."""
+    describe, controller, messages = published
+    events, now = [], [0.0]
+
+    def open_file(name):
+        path = str(tmp_path / f"{name}.mcap")
+        return open(path, "xb"), path
+
+    recorder = FlightRecorder(FlightRecorderConfig(seconds=2.0, after_s=1.0), open_file, lambda path: None,
+                              lambda: (describe, controller), events.append, clock=lambda: now[0])
+    names = FlightNames(after_s=1.0)
+    per_second = len(messages)
+    for k in range(50 * per_second):  # 50 s of telemetry, fed by its arrival time
+        t = k / per_second
+        now[0] = t
+        topic, body = messages[k % per_second]
+        recorder.take(topic, body, t)
+        if 10.0 <= t <= 40.0 and k % (per_second // 2) == 0:  # an e-stop every half second
+            event = {"kind": "estop", "t": t, "cycle": k, "cause": "e-stop from a script"}
+            event["flight"] = names.name_for(event)
+            recorder.event(event)
+        while recorder.work(t, slice_s=float("inf")):
+            pass
+    written, = [e for e in events if e["action"] == "flight"]
+    assert len(written["events"]) == 61 and written["from_t"] == 8.0 and written["to_t"] == 41.0
+    assert written["held_from_t"] == pytest.approx(8.0, abs=0.01)
+    assert mcap_log.read(written["file"]).messages["state"]
+    assert recorder.held[-1][0] - recorder.held[0][0] <= 2.0 + 1.0 + KEEP_MARGIN_S
+    assert recorder.bytes == sum(len(m[2]) for m in recorder.held) < MEMORY_CAP_BYTES

@@ -5,16 +5,17 @@ loop (the events the messenger named a file for: :mod:`daemon.wire.flight`) and 
 
 What it holds is the published messages' bytes as they came in the feed (msgpack, as a
 subscriber receives them), never decoded objects: ``[flight_recorder] seconds`` + ``after_s`` +
-``KEEP_MARGIN_S`` of them, about 0.21 MB a second on the built-in 2-joint rig (7 MB for the
-default 30 s), and never more than ``MEMORY_CAP_BYTES`` whatever the rig (then fewer seconds,
-which the file's first sample shows). A file is written once its window's end has come in the
-feed (``after_s`` past its last event), or ``GRACE_S`` later by the recorder's own clock if the
-feed has stopped (a stalled loop publishes nothing); it is written in slices of ``slice_s``
-between the recorder's other work (decoding and encoding 33 s of telemetry takes seconds), so
-requests are answered meanwhile. A file begins no earlier than where the previous trip's file
-ended (no second is written twice), and at most ``MAX_FILES_PER_HOUR`` are written in an
-hour: a storm of trips writes bounded files; a trip past the cap is a ``record`` event
-(``failed``) instead.
+``KEEP_MARGIN_S`` of them, about 0.2 MB a second on the built-in 2-joint rig (7 MB for the
+default 30 s; while a storm's file is due, from its start on: up to
+:data:`daemon.wire.flight.MAX_SPAN_S` more), and never more than ``MEMORY_CAP_BYTES`` whatever
+the rig (then fewer seconds, which the file's first sample shows). A file is written once its
+window's end has come in the feed (``after_s`` past its last event), or ``GRACE_S`` later by the
+recorder's own clock if the feed has stopped (a stalled loop publishes nothing); it is written
+in slices of ``slice_s`` between the recorder's other work (decoding and encoding 33 s of
+telemetry takes seconds), so requests are answered meanwhile. A file begins no earlier than
+where the previous trip's file ended (no second is written twice), and at most
+``MAX_FILES_PER_HOUR`` are written in an hour: a storm of trips writes bounded files; a trip
+past the cap is a ``record`` event (``failed``) instead.
 """
 from __future__ import annotations
 
@@ -77,7 +78,10 @@ class FlightRecorder:
         held = self.held
         held.append((t, topic, body))
         self.bytes += len(body)
-        while held and (held[0][0] < t - self.keep_s or self.bytes > MEMORY_CAP_BYTES):
+        horizon = t - self.keep_s
+        if self.due and self.due[0].items is None:  # a file not begun yet keeps its start (a storm's)
+            horizon = min(horizon, self.due[0].from_t)
+        while held and (held[0][0] < horizon or self.bytes > MEMORY_CAP_BYTES):
             self.bytes -= len(held.popleft()[2])
 
     def event(self, event: dict) -> None:
@@ -91,6 +95,7 @@ class FlightRecorder:
             if flight.name == name:
                 flight.window.extend(t, self.after_s)
                 flight.due = max(flight.due, self.clock() + flight.window.end_t - t + GRACE_S)
+                self._written_to_t = max(self._written_to_t, flight.window.end_t)
                 flight.events.append(summary)
                 return
         now = self.clock()
