@@ -1,8 +1,9 @@
-"""The flight recorder (docs/recordings.md, "The flight recorder"): a real daemon's e-stop and its
-stalled loop each name a flight file in their event and their journal line, and the file holds
-the seconds before them, readable by ``pneumactl export``, :func:`mcap_log.read` and the ``mcap``
-library; a storm of e-stops writes one file while it lasts and at most the hourly cap of files;
-``record.snapshot`` writes one on demand."""
+"""The flight recorder (docs/recordings.md, "The flight recorder"): a real daemon's e-stop, its
+stalled loop and its transport gone stale each name a flight file in their event (and their
+journal line), and the file holds the seconds before them, readable by ``pneumactl export``,
+:func:`mcap_log.read` and the ``mcap`` library; a storm of e-stops writes one file while it
+lasts and at most the hourly cap of files, and what is held stays bounded; ``record.snapshot``
+writes one on demand."""
 import csv
 import os
 import signal
@@ -14,14 +15,17 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
+from bench.wires import listening
 from daemon.client.client import Client
 from daemon.recorder.flight import KEEP_MARGIN_S, MAX_FILES_PER_HOUR, MEMORY_CAP_BYTES, FlightRecorder
 from daemon.recordings import mcap_log
 from daemon.testing.loop import dealer, make_loop, ok
+from daemon.testing.ports import free_tcp_port
 from daemon.wire.flight import FlightNames, Window
 from hal.config import FlightRecorderConfig
 from tests.daemons import TOLERANT_STALL, real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.test_journal import journal_line, next_event
+from tests.wirehelpers import start_peer, stop_peer
 
 SECONDS, AFTER_S = 4.0, 1.0
 
@@ -38,13 +42,15 @@ def written(sub, name: str, limit_s: float = 60.0) -> dict:
     return next_event(sub, "record", limit_s, action="flight", name=name)
 
 
-def assert_holds_the_seconds_before(path, event: dict, tmp_path) -> None:
+def assert_holds_the_seconds_before(path, event: dict, tmp_path, after: bool = True) -> None:
     """The file holds state from ``SECONDS`` before ``event`` (a sample within the first half
-    second of its window) to past it, the event itself, and every reader opens it."""
+    second of its window) up to it (and past it, ``after``: a loop whose transport is lost
+    publishes no state), the event itself, and every reader opens it."""
     contents = mcap_log.read(path)
     assert not contents.truncated
     t = [s["t"] for s in contents.messages["state"]]
-    assert t[0] <= event["t"] - SECONDS + 0.5 and t[-1] >= event["t"], (t[0], t[-1], event["t"])
+    assert t[0] <= event["t"] - SECONDS + 0.5 and t[-1] >= event["t"] + (0.5 if after else -0.05), \
+        (t[0], t[-1], event["t"])
     assert any(e.get("seq") == event["seq"] for e in contents.messages["event"])
     with open(path, "rb") as f:
         states = sum(1 for _ in make_reader(f).iter_messages(topics=["/pneumad/state"]))
@@ -99,6 +105,37 @@ def test_an_estop_and_a_stalled_loop_each_write_the_seconds_before_them_named_in
     finally:
         daemon.terminate()
         daemon.wait(10)
+
+
+@pytest.mark.slow(seconds=40)
+def test_a_transport_gone_stale_trips_and_its_flight_file_holds_the_seconds_before(tmp_path):
+    """Over Modbus, its server (the simulated rig's peer process) killed with the arm enabled:
+    no fresh input, a trip (stale, or the link down), whose flight file holds what led up to it."""
+    port = free_tcp_port()
+    server = start_peer("sim_backend.modbus_peer", "--port", str(port), ready=lambda: listening(port))
+    try:
+        daemon, eps = real_daemon(tmp_path, "--config", str(flight_rig(tmp_path)), "--transport", "modbus",
+                                  "--transport-option", f"port={port}", "--transport-option", "open_timeout_s=60",
+                                  "--transport-option", "timeout_s=0.5", "--safety", "stale_after_s=1.0")
+        try:
+            with Client(**eps, timeout=20.0) as client:
+                wait_for_own_daemon(client, daemon)
+                sub = client.subscribe((b"event",))
+                time.sleep(0.3)
+                client.acquire_lease()
+                client.keep_lease()
+                client.enable()
+                time.sleep(SECONDS + 1.0)
+                stop_peer(server, hard=True)
+                trip = next_event(sub, "trip")
+                assert "stale" in trip["cause"] or "modbus" in trip["cause"], trip
+                done = written(sub, trip["flight"])
+                assert_holds_the_seconds_before(done["file"], trip, tmp_path, after=False)
+        finally:
+            daemon.terminate()
+            daemon.wait(10)
+    finally:
+        stop_peer(server)
 
 
 @pytest.mark.slow(seconds=60)
