@@ -107,7 +107,7 @@ def _contact(link: RigLink, field: str) -> float:
     return _number(estimate.get(field)) if estimate else math.nan
 
 
-async def _stopped_within(stopped: asyncio.Event, seconds: float) -> bool:
+async def stopped_within(stopped: asyncio.Event, seconds: float) -> bool:
     """Whether the RunEngine stops the move within ``seconds`` (a suspender acting on the same
     trip from the event topic) rather than the move failing the plan."""
     try:
@@ -152,7 +152,7 @@ class PneumadJoint(StandardReadable, Movable):
         try:
             reply = await link.call("set", angles_deg=targets, duration_s=self._move_s())
         except RemoteError as exc:
-            if exc.code != P.BAD_STATE or not await _stopped_within(self._stopped, TRIP_GRACE_S):
+            if exc.code != P.BAD_STATE or not await stopped_within(self._stopped, TRIP_GRACE_S):
                 raise
             return
         link.forget_status()
@@ -236,19 +236,18 @@ class PneumadRig(StandardReadable):
                 log.warning("%s: the lease had lapsed before the run handed it back: %s", self.link.rig_name, exc)
         await super().unstage()
 
-    async def settled(self, targets_deg: dict[str, float], move_s: float, stopped: asyncio.Event | None = None) -> None:
+    async def settled(self, targets_deg: dict[str, float], move_s: float, stopped: asyncio.Event) -> None:
         """Return once the reference has ended and each named joint has stayed within
         ``settled_deg`` of its target for SETTLED_FOR_S, its angle spread over that time at most
         STILL_SPREAD_DEG, or once the RunEngine has ``stopped`` the move after the arm left the
         enabled state (a suspension); RuntimeError if it left it and nothing stopped the move
-        within TRIP_GRACE_S (at once without ``stopped``: a flight, whose plan has no checkpoint
-        inside it), with the daemon's cause, or if it does not settle in time."""
+        within TRIP_GRACE_S (with the daemon's cause), or if it does not settle in time."""
         deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
         still_since, seen = None, {}  # seen: each joint's lowest and highest angle since still_since [deg]
         while True:
             status = await self.link.call("status")
             if status["state"] != "enabled":
-                if stopped is not None and await _stopped_within(stopped, TRIP_GRACE_S):
+                if await stopped_within(stopped, TRIP_GRACE_S):
                     return
                 raise RuntimeError(f"{self.link.rig_name}: the arm is {status['state']}: {status.get('cause', '')}")
             joints = status["joints"]
