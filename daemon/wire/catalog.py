@@ -280,7 +280,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("stiffness_nm_deg", "number_or_list", "stiffness set-point, one or one per joint (muscle joints)",
             0.0, 10.0, "N m/deg"),
         _record("the move")), lease=True, deferred=True, errors=_REFUSALS,
-        one_of=("positions", "angles_deg", "angles_rad", "xy_mm")),
+        one_of=("angles_deg", "angles_rad", "xy_mm", "positions")),
     Command("path", "planner", "a reference path after an approach to its start", (
         "path", "duration_s", "approach_s", "approach_chosen", "stretched_from_s", "total_s", "cycle", "recording"), (
         Arg("name", "string", "the path", required=True, choices=("translation", "circle")),
@@ -296,7 +296,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("durations_s", "list", "one per segment, one fewer than the points (0.01-3600 s each)", 1, 999, "s",
             required=True, item=element("number", 0.01, MAX_DURATION_S, "s")),
         _APPROACH, _record("the path")), lease=True, deferred=True, errors=_REFUSALS,
-        one_of=("positions", "angles_deg", "xy_mm"),
+        one_of=("angles_deg", "xy_mm", "positions"),
         lengths=(("durations_s", ("positions", "angles_deg", "xy_mm"), -1),)),
     Command("steps", "planner", "a step to each level in turn, held for its time", (
         "levels", "duration_s", "cycle", "recording"), (
@@ -305,7 +305,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("angles_deg", "list", "levels, one angle per joint each", 1, 1000, "deg", item=NUMBERS),
         Arg("hold_s", "list", "one per level (0.001-3600 s each)", 1, 1000, "s", required=True,
             item=element("number", 0.001, MAX_DURATION_S, "s")),
-        _record("the steps")), lease=True, deferred=True, errors=_REFUSALS, one_of=("positions", "angles_deg"),
+        _record("the steps")), lease=True, deferred=True, errors=_REFUSALS, one_of=("angles_deg", "positions"),
         lengths=(("hold_s", ("positions", "angles_deg"), 0),)),
     Command("excite", "planner", "an identification signal on one joint's reference or V_MV", (
         "signal", "joint", "side", "duration_s", "settle_s", "predicted_excursion_deg", "u_op_estimate_v", "cycle",
