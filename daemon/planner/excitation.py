@@ -44,7 +44,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     other = "amplitude_mm" if unit == "deg" else "amplitude_deg"
     if other in args or key not in args:
         raise bad_args(f"joint {joint} is {'rotary' if unit == 'deg' else 'linear'}: give the reference side's "
-                       f"amplitude as {key}", key)
+                       f"amplitude as {key}", other if other in args else key)
     amplitude = _number(args, key) / scale
     excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
     _check_band(ctx, j, setpoint[j], excitation.peak, key)
@@ -85,8 +85,9 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
     settle = _number(args, "settle_s")
     unit, scale = ctx.display(j)
     band_key = f"band_{unit}"
-    if ("band_mm" if unit == "deg" else "band_deg") in args:
-        raise bad_args(f"joint {joint} is {'rotary' if unit == 'deg' else 'linear'}: its band is {band_key}", band_key)
+    other = "band_mm" if unit == "deg" else "band_deg"
+    if other in args:
+        raise bad_args(f"joint {joint} is {'rotary' if unit == 'deg' else 'linear'}: its band is {band_key}", other)
     band = _number(args, band_key) / scale
     centre_hz = _number(args, "centre_hz")
     excitation = signal_of(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
