@@ -126,7 +126,6 @@ def table(results: dict[str, dict]) -> str:
     """The figures as docs/controllers.md's table."""
     rows = ["| controller | step | rise [s] | settling (+-1 mm) [s] | overshoot [%] | steady-state error [mm] |",
             "|---|---|---|---|---|---|"]
-    start = START_MM
     for name, res in results.items():
         start = START_MM
         for level, f in zip(STEPS, res["figures"]["steps"]):
@@ -134,8 +133,9 @@ def table(results: dict[str, dict]) -> str:
                         f"{f['overshoot_pct']:.1f} | {f['steady_state_error_mm']:+.2f} |")
             start = level[0]
     rows += ["", "| controller | trajectory max error [mm] | RMS error [mm] |", "|---|---|---|"]
-    rows += [f"| `{name}` | {res['figures']['path']['max_error_mm']:.2f} | {res['figures']['path']['rms_error_mm']:.2f} |"
-             for name, res in results.items()]
+    for name, res in results.items():
+        path = res["figures"]["path"]
+        rows.append(f"| `{name}` | {path['max_error_mm']:.2f} | {path['rms_error_mm']:.2f} |")
     return "\n".join(rows)
 
 

@@ -155,7 +155,9 @@ class AxisPVA(AxisController):
             g = lin.velocity_gain_m_s_v * wn * wn
             wc = 2 * math.pi * values["bandwidth_hz"][j]
             zc, p = values["damping"][j], values["pole_ratio"][j] * wc
-            kp, kv, ka = p * wc * wc / g, (wc * wc + 2 * zc * wc * p - wn * wn) / g, (p + 2 * zc * wc - 2 * zeta * wn) / g
+            kp = p * wc * wc / g  # [V/m]
+            kv = (wc * wc + 2 * zc * wc * p - wn * wn) / g  # [V s/m]
+            ka = (p + 2 * zc * wc - 2 * zeta * wn) / g  # [V s^2/m]
             ti, fa, fx = values["Ti"][j], values["accel_hz"][j], values["filter_hz"][j]
             gains.append((kp, kv, ka, wn * wn / g, 2 * zeta * wn / g, kp * h / ti if ti > 0 else 0.0,
                           1.0 - math.exp(-2 * math.pi * fa * h), 1.0 - math.exp(-2 * math.pi * fx * h) if fx else 1.0))
@@ -167,9 +169,9 @@ class AxisPVA(AxisController):
             axis = self.axes[j]
             x = self._x[j] = self._x[j] + x_gain * (state.angles[j] - self._x[j])
             v = state.velocities[j]
-            if len(pressures) > 2 * j + 1 and pressures[2 * j] == pressures[2 * j] and pressures[2 * j + 1] == pressures[2 * j + 1]:
-                force = (pressures[2 * j] * axis.area_head - pressures[2 * j + 1] * axis.area_rod
-                         - axis.viscous_n_s_m * v + axis.load_force_n)
+            p_h, p_r = (pressures[2 * j], pressures[2 * j + 1]) if len(pressures) > 2 * j + 1 else (math.nan, math.nan)
+            if p_h == p_h and p_r == p_r:  # both transmitters read (NaN: none, or implausible): else the last estimate
+                force = p_h * axis.area_head - p_r * axis.area_rod - axis.viscous_n_s_m * v + axis.load_force_n
                 if -REST_M_S < v < REST_M_S:
                     force -= clamp(force, -axis.static_n, axis.static_n)
                 else:

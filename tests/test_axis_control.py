@@ -179,12 +179,14 @@ def test_a_step_beyond_the_stroke_limits_or_the_valves_flow_is_refused_in_mm():
     """The planner's checks in the axis's own units, as the planner worker makes them."""
     sim = make_rig(name="sim-axis")
     ctx = PlanContext.of(sim.rig, sim.context())
-    with pytest.raises(CommandFailed, match=r"joint axis set-point 195\.00 mm is outside its limits 10\.0\.\.190\.0 mm"):
+    with pytest.raises(CommandFailed, match=r"joint axis set-point 195\.00 mm is outside its limits "
+                                            r"10\.0\.\.190\.0 mm"):
         PLANNERS["set"](ctx, {"positions": [195.0]}, [0.1])
     with pytest.raises(CommandFailed, match=r"beyond the axis's flow or force: joint axis .* but the valve's flow "
                                             r"gives 64\d mm/s that way .* the shortest feasible duration is 0\.\d s"):
         PLANNERS["set"](ctx, {"positions": [180.0], "duration_s": 0.1}, [0.02])
-    with pytest.raises(CommandFailed, match=r"angles_deg: joint axis is linear: give its position in mm with positions"):
+    with pytest.raises(CommandFailed, match=r"angles_deg: joint axis is linear: give its position in mm with "
+                                            r"positions"):
         PLANNERS["set"](ctx, {"angles_deg": [10.0]}, [0.1])
     reply = PLANNERS["set"](ctx, {"positions": [150.0], "duration_s": 1.0}, [0.1]).reply
     assert reply["target"] == pytest.approx([150.0]) and "target_deg" not in reply
@@ -194,6 +196,7 @@ def test_a_step_beyond_the_stroke_limits_or_the_valves_flow_is_refused_in_mm():
     assert math.isclose(plan.trajectory.peak, 0.005, rel_tol=0.05)
     with pytest.raises(CommandFailed, match=r"joint axis at 185\.0 mm \+- 10\.0 mm \(amplitude_mm\) leaves its limits"):
         PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_mm": 10.0}, [0.185])
-    with pytest.raises(CommandFailed, match=r"joint axis is linear: give the reference side's amplitude as amplitude_mm"):
+    with pytest.raises(CommandFailed, match=r"joint axis is linear: give the reference side's amplitude as "
+                                            r"amplitude_mm"):
         PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_deg": 1.0}, [0.1])
 

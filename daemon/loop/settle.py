@@ -56,10 +56,8 @@ class SettleGate:
 
     def summary(self, angles) -> dict:
         """What the ``reference`` event ``settled`` says: how long the path waited, whether the
-        joints settled, and each joint's error then, in its unit (``error``: deg or mm;
-        ``error_deg`` as well on a rig of rotary joints)."""
+        joints settled, and each joint's error then: ``error_deg`` on a rig of rotary joints, else
+        ``error``, each joint's in its unit (deg or mm)."""
         errors = [(r - q) * (180.0 / math.pi if u == "rad" else 1e3) for r, q, u in zip(self.start, angles, self.units)]
-        out = {"waited_s": self.waited * self.dt, "settled": self.settled, "error": errors}
-        if all(u == "rad" for u in self.units):
-            out["error_deg"] = errors
-        return out
+        key = "error_deg" if all(u == "rad" for u in self.units) else "error"
+        return {"waited_s": self.waited * self.dt, "settled": self.settled, key: errors}

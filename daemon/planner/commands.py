@@ -106,9 +106,11 @@ def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     check_limits(ctx, target)
     stiffness = stiffness_setpoint(ctx, args, target) if "stiffness_nm_deg" in args else None
     move = trajectory.JointMove(setpoint, target, duration)
-    check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that position", "duration_s")
+    rotary = all(ctx.unit(j) == "rad" for j in range(ctx.n))
+    held = f"the rig cannot hold that {'angle' if rotary else 'position'}"
+    check_authority(ctx, "the move", move, None if duration else held, "duration_s")
     reply = {"target": ctx.shown(target), "duration_s": duration}
-    if all(ctx.unit(j) == "rad" for j in range(ctx.n)):
+    if rotary:
         reply["target_deg"] = [math.degrees(q) for q in target]
     if stiffness is not None:
         reply["stiffness_nm_deg"] = [k / DEG_PER_RAD for k in stiffness]
