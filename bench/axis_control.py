@@ -33,16 +33,17 @@ REQUESTS = (("steps", {"positions": [list(s) for s in STEPS], "hold_s": [HOLD_S]
             ("waypoints", {"positions": [list(p) for p in PATH], "durations_s": [LEG_S] * (len(PATH) - 1)}))
 
 
-def step_figures(t, x_mm, t0: float, start_mm: float, level_mm: float, end_t: float) -> dict:
+def step_figures(t, x_mm, t0: float, start_mm: float, level_mm: float, end_t: float, band_mm: float = BAND_MM) -> dict:
     """One step's figures from the samples ``t`` [s], ``x_mm`` [mm] of the step at ``t0`` from
-    ``start_mm`` to ``level_mm``, held until ``end_t``."""
+    ``start_mm`` to ``level_mm``, held until ``end_t``; settled into +-``band_mm`` for good
+    (NaN: not within the hold)."""
     t, x = np.asarray(t, float), np.asarray(x_mm, float)
     keep = (t >= t0) & (t < end_t)
     t, x = t[keep] - t0, x[keep]
     size = level_mm - start_mm
     y = (x - start_mm) / size  # the normalised response, 1 at the level
     rise = float(t[np.argmax(y >= 0.9)] - t[np.argmax(y >= 0.1)]) if (y >= 0.9).any() else math.nan
-    outside = np.nonzero(np.abs(x - level_mm) > BAND_MM)[0]
+    outside = np.nonzero(np.abs(x - level_mm) > band_mm)[0]
     settle = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < t.size else (
         0.0 if not outside.size else math.nan)
     last = t >= t[-1] - 0.5
@@ -57,12 +58,12 @@ def tracking_figures(t, x_mm, r_mm, t0: float, t1: float) -> dict:
     return {"max_error_mm": float(np.max(np.abs(e))), "rms_error_mm": float(np.sqrt(np.mean(e * e)))}
 
 
-def figures(t, x_mm, r_mm, steps_t0: float, path_t0: float, path_t1: float) -> dict:
+def figures(t, x_mm, r_mm, steps_t0: float, path_t0: float, path_t1: float, band_mm: float = BAND_MM) -> dict:
     """Every figure of one controller's run: ``steps`` (one dict per level) and ``path``."""
     levels, start = [], START_MM
     for k, level in enumerate(STEPS):
         t0 = steps_t0 + k * HOLD_S
-        levels.append(step_figures(t, x_mm, t0, start, level[0], t0 + HOLD_S))
+        levels.append(step_figures(t, x_mm, t0, start, level[0], t0 + HOLD_S, band_mm))
         start = level[0]
     return {"steps": levels, "path": tracking_figures(t, x_mm, r_mm, path_t0, path_t1)}
 
