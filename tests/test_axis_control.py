@@ -20,6 +20,8 @@ from controllers import registry
 from controllers.base import ControllerContext, ParamError
 from daemon import assembly
 from daemon.client.client import Client
+from daemon.loop.recovery import Recovery
+from daemon.loop.settle import SettleGate
 from daemon.planner.commands import PLANNERS
 from daemon.planner.plans import PlanContext
 from daemon.wire.arguments import CommandFailed
@@ -207,3 +209,36 @@ def test_a_step_beyond_the_stroke_limits_or_the_valves_flow_is_refused_in_mm():
                                             r"amplitude_mm"):
         PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_deg": 1.0}, [0.1])
 
+
+
+def test_recovery_and_the_settle_before_a_path_are_in_mm_on_a_linear_joint():
+    """Enabled 5 mm below its 10 mm limit, the axis is moved 2 mm inside at 20 mm/s (at least
+    1 s), said in mm; going out by more than 1 mm trips, in mm. A path starts once the axis has
+    been within 1 mm of its start for 0.25 s."""
+    recovery = Recovery(["axis"], [(0.010, 0.190)], [0.005], 0.001, ["m"])
+    assert recovery.targets == pytest.approx([0.012]) and recovery.move_s == pytest.approx(1.0)
+    joint = recovery.summary["joints"]["axis"]
+    assert joint == {"position_mm": pytest.approx(5.0), "limits_mm": pytest.approx([10.0, 190.0]),
+                     "target_mm": pytest.approx(12.0)}
+    assert recovery.check([0.0045]) is None
+    assert recovery.check([0.0035]) == ("joint axis enabled outside its limits went further out: 3.5 mm, enabled at "
+                                        "5.0 mm (limits 10.0..190.0 mm)")
+    near, off = SettleGate(0.0, [0.100], 0.001, ["m"]), SettleGate(0.0, [0.100], 0.001, ["m"])
+    assert not any(not near.waiting([0.1009]) for _ in range(249)) and not near.waiting([0.1009])
+    assert all(off.waiting([0.1012]) for _ in range(1000))
+    assert near.summary([0.1009]) == {"waited_s": pytest.approx(0.25), "settled": True,
+                                      "error": pytest.approx([-0.9])}
+
+
+def test_the_input_side_excite_on_the_axis_takes_its_band_in_mm():
+    """Open loop on the valve: amplitude_v about the held command, the band in mm, refused beyond
+    the stroke limits in mm; no nominal model, so no predicted excursion and no centring."""
+    ctx = PlanContext.of(make_rig(name="sim-axis").rig, make_rig(name="sim-axis").context())
+    args = {"side": "input", "signal": "steps", "joint": "axis", "amplitude_v": 0.2, "levels": [0.5, -0.5],
+            "band_mm": 30.0}
+    plan = PLANNERS["excite"](ctx, dict(args), [0.1])
+    assert plan.trajectory.definition["band_mm"] == 30.0 and plan.trajectory.definition["operating_point_mm"] == [100.0]
+    assert plan.reply["predicted_excursion_deg"] is None
+    with pytest.raises(CommandFailed, match=r"joint axis at 170\.0 mm \+- 30\.0 mm \(band_mm\) leaves its limits "
+                                            r"10\.0\.\.190\.0 mm"):
+        PLANNERS["excite"](ctx, dict(args), [0.170])
