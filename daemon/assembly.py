@@ -75,6 +75,10 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
     actuation = RigActuation(rig, drivers)
     context = ControllerContext.for_rig(rig, actuation, period)
     try:
+        registry.check_defaults(context, plugins)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    try:
         active = registry.build(starting_controller(controller, rig), context, plugins=plugins)
     except (LookupError, ValueError) as exc:  # ParamError is a ValueError
         raise ConfigError(f"--controller: {exc}") from None

@@ -180,6 +180,9 @@ class RigConfig:
     inputs: tuple[Any, ...] = ()  # [[inputs]]: further analog inputs of the rig
     contact_sensor: ContactSensorConfig | None = None  # the array pressure sensor, beside the loop
     models: dict[str, Any] = field(default_factory=dict)  # [models.NAME] tables (hal.identified.parse_models)
+    # [controllers.NAME] tables: a controller's parameters on this rig, over its own defaults (their names
+    # and values are checked against the controller when the daemon builds its loop: daemon.assembly)
+    controllers: dict[str, Any] = field(default_factory=dict)
     joint_models: dict[str, JointParams] = field(default_factory=dict, init=False, compare=False)  # built-in + own
     source: str = field(default="", init=False, compare=False)  # the TOML text it was built from
     origin: str = field(default="", init=False, compare=False)  # a path or "builtin:NAME"
@@ -197,6 +200,9 @@ class RigConfig:
         names = [j.name for j in self.joints]
         dup = _first_duplicate(names)
         require(dup is None, "joints", f"joint name {dup!r} is used twice")
+        for name, table in self.controllers.items():
+            require(isinstance(table, dict), f"controllers.{name}",
+                    "must be a table of the controller's parameters (a number, or one per joint)")
         self._check_arm()
         self._parse_sensors()
         self._check_channels()

@@ -219,10 +219,13 @@ class Client:
         return self.call("reset")
 
     def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False,
-            stiffness_nm_deg=None):
-        """Move to joint angles [deg] or a tip point [mm]; ``stiffness_nm_deg`` (one number, or
-        one per joint) where the joints take a stiffness set-point."""
+            stiffness_nm_deg=None, positions=None):
+        """Move to joint angles [deg], a tip point [mm] or joint positions (``positions``: deg on a
+        rotary joint, mm on a linear one); ``stiffness_nm_deg`` (one number, or one per joint)
+        where the joints take a stiffness set-point."""
         args = {"duration_s": duration_s, **_record(record)}
+        if positions is not None:
+            args["positions"] = list(positions)
         if stiffness_nm_deg is not None:
             args["stiffness_nm_deg"] = stiffness_nm_deg
         if angles_deg is not None:
@@ -258,10 +261,10 @@ class Client:
             args["approach_s"] = approach_s
         return self.call("waypoints", args)
 
-    def steps(self, angles_deg, hold_s, record: bool = False):
-        """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds."""
-        return self.call("steps", {"angles_deg": [list(p) for p in angles_deg], "hold_s": list(hold_s),
-                                   **_record(record)})
+    def steps(self, angles_deg, hold_s, record: bool = False, key: str = "angles_deg"):
+        """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds; ``key``
+        "positions": the rows are positions, deg on a rotary joint and mm on a linear one."""
+        return self.call("steps", {key: [list(p) for p in angles_deg], "hold_s": list(hold_s), **_record(record)})
 
     def excite(self, signal: str, joint: str, amplitude_deg: float, record: bool = False, **settings):
         """An identification signal (chirp: f0_hz, f1_hz, duration_s; prbs: order, bit_s, periods)."""

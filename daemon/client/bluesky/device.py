@@ -49,6 +49,7 @@ STILL_SPREAD_DEG = 0.6  # ... its angle spread over at most this [deg] (2 deg/s 
 SETTLED_FOR_S = 0.3  # ... for this long [s]
 SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
 POLL_S = 0.05
+TRIP_GRACE_S = 2.0  # a move the arm's trip cut short fails after this [s], unless the RunEngine stopped it first
 LEASE_TTL_S = 5.0  # the run's lease [s]: a RunEngine's process (plans, callbacks, a Tiled writer) is busy
 #                    enough that, beside two CPU hogs, its renewals once missed the rig file's 2 s and the
 #                    arm tripped mid-plan; a client that dies leaves the arm held this long before the
@@ -106,6 +107,16 @@ def _contact(link: RigLink, field: str) -> float:
     return _number(estimate.get(field)) if estimate else math.nan
 
 
+async def stopped_within(stopped: asyncio.Event, seconds: float) -> bool:
+    """Whether the RunEngine stops the move within ``seconds`` (a suspender acting on the same
+    trip from the event topic) rather than the move failing the plan."""
+    try:
+        await asyncio.wait_for(stopped.wait(), seconds)
+    except TimeoutError:
+        return False
+    return True
+
+
 class PneumadJoint(StandardReadable, Movable):
     """One joint: its status fields as signals (the angle hinted), and ``set`` a planned move."""
 
@@ -113,6 +124,7 @@ class PneumadJoint(StandardReadable, Movable):
         # the rig's move time and settling wait, not the rig itself: a Device attribute is a child
         self._link, self._move_s, self._settled, self.index = link, lambda: rig.move_s, rig.settled, index
         self.joint = link.describe["joints"][index]["name"]
+        self._stopped = asyncio.Event()  # the RunEngine stopped the move in progress (a suspension)
         with self.add_children_as_readables(StandardReadableFormat.HINTED_UNCACHED_SIGNAL):
             self.angle_deg = _signal(link, (self.joint, "angle_deg"), self._field("angle_deg"), 0.0)
         with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
@@ -128,15 +140,28 @@ class PneumadJoint(StandardReadable, Movable):
     @AsyncStatus.wrap
     async def set(self, value: float) -> None:
         """Move this joint to ``value`` [deg] (a cubic of ``rig.move_s``, 0: a step), the others
-        staying at their set-points, and wait until it has settled there."""
+        staying at their set-points, and wait until it has settled there. A move the arm's trip
+        cuts short ends quietly once the RunEngine stops it (a suspender rewinds the plan:
+        daemon.client.bluesky.suspend), else fails with the daemon's words."""
+        self._stopped.clear()
         link = self._link
         status = await link.status()
         names = [j["name"] for j in link.describe["joints"]]
         targets = [status["joints"][n]["setpoint_deg"] for n in names]
         targets[self.index] = float(value)
-        reply = await link.call("set", angles_deg=targets, duration_s=self._move_s())
+        try:
+            reply = await link.call("set", angles_deg=targets, duration_s=self._move_s())
+        except RemoteError as exc:
+            if exc.code != P.BAD_STATE or not await stopped_within(self._stopped, TRIP_GRACE_S):
+                raise
+            return
         link.forget_status()
-        await self._settled({self.joint: float(value)}, reply["duration_s"])
+        await self._settled({self.joint: float(value)}, reply["duration_s"], self._stopped)
+
+    async def stop(self, success: bool = True) -> None:
+        """The RunEngine stops every moved device when it suspends a plan: a move in progress
+        then ends without failing the plan (it is made again on resume)."""
+        self._stopped.set()
 
 
 class PneumadRig(StandardReadable):
@@ -187,13 +212,17 @@ class PneumadRig(StandardReadable):
     async def stage(self) -> None:
         """Take the lease for the run (renewed in the background) and enable the arm."""
         await super().stage()
+        await self.take_lease()
+        if (await self.link.call("status"))["state"] != "enabled":
+            await self.link.call("enable")
+        self.link.forget_status()
+
+    async def take_lease(self) -> None:
+        """Hold the rig's lease (renewed in the background), unless this client holds it."""
         client = self.link.client
         if client.lease is None:
             await self.link.call("acquire_lease", LEASE_TTL_S)
             client.keep_lease()
-        if (await self.link.call("status"))["state"] != "enabled":
-            await self.link.call("enable")
-        self.link.forget_status()
 
     @AsyncStatus.wrap
     async def unstage(self) -> None:
@@ -207,16 +236,19 @@ class PneumadRig(StandardReadable):
                 log.warning("%s: the lease had lapsed before the run handed it back: %s", self.link.rig_name, exc)
         await super().unstage()
 
-    async def settled(self, targets_deg: dict[str, float], move_s: float) -> None:
+    async def settled(self, targets_deg: dict[str, float], move_s: float, stopped: asyncio.Event) -> None:
         """Return once the reference has ended and each named joint has stayed within
         ``settled_deg`` of its target for SETTLED_FOR_S, its angle spread over that time at most
-        STILL_SPREAD_DEG; RuntimeError if the arm leaves the enabled state (with the
-        daemon's cause) or does not settle in time."""
+        STILL_SPREAD_DEG, or once the RunEngine has ``stopped`` the move after the arm left the
+        enabled state (a suspension); RuntimeError if it left it and nothing stopped the move
+        within TRIP_GRACE_S (with the daemon's cause), or if it does not settle in time."""
         deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
         still_since, seen = None, {}  # seen: each joint's lowest and highest angle since still_since [deg]
         while True:
             status = await self.link.call("status")
             if status["state"] != "enabled":
+                if await stopped_within(stopped, TRIP_GRACE_S):
+                    return
                 raise RuntimeError(f"{self.link.rig_name}: the arm is {status['state']}: {status.get('cause', '')}")
             joints = status["joints"]
             angles = {n: joints[n]["angle_deg"] for n in targets_deg}

@@ -49,6 +49,7 @@ def _recorded(rig: PneumadRig, flights, md: dict):
             stream = "record" if k == 0 else f"record_{k}"
             yield from bps.prepare(record, flight, wait=True)
             yield from bps.declare_stream(record, name=stream, collect=True)
+            yield from bps.checkpoint()  # a trip during the flight: a suspender flies it again from here
             yield from bps.kickoff(record, wait=True)
             yield from bps.complete(record, wait=True)
             yield from bps.collect(record, name=stream)

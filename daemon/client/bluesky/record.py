@@ -25,7 +25,7 @@ from ophyd_async.core import AsyncStatus
 
 from daemon.client import progress
 from daemon.client.client import Client
-from daemon.client.bluesky.device import PneumadRig
+from daemon.client.bluesky.device import TRIP_GRACE_S, PneumadRig, stopped_within
 from daemon.recordings import mcap_log, reading
 
 
@@ -51,6 +51,12 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
         self._file: str | None = None
         self._rows = 0
         self._emitted = False
+        self._stopped = asyncio.Event()  # the RunEngine paused the flight (a suspension: it is flown again)
+
+    def pause(self) -> None:
+        """The RunEngine suspends the plan (the arm tripped: daemon.client.bluesky.suspend): the
+        flight in progress ends without failing; the plan flies it again from its checkpoint."""
+        self._stopped.set()
 
     @property
     def name(self) -> str:
@@ -73,6 +79,7 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
 
     @AsyncStatus.wrap
     async def kickoff(self) -> None:
+        self._stopped.clear()
         if self._flight is None:
             raise RuntimeError(f"{self.name}: prepare() a Flight before kickoff")
         reply = await asyncio.to_thread(self._flight.send, self.rig.link.client)
@@ -87,10 +94,14 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
     async def complete(self) -> None:
         link = self.rig.link
         if self._settle_deg:
-            await self.rig.settled(self._settle_deg, self._total_s)
+            await self.rig.settled(self._settle_deg, self._total_s, self._stopped)
+            if self._stopped.is_set():
+                return
         else:
             ended = await asyncio.to_thread(_follow, link.client, self._total_s)
             if ended["state"] != "enabled":
+                if await stopped_within(self._stopped, TRIP_GRACE_S):
+                    return
                 raise RuntimeError(f"{link.rig_name}: the arm is {ended['state']}: {ended['cause']}")
         path = await asyncio.to_thread(progress.recording_file, link.client, self._recording)
         if path is None or not os.path.exists(path):
