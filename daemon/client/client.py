@@ -32,6 +32,7 @@ import zmq
 from zmq.utils.monitor import recv_monitor_message
 
 from daemon.wire import catalog, protocol
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.keys import secure_client
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -103,6 +104,7 @@ class Client:
         self._keeper: threading.Thread | None = None
         self._stop_keeping = threading.Event()  # set: the keeper thread stops at once, not after its sleep
         self._deferred_timeout: float | None = None  # from describe, on the first deferred command
+        self._layout: CycleLayout | None = None  # the cycle record's, from describe (layout())
 
     def _dealer(self, endpoint: str) -> zmq.Socket:
         sock = self.context.socket(zmq.DEALER)
@@ -201,6 +203,19 @@ class Client:
 
     def describe(self):
         return self.call("describe")
+
+    def layout(self, message: dict | None = None) -> CycleLayout:
+        """The daemon's cycle record layout (``describe``'s ``cycle_layout``): what each column
+        of a ``state`` message is, its unit and display unit. Read once; read again when
+        ``message`` (a ``state`` message) names another layout (the daemon was restarted with
+        another rig file)."""
+        if self._layout is None or (message is not None and message.get("layout") != self._layout.id):
+            described = self.describe()
+            self._layout = CycleLayout.from_describe(described["cycle_layout"])
+            if self._layout.id != described["cycle_layout_id"]:
+                raise ValueError(f"describe's cycle_layout does not match its cycle_layout_id "
+                                 f"({self._layout.id} != {described['cycle_layout_id']})")
+        return self._layout
 
     def estop(self, who: str = "client"):
         """On the control socket: never queued behind other requests."""
