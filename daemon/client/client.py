@@ -217,6 +217,24 @@ class Client:
                                  f"({self._layout.id} != {described['cycle_layout_id']})")
         return self._layout
 
+    def sample(self, timeout: float | None = None) -> dict:
+        """The latest cycle's record by field name (SI values, ``mode`` by name), from the next
+        ``state`` message (about 10 ms away); TimeoutError if none comes within ``timeout``."""
+        limit = self.timeout if timeout is None else timeout
+        deadline = time.monotonic() + limit
+        sub = self.subscribe((b"state",))
+        try:
+            while (left := deadline - time.monotonic()) > 0:
+                got = sub.receive(left)
+                if got is None:
+                    break
+                layout = self.layout(got[1])
+                if got[1].get("layout") == layout.id:
+                    return {name: got[1][name][-1] for name in layout.names}
+        finally:
+            sub.close()
+        raise TimeoutError(f"no state message from {self.endpoints['telemetry']} within {limit:g} s")
+
     def estop(self, who: str = "client"):
         """On the control socket: never queued behind other requests."""
         return self.call("estop", {"who": who}, control=True)
