@@ -220,20 +220,13 @@ class Client:
     def sample(self, timeout: float | None = None) -> dict:
         """The latest cycle's record by field name (SI values, ``mode`` by name), from the next
         ``state`` message (about 10 ms away); TimeoutError if none comes within ``timeout``."""
-        limit = self.timeout if timeout is None else timeout
-        deadline = time.monotonic() + limit
-        sub = self.subscribe((b"state",))
-        try:
-            while (left := deadline - time.monotonic()) > 0:
-                got = sub.receive(left)
-                if got is None:
-                    break
-                layout = self.layout(got[1])
-                if got[1].get("layout") == layout.id:
-                    return {name: got[1][name][-1] for name in layout.names}
-        finally:
-            sub.close()
-        raise TimeoutError(f"no state message from {self.endpoints['telemetry']} within {limit:g} s")
+        with self.latest() as feed:
+            return feed.row(timeout)
+
+    def latest(self) -> "LatestState":
+        """A subscription to the ``state`` topic whose :meth:`LatestState.row` is the newest
+        cycle record (for a client that reads it often: one subscription, not one a read)."""
+        return LatestState(self)
 
     def estop(self, who: str = "client"):
         """On the control socket: never queued behind other requests."""
@@ -424,6 +417,45 @@ def read_waypoints(path) -> dict:
     if columns and all(c.endswith("_deg") for c in columns):
         return {"angles_deg": points, "durations_s": durations}
     raise ValueError(f"{path}: columns after duration_s must be x_mm,y_mm or <joint>_deg, got {','.join(columns)}")
+
+
+class LatestState:
+    """The newest cycle record a ``state`` subscription has brought, by field name (SI values,
+    ``mode`` by name), through the daemon's layout (:meth:`Client.layout`)."""
+
+    def __init__(self, client: Client):
+        self.client = client
+        self.sub = client.subscribe((b"state",))
+        self.last: dict | None = None
+
+    def row(self, timeout: float | None = None) -> dict:
+        """The newest record received so far (every message waiting read first); the first waits
+        up to ``timeout`` (the client's by default) for a message: TimeoutError if none comes."""
+        limit = self.client.timeout if timeout is None else timeout
+        deadline = time.monotonic() + limit
+        wait = 0.0 if self.last is not None else limit
+        while True:
+            got = self.sub.receive(wait)
+            if got is None:
+                if self.last is not None:
+                    return self.last
+                if time.monotonic() >= deadline:
+                    raise TimeoutError(f"no state message from {self.client.endpoints['telemetry']} within {limit:g} s")
+                wait = max(deadline - time.monotonic(), 0.0)
+                continue
+            layout = self.client.layout(got[1])
+            if got[1].get("layout") == layout.id:
+                self.last = {name: got[1][name][-1] for name in layout.names}
+            wait = 0.0 if self.last is not None else max(deadline - time.monotonic(), 0.0)
+
+    def close(self) -> None:
+        self.sub.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
 class Subscription:

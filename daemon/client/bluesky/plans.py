@@ -95,17 +95,16 @@ def identification(rig, joint: str, quick: bool = True, experiments: list[dict] 
     (instead of the plan's, e.g. one more chirp): each ``{"signal": ..., <excite's settings>}``,
     as ``excite`` takes them (docs/protocol.md)."""
     describe = rig.link.describe
-    names = [x["name"] for x in describe["joints"]]
+    names = rig.link.layout.owners()
     if joint not in names:
         raise ValueError(f"{rig.link.rig_name} has no joint {joint!r} (joints: {', '.join(names)})")
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
-    j = names.index(joint)
     prior = prior_of(rig_config, joint)
     plan = identify.Plan.of(quick)
     if experiments is not None:
         plan = identify.Plan(tuple((e["signal"], {k: v for k, v in e.items() if k != "signal"}) for e in experiments),
                              plan.settle_s)
-    u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
+    u_range = identify.v_mv_range(describe, joint)
 
     def experiment(signal: str, settings: dict) -> Flight:
         def send(client):
@@ -138,7 +137,7 @@ def payload_dithers(rig, postures: list[list[float]] | None = None, periods: int
     routine's ``AVERAGED_S`` window does not fit: average over a shorter ``seconds``."""
     describe = rig.link.describe
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
-    names = [j["name"] for j in describe["joints"]]
+    names = rig.link.layout.owners()
     postures = payload_routine.postures(rig_config) if postures is None else [list(map(float, p)) for p in postures]
     if any(len(p) != len(names) for p in postures):
         raise ValueError(f"a posture is one angle [deg] for each of {', '.join(names)}")
