@@ -19,9 +19,10 @@ from controllers.base import JointState, Reference
 from controllers.experiment import InputExperiment
 from controllers.signals import Multisine
 from daemon.loop.clock import VirtualClock
-from daemon.assembly import loop_from_args
+from daemon.assembly import cycle_layout, loop_from_args
 from daemon.main import parser
 from daemon.loop.port import ZmqServer
+from hal import config
 
 
 def per_call_us(fn, n: int) -> float:
@@ -37,7 +38,8 @@ def main() -> None:
     n = ap.parse_args().cycles
     header("one loop cycle, hot, on a virtual clock (simulated rig, PID, telemetry, command poll)")
     clock = VirtualClock()
-    server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
+    server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*",
+                       layout=cycle_layout(config.load()))
     try:
         loop = loop_from_args(parser().parse_args(["run"]), clock, server.publish, server.stats_banks)
         server.attach(loop)

@@ -223,6 +223,8 @@ class Commands:
             "period_s": view.period,
             "joints": [self._describe_joint(j) for j in rig.joints],
             "command_interfaces": [c.describe() for c in view.command_interfaces],
+            "cycle_layout": view.layout.describe(),
+            "cycle_layout_id": view.layout.id,
             "arm": {"link_lengths_mm": list(rig.arm.link_lengths_mm), "elbow": rig.arm.elbow},
             "limits": {"max_pressure_mpa": rig.limits.max_pressure_mpa,
                        "max_pressure_rate_mpa_s": rig.limits.max_pressure_rate_mpa_s,

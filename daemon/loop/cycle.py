@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
+from operator import sub
 
 from controllers.base import (
     Controller,
@@ -24,19 +25,23 @@ from controllers.trajectory import Trajectory
 from daemon.loop.controls import LoopControls
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.parts import LoopParts
+from daemon.loop.record import RecordSpans
 from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
 from daemon.loop.view import LoopView
+from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
+from hal import sensors
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
 
 class ControlLoop(LoopControls):
-    def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None,
-                 stats: LoopStats | None = None):
-        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`);
-        its timing counted into ``stats`` (default: banks of its own, for a loop without a messenger)."""
+    def __init__(self, io: RigIO, clock, parts: LoopParts, layout: CycleLayout, telemetry=None, server=None,
+                 contact_sensor=None, stats: LoopStats | None = None):
+        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`),
+        recording each cycle on ``layout`` (the rig's declared interfaces'); its timing counted
+        into ``stats`` (default: banks of its own, for a loop without a messenger)."""
         self.io = io
         self.rig = io.config
         self.clock = clock
@@ -90,6 +95,12 @@ class ControlLoop(LoopControls):
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
         self._heartbeat_due = 0.0
+        # the cycle record: written at the end of each cycle (_record), read by telemetry and status
+        self.layout = layout
+        self.record = layout.record()
+        self._spans = RecordSpans.of(layout, self.n, [f"{c.joint}.{c.name}" for c in self.actuation.commands],
+                                     [i for i, d in enumerate(io.head) if d is not None], len(sensors.measured(self.rig)),
+                                     len(io.transport.outputs))
         self.view = LoopView(self)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -204,6 +215,7 @@ class ControlLoop(LoopControls):
         self.cycle += 1
         self.stats.cycles += 1
         self.stats.cycles_total += 1
+        self._record(snap)
         if self.telemetry is not None:
             self.telemetry.record(self)
         self._drain_events()
@@ -219,6 +231,30 @@ class ControlLoop(LoopControls):
             self._heartbeat_due += self.heartbeat_interval
             self.heartbeat(self)
         self.stats.record_cycle(t0, t1, t2, t3, t4, clock.now())
+
+    def _record(self, snap: Snapshot | None) -> None:
+        """This cycle's record, group by group (:class:`daemon.loop.record.RecordSpans`): NaN
+        for the commands outside ``enabled`` (the safe state is written, no command is in force),
+        for the sensors when this cycle's read failed, and for the shadow without a candidate."""
+        r, s, setpoint = self.record, self._spans, self.reference[0]
+        r[0] = self.cycle
+        r[1] = snap.t if snap is not None else self.clock.now()
+        r[s.position] = self.angles
+        r[s.velocity] = self.velocities
+        r[s.setpoint] = setpoint
+        r[s.error] = map(sub, setpoint, self.angles)
+        r[s.command] = self.u if self.supervisor.enabled else s.no_commands
+        if s.pressure_joints is None:
+            r[s.commanded_first] = self.p_head
+            r[s.commanded_second] = self.p_rod
+        else:
+            r[s.commanded_first] = [self.p_head[i] for i in s.pressure_joints]
+            r[s.commanded_second] = [self.p_rod[i] for i in s.pressure_joints]
+        r[s.sensors] = snap.measured if snap is not None else s.no_sensors
+        r[s.outputs] = self.io.last_volts
+        shadow = self.shadow_run.u if self.shadow_run is not None else None
+        r[s.shadow] = shadow if shadow is not None else s.no_commands
+        r[s.mode] = MODE_INDEX[self.supervisor.state]
 
     def _update_measurement(self, snap: Snapshot) -> None:
         """Keep the last valid angle per joint (one bad sample is not yet a fault) and a

@@ -34,6 +34,7 @@ from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger,
 from daemon.planner.process import Deferred
 from daemon.recorder.process import RecorderProcess, write_metadata
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
 from hal.config import TimingConfig
@@ -61,13 +62,16 @@ class ZmqServer:
                  telemetry: str = DEFAULT_TELEMETRY, max_per_cycle: int = 2, loop_stall_s: float = STALL_S,
                  keys: str | None = None, insecure: bool = False, recording: dict | None = None,
                  plotjuggler: str | None = None, foxglove: str | None = None,
-                 command_budget_s: float = COMMAND_BUDGET_S, timing: TimingConfig | None = None):
+                 command_budget_s: float = COMMAND_BUDGET_S, timing: TimingConfig | None = None,
+                 layout: CycleLayout | None = None):
         """``command_budget_s``: the time the command stage may spend on requests in a cycle
         (on the loop's clock: a virtual one never spends it). ``recording``: where and how the daemon records (``directory``, ``max_mb``,
         ``min_free_mb``), in a recorder process started at :meth:`attach`; None: it does not.
         ``plotjuggler``: an endpoint for PlotJuggler's rows (:mod:`daemon.messenger.plotjuggler`);
         ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`);
-        ``timing``: the rig file's ``[timing]``, by which the messenger judges the loop's timing."""
+        ``timing``: the rig file's ``[timing]``, by which the messenger judges the loop's timing;
+        ``layout``: the cycle record's (:func:`daemon.assembly.cycle_layout`), by which the
+        messenger reads the state batches: the loop attached must have the same."""
         self.max_per_cycle = max_per_cycle
         self.command_budget_s = command_budget_s
         self.recording = recording
@@ -78,6 +82,9 @@ class ZmqServer:
                               f"local (tcp://127.0.0.1:PORT or ipc://; from a laptop, ssh -L PORT:127.0.0.1:PORT "
                               f"LAB-PC), or say --insecure")
         fox = foxglove_address(foxglove, insecure) if foxglove else None
+        if layout is None:
+            raise ValueError("a port needs the cycle record's layout (daemon.assembly.cycle_layout) for its messenger")
+        self.layout = layout
         for name in reclaim_stale_rings(_shm_dir()):
             log.warning("removed the rings a killed daemon left behind: %s", name)
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
@@ -88,7 +95,7 @@ class ZmqServer:
         os.set_blocking(self._doorbell, False)
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
                                    keys, recorder=recording is not None, plotjuggler=plotjuggler,
-                                   foxglove=fox, timing=timing)
+                                   foxglove=fox, timing=timing, layout=layout.describe())
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -109,6 +116,10 @@ class ZmqServer:
         loop.server = self
         if loop.stats.banks is not self.stats_banks:
             raise ValueError("the loop counts its timing elsewhere: build it with this port's stats_banks")
+        if loop.layout.id != self.layout.id:
+            raise ValueError(f"the loop records on a layout other than its messenger's ({', '.join(loop.layout.names)}; "
+                             f"the messenger's: {', '.join(self.layout.names)}): a transport whose outputs changed "
+                             f"when it was opened")
         write_metadata(self._rings_dir, self.commands.described, self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],

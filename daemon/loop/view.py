@@ -33,6 +33,11 @@ class LoopView:
         return self._loop.period
 
     @property
+    def layout(self):
+        """The cycle record's layout (daemon.wire.cycle_layout)."""
+        return self._loop.layout
+
+    @property
     def command_interfaces(self):
         return self._loop.actuation.commands
 

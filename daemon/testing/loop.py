@@ -31,6 +31,7 @@ class Captured:
         self._decoded = 0  # the messages before this index are decoded
         self.stats: StatsBanks | None = None  # the loop's histograms (LoopStats.banks), to summarise its windows
         self.release_stats = True  # False beside a messenger, which clears and hands the banks back itself
+        self.layout = None  # the loop's cycle layout (follow): how its state batches read
 
     def __call__(self, topic: bytes, body: bytes | bytearray | memoryview) -> None:
         if topic == b"stats":  # summarised now: the banks it reads move on
@@ -43,14 +44,16 @@ class Captured:
         for i in range(self._decoded, len(self._messages)):
             topic, body = self._messages[i]
             if isinstance(body, bytes):  # a state batch's columns are already what a subscriber decodes
-                self._messages[i] = (topic, state_message(body) if topic == "state" else
-                                     msgpack.unpackb(to_payload(topic.encode(), body), raw=False))
+                self._messages[i] = (topic, state_message(self.layout, body) if topic == "state" else
+                                     msgpack.unpackb(to_payload(self.layout, topic.encode(), body), raw=False))
         self._decoded = len(self._messages)
         return self._messages
 
     def follow(self, loop: ControlLoop, beside_messenger: bool = False) -> None:
-        """Summarise ``loop``'s stats windows, as its messenger would."""
+        """Read ``loop``'s state batches on its layout and summarise its stats windows, as its
+        messenger would."""
         self.stats, self.release_stats = loop.stats.banks, not beside_messenger
+        self.layout = loop.layout
 
     def of(self, topic: str) -> list[dict]:
         return [m for t, m in self.messages if t == topic]
@@ -71,7 +74,8 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     it, so the messenger's stall watch (``loop_stall_s``) is set long: a test that thinks
     for a second between two requests has not stalled a real-time loop."""
     rig = config.parse(rig_text) if rig_text else config.load()
-    srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s) if server else None
+    srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s,
+                    layout=assembly.cycle_layout(rig)) if server else None
     captured = Captured()
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
     loop = virtual_loop(rig, controller, send, plugins, srv.stats_banks if srv is not None else None)
@@ -151,8 +155,10 @@ def run_seconds(loop: ControlLoop, seconds: float) -> None:
 
 def tracking(captured: Captured, after_cycle: int = 0) -> tuple[list[float], list[float]]:
     """Max |error| per joint [deg] and RMS per joint [deg] over the state stream."""
-    errors = [e for m in captured.of("state") for c, e in zip(m["cycle"], m["error_rad"]) if c > after_cycle]
-    n = len(errors[0])
+    joints = captured.layout.owners()
+    errors = [[m[f"{j}.error"][k] for j in joints] for m in captured.of("state") for k, c in enumerate(m["cycle"])
+              if c > after_cycle]
+    n = len(joints)
     worst = [max(abs(math.degrees(e[j])) for e in errors) for j in range(n)]
     rms = [math.sqrt(sum(math.degrees(e[j]) ** 2 for e in errors) / len(errors)) for j in range(n)]
     return worst, rms

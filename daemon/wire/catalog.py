@@ -254,7 +254,8 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         "timing"),
             sockets=BOTH),
     Command("describe", "loop", "the rig, its limits and what the daemon serves", (
-        "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "arm", "limits", "tracking",
+        "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "cycle_layout", "cycle_layout_id",
+        "arm", "limits", "tracking",
         "transport", "units", "controllers", "states", "commands", "control_commands", "deferred_commands",
         "deferred_timeout_s", "security")),
     Command("lease.acquire", "loop", "take the lease", ("lease", "ttl_s"), (
