@@ -85,7 +85,7 @@ def _status_signal(link: RigLink, path: tuple[str, ...], pick) -> SignalR:
 def _field_signal(link: RigLink, field: Field) -> SignalR:
     """The latest value of one field of the cycle record, in its display unit."""
     unit, scale = field.display
-    return SignalR(_StatusBackend(float, link.source(field.owner or "rig", field.name),
+    return SignalR(_StatusBackend(float, link.source(field.owner or "rig", field.quantity),
                                   lambda: _number(link.row.get(field.name)) * scale, unit))
 
 
