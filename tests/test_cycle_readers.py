@@ -49,10 +49,10 @@ def rendered(view: View) -> str:
     return console.export_text()
 
 
-def recorded(tmp_path: Path, rig_text: str, seconds: float = 0.6) -> tuple[Path, dict]:
+def recorded(tmp_path: Path, rig_text: str, seconds: float = 0.6) -> tuple[Path, dict, dict]:
     """An in-process loop on ``rig_text``, enabled, its telemetry recorded as the daemon's
-    recorder writes it: (the MCAP file, describe)."""
-    loop, captured, srv = make_loop(rig_text, server=True)
+    recorder writes it: (the MCAP file, describe, the last state message)."""
+    loop, captured, srv = make_loop(rig_text, server=True, controller=config.parse(rig_text).rig.controller or "pid")
     try:
         from daemon.testing.loop import dealer
         sock = dealer(srv)
@@ -60,7 +60,7 @@ def recorded(tmp_path: Path, rig_text: str, seconds: float = 0.6) -> tuple[Path,
         lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
         ok(loop, sock, "enable", lease=lease)
         run_seconds(loop, seconds)
-        controller = ok(loop, sock, "controller")
+        controller = ok(loop, sock, "controller.get")
     finally:
         srv.close()
     path = tmp_path / "run.mcap"
@@ -70,27 +70,27 @@ def recorded(tmp_path: Path, rig_text: str, seconds: float = 0.6) -> tuple[Path,
             if topic in ("state", "event"):
                 recording.write(topic, message)
         recording.finish()
-    return path, describe
+    return path, describe, captured.of("state")[-1]
 
 
 @pytest.mark.parametrize("name", list(RIGS))
 def test_each_worked_rig_shows_in_watch_and_the_plots_in_its_display_units(name, tmp_path):
-    path, describe = recorded(tmp_path, RIGS[name])
+    path, describe, last = recorded(tmp_path, RIGS[name])
     run = reading.open_run(path)
     layout = run.layout
     assert layout.id == describe["cycle_layout_id"]
     joints = layout.owners()
     # watch: each joint's position in its display unit, with no code for this rig
     view = View(describe)
-    for m in run.messages.get("state", []) or []:
-        view.take("state", m)
-    view.state = run.samples[-1]
+    view.take("state", last)
     text = rendered(view)
+    assert run.samples[-1]["cycle"] == last["cycle"][-1]  # the recording holds what watch saw last
     for j in joints:
         unit = layout[f"{j}.position"].display[0]
         assert unit == ("mm" if layout[f"{j}.position"].unit == "m" else "deg")
-        shown = run.samples[-1][f"{j}.position"] * layout[f"{j}.position"].display[1]
+        shown = last[f"{j}.position"][-1] * layout[f"{j}.position"].display[1]
         assert f"{shown:.2f} {unit}" in text, (j, text)
+        assert f"{j}.position" in line(layout, last) or f"{shown:.2f} {unit}" in line(layout, last)
     # the plots: every axis says its unit; positions in deg or mm; commanded and measured apart
     made = plots.figures([("run", run)])
     for figure, fig in made.items():

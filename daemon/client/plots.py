@@ -266,15 +266,18 @@ def figures(runs: list[tuple[str, recording.Run]], align: bool | None = None) ->
     align = len(runs) > 1 if align is None else align
     drawn = _distinct([Drawn(label, run, align) for label, run in runs])
     layout = drawn[0].layout
+
+    def held(f) -> bool:  # a field some run has a number in (a force sensor the rig file has, but unplugged: none)
+        return any(f.name in r.layout and np.isfinite(r.column(f.name)).any() for r in drawn)
     made = {"joints": _rows_figure(drawn, _per_joint(drawn, "position"), "joint positions and set-points", _positions),
             "errors": _rows_figure(drawn, _per_joint(drawn, "error"), "tracking error (set-point - position)", _errors),
             "output": _rows_figure(drawn, _grouped(layout, lambda f: f.group == "command", "command"),
                                    "controller output, each command (none drawn where the safe state was written)",
                                    _commands),
-            "pressures": _rows_figure(drawn, _grouped(layout, lambda f: f.owner and _is_sensor(f)),
+            "pressures": _rows_figure(drawn, _grouped(layout, lambda f: f.owner and _is_sensor(f) and held(f)),
                                       "chamber pressures, commanded (dashed) and measured (solid), "
                                       "and the joints' further inputs", _values),
-            "rig": _rows_figure(drawn, _grouped(layout, lambda f: not f.owner and f.group == "measured"),
+            "rig": _rows_figure(drawn, _grouped(layout, lambda f: not f.owner and f.group == "measured" and held(f)),
                                 "the rig's own sensors", _values),
             "tip": _tip(drawn)}
     for i, (label, run) in enumerate(runs):
