@@ -156,11 +156,11 @@ def plots_text(run, path) -> list[str]:
     """Every text on the figures ``pneumactl plot`` draws of ``run`` (the file at ``path``)."""
     import matplotlib.pyplot as plt
 
-    from daemon.client import plots
+    from daemon.client import plot_marks, plots
     texts = []
     for fig in plots.figures([("run", run)]).values():
         if fig is not None:
-            plots._say_cut(fig, [run.cut_notice(path.name)])
+            plot_marks.say_cut(fig, [run.cut_notice(path.name)])
             texts += [t.get_text().replace("\n", " ") for t in fig.texts]
             plt.close(fig)
     return texts
