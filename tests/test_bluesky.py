@@ -136,7 +136,7 @@ def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predict
     (uid,) = engine(plans.payload_dithers(rig, postures=[posture], periods=3))
     run = tiled[uid]
     assert run.metadata["start"]["plan_args"] == {"postures": [posture], "periods": 3}
-    setpoint = np.degrees(np.asarray(run["record"][f"arm_record_{names[-1]}_setpoint_rad"].read()))
+    setpoint = np.degrees(np.asarray(run["record"][f"arm_record_{names[-1]}_setpoint"].read()))
     assert setpoint[-1] == pytest.approx(posture[-1], abs=1e-3)  # the move's stream ends at the posture
     for k, name in enumerate(names, start=1):
         record = run[f"record_{k}"]

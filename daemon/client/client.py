@@ -245,14 +245,17 @@ class Client:
         return self.call("reset")
 
     def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False,
-            stiffness_nm_deg=None):
-        """Move to joint angles [deg] or a tip point [mm]; ``stiffness_nm_deg`` (one number, or
-        one per joint) where the joints take a stiffness set-point."""
+            stiffness_nm_deg=None, angles_rad=None):
+        """Move to joint angles [deg] or a tip point [mm], or to positions in SI (``angles_rad``:
+        rad, or m on a linear joint, as the cycle record has them); ``stiffness_nm_deg`` (one
+        number, or one per joint) where the joints take a stiffness set-point."""
         args = {"duration_s": duration_s, **_record(record)}
         if stiffness_nm_deg is not None:
             args["stiffness_nm_deg"] = stiffness_nm_deg
         if angles_deg is not None:
             args["angles_deg"] = list(angles_deg)
+        if angles_rad is not None:
+            args["angles_rad"] = list(angles_rad)
         if xy_mm is not None:
             args["xy_mm"] = list(xy_mm)
         return self.call("set", args)
