@@ -29,6 +29,7 @@ from daemon.loop.record import RecordSpans
 from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
+from daemon.loop.handles import LoopHandles, LoopQueries
 from daemon.loop.view import LoopView
 from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
 from hal import sensors
@@ -36,7 +37,7 @@ from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
 
-class ControlLoop(LoopControls):
+class ControlLoop(LoopControls, LoopQueries):
     def __init__(self, io: RigIO, clock, parts: LoopParts, layout: CycleLayout, telemetry=None, server=None,
                  contact_sensor=None, stats: LoopStats | None = None):
         """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`),
@@ -101,7 +102,12 @@ class ControlLoop(LoopControls):
         self._spans = RecordSpans.of(layout, self.n, [f"{c.joint}.{c.name}" for c in self.actuation.commands],
                                      [i for i, d in enumerate(io.head) if d is not None], len(sensors.measured(self.rig)),
                                      len(io.transport.outputs))
-        self.view = LoopView(self)  # what status and describe read
+        self.handles = LoopHandles(
+            self.rig, self.context, self.controller_plugins, self.period, self.actuation.commands, io.transport, clock,
+            self.supervisor, self.events, self.stats, self.feed_forward, tuple(io.joint_outputs), contact_sensor, layout,
+            self.record, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
+            self._faults, self._stiffness)
+        self.view = LoopView(self.handles)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -226,7 +232,7 @@ class ControlLoop(LoopControls):
                 self.telemetry.stats(window)
         t4 = clock.now()
         if self.server is not None:
-            self.server.poll(self)
+            self.server.poll(self.cycle)
         if self.heartbeat is not None and wake >= self._heartbeat_due:
             self._heartbeat_due += self.heartbeat_interval
             self.heartbeat(self)
