@@ -74,7 +74,7 @@ def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_contro
     written = [loop.u[0]]  # the V_MV of every cycle the exchange runs: the reply is built in one of them
     reply = exchange(loop, sock, protocol.encode_request(1, "status"), each_cycle=lambda: written.append(loop.u[0]))
     moving = reply["result"]["joints"]["bottom"]
-    assert moving["output"] == "controller" and moving["u_volts"] in written
+    assert moving["output"] == "controller" and moving["commands"]["v_mv"] in written
     ok(loop, sock, "estop")
     loop.run(50)
     last_u = loop.u[0]
@@ -83,7 +83,7 @@ def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_contro
     srv.close()
     bottom = status["joints"]["bottom"]
     safe = dict(zip([o[0] for o in describe["transport"]["outputs"]], loop.io.safe_volts))
-    assert bottom["output"] == "safe state" and bottom["u_volts"] is None
+    assert bottom["output"] == "safe state" and bottom["commands"]["v_mv"] is None
     assert bottom["written_volts"] and all(v == safe[ch] for ch, v in bottom["written_volts"].items())
     _, console = rendered(describe, captured, status)
     text = console.export_text()
