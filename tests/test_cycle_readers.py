@@ -183,3 +183,22 @@ def _bluesky_reads_the_field(eps: dict, tmp_path: Path) -> None:
     assert 0.0 < seen["position"] < 1000.0  # [mm] on the axis's stroke
     units = {key: d.get("units") for key, d in seen["described"].items()}
     assert units[rig.joints[0].position.name] == "mm" and units[rig.oil_temperature.name] == "K", units
+
+
+def test_a_state_message_of_another_layout_is_not_read_through_this_one():
+    """A daemon restarted with another rig file: its messages name another layout, which watch
+    counts and says, never reading its columns as this layout's."""
+    from daemon.wire.cycle_layout import MODES, CycleLayout
+    from hal.declare import declare
+
+    def layout_of(name: str) -> CycleLayout:
+        rig = config.load(name)
+        return CycleLayout.of(declare(rig, [c for j in rig.joints for _, c in j.output_channels()]))
+    arm, axis = layout_of("sim"), layout_of("sim-axis")
+    record = axis.record()
+    record[axis["mode"].index] = float(MODES.index("enabled"))
+    record[axis["cycle"].index] = 7.0
+    view = View({"cycle_layout": arm.describe(), "command_interfaces": []})
+    view.take("state", {"seq": 1, "layout": axis.id, **axis.columns([record])})
+    assert view.state is None and view.foreign == 1
+    assert "1 state messages of another layout not shown" in rendered(view)

@@ -31,6 +31,7 @@ import msgpack
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
+from daemon.client.feeds import LatestState, Subscription
 from daemon.wire import catalog, protocol
 from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.keys import secure_client
@@ -223,7 +224,7 @@ class Client:
         with self.latest() as feed:
             return feed.row(timeout)
 
-    def latest(self) -> "LatestState":
+    def latest(self) -> LatestState:
         """A subscription to the ``state`` topic whose :meth:`LatestState.row` is the newest
         cycle record (for a client that reads it often: one subscription, not one a read)."""
         return LatestState(self)
@@ -393,7 +394,7 @@ class Client:
         self._keeper.start()
 
     # -- telemetry ------------------------------------------------------------------------
-    def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> "Subscription":
+    def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> Subscription:
         return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
 
 
@@ -420,74 +421,3 @@ def read_waypoints(path) -> dict:
     if columns and all(c.endswith("_deg") for c in columns):
         return {"angles_deg": points, "durations_s": durations}
     raise ValueError(f"{path}: columns after duration_s must be x_mm,y_mm or <joint>_deg, got {','.join(columns)}")
-
-
-class LatestState:
-    """The newest cycle record a ``state`` subscription has brought, by field name (SI values,
-    ``mode`` by name), through the daemon's layout (:meth:`Client.layout`)."""
-
-    def __init__(self, client: Client):
-        self.client = client
-        self.sub = client.subscribe((b"state",))
-        self.last: dict | None = None
-
-    def row(self, timeout: float | None = None) -> dict:
-        """The newest record received so far (every message waiting read first); the first waits
-        up to ``timeout`` (the client's by default) for a message: TimeoutError if none comes."""
-        limit = self.client.timeout if timeout is None else timeout
-        deadline = time.monotonic() + limit
-        wait = 0.0 if self.last is not None else limit
-        while True:
-            got = self.sub.receive(wait)
-            if got is None:
-                if self.last is not None:
-                    return self.last
-                if time.monotonic() >= deadline:
-                    raise TimeoutError(f"no state message from {self.client.endpoints['telemetry']} within {limit:g} s")
-                wait = max(deadline - time.monotonic(), 0.0)
-                continue
-            layout = self.client.layout(got[1])
-            if got[1].get("layout") == layout.id:
-                self.last = {name: got[1][name][-1] for name in layout.names}
-            wait = 0.0 if self.last is not None else max(deadline - time.monotonic(), 0.0)
-
-    def close(self) -> None:
-        self.sub.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-
-class Subscription:
-    """Telemetry messages as (topic, dict), with a count of messages lost (by sequence)."""
-
-    def __init__(self, context: zmq.Context, endpoint: str, topics, secure=None):
-        self.sock = context.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        if secure is not None:
-            secure(self.sock)
-        self.sock.setsockopt(zmq.RCVHWM, 100000)
-        for topic in topics:
-            self.sock.setsockopt(zmq.SUBSCRIBE, topic)
-        self.sock.connect(endpoint)
-        self.last_seq: dict[bytes, int] = {}
-        self.lost = 0
-
-    def receive(self, timeout: float = 1.0):
-        """The next (topic, message), or None after ``timeout`` seconds."""
-        if not self.sock.poll(timeout * 1e3):
-            return None
-        topic, payload = self.sock.recv_multipart()
-        message = msgpack.unpackb(payload, raw=False)
-        seq = message.get("seq")
-        last = self.last_seq.get(topic)
-        if last is not None and seq is not None and seq > last + 1:
-            self.lost += seq - last - 1
-        self.last_seq[topic] = seq
-        return topic.decode(), message
-
-    def close(self) -> None:
-        self.sock.close(linger=0)
