@@ -40,7 +40,6 @@ from daemon.recordings import reading as recording  # noqa: E402
 from daemon.recordings.channels import signal_units  # noqa: E402
 
 LIMIT = dict(color="0.5", ls="--", lw=1.0)  # a command's limits
-__all__ = ["Drawn", "figures", "hole_notes", "merge_identical", "open_runs", "plot_runs", "start_and_direction"]
 
 
 class Drawn:
