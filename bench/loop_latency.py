@@ -85,7 +85,9 @@ def main() -> None:
                     raise
         stats_sub = stats_subscriber(eps)
         stop = threading.Event()
-        healthy = [Reader(ctx, eps["telemetry"], stop, keep=(i == 0)) for i in range(max(args.subscribers - 1, 0))]
+        first = f"{client.layout().owners()[0]}.setpoint"  # the set-point a set's effect shows in (the state's column)
+        healthy = [Reader(ctx, eps["telemetry"], stop, keep=first if i == 0 else "")
+                   for i in range(max(args.subscribers - 1, 0))]
         stalled = secure(ctx.socket(zmq.SUB))
         stalled.setsockopt(zmq.RCVHWM, 10)
         stalled.setsockopt(zmq.SUBSCRIBE, b"")
@@ -226,9 +228,10 @@ def _cmdline(pid: int) -> bytes:
 
 
 class Reader(threading.Thread):
-    """A healthy subscriber: reads every state message and counts gaps in its sequence."""
+    """A healthy subscriber: reads every state message and counts gaps in its sequence;
+    ``keep``: the name of a set-point column whose values it keeps by cycle ("": none)."""
 
-    def __init__(self, ctx, endpoint, stop, keep=False):
+    def __init__(self, ctx, endpoint, stop, keep: str = ""):
         super().__init__(daemon=True)
         self.sock = secure(ctx.socket(zmq.SUB))
         self.sock.setsockopt(zmq.RCVHWM, 0)
@@ -249,8 +252,8 @@ class Reader(threading.Thread):
             last = m["seq"]
             self.messages += 1
             if self.keep:
-                for c, sp in zip(m["cycle"], m["setpoint_rad"]):
-                    self.setpoints[c] = sp[0]
+                for c, sp in zip(m["cycle"], m[self.keep]):
+                    self.setpoints[c] = sp
         self.sock.close(linger=0)
 
 

@@ -138,7 +138,7 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
             time.sleep(1.0)
             status = client.status()
             assert status["state"] == "enabled"
-            assert abs(status["joints"]["bottom"]["angle_deg"] - 120.0) < 1.0
+            assert abs(status["joints"]["bottom"]["position"] - 120.0) < 1.0
         finally:
             client.close()
             daemon.terminate()

@@ -209,7 +209,7 @@ def parser() -> argparse.ArgumentParser:
     e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")
-    pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs")
+    pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs, each from its path's start")
     pl.add_argument("files", nargs="+")
     pl.add_argument("--out", default=".", help="directory for the PNGs (default: here)")
     k = sub.add_parser("keys", help="new: make your own key pair; reload: have the daemon read its allow-list again")
