@@ -45,8 +45,7 @@ SETTLE_BAND_MM = 2.5  # the settling band here; the document's is 1 mm, inside w
 def axis_samples(message: dict) -> list[tuple[int, float, float, float]]:
     """(cycle, t [s], position [m], set-point [m]) of the axis (the rig's one joint) per row of a
     ``state`` message: the one place that reads the message's shape."""
-    return [(c, t, q[0], r[0]) for c, t, q, r in zip(message["cycle"], message["t"], message["angle_rad"],
-                                                      message["setpoint_rad"])]
+    return list(zip(message["cycle"], message["t"], message["axis.position"], message["axis.setpoint"]))
 
 
 def tolerant_axis(tmp_path):

@@ -75,7 +75,7 @@ def test_an_estop_mid_scan_suspends_the_plan_and_reset_and_enable_resume_it_to_t
         helper = threading.Thread(target=operator, daemon=True)
         helper.start()
         with Client(**eps, timeout=5.0) as probe:  # the scan's points about where the joint is [deg]
-            first = next(iter(probe.status()["joints"].values()))["setpoint_deg"]
+            first = next(iter(probe.status()["joints"].values()))["setpoint"]  # [deg]
         targets = [first + d for d in (2.0, 4.0, 6.0, 8.0)]
         (uid,) = engine(bp.list_scan([rig], rig.joints[0], targets))
         helper.join(180)
@@ -85,7 +85,7 @@ def test_an_estop_mid_scan_suspends_the_plan_and_reset_and_enable_resume_it_to_t
         assert stops and stops[-1]["exit_status"] == "success", stops
         # every point read, the one the e-stop cut short again after the resume
         events = [doc["data"] for name, doc in documents if name == "event"]
-        key = next(k for k in events[0] if k.endswith("joints-0-angle_deg"))
+        key = rig.joints[0].position.name
         read = [data[key] for data in events]
         assert len(read) >= len(targets)
         assert read[-1] == pytest.approx(targets[-1], abs=1.5)

@@ -59,7 +59,7 @@ def test_every_key_a_rig_file_takes_is_named_in_the_document():
 
 def axis_position(message: dict) -> float:
     """The axis's latest position [m] in a ``state`` message: the one place that reads its shape."""
-    return message["angle_rad"][-1][0]
+    return message["axis.position"][-1]
 
 
 def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
