@@ -33,9 +33,10 @@ import os
 import secrets
 import time
 
-from controllers import registry
+from controllers import directory, registry
 from controllers.base import ParamError
 from daemon.planner import commands as planner
+from daemon.planner import reload as reloading
 from controllers.known_load import KnownLoad
 from daemon.wire import catalog
 from daemon.wire import protocol as P
@@ -60,6 +61,7 @@ class Commands:
         "controller.get": "controller_get", "controller.switch": "controller_switch",
         "controller.set": "controller_set", "controller.shadow": "controller_shadow",
         "controller.commit": "controller_commit", "controller.discard": "controller_discard",
+        "controller.reload": "controller_reload",
         "load.set": "load_set", "load.clear": "load_clear", "lease.acquire": "lease_acquire",
         "lease.renew": "lease_renew", "lease.release": "lease_release", "lease.revoke": "lease_revoke",
         "timing.verdict": "timing_verdict",
@@ -80,8 +82,10 @@ class Commands:
         self.owns_preparer = preparer is None  # else whoever passed it closes it
         self.preparer = preparer or Preparer()
         self.view = loop.view  # what the handlers read; they change the loop only through its controls
-        self._controllers = self._describe_controllers(self.view.controller_plugins)
+        self.dirs = self.view.controller_dirs  # the controller directories' files (controllers.directory)
+        self._controllers = self._describe_controllers(self.view.controller_plugins) + self.dirs.refused
         self.refused_controllers = [c for c in self._controllers if "error" in c]  # status.controllers_refused
+        self.preparer.sources = self.dirs.live(type(self.view.controller))
         for refused in self.refused_controllers:  # at start-up, before the loop cycles: logged once, and an event
             log.warning("controller %s refused: %s (requests for it are refused; controller.list and status say so)",
                         refused["name"], refused["error"])
@@ -344,7 +348,9 @@ class Commands:
         available = []
         for name in registry.available(plugins):
             try:
-                available.append(registry.load(name, plugins).describe())
+                cls = registry.load(name, plugins)
+                source = directory.provenance(cls)
+                available.append({**cls.describe(), **({"source": source} if source else {})})
             except LookupError as exc:
                 available.append({"name": name, "error": str(exc)})
             except Exception as exc:  # a plugin's module or describe() that raises: refused, the daemon starts
@@ -353,7 +359,8 @@ class Commands:
 
     def controller_get(self, args):
         c = self.view.controller
-        return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
+        return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params],
+                "source": directory.provenance(type(c))}
 
     def controller_switch(self, request):
         """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless);
@@ -363,6 +370,7 @@ class Commands:
             new, name, carried, given, reset = built
             self.loop.switch(new)
             self._active_as = name
+            self._sync_sources()
             self._set_before[name] = {**carried, **given}
             return {"active": new.name, "params": new.get_params(), "carried": carried, "reset": reset,
                     "cycle": self.view.cycle}
@@ -390,6 +398,7 @@ class Commands:
             candidate, name, carried, given, _ = built
             self.loop.shadow(candidate)
             self._shadow_set = (name, {**carried, **given})
+            self._sync_sources()
             return {"shadow": candidate.name, "active": self.view.controller.name, "carried": carried,
                     "cycle": self.view.cycle}
 
@@ -399,6 +408,7 @@ class Commands:
     def controller_commit(self, args):
         """Make the shadow candidate the active controller (bumpless); the run's comparison."""
         summary = _in_state(lambda: self.loop.commit(args.get("force", False)))
+        self._sync_sources()
         if self._shadow_set is not None:  # the candidate's name and parameters are the active ones now
             self._active_as, self._set_before[self._shadow_set[0]] = self._shadow_set
             self._shadow_set = None
@@ -408,7 +418,56 @@ class Commands:
         """End the shadow run without applying it; the run's comparison."""
         summary = _in_state(self.loop.discard)
         self._shadow_set = None
+        self._sync_sources()
         return summary
+
+    def controller_reload(self, request):
+        """Read a controller directory's file again beside the loop and check it
+        (:mod:`daemon.planner.reload`); its new version is built by switch and shadow from then
+        on, while the controller running now runs on. The request names a controller (or a
+        refused file); the file is the daemon's own record of where that name came from."""
+        name = P.decode_args(request)["name"]  # one short string: checked against the catalog by the messenger
+        path = self.dirs.file_of(name)
+        if path is None:
+            reloadable = sorted({*self.dirs.sources, *(r["name"] for r in self.dirs.refused)})
+            raise bad_args(f"{name!r} is not from a controller directory: only those reload (from: "
+                           f"{', '.join(reloadable) or 'none; start the daemon with --controller-dir DIR'}); a "
+                           f"built-in or an installed plugin changes with a restart", "name", allowed=reloadable)
+        previous = self.dirs.sources.get(name)
+        taken = frozenset(n for n in registry.available(self.view.controller_plugins)
+                          if self.dirs.file_of(n) != path)
+
+        def finish(result):
+            if isinstance(result, reloading.Refused):
+                self.loop.events.add({"kind": "reload", "action": "refused", "name": name, "file": path,
+                                      "cause": result.message})
+                raise CommandFailed(P.REFUSED, f"{result.message} (the version loaded before stays: "
+                                               f"{self.view.controller.name} runs on)",
+                                    {"reason": "plugin", "file": path})
+            source = result.source
+            unchanged = previous is not None and previous.sha256 == source.sha256
+            for old in [n for n, s in self.dirs.sources.items() if s.path == path]:
+                self.view.controller_plugins.pop(old, None)
+            self.dirs.replace(path, source)
+            self.view.controller_plugins.update({n: source.target(n) for n, _ in source.controllers})
+            self._controllers, self.described, self._describe_packed = result.controllers, result.described, \
+                result.packed
+            self.refused_controllers = [c for c in self._controllers if "error" in c]
+            self._sync_sources()
+            names = [n for n, _ in source.controllers]
+            self.loop.events.add({"kind": "reload", "action": "unchanged" if unchanged else "loaded", "name": name,
+                                  "controllers": names, **source.provenance})
+            return {"name": name, "file": path, "sha256": source.sha256,
+                    "previous_sha256": previous.sha256 if previous is not None else None, "unchanged": unchanged,
+                    "controllers": names, "cycle": self.view.cycle}
+
+        return self._off_loop(finish, reloading.reload_file, self.view.context, path, taken,
+                              self.view.measured_state(), self.view.output(), self.described)
+
+    def _sync_sources(self) -> None:
+        """The plugin versions the worker is sent: the current ones, the active and shadow controllers'."""
+        shadow = self.view.shadow_controller
+        self.preparer.sources = self.dirs.live(type(self.view.controller), *(() if shadow is None else (type(shadow),)))
 
 
 def _in_state(control):

@@ -47,6 +47,7 @@ class ControlLoop(LoopControls):
         self.supervisor = parts.supervisor
         self.events = parts.supervisor.events  # the one event log (daemon.loop.events), drained each cycle
         self.controller_plugins = parts.controller_plugins  # name -> module:Class, from the daemon's configuration
+        self.controller_dirs = parts.controller_dirs  # the controller directories' files, reloaded on request
         self.controller: Controller = parts.controller
         self.shadow_run: ShadowRun | None = None  # a candidate run beside the active controller
         self.tracking = parts.tracking

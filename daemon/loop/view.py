@@ -65,6 +65,27 @@ class LoopView:
     def shadowing(self) -> bool:
         return self._loop.shadow_run is not None
 
+    @property
+    def shadow_controller(self):
+        """The shadow run's candidate, None without one."""
+        run = self._loop.shadow_run
+        return None if run is None else run.controller
+
+    @property
+    def controller_dirs(self):
+        """The controller directories' files (controllers.directory.Directories)."""
+        return self._loop.controller_dirs
+
+    def measured_state(self):
+        """The measured state now, copied (a plugin checked beside the loop steps once on it)."""
+        s = self._loop._state()
+        return type(s)(s.t, list(s.angles), list(s.velocities), list(s.pressures))
+
+    def output(self) -> list[float]:
+        """The controller's share of the output in force (what a controller reset now continues from)."""
+        loop = self._loop
+        return loop.feed_forward.share(loop.u)
+
     def reference_origin(self) -> tuple[int, list[float]]:
         """What a plan starts from: the reference generation and the set-point in force [rad]."""
         return self._loop.trajectory_generation, list(self._loop.reference[0])
