@@ -26,7 +26,9 @@ AFTER_THE_STATE = {
        for name in ("f0_hz", "f1_hz", "duration_s", "order", "bit_s", "periods", "components", "period_s")},
     ("set", "stiffness_nm_deg"): "the rig: a cylinder joint takes no stiffness",
     ("load.set", "mass_kg"): "the rig: a load its joints cannot carry in every posture",
+    ("controller.reload", "name"): "the daemon: a controller from its controller directories (in any state)",
 }
+IN_ANY_STATE = {"controller.reload"}  # deferred, yet not refused for the arm's state
 STATE_CHANGING = {"estop", "enable", "disable", "reset", "lease.release", "lease.acquire", "abort"}
 
 
@@ -49,6 +51,7 @@ def bases(loop) -> dict[str, list[dict]]:
         "controller.shadow": [{"name": "pid"}],
         "controller.set": [{"params": {"Kp": 50.0}}],
         "controller.commit": [{}],
+        "controller.reload": [{"name": "pid"}],
         "load.set": [{"mass_kg": 0.1}],
         "record.start": [{"name": "a"}],
         "record.stop": [{"name": "a"}],
@@ -192,7 +195,8 @@ def exchange_every_case(loop, sock, state: str, lease: str, put_back) -> tuple[l
                 if not valid or _lengths_differ(command, args):
                     agree = code == P.BAD_ARGS
                 elif code == P.BAD_ARGS:  # valid by the schema: only what it cannot say, and only after the state
-                    agree = (name, argument) in AFTER_THE_STATE and (state == "enabled" or not command.deferred)
+                    agree = (name, argument) in AFTER_THE_STATE and (state == "enabled" or not command.deferred
+                                                                      or name in IN_ANY_STATE)
                 else:
                     agree = True
                 if not agree:
