@@ -2,13 +2,20 @@
 ``controller.reload``): a real daemon, a plugin file in the test's directory edited while its
 first version runs, read again, shadowed and committed; a request that names a path or a module
 refused; a broken edit refused with its import error while the running controller runs on; a
-file that fails at start said in the log and the status."""
+file that fails at start said in the log and the status. The daemon and the reload are the
+lines of docs/writing-controllers.md ("Changing it without a restart")."""
+import json
+import subprocess
 import time
 
 import pytest
 
 from daemon.client.client import Client, RemoteError
-from tests.daemons import real_daemon, wait_for_own_daemon
+from tests import doc_blocks, doc_runs
+from tests.daemons import endpoint_env, private_endpoints, tolerant_rig, wait_for_own_daemon
+
+DOC = "docs/writing-controllers.md"
+RELOAD = "Changing it without a restart"
 
 VERSION_1 = '''"""A lab's PD + integral controller, first version."""
 from controllers.pid import PID
@@ -44,22 +51,27 @@ FAILS_AT_START = 'raise RuntimeError("this file fails as it is imported")\n'
 
 @pytest.fixture
 def daemon(tmp_path):
-    """A real daemon whose controller directory holds lab_pd's first version and a file that
-    fails; its log in ``tmp_path/daemon.log``."""
-    plugins = tmp_path / "controllers"
-    plugins.mkdir()
+    """The guide's daemon line, run in a directory whose ``lab-controllers`` holds lab_pd's
+    first version and a file that fails; its log in ``tmp_path/daemon.log``."""
+    work = tmp_path / "work"
+    plugins = work / "lab-controllers"
+    plugins.mkdir(parents=True)
     (plugins / "lab_pd.py").write_text(VERSION_1)
     (plugins / "fails.py").write_text(FAILS_AT_START)
+    eps = private_endpoints(tmp_path)
+    line, = doc_blocks.commands(DOC, RELOAD, match="^pneumad ", rig=str(tolerant_rig(tmp_path)),
+                                recordings=str(tmp_path / "recordings"),
+                                endpoints=" ".join(f"--{k} {v}" for k, v in eps.items()))
     log = tmp_path / "daemon.log"
     with open(log, "w") as stderr:
-        process, eps = real_daemon(tmp_path, "--controller-dir", str(plugins), stderr=stderr)
+        process = subprocess.Popen(["bash", "-c", "exec " + line.text], cwd=work, stderr=stderr)
     try:
         with Client(**eps, timeout=30.0) as client:
             wait_for_own_daemon(client, process)
-            yield client, plugins / "lab_pd.py", log
+            yield client, (plugins / "lab_pd.py").resolve(), log, endpoint_env(eps), work
     finally:
         process.terminate()
-        process.wait(10)
+        process.wait(30)
 
 
 def listed(client: Client, name: str) -> dict:
@@ -77,18 +89,21 @@ def wait_for_log(log, text: str, limit_s: float = 30.0) -> str:
 
 @pytest.mark.slow(seconds=10)
 def test_an_edited_plugin_is_reloaded_shadowed_and_committed_without_a_restart(daemon):
-    client, path, log = daemon
+    client, path, log, env, work = daemon
     pid = client.call("ping")["daemon"]["pid"]
     first = listed(client, "lab_pd")["source"]
     assert first["file"] == str(path) and listed(client, "lab_pd")["doc"] == "Lab PD, version 1."
-    client.acquire_lease()
+    client.acquire_lease(60.0)
     client.enable()
     switched = client.switch_controller("lab_pd")
     assert switched["active"] == "lab_pd" and client.controller()["source"] == first
     path.write_text(VERSION_2)
     sub = client.subscribe((b"event",))
     time.sleep(0.3)  # the subscription reaches the publisher
-    reloaded = client.reload_controller("lab_pd")
+    line, = doc_blocks.commands(DOC, RELOAD, match="reload")  # pneumactl controller reload lab_pd
+    done = doc_runs.run(line, work, env)
+    assert done.returncode == 0, done.explain()
+    reloaded = json.loads(done.stdout)
     assert reloaded["previous_sha256"] == first["sha256"] != reloaded["sha256"] and not reloaded["unchanged"]
     assert reloaded["controllers"] == ["lab_pd"] and reloaded["file"] == str(path)
     # the running controller runs on: the first version's class, its hash
@@ -118,7 +133,7 @@ def test_an_edited_plugin_is_reloaded_shadowed_and_committed_without_a_restart(d
 @pytest.mark.parametrize("name", ["/tmp/lab_pd.py", "lab_pd.py", "controllers.pid", "controllers.pid:PID",
                                   "../controllers/lab_pd"])
 def test_a_reload_naming_a_path_or_a_module_is_refused(daemon, name):
-    client, path, _ = daemon
+    client, path, *_ = daemon
     with pytest.raises(RemoteError) as refused:
         client.reload_controller(name)
     assert refused.value.code == "bad_args" and refused.value.data["argument"] == "name"
@@ -127,7 +142,7 @@ def test_a_reload_naming_a_path_or_a_module_is_refused(daemon, name):
 
 @pytest.mark.slow(seconds=5)
 def test_only_a_directory_plugin_reloads(daemon):
-    client, _, _ = daemon
+    client, *_ = daemon
     with pytest.raises(RemoteError, match=r"'pid' is not from a controller directory: only those reload \(from: "
                                            r"fails, lab_pd\)") as refused:
         client.reload_controller("pid")
@@ -136,8 +151,8 @@ def test_only_a_directory_plugin_reloads(daemon):
 
 @pytest.mark.slow(seconds=10)
 def test_a_broken_edit_is_refused_with_its_import_error_and_the_running_controller_runs_on(daemon):
-    client, path, log = daemon
-    client.acquire_lease()
+    client, path, log, *_ = daemon
+    client.acquire_lease(60.0)
     client.enable()
     client.switch_controller("lab_pd")
     first = client.controller()["source"]
@@ -157,7 +172,7 @@ def test_a_broken_edit_is_refused_with_its_import_error_and_the_running_controll
 
 @pytest.mark.slow(seconds=5)
 def test_a_file_that_fails_at_start_is_said_in_the_log_and_the_status_and_reloads_once_fixed(daemon):
-    client, path, log = daemon
+    client, path, log, *_ = daemon
     fails = path.parent / "fails.py"
     error = f"{fails}, line 1: RuntimeError: this file fails as it is imported"
     assert {"name": "fails", "file": str(fails), "error": error} in client.status()["controllers_refused"]
