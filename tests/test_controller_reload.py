@@ -11,6 +11,7 @@ import time
 import pytest
 
 from daemon.client.client import Client, RemoteError
+from daemon.recordings.reading import open_run
 from tests import doc_blocks, doc_runs
 from tests.daemons import endpoint_env, private_endpoints, tolerant_rig, wait_for_own_daemon
 
@@ -125,6 +126,10 @@ def test_an_edited_plugin_is_reloaded_shadowed_and_committed_without_a_restart(d
     assert kinds["reload"]["action"] == "loaded" and kinds["reload"]["sha256"] == reloaded["sha256"]
     assert kinds["controller"]["source"]["sha256"] == reloaded["sha256"]  # the commit's switch event
     assert client.status()["state"] == "enabled" and client.call("ping")["daemon"]["pid"] == pid  # no restart
+    client.record_start("after-reload")
+    time.sleep(0.5)
+    stopped = client.record_stop("after-reload")
+    assert open_run(stopped["file"]).controller["source"] == now["source"]  # the recording's provenance
     wait_for_log(log, f"reload: loaded lab_pd: {path} sha256 {reloaded['sha256'][:12]}")
     sub.close()
 
