@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from contextlib import contextmanager
+import time
 
 from pathlib import Path
 
@@ -28,8 +29,10 @@ from daemon.loop.tracking import TrackingGuard
 from daemon.messenger.shared import STALL_S
 from daemon.planner.process import DEFAULT_TIME_LIMIT_S, Preparer
 from daemon.service import realtime
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.loop_stats import StatsBanks
 from hal import config
+from hal.declare import declare
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
 from hal.rig import PressureDrivers, RigIO
@@ -111,6 +114,15 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
                      LoadFeedForward(context), plugins, dirs or directory.Directories())
 
 
+def cycle_layout(rig: config.RigConfig, outputs: Sequence[str] | None = None,
+                 actuation: RigActuation | None = None) -> CycleLayout:
+    """The cycle record's layout on ``rig`` (:mod:`daemon.wire.cycle_layout`), whose transport
+    writes ``outputs`` (default: the channels its transport declares, built but not opened)."""
+    if outputs is None:
+        outputs = [ch.name for ch in create_transport(rig, time.monotonic).outputs]
+    return CycleLayout.of(declare(rig, outputs, actuation))
+
+
 def open_rig(rig: config.RigConfig, now: Callable[[], float], drivers: PressureDrivers | None = None) -> RigIO:
     """The rig's transport created (samples stamped by ``now`` [s]) and opened, behind its
     device drivers."""
@@ -131,10 +143,17 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
     counted into ``stats_banks`` if given (a port's, which its messenger summarises); the rig's
     contact sensor's process started when it has one and ``contact`` (an in-process loop on
     a virtual clock leaves it out: its frames come in real time). Each regulator's driver
-    is built once, for the I/O and the command interfaces both."""
+    is built once, for the I/O and the command interfaces both. The cycle record's layout is
+    built here once, from the rig's declared interfaces (its messenger's port, built before,
+    checks it has the same: :meth:`daemon.loop.port.ZmqServer.attach`)."""
     drivers = PressureDrivers.of(rig)
     parts = loop_parts(rig, period, controller, plugins, drivers, dirs)
     io = open_rig(rig, clock.now, drivers)
+    try:
+        layout = cycle_layout(rig, [ch.name for ch in io.transport.outputs], parts.actuation)
+    except Exception:
+        io.transport.close()
+        raise
     sensor = None
     if contact and rig.contact_sensor is not None:
         sensor = ContactSensor(rig.contact_sensor, clock.now)
@@ -143,7 +162,7 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
         except Exception:
             io.transport.close()
             raise
-    return ControlLoop(io, clock, parts, telemetry=Telemetry(publish) if publish is not None else None,
+    return ControlLoop(io, clock, parts, layout, telemetry=Telemetry(publish, layout) if publish is not None else None,
                        contact_sensor=sensor, stats=LoopStats(stats_banks))
 
 
@@ -175,7 +194,8 @@ def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
                                                          "min_free_mb": args.record_min_free_mb}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
                        recording=recording, plotjuggler=args.plotjuggler,
-                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing)
+                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing,
+                       layout=cycle_layout(rig))
     try:
         yield server
     finally:

@@ -26,12 +26,11 @@ PLUGIN = {"mylab_pdff": "mylab_pdff:PDFF"}
 
 
 def joint_errors_deg(path) -> dict[str, float]:
-    """Each joint's largest |set-point - angle| over a recording [deg]: the one place these tests
-    read the state's fields."""
+    """Each joint's largest |set-point - position| over a recording [deg] (its cycle layout's
+    ``<joint>.error`` fields): the one place these tests read the state's fields."""
     columns = recordings.load(path)
-    joints = sorted({name.split(".")[0] for name in columns if name.endswith(".setpoint_rad")})
-    return {j: math.degrees(float(np.nanmax(np.abs(columns[f"{j}.setpoint_rad"] - columns[f"{j}.angle_rad"]))))
-            for j in joints}
+    joints = [name.removesuffix(".error") for name in columns if name.endswith(".error")]
+    return {j: math.degrees(float(np.nanmax(np.abs(columns[f"{j}.error"])))) for j in joints}
 
 
 def test_the_context_snippet_prints_what_the_guide_shows():

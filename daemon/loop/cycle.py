@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
+from operator import sub
 
 from controllers.base import (
     Controller,
@@ -24,19 +25,24 @@ from controllers.trajectory import Trajectory
 from daemon.loop.controls import LoopControls
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.parts import LoopParts
+from daemon.loop.record import RecordSpans
 from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
+from daemon.loop.handles import LoopHandles, LoopQueries
 from daemon.loop.view import LoopView
+from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
+from hal import sensors
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
 
-class ControlLoop(LoopControls):
-    def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None,
-                 stats: LoopStats | None = None):
-        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`);
-        its timing counted into ``stats`` (default: banks of its own, for a loop without a messenger)."""
+class ControlLoop(LoopControls, LoopQueries):
+    def __init__(self, io: RigIO, clock, parts: LoopParts, layout: CycleLayout, telemetry=None, server=None,
+                 contact_sensor=None, stats: LoopStats | None = None):
+        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`),
+        recording each cycle on ``layout`` (the rig's declared interfaces'); its timing counted
+        into ``stats`` (default: banks of its own, for a loop without a messenger)."""
         self.io = io
         self.rig = io.config
         self.clock = clock
@@ -91,7 +97,20 @@ class ControlLoop(LoopControls):
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
         self._heartbeat_due = 0.0
-        self.view = LoopView(self)  # what status and describe read
+        # the cycle record: written at the end of each cycle (_record), read by telemetry and status
+        self.layout = layout
+        self.record = layout.record()
+        self._mode_of, self._mode_index = None, 0.0  # the state whose index the record holds, and the index
+        self._shadow_written = True  # a candidate's commands are in the record (NaN to be written over them)
+        self._spans = RecordSpans.of(layout, self.n, [f"{c.joint}.{c.name}" for c in self.actuation.commands],
+                                     [i for i, d in enumerate(io.head) if d is not None], len(sensors.measured(self.rig)),
+                                     len(io.transport.outputs))
+        self.handles = LoopHandles(
+            self.rig, self.context, self.controller_plugins, self.period, self.actuation.commands, io.transport, clock,
+            self.supervisor, self.events, self.stats, self.feed_forward, tuple(io.joint_outputs), contact_sensor, layout,
+            self.record, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
+            self._faults, self._stiffness, self.controller_dirs, self._measured, self._output)
+        self.view = LoopView(self.handles)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -205,6 +224,7 @@ class ControlLoop(LoopControls):
         self.cycle += 1
         self.stats.cycles += 1
         self.stats.cycles_total += 1
+        self._record(snap)
         if self.telemetry is not None:
             self.telemetry.record(self)
         self._drain_events()
@@ -215,11 +235,45 @@ class ControlLoop(LoopControls):
                 self.telemetry.stats(window)
         t4 = clock.now()
         if self.server is not None:
-            self.server.poll(self)
+            self.server.poll(self.cycle)
         if self.heartbeat is not None and wake >= self._heartbeat_due:
             self._heartbeat_due += self.heartbeat_interval
             self.heartbeat(self)
         self.stats.record_cycle(t0, t1, t2, t3, t4, clock.now())
+
+    def _record(self, snap: Snapshot | None) -> None:
+        """This cycle's record, group by group (:class:`daemon.loop.record.RecordSpans`): NaN
+        for the commands outside ``enabled`` (the safe state is written, no command is in force),
+        for the sensors when this cycle's read failed, and for the shadow without a candidate."""
+        r, angles, setpoint = self.record, self.angles, self.reference[0]
+        (position, velocity, at_setpoint, error, command, first, second, pressure_joints, sensors, outputs, shadow,
+         mode, no_commands, no_sensors) = self._spans
+        state = self.supervisor.state
+        r[0] = self.cycle
+        r[1] = snap.t if snap is not None else self.clock.now()
+        r[position] = angles
+        r[velocity] = self.velocities
+        r[at_setpoint] = setpoint
+        r[error] = map(sub, setpoint, angles)
+        r[command] = self.u if state is State.ENABLED else no_commands
+        if pressure_joints is None:
+            r[first] = self.p_head
+            r[second] = self.p_rod
+        else:
+            r[first] = [self.p_head[i] for i in pressure_joints]
+            r[second] = [self.p_rod[i] for i in pressure_joints]
+        r[sensors] = snap.measured if snap is not None else no_sensors
+        r[outputs] = self.io.last_volts
+        run = self.shadow_run
+        if run is not None and run.u is not None:
+            r[shadow] = run.u
+            self._shadow_written = True
+        elif self._shadow_written:  # NaN stays written until a candidate runs again
+            r[shadow] = no_commands
+            self._shadow_written = False
+        if state is not self._mode_of:  # (an Enum's hash is a Python call: looked up once a change)
+            self._mode_of, self._mode_index = state, MODE_INDEX[state]
+        r[mode] = self._mode_index
 
     def _update_measurement(self, snap: Snapshot) -> None:
         """Keep the last valid angle per joint (one bad sample is not yet a fault) and a

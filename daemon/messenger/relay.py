@@ -31,6 +31,7 @@ from daemon.messenger.timing import TimingJudge
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.telemetry_rows import internals_message, state_message
 from hal.config import TimingConfig
 
@@ -46,11 +47,12 @@ class Relay:
     telemetry from the loop's rings onto the sockets."""
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
-                 stats: StatsBanks, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
+                 stats: StatsBanks, layout: CycleLayout, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
                  plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None,
                  timing: TimingConfig | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.stats = stats  # the loop's timing histograms, summarised here once a window
+        self.layout = layout  # the cycle record's: how a state batch reads
         self.recorder = recorder
         self.plotjuggler = plotjuggler
         self.foxglove = foxglove  # the live Foxglove stream (daemon.messenger.foxglove_stream)
@@ -286,7 +288,7 @@ class Relay:
             if topic == b"event":
                 body = self._renumber(body)
             try:
-                columns = state_message(body) if topic == b"state" else None
+                columns = state_message(self.layout, body) if topic == b"state" else None
                 if topic == b"stats":
                     summary = summarise(self.stats, body)
                     body = msgpack.packb(summary)

@@ -250,12 +250,13 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             sockets=BOTH),
     Command("status", "loop", "the daemon's state now", (
         "state", "cause", "cycle", "t", "controller", "shadow", "reference", "reference_remaining_s", "joints",
-        "force_n", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
+        "rig", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
         "overruns_total", "scheduling", "load", "transport", "telemetry", "helpers", "controllers_refused", "daemon",
         "timing"),
             sockets=BOTH),
     Command("describe", "loop", "the rig, its limits and what the daemon serves", (
-        "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "arm", "limits", "tracking",
+        "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "cycle_layout", "cycle_layout_id",
+        "arm", "limits", "tracking",
         "transport", "units", "controllers", "states", "commands", "control_commands", "deferred_commands",
         "deferred_timeout_s", "security")),
     Command("lease.acquire", "loop", "take the lease", ("lease", "ttl_s"), (
