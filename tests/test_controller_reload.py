@@ -13,7 +13,7 @@ import pytest
 from daemon.client.client import Client, RemoteError
 from daemon.recordings.reading import open_run
 from tests import doc_blocks, doc_runs
-from tests.daemons import endpoint_env, private_endpoints, tolerant_rig, wait_for_own_daemon
+from tests.daemons import endpoint_env, private_endpoints, tolerant_rig, tolerant_rig_text, wait_for_own_daemon
 
 DOC = "docs/writing-controllers.md"
 RELOAD = "Changing it without a restart"
@@ -185,3 +185,17 @@ def test_a_file_that_fails_at_start_is_said_in_the_log_and_the_status_and_reload
     fails.write_text(VERSION_1.replace('"lab_pd"', '"fixed"'))
     assert client.reload_controller("fails")["controllers"] == ["fixed"]
     assert client.status()["controllers_refused"] == [] and listed(client, "fixed")["source"]["file"] == str(fails)
+
+
+def test_the_rig_files_controller_dirs_are_read_relative_to_it(tmp_path, capsys):
+    """``[rig] controller_dirs`` names directories beside the rig file, wherever the daemon starts."""
+    from daemon.main import main
+
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "lab_pd.py").write_text(VERSION_1)
+    rig = tmp_path / "rig.toml"
+    text = tolerant_rig_text()
+    assert text.count("[rig]\n") == 1
+    rig.write_text(text.replace("[rig]\n", '[rig]\ncontroller_dirs = ["lab"]\n'))
+    assert main(["--check", "--config", str(rig), "--controller", "lab_pd"]) == 0
+    assert "controller lab_pd" in capsys.readouterr().out
