@@ -13,7 +13,9 @@ from concurrent.futures import Future
 from contextlib import contextmanager
 import time
 
-from controllers import registry
+from pathlib import Path
+
+from controllers import directory, registry
 from controllers.base import ControllerContext
 from daemon.contact.process import ContactSensor
 from daemon.loop.cycle import ControlLoop
@@ -65,15 +67,32 @@ def controller_plugins(items: Sequence[str]) -> dict[str, str]:
     return plugins
 
 
+def controller_dirs(args, rig: config.RigConfig, plugins: dict[str, str]) -> directory.Directories:
+    """The controller directories the rig file (``[rig] controller_dirs``, relative to the
+    file) and ``--controller-dir`` name, their files loaded (:mod:`controllers.directory`); their
+    controllers are added to ``plugins``. A file that fails is refused (said at start, in
+    status.controllers_refused), a directory that does not exist is a ConfigError."""
+    base = Path(rig.origin).parent if not rig.origin.startswith(("builtin:", "<")) else Path.cwd()
+    dirs = [base / d for d in rig.rig.controller_dirs] + [Path(d) for d in getattr(args, "controller_dir", [])]
+    try:
+        found = directory.scan(dirs, registry.available(plugins))
+    except directory.PluginError as exc:
+        raise ConfigError(f"--controller-dir: {exc}") from None
+    plugins.update(found.plugins())
+    return found
+
+
 def starting_controller(requested: str | None, rig: config.RigConfig) -> str:
     """``requested`` (``--controller``), else the one the rig file names (``[rig] controller``), else pid."""
     return requested or rig.rig.controller or "pid"
 
 
 def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | None = None,
-               plugins: dict[str, str] | None = None, drivers: PressureDrivers | None = None) -> LoopParts:
+               plugins: dict[str, str] | None = None, drivers: PressureDrivers | None = None,
+               dirs: directory.Directories | None = None) -> LoopParts:
     """What the loop is made of, built on ``rig`` without opening anything (``--check`` stops
-    here). A controller that cannot be built is a ConfigError naming the option or setting."""
+    here). A controller that cannot be built is a ConfigError naming the option or setting.
+    ``dirs``: the controller directories' files (their controllers are in ``plugins`` too)."""
     plugins = dict(plugins or {})
     actuation = RigActuation(rig, drivers)
     context = ControllerContext.for_rig(rig, actuation, period)
@@ -96,7 +115,7 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
     return LoopParts(actuation, context, Supervisor(rig, period), active, fallback,
                      TrackingGuard(names, safety.tracking_error_deg, safety.tracking_window_s, safety.tracking_error_mm,
                                    tuple(j.position_unit for j in rig.joints)),
-                     LoadFeedForward(context), plugins)
+                     LoadFeedForward(context), plugins, dirs or directory.Directories())
 
 
 def cycle_layout(rig: config.RigConfig, outputs: Sequence[str] | None = None,
@@ -122,7 +141,8 @@ def open_rig(rig: config.RigConfig, now: Callable[[], float], drivers: PressureD
 
 def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: str | None = None,
                plugins: dict[str, str] | None = None, publish: Publish | None = None,
-               contact: bool = True, stats_banks: StatsBanks | None = None) -> ControlLoop:
+               contact: bool = True, stats_banks: StatsBanks | None = None,
+               dirs: directory.Directories | None = None) -> ControlLoop:
     """The loop on ``rig``, its transport open; telemetry to ``publish`` if given, its timing
     counted into ``stats_banks`` if given (a port's, which its messenger summarises); the rig's
     contact sensor's process started when it has one and ``contact`` (an in-process loop on
@@ -131,7 +151,7 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
     built here once, from the rig's declared interfaces (its messenger's port, built before,
     checks it has the same: :meth:`daemon.loop.port.ZmqServer.attach`)."""
     drivers = PressureDrivers.of(rig)
-    parts = loop_parts(rig, period, controller, plugins, drivers)
+    parts = loop_parts(rig, period, controller, plugins, drivers, dirs)
     io = open_rig(rig, clock.now, drivers)
     try:
         layout = cycle_layout(rig, [ch.name for ch in io.transport.outputs], parts.actuation)

@@ -44,7 +44,11 @@ def check_config(args) -> int:
             load_frame_source(rig.contact_sensor.source)
         except LookupError as exc:
             raise ConfigError(f"contact_sensor.source: {exc}") from None
-    parts = assembly.loop_parts(rig, args.period, args.controller, assembly.controller_plugins(args.controller_plugin))
+    plugins = assembly.controller_plugins(args.controller_plugin)
+    dirs = assembly.controller_dirs(args, rig, plugins)
+    for refused in dirs.refused:
+        print(f"controller file {refused['file']} refused: {refused['error']}", file=sys.stderr)
+    parts = assembly.loop_parts(rig, args.period, args.controller, plugins, dirs=dirs)
     print(f"{rig.origin}: rig {rig.rig.name!r} ({rig.hash[:12]}), transport {rig.transport.backend}, "
           f"controller {assembly.starting_controller(args.controller, rig)}")
     lines = summary(declare(rig, [ch.name for ch in transport.outputs], parts.actuation))
@@ -81,6 +85,7 @@ def cmd_run(args) -> int:
     if args.check:
         return check_config(args)
     rig, plugins = assembly.rig_of(args), assembly.controller_plugins(args.controller_plugin)  # bad ones: exit 2, nothing bound
+    dirs = assembly.controller_dirs(args, rig, plugins)  # their files loaded now, before the loop runs
     clock = MonotonicClock(spin_s=args.spin_us * 1e-6)
     sys.setswitchinterval(args.gil_switch_us * 1e-6)
     with assembly.planner(args.prepare_limit_s) as (preparer, warming), assembly.messenger(args, rig) as server:
@@ -88,7 +93,7 @@ def cmd_run(args) -> int:
         signal.signal(signal.SIGHUP, lambda *_: server.messenger.reload_keys())
         warming.result(timeout=120)
         loop = assembly.build_loop(rig, clock, args.period, args.controller, plugins, server.publish,
-                                   stats_banks=server.stats_banks)
+                                   stats_banks=server.stats_banks, dirs=dirs)
         server.attach(loop, preparer)
         return _run_loop(args, loop, server)
 
@@ -199,6 +204,9 @@ def parser() -> argparse.ArgumentParser:
         sp.add_argument("--controller-plugin", action="append", default=[], metavar="NAME=module:Class",
                         help="make a third-party controller available to requests under NAME, repeatable (requests "
                              "name registered controllers only: never a module to import)")
+        sp.add_argument("--controller-dir", action="append", default=[], metavar="DIR",
+                        help="load every controller defined in DIR's *.py files, repeatable (beside the rig file's "
+                             "[rig] controller_dirs); controller.reload NAME reads a file again without a restart")
         sp.add_argument("--gil-switch-us", type=float, default=5000.0,
                         help="sys.setswitchinterval [us] (default 5000, Python's own): how soon another Python "
                              "thread can take the GIL from the loop mid-cycle. Shorter measured worse "

@@ -163,6 +163,11 @@ class RigInfo:
     name: str
     description: str = ""
     controller: str = ""  # the controller the daemon starts with unless told otherwise (default: pid)
+    controller_dirs: tuple[str, ...] = ()  # directories of controller plugin files, relative to the rig file
+
+    def __post_init__(self):
+        require(all(isinstance(d, str) and d for d in self.controller_dirs), "controller_dirs",
+                "must be a list of directory paths (relative to the rig file)")
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,9 @@ AFTER_THE_STATE = {
     **{("excite", name): "the rig: a rotary joint's amplitude and band are in deg"
        for name in ("amplitude_mm", "band_mm")},
     ("load.set", "mass_kg"): "the rig: a load its joints cannot carry in every posture",
+    ("controller.reload", "name"): "the daemon: a controller from its controller directories (in any state)",
 }
+IN_ANY_STATE = {"controller.reload"}  # deferred, yet not refused for the arm's state
 STATE_CHANGING = {"estop", "enable", "disable", "reset", "lease.release", "lease.acquire", "abort"}
 
 
@@ -51,6 +53,7 @@ def bases(loop) -> dict[str, list[dict]]:
         "controller.shadow": [{"name": "pid"}],
         "controller.set": [{"params": {"Kp": 50.0}}],
         "controller.commit": [{}],
+        "controller.reload": [{"name": "pid"}],
         "load.set": [{"mass_kg": 0.1}],
         "record.start": [{"name": "a"}],
         "record.stop": [{"name": "a"}],
@@ -194,7 +197,8 @@ def exchange_every_case(loop, sock, state: str, lease: str, put_back) -> tuple[l
                 if not valid or _lengths_differ(command, args):
                     agree = code == P.BAD_ARGS
                 elif code == P.BAD_ARGS:  # valid by the schema: only what it cannot say, and only after the state
-                    agree = (name, argument) in AFTER_THE_STATE and (state == "enabled" or not command.deferred)
+                    agree = (name, argument) in AFTER_THE_STATE and (state == "enabled" or not command.deferred
+                                                                      or name in IN_ANY_STATE)
                 else:
                     agree = True
                 if not agree:

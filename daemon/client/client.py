@@ -342,6 +342,11 @@ class Client:
         """Run a candidate controller beside the active one, published but not applied."""
         return self.call("controller.shadow", self.candidate(name, params, design))
 
+    def reload_controller(self, name: str):
+        """Read controller ``name``'s plugin file again (the daemon's --controller-dir) and make
+        its new version the one switch and shadow build; the running controller runs on."""
+        return self.call("controller.reload", {"name": name})
+
     def commit(self, force: bool = False):
         return self.call("controller.commit", {"force": True} if force else None)
 

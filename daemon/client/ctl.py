@@ -190,9 +190,10 @@ def parser() -> argparse.ArgumentParser:
     idp.add_argument("--quick", action="store_true", help="experiments half as long (a first look)")
     idp.add_argument("--population", type=int, default=40, help="differential evolution (default 40, the thesis's)")
     idp.add_argument("--generations", type=int, default=1500, help="at most (default 1500, the thesis's)")
-    c = sub.add_parser("controller", help="list, get, switch, set, shadow, commit, discard")
-    c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard"])
-    c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...")
+    c = sub.add_parser("controller", help="list, get, switch, set, shadow, commit, discard, reload")
+    c.add_argument("action", choices=["list", "get", "switch", "set", "shadow", "commit", "discard", "reload"])
+    c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...; reload: NAME "
+                                           "(a controller from the daemon's --controller-dir)")
     c.add_argument("--design", default=None, help="LTI design file (.toml or .npz) for lti and lti_dob")
     c.add_argument("--force", action="store_true", help=f"commit: {_help('controller.commit', 'force')}")
     r = sub.add_parser("record", help="record telemetry to an MCAP file (Foxglove, PlotJuggler open it)")
@@ -399,6 +400,10 @@ def run(client: Client, args):
             return with_lease(client, lambda: client.commit(args.force))
         if args.action == "discard":
             return with_lease(client, client.discard)
+        if args.action == "reload":
+            if len(args.args) != 1:
+                raise SystemExit("controller reload NAME")
+            return client.reload_controller(args.args[0])
         if args.action in ("switch", "shadow"):
             if not args.args:
                 raise SystemExit(f"controller {args.action} NAME [KEY=VALUE ...] [--design FILE]")

@@ -14,7 +14,8 @@ the loop (:class:`~daemon.planner.process.Preparer`) with a deferred reply:
   boundary, or refuses it if the reference or the state changed meanwhile (an ``abort``,
   ``estop``, ``disable``, a trip), so nothing starts that was overtaken;
 - ``controller.switch``, ``controller.shadow`` and ``controller.set`` build a controller or
-  derive its parameters there.
+  derive its parameters there, ``controller.reload`` reads a controller directory's file again
+  there (their handlers: :mod:`daemon.loop.controller_commands`).
 
 Handlers change the loop only through its named controls (``enable`` ... ``set_load``,
 :class:`~daemon.loop.cycle.ControlLoop`) and read it only through its view
@@ -34,9 +35,9 @@ import secrets
 import time
 from collections.abc import Callable
 
-from controllers import registry
 from controllers.base import ParamError
 from daemon.planner import commands as planner
+from daemon.loop.controller_commands import ControllerCommands, in_state as _in_state
 from controllers.known_load import KnownLoad
 from daemon.wire import catalog
 from daemon.wire import protocol as P
@@ -45,13 +46,13 @@ from daemon.wire.keys import ANONYMOUS, Identity
 from daemon.loop.lease import Lease
 from daemon.loop.timing import TimingVerdicts
 from daemon.planner.process import Deferred, Preparer
-from daemon.loop.safety import State, StateError
+from daemon.loop.safety import State
 
 VERSION = "0.1.0"
 log = logging.getLogger("pneumad")
 
 
-class Commands:
+class Commands(ControllerCommands):
     # The loop's and the planner's commands (daemon.wire.catalog) -> the method serving them;
     # a deferred command's method takes the request (its arguments are decoded beside the loop).
     HANDLERS = {
@@ -61,6 +62,7 @@ class Commands:
         "controller.get": "controller_get", "controller.switch": "controller_switch",
         "controller.set": "controller_set", "controller.shadow": "controller_shadow",
         "controller.commit": "controller_commit", "controller.discard": "controller_discard",
+        "controller.reload": "controller_reload",
         "load.set": "load_set", "load.clear": "load_clear", "lease.acquire": "lease_acquire",
         "lease.renew": "lease_renew", "lease.release": "lease_release", "lease.revoke": "lease_revoke",
         "timing.verdict": "timing_verdict",
@@ -84,8 +86,10 @@ class Commands:
         self.owns_preparer = preparer is None  # else whoever passed it closes it
         self.preparer = preparer or Preparer()
         self.view = loop.view  # what the handlers read; they change the loop only through its controls
-        self._controllers = self._describe_controllers(self.view.controller_plugins)
+        self.dirs = self.view.controller_dirs  # the controller directories' files (controllers.directory)
+        self._controllers = self._describe_controllers(self.view.controller_plugins) + self.dirs.refused
         self.refused_controllers = [c for c in self._controllers if "error" in c]  # status.controllers_refused
+        self.preparer.sources = self.dirs.live(type(self.view.controller))
         for refused in self.refused_controllers:  # at start-up, before the loop cycles: logged once, and an event
             log.warning("controller %s refused: %s (requests for it are refused; controller.list and status say so)",
                         refused["name"], refused["error"])
@@ -341,87 +345,3 @@ class Commands:
         ctx = self._plan_context
         self._plan_context = dataclasses.replace(ctx, authority=dataclasses.replace(ctx.authority, load=load))
 
-    # -- controllers ------------------------------------------------------------------------
-    def controller_list(self, args):
-        return {"active": self.view.controller.name, "available": self._controllers}
-
-    @staticmethod
-    def _describe_controllers(plugins: dict[str, str]) -> list[dict]:
-        """Every registered controller described, or refused: ``{name, error}`` for a plugin
-        that cannot be loaded or described (whatever its module raises: never fatal)."""
-        available = []
-        for name in registry.available(plugins):
-            try:
-                available.append(registry.load(name, plugins).describe())
-            except LookupError as exc:
-                available.append({"name": name, "error": str(exc)})
-            except Exception as exc:  # a plugin's module or describe() that raises: refused, the daemon starts
-                available.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
-        return available
-
-    def controller_get(self, args):
-        c = self.view.controller
-        return {"name": c.name, "params": c.get_params(), "spec": [p.describe() for p in c.params]}
-
-    def controller_switch(self, request):
-        """Build a controller beside the loop, then swap it in at a cycle boundary (bumpless);
-        the parameters set on it before are carried (``carried`` says which)."""
-
-        def finish(built):
-            new, name, carried, given, reset = built
-            self.loop.switch(new)
-            self._active_as = name
-            self._set_before[name] = {**carried, **given}
-            return {"active": new.name, "params": new.get_params(), "carried": carried, "reset": reset,
-                    "cycle": self.view.cycle}
-
-        return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
-                              request, self._set_before, self._active_as)
-
-    def controller_set(self, request):
-        """Validate and derive a parameter change beside the loop; apply it at a cycle boundary."""
-        c, name = self.view.controller, self._active_as
-
-        def finish(result):
-            prepared, given = result
-            params = self.loop.set_params(c, prepared)
-            self._set_before[name] = {**self._set_before.get(name, {}), **given}
-            return {"name": c.name, "params": params, "cycle": self.view.cycle}
-
-        return self._off_loop(finish, planner.prepare_change, type(c), c.context, c.given_options, c.get_params(),
-                              request)
-
-    def controller_shadow(self, request):
-        """Build a candidate beside the loop and run it beside the active controller, unapplied."""
-
-        def finish(built):
-            candidate, name, carried, given, _ = built
-            self.loop.shadow(candidate)
-            self._shadow_set = (name, {**carried, **given})
-            return {"shadow": candidate.name, "active": self.view.controller.name, "carried": carried,
-                    "cycle": self.view.cycle}
-
-        return self._off_loop(finish, planner.build_controller, self.view.context, self.view.controller_plugins,
-                              request, self._set_before, self._active_as)
-
-    def controller_commit(self, args):
-        """Make the shadow candidate the active controller (bumpless); the run's comparison."""
-        summary = _in_state(lambda: self.loop.commit(args.get("force", False)))
-        if self._shadow_set is not None:  # the candidate's name and parameters are the active ones now
-            self._active_as, self._set_before[self._shadow_set[0]] = self._shadow_set
-            self._shadow_set = None
-        return {**summary, "active": self.view.controller.name, "cycle": self.view.cycle}
-
-    def controller_discard(self, args):
-        """End the shadow run without applying it; the run's comparison."""
-        summary = _in_state(self.loop.discard)
-        self._shadow_set = None
-        return summary
-
-
-def _in_state(control):
-    """Call one of the loop's controls; a state it cannot act in is a ``bad_state`` error."""
-    try:
-        return control()
-    except StateError as exc:
-        raise CommandFailed(P.BAD_STATE, str(exc)) from None

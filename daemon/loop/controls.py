@@ -10,6 +10,7 @@ cycle so that each reads as one thing (ros2_control's explicit switch semantics)
 from __future__ import annotations
 
 from controllers.base import Controller
+from controllers.directory import provenance
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import JointMove, Trajectory
 from daemon.loop.open_loop import OpenLoopRun
@@ -90,7 +91,7 @@ class LoopControls:
         self.controller = new
         self.tracking.clear()
         self.events.add({"kind": "controller", "from": old, "to": new.name, "cause": cause,
-                         "params": new.get_params()})
+                         "params": new.get_params(), "source": provenance(type(new))})
 
     def set_params(self, controller: Controller, prepared) -> dict:
         """Apply a parameter change prepared for ``controller``; refused (``refused``, reason
@@ -101,7 +102,8 @@ class LoopControls:
                                 {"reason": "overtaken"})
         controller.apply_params(prepared)
         params = controller.get_params()
-        self.events.add({"kind": "params", "controller": controller.name, "params": params})
+        self.events.add({"kind": "params", "controller": controller.name, "params": params,
+                         "source": provenance(type(controller))})
         return params
 
     def shadow(self, candidate: Controller) -> None:

@@ -53,6 +53,7 @@ class ControlLoop(LoopControls, LoopQueries):
         self.supervisor = parts.supervisor
         self.events = parts.supervisor.events  # the one event log (daemon.loop.events), drained each cycle
         self.controller_plugins = parts.controller_plugins  # name -> module:Class, from the daemon's configuration
+        self.controller_dirs = parts.controller_dirs  # the controller directories' files, reloaded on request
         self.controller: Controller = parts.controller
         self.shadow_run: ShadowRun | None = None  # a candidate run beside the active controller
         self.tracking = parts.tracking
@@ -109,7 +110,7 @@ class ControlLoop(LoopControls, LoopQueries):
             self.rig, self.context, self.controller_plugins, self.period, self.actuation.commands, io.transport, clock,
             self.supervisor, self.events, self.stats, self.feed_forward, tuple(io.joint_outputs), contact_sensor, layout,
             self._latest, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
-            self._faults, self._stiffness)
+            self._faults, self._stiffness, self.controller_dirs, self._measured, self._output)
         self.view = LoopView(self.handles)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------

@@ -39,6 +39,13 @@ class LoopQueries:
     def _stiffness(self) -> list[float]:
         return self.stiffness
 
+    def _measured(self):
+        s = self._state()
+        return type(s)(s.t, list(s.angles), list(s.velocities), list(s.pressures))
+
+    def _output(self) -> list[float]:
+        return self.feed_forward.share(self.u)
+
 
 @dataclass(frozen=True)
 class LoopHandles:
@@ -64,3 +71,6 @@ class LoopHandles:
     origin: Callable[[], tuple[int, list[float]]]  # the reference generation and the set-point in force
     faults: Callable[[], tuple[str, ...]]  # the last reading's faults
     stiffness: Callable[[], list[float]]  # the stiffness set-point per joint [N m/rad]; NaN: the controller's
+    controller_dirs: object  # controllers.directory.Directories: the controller directories' files
+    measured: Callable[[], object]  # the measured state now (controllers.base.JointState), copied
+    output: Callable[[], list[float]]  # the controller's share of the output in force

@@ -5,9 +5,10 @@ them finished, so building any of them (a controller's design, a plugin's import
 happens in a cycle."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from controllers.base import Controller, ControllerContext
+from controllers.directory import Directories
 from daemon.loop.feed_forward import LoadFeedForward
 from daemon.loop.safety import Supervisor
 from daemon.loop.tracking import TrackingGuard
@@ -24,3 +25,4 @@ class LoopParts:
     tracking: TrackingGuard
     feed_forward: LoadFeedForward  # a known payload's V_MV, none at first
     controller_plugins: dict[str, str]  # name -> module:Class, from the daemon's configuration
+    controller_dirs: Directories = field(default_factory=Directories)  # --controller-dir's files

@@ -76,6 +76,25 @@ class LoopView:
     def shadowing(self) -> bool:
         return self._h.shadow() is not None
 
+    @property
+    def shadow_controller(self):
+        """The shadow run's candidate, None without one."""
+        run = self._h.shadow()
+        return None if run is None else run.controller
+
+    @property
+    def controller_dirs(self):
+        """The controller directories' files (controllers.directory.Directories)."""
+        return self._h.controller_dirs
+
+    def measured_state(self):
+        """The measured state now, copied (a plugin checked beside the loop steps once on it)."""
+        return self._h.measured()
+
+    def output(self) -> list[float]:
+        """The controller's share of the output in force (what a controller reset now continues from)."""
+        return self._h.output()
+
     def reference_origin(self) -> tuple[int, list[float]]:
         """What a plan starts from: the reference generation and the set-point in force [rad]."""
         return self._h.origin()

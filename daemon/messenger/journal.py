@@ -96,7 +96,8 @@ def level(event: dict) -> int:
     if kind in ERRORS:
         return logging.ERROR
     if kind in WARNINGS or kind == "timing" and event.get("degraded") or kind == "lease" and action == "expire" \
-            or kind == "record" and action in ("failed", "repaired") or kind == "experiment" and action == "abort":
+            or kind == "record" and action in ("failed", "repaired") or kind == "experiment" and action == "abort" \
+            or kind == "reload" and action == "refused":
         return logging.WARNING
     return logging.INFO
 
@@ -114,6 +115,8 @@ def line(event: dict) -> str:
             f", {action}" if action in ("hold", "trip") else "")
     elif kind == "loop_resumed":
         what = f"the loop cycles again after {event.get('stalled_s', math.nan):.2f} s"
+    elif kind == "reload" and event.get("sha256"):
+        what = f"{event.get('action')} {event.get('name')}: {event.get('file')} sha256 {str(event['sha256'])[:12]}"
     elif kind == "load" and event.get("action") == "set":
         what = f"set: {event.get('mass_kg')} kg at {event.get('com_mm')} mm"
     else:

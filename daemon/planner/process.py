@@ -73,6 +73,9 @@ class Preparer:
         self.restarts = 0
         self.last_exit_code: int | None = None
         self._notices: deque[str] = deque()  # the courier's news of replaced workers, for the loop's events
+        # plugin files' versions (controllers.directory.Source) sent ahead of every job, so a
+        # worker, a new one too, has each module a job's classes come from; set by the loop's thread
+        self.sources: tuple = ()
         self._courier = threading.Thread(target=self._carry, name="pneumad-prepare", daemon=True)
         self._courier.start()
 
@@ -150,7 +153,7 @@ class Preparer:
         try:
             if self._worker is None:
                 self._worker = _Worker(self._cpus, self.time_limit_s)
-            ok, value = self._worker.call(function, args, self.time_limit_s)
+            ok, value = self._worker.call(function, args, self.time_limit_s, self.sources)
         except PreparationFailed as exc:
             future.set_exception(exc)  # the request's refusal first; then the replacement
             if self._worker is not None:
@@ -174,7 +177,7 @@ class Preparer:
         cause = f"{cause} (exit code {code})"
         try:
             self._worker = _Worker(self._cpus, self.time_limit_s)
-            ok, value = self._worker.call(_warm, (), self.time_limit_s)
+            ok, value = self._worker.call(_warm, (), self.time_limit_s, self.sources)
             if not ok:
                 raise PreparationFailed(f"its warm-up failed: {value}")
             self._worker.warm = True
@@ -207,12 +210,12 @@ class _Worker:
     def pid(self) -> int | None:
         return self._process.pid
 
-    def call(self, function: Callable, args: tuple, time_limit_s: float) -> tuple[bool, object]:
+    def call(self, function: Callable, args: tuple, time_limit_s: float, sources: tuple = ()) -> tuple[bool, object]:
         """(True, result) or (False, the exception the job raised); PreparationFailed if
-        the worker died or did not answer in time."""
+        the worker died or did not answer in time. ``sources`` arrive first (executed there)."""
         started = time.monotonic()
         try:
-            self.conn.send((function, args))  # (a job that will not pickle raises here, not as EOF or OSError)
+            self.conn.send((sources, function, args))  # (a job that will not pickle raises here, not as EOF or OSError)
             if not self.conn.poll(time_limit_s):
                 raise PreparationFailed(f"the preparation took longer than {time_limit_s:g} s and was stopped; "
                                         f"nothing was applied (a PC busy with other work: pneumad run "
@@ -244,9 +247,13 @@ def serve(child: Child, fd: int) -> None:
     child.ready()
     while True:
         try:
-            function, args = conn.recv()
+            _sources, function, args = conn.recv()  # the sources, unpickled first, execute their modules
         except (EOFError, OSError):
             return
+        except Exception as exc:  # a job that cannot arrive here (a plugin's module fails here): refused alone
+            conn.send((False, PreparationFailed(f"the job could not be read in the worker: {type(exc).__name__}: "
+                                                f"{exc}")))
+            continue
         if function is not _warm and os.getpriority(os.PRIO_PROCESS, 0) < BUILD_NICE:
             os.setpriority(os.PRIO_PROCESS, 0, BUILD_NICE)
         try:

@@ -351,7 +351,8 @@ class Archive:
         """What events tell the recorder: the controller in force, and the references it records."""
         kind = event.get("kind")
         if kind in ("controller", "params"):
-            self.controller = {"name": event.get("to", event.get("controller")), "params": event.get("params")}
+            self.controller = {"name": event.get("to", event.get("controller")), "params": event.get("params"),
+                               "source": event.get("source")}  # a plugin file's path and hash, None for others
             try:
                 with open(os.path.join(self.rings_dir, "controller.json"), "w") as f:
                     json.dump(self.controller, f)  # for a recorder started again

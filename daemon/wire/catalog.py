@@ -226,6 +226,7 @@ def _recording_name(what: str) -> Arg:
 
 
 RECORDING_NAME = r"[A-Za-z0-9][A-Za-z0-9._-]*"  # a recording's name (its length: 1-80)
+CONTROLLER_NAME = r"[A-Za-z_][A-Za-z0-9_-]*"  # a name: no path's slash, no module's dot or colon
 SIGNAL_SETTINGS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", "bit_s", "periods"),
                     "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"),
                     "steps": ("levels", "hold_s")}
@@ -337,7 +338,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("hold_s", "number", "steps: each level's time", 0.01, 60.0, "s", 2.0),
         _record("the experiment")), lease=True, deferred=True, errors=_REFUSALS, variants=_EXCITE_VARIANTS),
     Command("controller.list", "loop", "the controllers this daemon can run", ("active", "available")),
-    Command("controller.get", "loop", "the active controller's parameters", ("name", "params", "spec")),
+    Command("controller.get", "loop", "the active controller's parameters", ("name", "params", "spec", "source")),
     Command("controller.switch", "planner", "build a controller beside the loop and swap it in",
             ("active", "params", "carried", "reset", "cycle"), _BUILD, lease=True, deferred=True,
             errors=(P.REFUSED,)),
@@ -352,6 +353,12 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             "(RMS) away from the active controller's in the shadow run", default=False),), lease=True,
             errors=(P.BAD_STATE, P.REFUSED)),
     Command("controller.discard", "loop", "end the shadow run", _COMPARISON, lease=True, errors=(P.BAD_STATE,)),
+    Command("controller.reload", "planner", "read a controller's plugin file again, from the daemon's controller "
+            "directories, check it and make its new version available", (
+                "name", "file", "sha256", "previous_sha256", "unchanged", "controllers", "cycle"), (
+        Arg("name", "string", "a controller from a controller directory (controller.list), or the name of a "
+            "refused file there (status.controllers_refused); never a path or a module", 1, 80, required=True,
+            pattern=CONTROLLER_NAME),), role=OPERATOR, deferred=True, errors=(P.REFUSED,)),
     Command("load.set", "loop", "feed a known payload forward", ("load", "cycle"), (
         Arg("mass_kg", "number", "the payload's mass", 0.0, 1000.0, "kg", required=True, above=True),
         Arg("com_mm", "list", "its centre of mass from the tip, [along, across] the last link", 2, 2, "mm",
