@@ -43,6 +43,7 @@ from hal.schema import build
 from hal.sensors import Placed
 from hal.transport import InputSweep, Transport, rig_channels
 from sim_backend.axis_plant import SimAxisRig
+from sim_backend.compiled_plant import CompiledArm
 from sim_backend.muscle_plant import SimMuscleRig
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
@@ -81,7 +82,10 @@ def plant_for(rig: RigConfig, options: SimOptions):
     no model of."""
     kinds = {(j.kind, j.actuation) for j in rig.joints}
     if kinds == {(ROTARY, CYLINDER)}:
-        return SimArm(rig, options)
+        return CompiledArm(rig, options) if options.compiled else SimArm(rig, options)
+    if options.compiled:
+        raise ConfigError("transport.options.compiled: only the planar arm of cylinder joints has a compiled plant; "
+                          "this rig's runs on the Python one (set compiled = false)")
     if kinds == {(ROTARY, MUSCLE_PAIR)}:
         return SimMuscleRig(rig, options)
     if kinds == {(LINEAR, VALVE)}:
@@ -254,8 +258,13 @@ class SimTransport(Transport):
             self._health.counters["plant_steps_skipped"] = self._health.counters.get("plant_steps_skipped", 0) + due - limit
             self._steps += due - limit
             due = limit
-        for _ in range(due):
-            self.arm.step(self._out)
+        if due > 0:
+            advance = getattr(self.arm, "advance", None)  # the compiled plant: every step in one call
+            if advance is not None:
+                advance(self._out, due)
+            else:
+                for _ in range(due):
+                    self.arm.step(self._out)
         self._steps += max(due, 0)
         self._next_step_t = self._t0 + h * (self._steps + 1 - 1e-6)
 

@@ -1,0 +1,113 @@
+"""``pneumactl evaluate``: controllers on the rig's model over references and plant variations,
+faster than real time, on every core, before they touch the arm (docs/controllers.md).
+
+    python -m daemon.evaluation CONTROLLER [CONTROLLER ...] | --all [--param K=V ...] [--config RIG]
+        [--reference NAME|FILE ...] [--plants nominal|thesis|grid|FILE] [--out DIR] [--quiet]
+
+The first controller named takes the ``--param`` values (its parameters, as ``controller set``
+takes them); the others run beside it at their defaults. A controller is a built-in, an
+installed plugin (entry point ``pneumad.controllers``) or a ``module:Class`` path. Each case is
+the daemon's own loop on a virtual clock (:mod:`daemon.evaluation.runner`).
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import sys
+import time
+from pathlib import Path
+
+from controllers import registry
+from controllers.base import ControllerContext, ParamError
+from daemon.evaluation import cases, report, runner
+from hal import config
+from hal.actuation import RigActuation
+from hal.errors import ConfigError
+
+BUILTINS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]  # the cylinder rig's, as the robustness bench runs them
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="pneumactl evaluate", description=__doc__.splitlines()[0])
+    p.add_argument("controllers", nargs="*", metavar="CONTROLLER")
+    p.add_argument("--all", action="store_true", help=f"every built-in cylinder controller ({', '.join(BUILTINS)})")
+    p.add_argument("--param", action="append", default=[], metavar="K=V", help="a parameter of the first controller")
+    p.add_argument("--config", help="rig file or built-in rig name (default: the built-in simulated rig)")
+    p.add_argument("--reference", nargs="+", metavar="NAME|FILE",
+                   help=f"{', '.join(cases.PATHS)} or a waypoint CSV (default: the robustness grid's paths)")
+    p.add_argument("--plants", default="nominal", help="nominal, thesis, grid or a TOML file of [[plants]]")
+    p.add_argument("--out", default="evaluation", help="directory for table.md, cases.csv and the PNGs")
+    p.add_argument("--jobs", type=int, default=os.cpu_count(), help="worker processes (default: every core)")
+    return p
+
+
+def _work(task):
+    rig, controller, params, plant, name, trace = task
+    context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
+    path = cases.reference(rig, context, name)
+    label = Path(name).name if name not in cases.PATHS else name
+    return runner.run_case(rig, controller, plant, label, path, params, runner.construction_options(controller),
+                           trace=trace)
+
+
+def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None):
+    """Every case, the longest first (the pool stays busy to the end)."""
+    out = []
+    for controller in controllers:
+        for k, plant in enumerate(plants):
+            for name in references or cases.default_references(plant):
+                out.append((rig, controller, params if controller == controllers[0] else None, plant, name, k == 0))
+    weight = {"translation": 0, "circle": 1, "figure-eight": 2, "square": 3, "line": 4, "steps": 5}
+    return sorted(out, key=lambda t: weight.get(t[4], -1))
+
+
+def check(rig, controllers: list[str], params: dict, references: list[str] | None) -> None:
+    """Build each controller and each reference once here: a bad name, parameter or file is
+    refused before any worker starts."""
+    cases.check_rig(rig)
+    context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
+    for controller in controllers:
+        registry.build(controller, context, params if controller == controllers[0] else None,
+                       runner.construction_options(controller))
+    for name in references or []:
+        cases.reference(rig, context, name)
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    controllers = BUILTINS + [c for c in args.controllers if c not in BUILTINS] if args.all else args.controllers
+    if not controllers:
+        parser().error("name a controller, or --all")
+    try:
+        params = dict(config.parse_option(p, "--param") for p in args.param)
+        rig = config.load(args.config)
+        plants = cases.plants(args.plants, rig)
+        check(rig, controllers, params, args.reference)
+    except (ConfigError, ParamError, LookupError, ValueError, OSError) as exc:
+        print(f"pneumactl evaluate: {exc}", file=sys.stderr)
+        return 2
+    work = tasks(rig, controllers, params, plants, args.reference)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.monotonic()
+    with multiprocessing.Pool(max(1, args.jobs)) as pool:
+        results = pool.map(_work, work, chunksize=1)
+    elapsed = time.monotonic() - start
+    results.sort(key=lambda c: (controllers.index(c.controller), [p.name for p in plants].index(c.plant)))
+    report.write_csv(results, out / "cases.csv")
+    table = report.summary(results, controllers)
+    lines = report.failures(results)
+    text = (f"{len(results)} cases ({len(controllers)} controllers, {len(plants)} plants) in {elapsed:.0f} s "
+            f"on {args.jobs} processes\n\n{table}\n")
+    if lines:
+        text += f"\nTripped or not settled ({len(lines)} cases):\n" + "\n".join(lines) + "\n"
+    (out / "table.md").write_text(text)
+    pictures = report.figures(results, controllers, [j.name for j in rig.joints], out)
+    print(text)
+    print(f"written: {out / 'table.md'}, {out / 'cases.csv'}, " + ", ".join(str(p) for p in pictures))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
