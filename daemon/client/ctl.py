@@ -277,7 +277,7 @@ def _main(argv=None) -> int:
     args, _ = parser().parse_known_args(argv)
     if args.what == "evaluate":  # a process of its own (the daemon's loop on a virtual clock, a pool): never imported here
         import subprocess
-        return subprocess.call([sys.executable, "-m", "daemon.evaluation", *argv[argv.index("evaluate") + 1:]])
+        return subprocess.call([sys.executable, "-m", "evaluation", *argv[argv.index("evaluate") + 1:]])
     args = parser().parse_args(argv)
     if args.what == "identify" and args.source:
         return identify(None, args)

@@ -1,13 +1,13 @@
 """``pneumactl evaluate``: controllers on the rig's model over references and plant variations,
 faster than real time, on every core, before they touch the arm (docs/controllers.md).
 
-    python -m daemon.evaluation CONTROLLER [CONTROLLER ...] | --all [--param K=V ...] [--config RIG]
+    python -m evaluation CONTROLLER [CONTROLLER ...] | --all [--param K=V ...] [--config RIG]
         [--reference NAME|FILE ...] [--plants nominal|thesis|grid|FILE] [--out DIR] [--quiet]
 
 The first controller named takes the ``--param`` values (its parameters, as ``controller set``
 takes them); the others run beside it at their defaults. A controller is a built-in, an
 installed plugin (entry point ``pneumad.controllers``) or a ``module:Class`` path. Each case is
-the daemon's own loop on a virtual clock (:mod:`daemon.evaluation.runner`).
+the daemon's own loop on a virtual clock (:mod:`evaluation.runner`).
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from controllers import registry
 from controllers.base import ControllerContext, ParamError
-from daemon.evaluation import cases, report, runner
+from evaluation import cases, report, runner
 from hal import config
 from hal.actuation import RigActuation
 from hal.errors import ConfigError

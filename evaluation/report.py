@@ -6,7 +6,7 @@ import math
 from dataclasses import asdict, fields
 from pathlib import Path
 
-from daemon.evaluation.runner import BAND_DEG, HOLD_S, RECOVER_S, Case
+from evaluation.runner import BAND_DEG, HOLD_S, RECOVER_S, Case
 
 COLUMNS = [f.name for f in fields(Case) if f.name != "trace"]
 
