@@ -39,25 +39,30 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--plants", default="nominal", help="nominal, thesis, grid or a TOML file of [[plants]]")
     p.add_argument("--out", default="evaluation", help="directory for table.md, cases.csv and the PNGs")
     p.add_argument("--jobs", type=int, default=os.cpu_count(), help="worker processes (default: every core)")
+    p.add_argument("--engine", choices=("auto", "fast", "loop"), default="auto",
+                   help="fast: the loop's cycle compiled around the controller; loop: the daemon's loop itself "
+                        "(the reference); auto: fast where it applies")
     return p
 
 
 def _work(task):
-    rig, controller, params, plant, name, trace = task
+    rig, controller, params, plant, name, trace, engine = task
     context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
     path = cases.reference(rig, context, name)
     label = Path(name).name if name not in cases.PATHS else name
     return runner.run_case(rig, controller, plant, label, path, params, runner.construction_options(controller),
-                           trace=trace)
+                           engine=engine, trace=trace)
 
 
-def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None):
+def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,
+          engine: str = "auto"):
     """Every case, the longest first (the pool stays busy to the end)."""
     out = []
     for controller in controllers:
         for k, plant in enumerate(plants):
             for name in references or cases.default_references(plant):
-                out.append((rig, controller, params if controller == controllers[0] else None, plant, name, k == 0))
+                out.append((rig, controller, params if controller == controllers[0] else None, plant, name, k == 0,
+                            engine))
     weight = {"translation": 0, "circle": 1, "figure-eight": 2, "square": 3, "line": 4, "steps": 5}
     return sorted(out, key=lambda t: weight.get(t[4], -1))
 
@@ -87,7 +92,7 @@ def main(argv=None) -> int:
     except (ConfigError, ParamError, LookupError, ValueError, OSError) as exc:
         print(f"pneumactl evaluate: {exc}", file=sys.stderr)
         return 2
-    work = tasks(rig, controllers, params, plants, args.reference)
+    work = tasks(rig, controllers, params, plants, args.reference, args.engine)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.monotonic()

@@ -93,7 +93,7 @@ class FastLoop:
         self.J, self.C, self.O, self.G, self.K = J, C, O, G, Kc
         self.noise = _noise(transport._rng, len(transport.inputs) * (cycles + 1)) if G[K.G_SIGMA] > 0 else np.zeros(1)
         self.plant = (arm._coef, arm._buf, arm._state, arm._k, np.zeros(n))
-        self.A = np.zeros(2 * n)
+        self.U, self.A = np.zeros(self.width + n), np.zeros(2 * n)
 
     def set_trajectory(self, trajectory) -> None:
         """As :meth:`daemon.loop.controls.LoopControls.set_trajectory`: from the next cycle on."""
@@ -103,15 +103,16 @@ class FastLoop:
     def run(self, cycles: int, log: np.ndarray | None = None) -> bool:
         """``cycles`` cycles (each logged as reference, angles, output into ``log``'s rows when
         given); False after a trip (its cause in :attr:`cause`)."""
-        J, C, O, G, Kc, noise, A = self.J, self.C, self.O, self.G, self.K, self.noise, self.A
+        J, C, O, G, Kc, noise, U, A = self.J, self.C, self.O, self.G, self.K, self.noise, self.U, self.A
         coef, buf, state, k, tau = self.plant
         cycle, step, width, n, period = K.cycle, self.controller.step, self.width, self.n, self.period
-        u_col, trajectory, t0, stiffness, pressures = J[:, K.J_U], self.trajectory, self.t0, self.stiffness, self.pressures
-        deadline = self.deadline
+        trajectory, t0, stiffness, pressures = self.trajectory, self.t0, self.stiffness, self.pressures
+        L = np.zeros((0, 2 * n + width)) if log is None else log
+        Kc[K.K_LOG] = -1  # the first row is this run's first cycle: logged from the second call on
+        deadline, commands, references = self.deadline, range(width), range(n)
         for i in range(cycles):
             now = deadline
-            G[K.G_NOW] = now
-            outcome = cycle(J, C, O, G, Kc, noise, coef, buf, state, k, tau, A)
+            outcome = cycle(now, J, C, O, G, Kc, noise, coef, buf, state, k, tau, U, A, L)
             if outcome:
                 self._trip(outcome)
                 break
@@ -124,13 +125,18 @@ class FastLoop:
             except Exception as exc:  # as the loop: a failing controller trips
                 self.cause = f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}"
                 break
-            u_col[:] = u
+            for c in commands:
+                U[c] = u[c]
+            q = ref[0]
+            for j in references:
+                U[width + j] = q[j]
             Kc[K.K_WRITE] = 1
-            if log is not None:
-                log[i, :n], log[i, n:2 * n], log[i, 2 * n:] = ref[0], angles, u
+            if i == 0 and log is not None:
+                Kc[K.K_LOG] = 0
             deadline += period
             self.now = now
         else:
+            K.log_row(J, Kc, U, L)
             self.deadline, self.reference, self.u = deadline, ref, list(u)
             return True
         self.deadline = deadline

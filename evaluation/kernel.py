@@ -18,7 +18,9 @@ same numbers (tests/test_evaluation.py holds the fast engine equal to the daemon
   :meth:`daemon.loop.safety.Supervisor.check` (faults in a row, joint limits, speed in a row).
 
 Arrays (columns named below): J per joint, C per input channel, O per output channel, G the
-globals, K the counters, noise the draws, A out (angles then velocities).
+globals, K the counters, noise the draws, U in (the last command, then the reference angles it
+was computed for), A out (angles then velocities), L the log (a row per cycle: reference,
+angles, command, written at the next call).
 """
 from __future__ import annotations
 
@@ -34,20 +36,20 @@ J_SIG, J_SUP, J_SUPPLY_NOM, J_ANGLE0, J_GAIN, J_ZERO, J_LO, J_HI, J_RLO, J_RHI, 
 J_OUT_HEAD, J_OUT_ROD, J_BIAS, J_ROD_PA = 12, 13, 14, 15
 J_H_SLOPE, J_H_OFFSET, J_H_PMIN, J_H_PMAX, J_R_SLOPE, J_R_OFFSET, J_R_PMIN, J_R_PMAX = range(16, 24)
 J_QMIN, J_QMAX, J_WMAX = 24, 25, 26
-J_ANGLE, J_VEL, J_PH, J_PR, J_U = 27, 28, 29, 30, 31
-J_WIDTH = 32
+J_ANGLE, J_VEL, J_PH, J_PR = 27, 28, 29, 30
+J_WIDTH = 31
 # C columns: what (0 position, 1 first chamber, 2 second, 3 force, 4 supply pressure, 5 constant), joint, offset, slope, ADC
 C_WHAT, C_JOINT, C_OFFSET, C_SLOPE, C_LOW, C_HIGH, C_LSB, C_VALUE = range(8)
 C_WIDTH = 8
 O_LOW, O_HIGH, O_LSB, O_VALUE = range(4)
 O_WIDTH = 4
 # G: globals
-G_NOW, G_PREV_T, G_FILTER_W, G_STEP_S, G_T0, G_SUPPLY_PA, G_P_MAX, G_DP, G_SIGMA, G_CONTACT_F = range(10)
-G_REG = 10  # 5 regulator constants of the plant
-G_WIDTH = 15
-# K: counters
-K_STEPS, K_NOISE, K_BAD_SENSOR, K_BAD_SPEED, K_N_BAD, K_WRITE = range(6)
-K_WIDTH = 6
+G_PREV_T, G_FILTER_W, G_STEP_S, G_T0, G_SUPPLY_PA, G_P_MAX, G_DP, G_SIGMA, G_CONTACT_F = range(9)
+G_REG = 9  # 5 regulator constants of the plant
+G_WIDTH = 14
+# K: counters; K_LOG: the log's next row (-1: no log)
+K_STEPS, K_NOISE, K_BAD_SENSOR, K_BAD_SPEED, K_N_BAD, K_WRITE, K_LOG = range(7)
+K_WIDTH = 7
 # the cycle's outcome
 OK, SENSOR_TRIP, LIMIT_TRIP, SPEED_TRIP = 0, 1, 2, 3
 
@@ -63,16 +65,31 @@ def _quantise(value, low, high, lsb):
 
 
 @numba.njit(cache=True)
-def cycle(J, C, O, G, K, noise, coef, buf, state, k, tau, A):
-    """One cycle at G[G_NOW]; the outcome (OK or a trip) and, for a trip, the joint (+ 16 x code)."""
+def log_row(J, K, U, L):
+    """The last cycle's row of the log: its reference and command (U), its angles."""
+    row = K[K_LOG]
+    if row < 0 or row >= L.shape[0]:
+        return
+    n, width = J.shape[0], U.shape[0] - J.shape[0]
+    for i in range(n):
+        L[row, i] = U[width + i]
+        L[row, n + i] = J[i, J_ANGLE]
+    for c in range(width):
+        L[row, 2 * n + c] = U[c]
+    K[K_LOG] = row + 1
+
+
+@numba.njit(cache=True)
+def cycle(now, J, C, O, G, K, noise, coef, buf, state, k, tau, U, A, L):
+    """One cycle at ``now``; the outcome (OK or a trip) and, for a trip, the joint (+ 16 x code)."""
     n = J.shape[0]
-    now = G[G_NOW]
-    # write the last command (the cycle before's), when the loop wrote one
+    # write the last command (the cycle before's), when the loop wrote one; log its cycle
     if K[K_WRITE]:
+        log_row(J, K, U, L)
         p_max, dp = G[G_P_MAX], G[G_DP]
         for i in range(n):
             j = J[i]
-            v = _clip(j[J_BIAS] + j[J_U], 0.0, 10.0)
+            v = _clip(j[J_BIAS] + U[i], 0.0, 10.0)
             ph = _clip(j[J_H_SLOPE] * v + j[J_H_OFFSET], j[J_H_PMIN], j[J_H_PMAX])
             pr = j[J_ROD_PA]
             for side in range(2):
