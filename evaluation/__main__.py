@@ -12,15 +12,13 @@ the daemon's own loop on a virtual clock (:mod:`evaluation.runner`).
 from __future__ import annotations
 
 import argparse
-import multiprocessing
 import os
 import sys
-import time
 from pathlib import Path
 
 from controllers import registry
 from controllers.base import ControllerContext, ParamError
-from evaluation import cases, report, runner
+from evaluation import cases, pool, report, runner
 from hal import config
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
@@ -43,28 +41,6 @@ def parser() -> argparse.ArgumentParser:
                    help="fast: the loop's cycle compiled around the controller; loop: the daemon's loop itself "
                         "(the reference); auto: fast where it applies")
     return p
-
-
-def _work(task):
-    rig, controller, params, plant, name, trace, engine = task
-    context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
-    path = cases.reference(rig, context, name)
-    label = Path(name).name if name not in cases.PATHS else name
-    return runner.run_case(rig, controller, plant, label, path, params, runner.construction_options(controller),
-                           engine=engine, trace=trace)
-
-
-def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,
-          engine: str = "auto"):
-    """Every case, the longest first (the pool stays busy to the end)."""
-    out = []
-    for controller in controllers:
-        for k, plant in enumerate(plants):
-            for name in references or cases.default_references(plant):
-                out.append((rig, controller, params if controller == controllers[0] else None, plant, name, k == 0,
-                            engine))
-    weight = {"translation": 0, "circle": 1, "figure-eight": 2, "square": 3, "line": 4, "steps": 5}
-    return sorted(out, key=lambda t: weight.get(t[4], -1))
 
 
 def check(rig, controllers: list[str], params: dict, references: list[str] | None) -> None:
@@ -92,14 +68,9 @@ def main(argv=None) -> int:
     except (ConfigError, ParamError, LookupError, ValueError, OSError) as exc:
         print(f"pneumactl evaluate: {exc}", file=sys.stderr)
         return 2
-    work = tasks(rig, controllers, params, plants, args.reference, args.engine)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    start = time.monotonic()
-    with multiprocessing.Pool(max(1, args.jobs)) as pool:
-        results = pool.map(_work, work, chunksize=1)
-    elapsed = time.monotonic() - start
-    results.sort(key=lambda c: (controllers.index(c.controller), [p.name for p in plants].index(c.plant)))
+    results, elapsed = pool.run(rig, controllers, params, plants, args.reference, args.engine, args.jobs)
     report.write_csv(results, out / "cases.csv")
     table = report.summary(results, controllers)
     lines = report.failures(results)

@@ -29,6 +29,7 @@ from controllers import trajectory
 from controllers.base import ControllerContext
 from controllers.feasibility import Authority
 from daemon.client.client import read_waypoints
+from hal import config
 from hal.config import RigConfig
 from hal.errors import ConfigError
 from hal.interfaces import ROTARY
@@ -66,8 +67,10 @@ class Plant:
     noise: bool = True
     damping: float | None = None  # D factor; None: the friction factor (Fs, Fc and D together)
 
-    def sim_options(self, rig: RigConfig) -> dict:
-        """The simulator's options for this plant: overrides about the rig's own models."""
+    def sim_options(self, rig: RigConfig | None = None) -> dict:
+        """The simulator's options for this plant: overrides about the rig's own models (default:
+        the built-in simulated rig's)."""
+        rig = rig or config.load()
         joints = {}
         damping = self.friction if self.damping is None else self.damping
         for j, joint in enumerate(rig.joints):
