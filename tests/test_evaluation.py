@@ -23,6 +23,7 @@ from hal.schema import build
 from sim_backend.compiled_plant import CompiledArm
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
+from tests import doc_blocks, doc_runs
 from tests.doc_blocks import ROOT
 
 RIG = config.load()
@@ -165,3 +166,23 @@ def test_a_plant_file_is_read_strictly(tmp_path):
     bad.write_text('[[plants]]\ngian = 2\n')
     with pytest.raises(config.ConfigError, match="unknown key 'gian'"):
         cases.plants(str(bad), RIG)
+
+
+@pytest.mark.slow(seconds=60)
+def test_the_documents_evaluate_lines_run(tmp_path):
+    """docs/controllers.md's and docs/benchmarks.md's ``pneumactl evaluate`` lines, on the steps
+    (tests/doc_claims.toml), from a scratch directory: each writes its table and figures."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    lines = {}
+    for doc, section in (("docs/controllers.md", "Judging a controller before it touches the arm: `pneumactl evaluate`"),
+                         ("docs/benchmarks.md", "Evaluations: `pneumactl evaluate` (the loop's cycle compiled around "
+                                                "the controller)")):
+        for command in doc_blocks.commands(doc, section, match="^pneumactl evaluate "):
+            lines.setdefault(command.text, command)
+    assert len(lines) >= 3
+    for command in lines.values():
+        done = doc_runs.run(command, tmp_path, env=env, timeout=600)
+        assert done.returncode == 0, done.explain()
+        out = tmp_path / command.text.split("--out ")[1].split()[0]
+        assert "| steps 9.0 s |" in (out / "table.md").read_text(), done.explain()
+        assert (out / "summary.png").stat().st_size > 0 and (out / "cases.csv").stat().st_size > 0
