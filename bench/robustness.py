@@ -22,7 +22,7 @@ from evaluation import cases, pool, report
 from evaluation.cases import Plant  # noqa: F401 - the benches' and tests' name for a plant variation
 from hal import config
 
-CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
+CONTROLLERS = cases.BUILTINS
 
 
 def paths(loop, with_circle: bool) -> dict:

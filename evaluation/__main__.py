@@ -18,18 +18,17 @@ from pathlib import Path
 
 from controllers import registry
 from controllers.base import ControllerContext, ParamError
-from evaluation import cases, pool, report, runner
+from evaluation import cases, fast, pool, report, runner
 from hal import config
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
-
-BUILTINS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]  # the cylinder rig's, as the robustness bench runs them
 
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pneumactl evaluate", description=__doc__.splitlines()[0])
     p.add_argument("controllers", nargs="*", metavar="CONTROLLER")
-    p.add_argument("--all", action="store_true", help=f"every built-in cylinder controller ({', '.join(BUILTINS)})")
+    p.add_argument("--all", action="store_true",
+                   help=f"every built-in cylinder controller ({', '.join(cases.BUILTINS)})")
     p.add_argument("--param", action="append", default=[], metavar="K=V", help="a parameter of the first controller")
     p.add_argument("--config", help="rig file or built-in rig name (default: the built-in simulated rig)")
     p.add_argument("--reference", nargs="+", metavar="NAME|FILE",
@@ -43,10 +42,16 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def check(rig, controllers: list[str], params: dict, references: list[str] | None) -> None:
-    """Build each controller and each reference once here: a bad name, parameter or file is
-    refused before any worker starts."""
+def check(rig, controllers: list[str], params: dict, references: list[str] | None, engine: str,
+          plant: cases.Plant) -> None:
+    """Build each controller and each reference once here, and the fast engine when it is asked
+    for: a bad name, parameter or file, or an engine that does not apply, is refused before
+    any worker starts."""
     cases.check_rig(rig)
+    if engine == "fast":
+        why = fast.refusal(runner.make_loop(runner.evaluation_rig(rig, plant, True), "hold", None, None))
+        if why:
+            raise ValueError(f"--engine fast needs {why} (--engine loop runs any rig the simulator has)")
     context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
     for controller in controllers:
         registry.build(controller, context, params if controller == controllers[0] else None,
@@ -57,14 +62,16 @@ def check(rig, controllers: list[str], params: dict, references: list[str] | Non
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    controllers = BUILTINS + [c for c in args.controllers if c not in BUILTINS] if args.all else args.controllers
+    controllers = list(dict.fromkeys(args.controllers))
+    if args.all:
+        controllers = cases.BUILTINS + [c for c in args.controllers if c not in cases.BUILTINS]
     if not controllers:
         parser().error("name a controller, or --all")
     try:
         params = dict(config.parse_option(p, "--param") for p in args.param)
         rig = config.load(args.config)
         plants = cases.plants(args.plants, rig)
-        check(rig, controllers, params, args.reference)
+        check(rig, controllers, params, args.reference, args.engine, plants[0])
     except (ConfigError, ParamError, LookupError, ValueError, OSError) as exc:
         print(f"pneumactl evaluate: {exc}", file=sys.stderr)
         return 2

@@ -35,6 +35,7 @@ from hal.errors import ConfigError
 from hal.interfaces import ROTARY
 from hal.joints import CYLINDER
 
+BUILTINS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]  # the cylinder rig's (--all; the robustness bench's)
 PLANT_SETS = ("nominal", "thesis", "grid")
 PATHS = ("translation", "circle", "line", "figure-eight", "square", "steps")
 THESIS_GAIN = {"bottom": (0.41, 1.41), "middle": (0.59, 1.41)}  # K_min, K_max (rig-facts §1)

@@ -1,6 +1,7 @@
 """Every case of an evaluation on every core: a process pool, the longest cases first."""
 from __future__ import annotations
 
+import math
 import multiprocessing
 import os
 import time
@@ -11,13 +12,19 @@ from evaluation import cases, runner
 from hal.actuation import RigActuation
 
 
-def _work(task):
+def _work(task) -> runner.Case:
+    """One case in a worker; an error of its own (not a trip: those are the case's figures) is
+    its ``tripped`` cause, so one case's failure names itself and the others still run."""
     rig, controller, params, plant, name, trace, engine = task
-    context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
-    path = cases.reference(rig, context, name)
     label = Path(name).name if name not in cases.PATHS else name
-    return runner.run_case(rig, controller, plant, label, path, params, runner.construction_options(controller),
-                           engine=engine, trace=trace)
+    try:
+        context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
+        path = cases.reference(rig, context, name)
+        return runner.run_case(rig, controller, plant, label, path, params, runner.construction_options(controller),
+                               engine=engine, trace=trace)
+    except Exception as exc:  # noqa: BLE001 - reported in the table, never silent
+        return runner.Case(controller, plant.name, label, math.nan, tripped=f"evaluation failed: "
+                           f"{type(exc).__name__}: {exc}")
 
 
 def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,
