@@ -96,14 +96,19 @@ def test_the_fast_engine_gives_the_daemons_loop_numbers(controller):
     assert 0.0 < case.tip_max_mm < 50.0
 
 
-@pytest.mark.slow(seconds=3)
-def test_a_failing_controller_trips_both_engines_with_the_loops_cause():
+@pytest.mark.slow(seconds=4)
+@pytest.mark.parametrize("plugin, cause", [
+    ("tests.plugins:Raising", "controller raising failed: RuntimeError: controller bug"),
+    ("tests.plugins:Contrary", "before the reference: joint bottom at 175.0 deg is outside its limits 85.0..175.0 deg"),
+])
+def test_a_trip_ends_the_case_in_both_engines_with_the_loops_cause(plugin, cause):
+    """A controller that raises, and one that drives a joint into its limit: both engines trip
+    in the same cycle with the supervisor's own words."""
     path = cases.reference(RIG, CONTEXT, "steps")
-    plugins = {"raising": "tests.plugins:Raising"}
-    fast = runner.run_case(RIG, "raising", cases.Plant("nominal"), "steps", path, plugins=plugins, engine="fast")
-    loop = runner.run_case(RIG, "raising", cases.Plant("nominal"), "steps", path, plugins=plugins, engine="loop")
+    fast = runner.run_case(RIG, plugin, cases.Plant("nominal"), "steps", path, engine="fast")
+    loop = runner.run_case(RIG, plugin, cases.Plant("nominal"), "steps", path, engine="loop")
     assert fast.tripped == loop.tripped
-    assert "controller raising failed: RuntimeError: controller bug" in fast.tripped
+    assert cause in fast.tripped
     assert math.isnan(fast.tip_max_mm)
 
 
