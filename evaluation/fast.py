@@ -20,6 +20,7 @@ from controllers.base import JointState, Reference, check_output
 from evaluation import kernel as K
 from hal.potentiometer import RDC506
 
+_SAMPLES: dict = {}  # (reference key, t0) -> its samples cycle by cycle: shared by a worker's cases on it
 WHAT = {"position": 0, "first": 1, "second": 2, "force": 3, "supply_pressure": 4, "supply": 5, "constant": 5}
 
 
@@ -59,6 +60,7 @@ class FastLoop:
         self.pressures = loop.snapshot.pressures
         self.u = list(loop.u)
         self.cause = ""
+        self.samples = None  # a reference's samples kept across cases (set_trajectory)
         n = self.n
         J = np.zeros((n, K.J_WIDTH))
         pairs = {i: (ih, ir) for i, _, ih, _, ir in io._pairs}
@@ -95,10 +97,21 @@ class FastLoop:
         self.plant = (arm._coef, arm._buf, arm._state, arm._k, np.zeros(n))
         self.U, self.A = np.zeros(self.width + n), np.zeros(2 * n)
 
-    def set_trajectory(self, trajectory) -> None:
-        """As :meth:`daemon.loop.controls.LoopControls.set_trajectory`: from the next cycle on."""
+    def set_trajectory(self, trajectory, key=None) -> None:
+        """As :meth:`daemon.loop.controls.LoopControls.set_trajectory`: from the next cycle on.
+        ``key`` names the reference (the same key, the same trajectory): its samples are then
+        kept for the next case that runs it from the same t0 (the cycles' times are then the
+        same floats: every case counts its deadlines from the same start), so the controllers
+        compared on one plant and path sample it once."""
         self.trajectory, self.t0 = trajectory, self.now + self.period
         self.reference = trajectory.sample(0.0)
+        self.samples = None
+        if key is not None:
+            if (key, self.t0) not in _SAMPLES:
+                while len(_SAMPLES) >= 2:
+                    del _SAMPLES[next(iter(_SAMPLES))]
+                _SAMPLES[(key, self.t0)] = []
+            self.samples = _SAMPLES[(key, self.t0)]
 
     def run(self, cycles: int, log: np.ndarray | None = None) -> bool:
         """``cycles`` cycles (each logged as reference, angles, output into ``log``'s rows when
@@ -109,14 +122,20 @@ class FastLoop:
         trajectory, t0, stiffness, pressures = self.trajectory, self.t0, self.stiffness, self.pressures
         L = np.zeros((0, 2 * n + width)) if log is None else log
         Kc[K.K_LOG] = -1  # the first row is this run's first cycle: logged from the second call on
-        deadline, commands, references = self.deadline, range(width), range(n)
+        deadline, commands, references, samples = self.deadline, range(width), range(n), self.samples
+        kept = len(samples) if samples is not None else 0
         for i in range(cycles):
             now = deadline
             outcome = cycle(now, J, C, O, G, Kc, noise, coef, buf, state, k, tau, U, A, L)
             if outcome:
                 self._trip(outcome)
                 break
-            ref = trajectory.sample(now - t0)
+            if i < kept:
+                ref = samples[i]
+            else:
+                ref = trajectory.sample(now - t0)
+                if samples is not None:
+                    samples.append(ref)
             both = A.tolist()
             angles, velocities = both[:n], both[n:]
             try:

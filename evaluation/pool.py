@@ -29,7 +29,8 @@ def _work(task) -> runner.Case:
 
 def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,
           engine: str = "auto"):
-    """Every case, the longest first (the pool stays busy to the end)."""
+    """Every case, the longest first (the pool stays busy to the end), the controllers on one
+    plant and reference one after another (a worker samples the reference once for them)."""
     out = []
     for controller in controllers:
         for k, plant in enumerate(plants):
@@ -37,7 +38,7 @@ def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], 
                 out.append((rig, controller, params if controller == controllers[0] else None, plant, name, k == 0,
                             engine))
     weight = {"translation": 0, "circle": 1, "figure-eight": 2, "square": 3, "line": 4, "steps": 5}
-    return sorted(out, key=lambda t: weight.get(t[4], -1))
+    return sorted(out, key=lambda t: (weight.get(t[4], -1), plants.index(t[3]), controllers.index(t[1])))
 
 
 def run(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,

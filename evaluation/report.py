@@ -71,7 +71,7 @@ def figures(cases: list[Case], controllers: list[str], joints: list[str], out: P
 
     written = []
     references = list(dict.fromkeys(c.reference for c in cases))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(references) * max(1, len(controllers)) ** 0.5), 4.0))
+    fig, ax = plt.subplots(figsize=(min(14.0, 3.0 + 0.25 * len(references) * max(len(controllers), 2)), 4.5))
     width = 0.8 / max(len(controllers), 1)
     for k, controller in enumerate(controllers):
         xs, first, worst = [], [], []

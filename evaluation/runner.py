@@ -101,7 +101,7 @@ class LoopEngine:
     def __init__(self, loop: ControlLoop, cycles: int):
         self.loop, self.cause = loop, ""
 
-    def set_trajectory(self, path: trajectory.Trajectory) -> None:
+    def set_trajectory(self, path: trajectory.Trajectory, key=None) -> None:
         self.loop.set_trajectory(path, "path")
 
     @property
@@ -149,7 +149,7 @@ def run_case(rig: config.RigConfig, controller: str, plant: cases.Plant, name: s
         case.tripped = f"before the reference: {runs.cause}"
         return case
     u_before = runs.u
-    runs.set_trajectory(path)
+    runs.set_trajectory(path, (rig.hash, name, path.duration))
     log = np.full((moving + after, 2 * loop.n + loop.actuation.width), np.nan)
     if not runs.run(moving + after, log):
         case.tripped = runs.cause
