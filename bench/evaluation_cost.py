@@ -4,10 +4,11 @@ CPU the robustness grid (``--all --plants grid``: 444 cases) needs at those cost
 
     python -m bench.evaluation_cost [--controllers hold pid smc ...] [--no-loop]
 
-``hold`` (which returns zeros) gives the fast engine's own cost a cycle; a controller's row less
-that is its step (and its reference's sampling). The grid's cycles are counted from its cases'
-own durations (approach, settle, reference, hold). Process CPU time (``time.process_time``),
-each case run twice and the second taken (numba's compilation or cache load is the first's).
+``hold`` (which repeats the output it took over) gives the fast engine's own cost a cycle; a
+controller's row less that is its step. The grid's cycles are counted from its cases' own
+durations (approach, settle, reference, hold). Process CPU time (``time.process_time``), each
+case run twice and the second taken: numba's compilation or cache load is the first's, and the
+second finds the reference's samples the first kept, as most of the grid's cases do.
 """
 from __future__ import annotations
 
