@@ -46,6 +46,8 @@ TRACE_EVERY = 10  # cycles between the samples kept for figures
 
 @dataclass
 class Case:
+    """One case's figures (module docstring); ``tripped``: the supervisor's cause, "" if it ran."""
+
     controller: str
     plant: str
     reference: str
@@ -98,10 +100,11 @@ def approach_duration(loop: ControlLoop, target) -> float:
 class LoopEngine:
     """The daemon's loop itself, a cycle at a time: the reference the fast engine is held to."""
 
-    def __init__(self, loop: ControlLoop, cycles: int):
+    def __init__(self, loop: ControlLoop):
         self.loop, self.cause = loop, ""
 
     def set_trajectory(self, path: trajectory.Trajectory, key=None) -> None:
+        """The loop's own (``key``: the fast engine's sample sharing, none here)."""
         self.loop.set_trajectory(path, "path")
 
     @property
@@ -123,7 +126,7 @@ class LoopEngine:
 def engine_for(loop: ControlLoop, cycles: int, engine: str):
     """``fast`` (refused where it does not apply: ValueError), ``loop``, or ``auto`` (fast where it applies)."""
     if engine == "loop" or (engine == "auto" and fast.refusal(loop)):
-        return LoopEngine(loop, cycles)
+        return LoopEngine(loop)
     return fast.FastLoop(loop, cycles)
 
 
