@@ -24,7 +24,7 @@ import numpy as np
 
 from bench import scenarios as S
 from controllers import trajectory
-from daemon.client.plots import merge_identical, start_and_direction
+from daemon.client.plot_marks import merge_identical, start_and_direction
 
 CONTROLLERS = ["pid", "smc", "smc_dob", "sac", "lti", "lti_dob"]
 STEPS_DEG = (10.0, 5.0)  # bottom, middle

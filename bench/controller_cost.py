@@ -1,5 +1,6 @@
 """Per-step cost of each built-in controller for the two joints of the built-in rig, and of the
-muscle rig's controllers for its joint (``sim-muscle``, with measured pressures).
+muscle rig's controllers for its joint (``sim-muscle``, with measured pressures), and of the linear
+axis's (``sim-axis``, mid-stroke).
 
     python -m bench.controller_cost
 
@@ -51,6 +52,10 @@ def main() -> int:
     muscle = make_loop("muscle_eq", rig="sim-muscle")
     for name in ("muscle_eq", "muscle_pid"):
         p50, p99, worst = measure(name, muscle.context, [math.radians(45.0)])
+        print(f"{name:10s} {p50:8.1f} {p99:8.1f} {worst:8.1f}")
+    axis = make_loop("axis_pid", rig="sim-axis")
+    for name in ("axis_pid", "axis_pva"):
+        p50, p99, worst = measure(name, axis.context, [0.1])  # mid-stroke [m]
         print(f"{name:10s} {p50:8.1f} {p99:8.1f} {worst:8.1f}")
     return 0
 

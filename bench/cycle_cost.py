@@ -19,9 +19,10 @@ from controllers.base import JointState, Reference
 from controllers.experiment import InputExperiment
 from controllers.signals import Multisine
 from daemon.loop.clock import VirtualClock
-from daemon.assembly import loop_from_args
+from daemon.assembly import cycle_layout, loop_from_args
 from daemon.main import parser
 from daemon.loop.port import ZmqServer
+from hal import config
 
 
 def per_call_us(fn, n: int) -> float:
@@ -37,7 +38,8 @@ def main() -> None:
     n = ap.parse_args().cycles
     header("one loop cycle, hot, on a virtual clock (simulated rig, PID, telemetry, command poll)")
     clock = VirtualClock()
-    server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
+    server = ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*",
+                       layout=cycle_layout(config.load()))
     try:
         loop = loop_from_args(parser().parse_args(["run"]), clock, server.publish, server.stats_banks)
         server.attach(loop)
@@ -58,8 +60,9 @@ def main() -> None:
                 loop.supervisor.check(loop.snapshot.angles, loop.velocities, (), 0.0)),
             "  control: reference + PID": lambda: loop._control(clock.t),
             "  write: pressures, clamps, drivers, DAC": loop._write_command,
-            "  telemetry row": lambda: loop.telemetry.record(loop),
-            "  command poll (nothing pending)": lambda: server.poll(loop),
+            "  cycle record (the layout's spans)": lambda: loop._record(loop.snapshot),
+            "  telemetry row (the record packed)": lambda: loop.telemetry.record(loop),
+            "  command poll (nothing pending)": lambda: server.poll(loop.cycle),
         }
         cycle_state = JointState(0.0, loop.angles, loop.velocities), Reference(*loop.reference)
         parts["    of which PID step"] = lambda: loop.controller.step(*cycle_state)

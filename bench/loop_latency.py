@@ -1,7 +1,7 @@
 """The daemon's loop under its full workload, against cyclictest run at the same time.
 
 Usage: python -m bench.loop_latency [--seconds 30] [--subscribers 10] [--priority 80] [--loop-cpu N] [--keys]
-                                    [--foxglove]
+                                    [--foxglove] [--snapshots S]
 
 Starts a real ``pneumad`` (simulated rig, PID enabled, SCHED_FIFO at --priority where
 permitted) and cyclictest at the same priority, then loads the daemon from this process:
@@ -20,6 +20,10 @@ client of this bench holding an allowed key): the same figures, with CURVE's cos
 --foxglove runs the daemon with its live Foxglove stream (``--foxglove 127.0.0.1:PORT``) and
 connects two Foxglove WebSocket clients subscribed to every channel, one reading everything,
 one stalled: the same figures with the stream's cost in them, and the messenger's CPU time.
+
+--snapshots S asks for a ``record.snapshot`` every S seconds: the flight recorder writing the
+seconds it holds to a file beside the loop (docs/recordings.md, "The flight recorder"), as on
+each trip, without the trip.
 """
 from __future__ import annotations
 
@@ -47,6 +51,8 @@ def main() -> None:
     ap.add_argument("--loop-cpu", type=int, default=None, help="the loop alone on this CPU, the rest elsewhere")
     ap.add_argument("--keys", action="store_true", help="CURVE on every socket")
     ap.add_argument("--foxglove", action="store_true", help="the live Foxglove stream, a reading and a stalled client")
+    ap.add_argument("--snapshots", type=float, default=0.0,
+                    help="a record.snapshot every this many seconds: the flight recorder writing beside the loop")
     args = ap.parse_args()
     placement = ""
     daemon_options = ["--rt-priority", str(args.priority), "--stats-period", str(args.seconds)]
@@ -63,6 +69,8 @@ def main() -> None:
         port = free_tcp_port()
         daemon_options += ["--foxglove", f"127.0.0.1:{port}"]
         placement += "; Foxglove stream, one client reading every channel and one stalled"
+    if args.snapshots:
+        placement += f"; a flight snapshot every {args.snapshots:g} s"
     header(f"loop latency under full workload: {args.subscribers} subscriber(s), one stalled{placement}")
     daemon, eps = spawn_daemon(*daemon_options)
     ctx = zmq.Context.instance()
@@ -77,7 +85,9 @@ def main() -> None:
                     raise
         stats_sub = stats_subscriber(eps)
         stop = threading.Event()
-        healthy = [Reader(ctx, eps["telemetry"], stop, keep=(i == 0)) for i in range(max(args.subscribers - 1, 0))]
+        first = f"{client.layout().owners()[0]}.setpoint"  # the set-point a set's effect shows in (the state's column)
+        healthy = [Reader(ctx, eps["telemetry"], stop, keep=first if i == 0 else "")
+                   for i in range(max(args.subscribers - 1, 0))]
         stalled = secure(ctx.socket(zmq.SUB))
         stalled.setsockopt(zmq.RCVHWM, 10)
         stalled.setsockopt(zmq.SUBSCRIBE, b"")
@@ -93,7 +103,11 @@ def main() -> None:
         rtt, effects = [], []
         start = time.monotonic()
         n = 0
+        snapshots, next_snapshot = 0, start + args.snapshots
         while time.monotonic() - start < args.seconds:
+            if args.snapshots and time.monotonic() >= next_snapshot:
+                client.record_snapshot()  # written by the recorder process a moment later
+                snapshots, next_snapshot = snapshots + 1, next_snapshot + args.snapshots
             t0 = time.perf_counter()
             client.ping()
             rtt.append(time.perf_counter() - t0)
@@ -123,6 +137,8 @@ def main() -> None:
         daemon.wait(10)
     report(args, stats, ct_result, rtt, effects, healthy)
     print(f"transport counters        : {transport['counters'] or 'none'} over {transport['reads']} reads")
+    if args.snapshots:
+        print(f"flight snapshots          : {snapshots} asked, one every {args.snapshots:g} s")
     if messenger_s is not None:
         print(f"messenger process CPU     : {messenger_s / args.seconds * 100:.1f} % of a core over the run")
     if fox is not None:
@@ -212,9 +228,10 @@ def _cmdline(pid: int) -> bytes:
 
 
 class Reader(threading.Thread):
-    """A healthy subscriber: reads every state message and counts gaps in its sequence."""
+    """A healthy subscriber: reads every state message and counts gaps in its sequence;
+    ``keep``: the name of a set-point column whose values it keeps by cycle ("": none)."""
 
-    def __init__(self, ctx, endpoint, stop, keep=False):
+    def __init__(self, ctx, endpoint, stop, keep: str = ""):
         super().__init__(daemon=True)
         self.sock = secure(ctx.socket(zmq.SUB))
         self.sock.setsockopt(zmq.RCVHWM, 0)
@@ -235,8 +252,8 @@ class Reader(threading.Thread):
             last = m["seq"]
             self.messages += 1
             if self.keep:
-                for c, sp in zip(m["cycle"], m["setpoint_rad"]):
-                    self.setpoints[c] = sp[0]
+                for c, sp in zip(m["cycle"], m[self.keep]):
+                    self.setpoints[c] = sp
         self.sock.close(linger=0)
 
 

@@ -103,6 +103,8 @@ class ControllerContext:
     actuations: tuple[str, ...] = ()  # per joint: "cylinder" or "muscle_pair" (default: all cylinder)
     commands: tuple = ()  # hal.actuation.CommandInterface per command (default: one V_MV per joint)
     muscles: tuple = ()  # hal.muscle.MuscleJoint per joint, None for a cylinder joint
+    axes: tuple = ()  # hal.linear_axis.AxisParams per joint, None for a joint that is not a linear axis
+    defaults: Mapping[str, Mapping] | None = None  # the rig file's [controllers.NAME] tables: name -> parameters
 
     @classmethod
     def for_rig(cls, rig, actuation, dt: float) -> "ControllerContext":
@@ -111,7 +113,8 @@ class ControllerContext:
                    tuple(NominalJoint.from_rig(j, rig.joint_params(j)) if j.head is not None else None
                          for j in rig.joints),
                    tuple(j.actuation for j in rig.joints), actuation.commands,
-                   tuple(MuscleJoint.from_rig(rig, j) if j.muscles is not None else None for j in rig.joints))
+                   tuple(MuscleJoint.from_rig(rig, j) if j.muscles is not None else None for j in rig.joints),
+                   tuple(j.linear_axis for j in rig.joints), rig.controllers)
 
     @property
     def n(self) -> int:
@@ -176,8 +179,13 @@ class Controller(ABC):
         except ParamError as exc:  # the options refused as a whole: named for a client
             exc.data.setdefault("option", ", ".join(o.name for o in self.options))
             raise
-        defaults = {p.name: _per_joint(p.default, context.n) for p in self.params}
-        self._values = defaults
+        self._values = {p.name: _per_joint(p.default, context.n) for p in self.params}
+        rig_defaults = (context.defaults or {}).get(self.name)
+        if rig_defaults:  # the rig file's [controllers.NAME] over the class's own
+            try:
+                self._values = self.validate_params(rig_defaults)
+            except ParamError as exc:
+                raise ParamError(f"the rig file's [controllers.{self.name}]: {exc}", **exc.data) from None
         self.apply_params(self.prepare_params(values))
 
     def _check_actuation(self, context: ControllerContext) -> None:

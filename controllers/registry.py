@@ -20,6 +20,8 @@ BUILTIN = {
     "hold": "controllers.hold:Hold",
     "muscle_eq": "controllers.muscle:MuscleEquilibrium",
     "muscle_pid": "controllers.muscle:MusclePID",
+    "axis_pid": "controllers.axis:AxisPID",
+    "axis_pva": "controllers.axis:AxisPVA",
 }
 
 
@@ -55,6 +57,26 @@ def build(name: str, context: ControllerContext, params: dict | None = None, opt
 def drivers(actuation: str) -> list[str]:
     """The built-in controllers that drive joints of this actuation."""
     return [name for name in BUILTIN if load(name).actuation in (actuation, None)]
+
+
+def check_defaults(context: ControllerContext, plugins: dict[str, str] | None = None) -> None:
+    """The rig file's ``[controllers.NAME]`` tables (``context.defaults``): ParamError naming the
+    table and key unless NAME is a registered controller and every key one of its parameters;
+    where the controller drives this rig, its values are checked by building it."""
+    for name, table in (context.defaults or {}).items():
+        try:
+            cls = load(name, plugins, paths=False)
+        except LookupError as exc:
+            raise ParamError(f"controllers.{name}: {exc}") from None
+        known = [p.name for p in cls.params]
+        for key in table:
+            if key not in known:
+                raise ParamError(f"controllers.{name}.{key}: unknown parameter of {name} (known: "
+                                 f"{', '.join(known) or 'none'})", parameter=key, allowed=known)
+        try:
+            cls(context)
+        except ActuationError:
+            continue  # a controller for other joints: its names checked, its values when a rig it drives takes them
 
 
 def prepare_change(cls: type[Controller], context: ControllerContext, options: dict,

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from contextlib import contextmanager
+import time
 
 from controllers import registry
 from controllers.base import ControllerContext
@@ -26,8 +27,10 @@ from daemon.loop.tracking import TrackingGuard
 from daemon.messenger.shared import STALL_S
 from daemon.planner.process import DEFAULT_TIME_LIMIT_S, Preparer
 from daemon.service import realtime
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.loop_stats import StatsBanks
 from hal import config
+from hal.declare import declare
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
 from hal.rig import PressureDrivers, RigIO
@@ -75,6 +78,10 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
     actuation = RigActuation(rig, drivers)
     context = ControllerContext.for_rig(rig, actuation, period)
     try:
+        registry.check_defaults(context, plugins)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    try:
         active = registry.build(starting_controller(controller, rig), context, plugins=plugins)
     except (LookupError, ValueError) as exc:  # ParamError is a ValueError
         raise ConfigError(f"--controller: {exc}") from None
@@ -90,6 +97,15 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
                      TrackingGuard(names, safety.tracking_error_deg, safety.tracking_window_s, safety.tracking_error_mm,
                                    tuple(j.position_unit for j in rig.joints)),
                      LoadFeedForward(context), plugins)
+
+
+def cycle_layout(rig: config.RigConfig, outputs: Sequence[str] | None = None,
+                 actuation: RigActuation | None = None) -> CycleLayout:
+    """The cycle record's layout on ``rig`` (:mod:`daemon.wire.cycle_layout`), whose transport
+    writes ``outputs`` (default: the channels its transport declares, built but not opened)."""
+    if outputs is None:
+        outputs = [ch.name for ch in create_transport(rig, time.monotonic).outputs]
+    return CycleLayout.of(declare(rig, outputs, actuation))
 
 
 def open_rig(rig: config.RigConfig, now: Callable[[], float], drivers: PressureDrivers | None = None) -> RigIO:
@@ -111,10 +127,17 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
     counted into ``stats_banks`` if given (a port's, which its messenger summarises); the rig's
     contact sensor's process started when it has one and ``contact`` (an in-process loop on
     a virtual clock leaves it out: its frames come in real time). Each regulator's driver
-    is built once, for the I/O and the command interfaces both."""
+    is built once, for the I/O and the command interfaces both. The cycle record's layout is
+    built here once, from the rig's declared interfaces (its messenger's port, built before,
+    checks it has the same: :meth:`daemon.loop.port.ZmqServer.attach`)."""
     drivers = PressureDrivers.of(rig)
     parts = loop_parts(rig, period, controller, plugins, drivers)
     io = open_rig(rig, clock.now, drivers)
+    try:
+        layout = cycle_layout(rig, [ch.name for ch in io.transport.outputs], parts.actuation)
+    except Exception:
+        io.transport.close()
+        raise
     sensor = None
     if contact and rig.contact_sensor is not None:
         sensor = ContactSensor(rig.contact_sensor, clock.now)
@@ -123,7 +146,7 @@ def build_loop(rig: config.RigConfig, clock, period: float = 0.001, controller: 
         except Exception:
             io.transport.close()
             raise
-    return ControlLoop(io, clock, parts, telemetry=Telemetry(publish) if publish is not None else None,
+    return ControlLoop(io, clock, parts, layout, telemetry=Telemetry(publish, layout) if publish is not None else None,
                        contact_sensor=sensor, stats=LoopStats(stats_banks))
 
 
@@ -152,10 +175,11 @@ def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
     """The messenger's sockets from ``pneumad run``'s options, closed on the way out. Made
     before the real-time set-up: the messenger keeps normal priority and every CPU."""
     recording = None if args.record_dir == "none" else {"directory": args.record_dir, "max_mb": args.record_max_mb,
-                                                         "min_free_mb": args.record_min_free_mb}
+                                                         "min_free_mb": args.record_min_free_mb, "flight": rig.flight_recorder}
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
                        recording=recording, plotjuggler=args.plotjuggler,
-                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing)
+                       foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing,
+                       layout=cycle_layout(rig))
     try:
         yield server
     finally:

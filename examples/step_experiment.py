@@ -35,8 +35,9 @@ def main() -> int:
         c.keep_lease()
         if c.status()["state"] != "enabled":  # a daemon left enabled (e.g. by the README's snippet) is used as it is
             c.enable()
-        start = c.status()["joints"]
-        target = [j["angle_deg"] for j in start.values()]
+        layout, here = c.layout(), c.sample()  # where the arm is: the cycle record's latest row
+        joints = layout.owners()
+        target = [math.degrees(here[f"{j}.position"]) for j in joints]
         target[0] += args.step_deg
         with Client(**endpoints, timeout=5.0) as listener:  # its own client: a client's sockets serve one thread
             recorder = threading.Thread(target=mcap_log.record, args=(listener, path, args.seconds))
@@ -46,9 +47,9 @@ def main() -> int:
             recorder.join()
         c.disable()
         c.release_lease()
-    data = recording.load(path)  # numpy columns named with units
-    name = next(iter(start))
-    angle = [math.degrees(a) for a in data[f"{name}.angle_rad"]]
+    data = recording.load(path)  # numpy columns, one per field of the cycle record (SI: rad)
+    name = joints[0]
+    angle = [math.degrees(a) for a in data[f"{name}.position"]]
     first, peak = angle[0], max(angle) if args.step_deg > 0 else min(angle)
     print(f"{name}: step {args.step_deg:g} deg, overshoot {100 * (abs(peak - first) / abs(args.step_deg) - 1):.1f} %")
     for figure in plots.plot_runs([path], path.parent):

@@ -136,6 +136,21 @@ class TimingConfig:
 
 
 @dataclass(frozen=True)
+class FlightRecorderConfig:
+    """The flight recorder beside the loop (the recorder process; docs/recordings.md, "The flight
+    recorder"): the last ``seconds`` of every telemetry topic held in memory as published, and
+    written to an MCAP file on each trip, e-stop and stalled loop, from ``seconds`` before the
+    event to ``after_s`` after it. Only a daemon that records (``--record-dir``) has one."""
+
+    seconds: float = 30.0  # [s] of telemetry before the event each file holds
+    after_s: float = 3.0  # [s] after it: what the safe state did
+
+    def __post_init__(self):
+        require(1.0 <= self.seconds <= 600.0, "seconds", "must be within 1-600 s")
+        require(0.0 <= self.after_s <= 60.0, "after_s", "must be within 0-60 s")
+
+
+@dataclass(frozen=True)
 class TransportConfig:
     """Which backend moves the raw values; ``options`` are validated by that backend."""
 
@@ -159,11 +174,15 @@ class RigConfig:
     limits: LimitsConfig = LimitsConfig()
     safety: SafetyConfig = SafetyConfig()
     timing: TimingConfig = TimingConfig()  # when the loop's timing is degraded, and what then
+    flight_recorder: FlightRecorderConfig = FlightRecorderConfig()  # the last seconds, written on each trip
     force_sensor: Any = None  # the tip force sensor's table (device default "asfs")
     supply_pressure: Any = None  # a transmitter on the supply line (device default "pressure_transmitter")
     inputs: tuple[Any, ...] = ()  # [[inputs]]: further analog inputs of the rig
     contact_sensor: ContactSensorConfig | None = None  # the array pressure sensor, beside the loop
     models: dict[str, Any] = field(default_factory=dict)  # [models.NAME] tables (hal.identified.parse_models)
+    # [controllers.NAME] tables: a controller's parameters on this rig, over its own defaults (their names
+    # and values are checked against the controller when the daemon builds its loop: daemon.assembly)
+    controllers: dict[str, Any] = field(default_factory=dict)
     joint_models: dict[str, JointParams] = field(default_factory=dict, init=False, compare=False)  # built-in + own
     source: str = field(default="", init=False, compare=False)  # the TOML text it was built from
     origin: str = field(default="", init=False, compare=False)  # a path or "builtin:NAME"
@@ -181,6 +200,9 @@ class RigConfig:
         names = [j.name for j in self.joints]
         dup = _first_duplicate(names)
         require(dup is None, "joints", f"joint name {dup!r} is used twice")
+        for name, table in self.controllers.items():
+            require(isinstance(table, dict), f"controllers.{name}",
+                    "must be a table of the controller's parameters (a number, or one per joint)")
         self._check_arm()
         self._parse_sensors()
         self._check_channels()

@@ -28,7 +28,7 @@ kg, s), the valve command in volts at the edge:
   and stiction at rest up to Fs; inelastic end stops at 0 and the stroke.
 
 The time stepping is :mod:`sim_backend.axis_model`; the linearisation and a controller's figures
-are :mod:`hal.linear_axis_lti`.
+are :mod:`hal.linear_axis_facts`.
 """
 from __future__ import annotations
 

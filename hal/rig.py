@@ -75,6 +75,7 @@ class RigIO:
         self.config = config
         self.transport = transport
         self.joint_names = tuple(j.name for j in config.joints)
+        self.position_units = tuple(j.position_unit for j in config.joints)  # "rad" or "m" per joint
         for ch in transport.outputs:
             if ch.is_input:
                 raise ConfigError(f"{transport.backend}: channel {ch.name} declared as an output but is an input")

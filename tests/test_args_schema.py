@@ -25,6 +25,8 @@ AFTER_THE_STATE = {
     **{("excite", name): "a signal's settings taken together (f1_hz above f0_hz, f0_hz and period_s, its length)"
        for name in ("f0_hz", "f1_hz", "duration_s", "order", "bit_s", "periods", "components", "period_s")},
     ("set", "stiffness_nm_deg"): "the rig: a cylinder joint takes no stiffness",
+    **{("excite", name): "the rig: a rotary joint's amplitude and band are in deg"
+       for name in ("amplitude_mm", "band_mm")},
     ("load.set", "mass_kg"): "the rig: a load its joints cannot carry in every posture",
 }
 STATE_CHANGING = {"estop", "enable", "disable", "reset", "lease.release", "lease.acquire", "abort"}

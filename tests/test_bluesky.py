@@ -82,17 +82,17 @@ def test_a_step_response_runs_as_a_plan_and_its_1khz_record_reads_back_from_tile
     record = run["record"]
     cycle = np.asarray(record["arm_record_cycle"].read())
     t = np.asarray(record["arm_record_t"].read())
-    angle = np.degrees(np.asarray(record["arm_record_bottom_angle_rad"].read()))
-    setpoint = np.degrees(np.asarray(record["arm_record_bottom_setpoint_rad"].read()))
+    angle = np.degrees(np.asarray(record["arm_record_bottom_position"].read()))
+    setpoint = np.degrees(np.asarray(record["arm_record_bottom_setpoint"].read()))
     # every cycle the loop ran (not a scan's points), from before the step to 3 s after it settled
     assert np.all(np.diff(cycle) == 1) and t[-1] - t[0] > 3.0
     changes = np.diff(setpoint)
     assert changes[np.flatnonzero(np.abs(changes) > 1.0)[-1]] == pytest.approx(3.0, abs=1e-3)  # a step, in one cycle
     assert angle[-1] == pytest.approx(setpoint[-1], abs=0.5)  # the run ended settled, as the plan waits for
     primary = run["primary"]
-    before, after = np.asarray(primary["arm-joints-0-setpoint_deg"].read())
+    before, after = np.asarray(primary["arm-joints-0-setpoint"].read())
     assert after - before == pytest.approx(3.0, abs=1e-3) and setpoint[-1] == pytest.approx(after, abs=1e-3)
-    before, after = np.asarray(primary["arm-joints-0-angle_deg"].read())
+    before, after = np.asarray(primary["arm-joints-0-position"].read())
     assert after - before == pytest.approx(3.0, abs=0.6)
 
 
@@ -108,7 +108,7 @@ def test_the_identification_plan_records_each_experiment_and_the_whole_in_a_file
     assert start["plan_name"] == "identification" and start["plan_args"]["experiments"] == short
     for stream, bits in (("record", 31), ("record_1", 15)):
         cycle = np.asarray(run[stream]["arm_record_cycle"].read())
-        u = np.asarray(run[stream]["arm_record_bottom_u_volts"].read())
+        u = np.asarray(run[stream]["arm_record_bottom_u_v_mv"].read())
         switches = np.count_nonzero(np.abs(np.diff(u)) > 0.5)  # the PRBS's level changes, each in a cycle
         assert np.all(np.diff(cycle) == 1) and 0.25 * bits < switches <= bits, (stream, switches)
     assert rig.link.client.record_list()["active"] == []  # the plan's own recording has ended with it
@@ -136,12 +136,12 @@ def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predict
     (uid,) = engine(plans.payload_dithers(rig, postures=[posture], periods=3))
     run = tiled[uid]
     assert run.metadata["start"]["plan_args"] == {"postures": [posture], "periods": 3}
-    setpoint = np.degrees(np.asarray(run["record"][f"arm_record_{names[-1]}_setpoint_rad"].read()))
+    setpoint = np.degrees(np.asarray(run["record"][f"arm_record_{names[-1]}_setpoint"].read()))
     assert setpoint[-1] == pytest.approx(posture[-1], abs=1e-3)  # the move's stream ends at the posture
     for k, name in enumerate(names, start=1):
         record = run[f"record_{k}"]
         assert np.all(np.diff(np.asarray(record["arm_record_cycle"].read())) == 1)
-        u = np.asarray(record[f"arm_record_{name}_u_volts"].read())
+        u = np.asarray(record[f"arm_record_{name}_u_v_mv"].read())
         t = np.asarray(record["arm_record_t"].read())  # [s]: a loaded machine's loop runs late cycles
         args = payload_routine.dither_args(rig_config, name)
         period_s = args["period_s"]
@@ -158,7 +158,7 @@ def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predict
         # The model's balance where the joint was over those periods [V] (rig-facts [2-50] in steady
         # state: kt u = K (angle - neutral) - bias + D velocity; over whole periods the dither's own
         # motion averages out, the centring PI's slow drift does not: 3.4 deg in 6 s is 0.14 V here)
-        angle = np.asarray(record[f"arm_record_{name}_angle_rad"].read())[inside]  # [rad]
+        angle = np.asarray(record[f"arm_record_{name}_position"].read())[inside]  # [rad]
         drift = (angle[-1] - angle[0]) / (t[inside][-1] - t[inside][0])  # [rad/s]
         joint = next(j for j in rig_config.joints if j.name == name)
         model = NominalJoint.from_rig(joint, rig_config.joint_params(joint))
@@ -172,13 +172,13 @@ def test_the_payload_plan_dithers_each_joint_about_the_balance_the_model_predict
 def test_a_joint_is_a_movable_and_a_refused_move_fails_with_the_daemons_data(setup):
     rig, engine, _, _ = setup
     joint = rig.joints[1]
-    here = rig.link.client.status()["joints"]["middle"]["setpoint_deg"]
+    here = math.degrees(rig.link.client.sample()["middle.setpoint"])
 
     @bpp.stage_decorator([rig])
     def move(target):
         yield from bps.mv(joint, target)
     engine(move(here - 2.0))
-    assert rig.link.client.status()["joints"]["middle"]["angle_deg"] == pytest.approx(here - 2.0, abs=0.5)
+    assert math.degrees(rig.link.client.sample()["middle.position"]) == pytest.approx(here - 2.0, abs=0.5)
     with pytest.raises(FailedStatus) as failed:
         engine(move(here + 200.0))  # far outside the joint's range
     refusal = failed.value.args[0].exception()

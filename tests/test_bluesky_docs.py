@@ -217,9 +217,9 @@ def test_the_documents_queue_runs_plans_on_both_rigs_into_tiled(lab):
         cycle = np.asarray(run["record"][f"{device}_record_cycle"].read())
         t = np.asarray(run["record"][f"{device}_record_t"].read())
         assert np.all(np.diff(cycle) == 1) and t[-1] - t[0] > 3.0  # every cycle the loop ran, 3 s past the end
-        assert np.asarray(run["primary"][f"{device}-joints-0-angle_deg"].read()).shape == (2,)  # before and after
+        assert np.asarray(run["primary"][f"{device}-joints-0-position"].read()).shape == (2,)  # before and after
     muscle = tiled[history[1]["result"]["run_uids"][0]]["primary"]
-    pressures = np.asarray(muscle["muscle-joints-0-pressures_pa"].read())
-    # the muscle pair's list-valued reading [Pa], before and after: after the step both muscles hold
+    pressures = np.array([np.asarray(muscle[f"muscle-joints-0-p_{m}"].read()) for m in ("a", "b")]).T
+    # the muscle pair's measured pressures [Pa], before and after: after the step both muscles hold
     # pressure (before it, the arm may just have been enabled, its valves still filling)
     assert pressures.shape == (2, 2) and np.all(np.isfinite(pressures)) and np.all(pressures[1] > 0), pressures

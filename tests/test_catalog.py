@@ -161,6 +161,6 @@ def test_an_observer_may_read_and_list_but_not_record_reload_or_take_the_lease()
     """The roles the document states (Keys) are the catalog's; the messenger refuses by them
     (tests/test_security.py sends them with an observer's key)."""
     operators = {name for name, c in catalog.COMMANDS.items() if c.role == "operator"}
-    assert operators == {"lease.acquire", "record.start", "record.stop", "keys.reload"}
+    assert operators == {"lease.acquire", "record.start", "record.stop", "record.snapshot", "keys.reload"}
     row = next(line for line in (DOCS / "protocol.md").read_text().splitlines() if "--role observer" in line)
     assert "lists the daemon's recordings" in row and "never takes the lease, starts or stops" in row

@@ -48,13 +48,14 @@ def test_an_input_prbs_drives_the_joint_open_loop_and_feedback_takes_it_back_aft
         assert reference["signal"]["operating_point_deg"] == pytest.approx(here)
         for event in events(captured, "experiment") + [reference]:
             schema("telemetry", "event").validate(event)
-        rows = [(c, u, q) for m in captured.of("state")
-                for c, u, q in zip(m["cycle"], m["u_volts"], m["angle_rad"]) if start + 1100 < c < start + 7200]
-        levels = {round(u[0] - u_op, 9) for _, u, _ in rows}
+        rows = [(c, u, q0, q1) for m in captured.of("state")
+                for c, u, q0, q1 in zip(m["cycle"], m["bottom.u.v_mv"], m["bottom.position"], m["middle.position"])
+                if start + 1100 < c < start + 7200]
+        levels = {round(u - u_op, 9) for _, u, _, _ in rows}
         assert levels == {-1.0, 1.0}  # open loop: exactly the operating point +- the signal
-        moved = [math.degrees(q[0]) - here[0] for _, _, q in rows]
+        moved = [math.degrees(q) - here[0] for _, _, q, _ in rows]
         assert max(moved) - min(moved) > 1.0
-        assert max(abs(math.degrees(q[1]) - here[1]) for _, _, q in rows) < 0.5  # the other joint holds
+        assert max(abs(math.degrees(q) - here[1]) for *_, q in rows) < 0.5  # the other joint holds
         run_seconds(loop, 10.0)
         assert abs(math.degrees(loop.angles[0]) - here[0]) < 0.5  # feedback brought it back
         assert loop.state.value == "enabled" and loop.open_loop is None

@@ -92,7 +92,14 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         report = json.loads((out / "report.json").read_text())
         assert [e["signal"] for e in report["experiments"]] == ["prbs", "chirp", "prbs"]
         assert all(e["side"] == "input" for e in report["experiments"])
-        assert report["heldout_fit_percent"][0] >= 85.0
+        # Judged on the held-out data against the prior the daemon started from (the plant's
+        # built-in values, which this plant is not), on the same samples: the identified model
+        # must predict them better. A loaded machine's late, stale samples lower both Fits alike
+        # (quiet: ~90 % against ~75 %; beside two CPU hogs down to ~55 %), so the absolute floor
+        # only says the fit is a model of this plant at all (a failed fit is near 0 % or below).
+        assert report["warning"] is None, report["warning"]
+        assert report["heldout_fit_percent"][0] > report["prior_heldout_fit_percent"], report["heldout_fit_percent"]
+        assert report["heldout_fit_percent"][0] >= 50.0
         # a loop on a wire without real-time priority runs late: the analysis put each experiment
         # back on the period by its samples' times, and said how late it was
         assert [b["period_s"] for b in report["time_base"]] == [0.001] * 3
@@ -131,7 +138,7 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
             time.sleep(1.0)
             status = client.status()
             assert status["state"] == "enabled"
-            assert abs(status["joints"]["bottom"]["angle_deg"] - 120.0) < 1.0
+            assert abs(status["joints"]["bottom"]["position"] - 120.0) < 1.0
         finally:
             client.close()
             daemon.terminate()

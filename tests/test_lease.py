@@ -1,13 +1,19 @@
 """An arm left enabled with nobody holding the lease: the rig file's policy, on the real loop
 (virtual clock) over real sockets; and pneumactl's one-shot lease against a real daemon."""
+import math
+import os
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import msgpack
 import pytest
 
 from daemon.client.client import Client
+from daemon.recordings import mcap_log
 from daemon.loop.commands import Commands
 from daemon.loop.safety import State
 from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds, shared_preparer
@@ -173,5 +179,91 @@ def test_a_one_shot_pneumactl_command_keeps_the_lease_while_its_work_outlasts_it
             assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
             assert not status["lease_held"]  # handed back
     finally:
+        daemon.terminate()
+        daemon.wait(10)
+
+
+def lease_events(sub, limit_s: float = 1.0) -> list[dict]:
+    """The ``lease`` and ``trip`` events received so far."""
+    got = []
+    while (item := sub.receive(limit_s)) is not None:
+        if item[0] == "event" and item[1]["kind"] in ("lease", "trip"):
+            got.append(item[1])
+    return got
+
+
+@pytest.mark.slow(seconds=20)
+def test_a_pause_of_the_loop_longer_than_the_lease_is_not_its_holders_silence(tmp_path):
+    """The loop process stopped (SIGSTOP) for longer than the lease's ttl while its holder
+    renews all along: the renewals wait in the rings, the pause is not counted against the
+    lease, and the enabled arm is not tripped "lease lost" when the loop cycles again."""
+    daemon, eps = real_daemon(tmp_path)  # its stall limit is 5 s: a 3 s pause trips nothing by itself
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            wait_for_own_daemon(client, daemon)
+            sub = client.subscribe((b"event",))
+            time.sleep(0.3)  # the subscription reaches the publisher
+            ttl = client.acquire_lease()["ttl_s"]
+            client.keep_lease()
+            client.enable()
+            os.kill(daemon.pid, signal.SIGSTOP)  # the loop's own process: its helpers run on
+            try:
+                time.sleep(1.5 * ttl)
+            finally:
+                os.kill(daemon.pid, signal.SIGCONT)
+            time.sleep(2.0 * ttl)  # renewed since, or lapsed by now
+            status = client.status()
+            events = lease_events(sub)
+            assert status["state"] == "enabled" and status["lease_held"], (status["cause"], events)
+            assert [e["action"] for e in events if e["kind"] == "lease"] == ["acquire"], events
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+
+
+HOG = "while True: pass"
+
+
+@pytest.mark.slow(seconds=40)
+def test_a_client_keeps_its_lease_while_it_records_and_fits_beside_two_cpu_hogs(tmp_path):
+    """A client that records the telemetry in a thread (as ``pneumactl identify`` does) and fits
+    in its main thread (pure Python, holding the GIL) keeps the lease its renewal thread renews,
+    with two busy-loop processes taking the machine's CPUs: no lease lapses. (The loop, with no
+    real-time scheduling, may be held off the CPU meanwhile; a trip for that is the machine's, and
+    is never "lease lost".)"""
+    daemon, eps = real_daemon(tmp_path)
+    hogs = []
+    try:
+        with Client(**eps, timeout=20.0) as client, Client(**eps, timeout=20.0) as listener:
+            wait_for_own_daemon(client, daemon)
+            sub = client.subscribe((b"event",))
+            time.sleep(0.3)
+            client.acquire_lease()
+            client.keep_lease()
+            client.enable()
+            hogs = [subprocess.Popen([sys.executable, "-c", HOG]) for _ in range(2)]
+            stop = threading.Event()
+            recorder = threading.Thread(target=mcap_log.record,
+                                        args=(listener, str(tmp_path / "run.mcap"), math.inf, None, stop))
+            recorder.start()
+            try:
+                fit_until, x = time.monotonic() + 15.0, 0.0
+                while time.monotonic() < fit_until:  # the fit: pure Python, the GIL held between checks
+                    x += sum(math.sin(i) for i in range(200_000))
+            finally:
+                stop.set()
+                recorder.join(30.0)
+            for hog in hogs:
+                hog.kill()
+            status = client.status()
+            events = lease_events(sub)
+            assert status["lease_held"], (status["cause"], events)
+            assert not [e for e in events if e["kind"] == "lease" and e["action"] == "expire"], events
+            assert not [e for e in events if "lease" in e.get("cause", "")], events
+            assert mcap_log.read(tmp_path / "run.mcap").messages["state"]  # it did record meanwhile
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
         daemon.terminate()
         daemon.wait(10)

@@ -40,7 +40,7 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
             client.keep_lease()
             client.enable()
             joints = client.status()["joints"]
-            target = [joints["bottom"]["angle_deg"], joints["middle"]["angle_deg"] + 1.0]
+            target = [joints["bottom"]["position"], joints["middle"]["position"] + 1.0]  # [deg]
             client.set(target, duration_s=1.0)
             # Rows until the 1 s move has ended and 1000 state rows are in (2 s on a quiet machine;
             # a busy one's loop skips cycles, so the rows are waited for, up to a bound for a hang).
@@ -67,9 +67,9 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
     steps = [b["t"] - a["t"] for a, b in zip(state, state[1:])]
     assert min(steps) > 0 and sorted(steps)[len(steps) // 2] == pytest.approx(1e-3, rel=0.2)
     moving = state[-1]["middle"]
-    assert set(moving) == {"angle_deg", "setpoint_deg", "error_deg", "velocity_deg_s", "u_volts", "p_head_kpa",
-                           "p_rod_kpa"}
-    assert moving["error_deg"] == pytest.approx(moving["setpoint_deg"] - moving["angle_deg"])
+    assert set(moving) == {"position_deg", "setpoint_deg", "error_deg", "velocity_deg_s", "u.v_mv_V", "p_head_cmd_Pa",
+                           "p_rod_cmd_Pa"}  # the layout's fields (no shadow run: its NaN left out)
+    assert moving["error_deg"] == pytest.approx(moving["setpoint_deg"] - moving["position_deg"])
     assert min(abs(r["middle"]["setpoint_deg"] - target[1]) for r in state) < 0.01  # it saw the move end
     internals = [s for s, r in zip(series, rows) if "internals" in r]
     assert internals and {"/internals/p/bottom", "/internals/i/middle"} <= set(internals[-1])

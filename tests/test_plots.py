@@ -9,15 +9,22 @@ import pytest
 
 from daemon.client import plots
 from daemon.recordings.reading import Run
+from daemon.wire.cycle_layout import CycleLayout
+from hal import config
+from hal.declare import declare
 
+RIG = config.load("sim")
+LAYOUT = CycleLayout.of(declare(RIG, [c for j in RIG.joints for _, c in j.output_channels()]))
 DESCRIBE = {
     "period_s": 0.001,
-    "joints": [{"name": "bottom", "u_min_volts": -4.0, "u_max_volts": 6.0},
-               {"name": "middle", "u_min_volts": -4.0, "u_max_volts": 6.0}],
+    "joints": [{"name": "bottom"}, {"name": "middle"}],
+    "command_interfaces": [{"joint": name, "name": "v_mv", "unit": "V", "low": -4.0, "high": 6.0}
+                           for name in ("bottom", "middle")],
     "arm": {"link_lengths_mm": [100.0, 100.0]},
     # as describe lists them: a lookup by signal name across controllers finds muscle_pid's Pa for pid's i
     "controllers": [{"name": "pid", "internals": [{"name": "p", "unit": "V"}, {"name": "i", "unit": "V"}]},
                     {"name": "muscle_pid", "internals": [{"name": "i", "unit": "Pa"}]}],
+    "cycle_layout": LAYOUT.describe(),
 }
 
 
@@ -28,11 +35,13 @@ def run(gain: float = 1.0, modes=None, approach_s=None, n: int = 400) -> Run:
         t = 10.0 + k * 1e-3
         q = [math.radians(120 + 20 * k / n), math.radians(-80.0)]
         mode = modes(k) if modes else "enabled"
-        samples.append({"cycle": k, "t": t, "mode": "enabled" if mode is None else mode, "force_n": float("nan"),
-                        "joints": {name: {"angle_rad": q[j] * gain, "setpoint_rad": q[j], "error_rad": q[j] * (1 - gain),
-                                          "u_volts": 2.0 * gain, "p_head_pa": 4e5, "p_rod_pa": 3e5,
-                                          "velocity_rad_s": 0.0}
-                                   for j, name in enumerate(("bottom", "middle"))}})
+        sample = {name: float("nan") for name in LAYOUT.names}
+        sample.update({"cycle": k, "t": t, "mode": "enabled" if mode is None else mode})
+        for j, name in enumerate(("bottom", "middle")):
+            sample.update({f"{name}.position": q[j] * gain, f"{name}.setpoint": q[j], f"{name}.error": q[j] * (1 - gain),
+                           f"{name}.u.v_mv": 2.0 * gain, f"{name}.p_head_cmd": 4e5, f"{name}.p_rod_cmd": 3e5,
+                           f"{name}.velocity": 0.0})
+        samples.append(sample)
     events = [{"t": 10.0, "kind": "reference", "action": "start", "name": "translation", "generation": 1,
                "duration_s": 0.4, "approach_s": approach_s}] if approach_s else []
     internals = [{"t": 10.0 + k * 0.01, "controller": "pid", "signals": {"p": [0.1, 0.2], "i": [0.3, 0.4]}}
@@ -63,12 +72,13 @@ def test_identical_runs_are_drawn_once_and_named_together():
 def test_v_mv_is_drawn_only_where_written_and_between_its_limits():
     made = plots.figures([("a", run(modes=lambda k: "estop" if k >= 200 else None))])
     ax = made["output"].axes[0]
-    v_mv = next(line for line in ax.get_lines() if line.get_label() == "a V_MV")
+    assert ax.get_ylabel() == "command [V]"
+    v_mv = next(line for line in ax.get_lines() if line.get_label() == "a command v_mv")
     y = v_mv.get_ydata()
     assert all(v == 2.0 for v in y[:200]) and all(math.isnan(v) for v in y[200:])  # no +2 V during the e-stop
     limits = sorted(line.get_ydata()[0] for line in ax.get_lines() if line.get_linestyle() == "--")
     assert limits == [-4.0, 6.0]
-    assert "V_MV limits" in [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "v_mv limits" in [t.get_text() for t in ax.get_legend().get_texts()]
 
 
 def test_the_approach_path_boundary_and_the_tip_paths_start_and_direction():
@@ -112,7 +122,8 @@ def test_a_hole_in_the_data_breaks_the_lines_is_shaded_and_said():
     whole = run(n=1000)
     holed = Run(DESCRIBE, {"name": "pid"}, whole.samples[:100] + whole.samples[600:], whole.messages)
     made = plots.figures([("a", holed)])
-    for name, label in (("joints", "a angle"), ("errors", "a"), ("output", "a V_MV"), ("pressures", "a head")):
+    for name, label in (("joints", "a position"), ("errors", "a"), ("output", "a command v_mv"),
+                        ("pressures", "a commanded p_head")):
         ax = made[name].axes[0]
         line = next(line for line in ax.get_lines() if line.get_label() == label)
         x, y = line.get_xdata(), line.get_ydata()
@@ -133,3 +144,18 @@ def test_a_hole_in_the_data_breaks_the_lines_is_shaded_and_said():
         "a.mcap: no data in 1 hole, 0.50 s in all (0.50 s at 0.10 s; 500 cycles missing): drawn as gaps, shaded"]
     assert plots.hole_notes("a.mcap", whole) == [] and not any(
         p.get_label().startswith("no data") for p in plots.figures([("a", whole)])["joints"].axes[0].patches)
+
+
+def test_overlaid_runs_line_up_on_their_paths_start_with_the_approach_before_it():
+    """Two runs of a path whose approaches took different times: overlaid, each is drawn from
+    its path's own start (t = 0, one boundary for both), its approach at negative times."""
+    made = plots.figures([("a", run(approach_s=0.1)), ("b", run(approach_s=0.25, gain=0.9))])
+    top, bottom = made["joints"].axes
+    assert bottom.get_xlabel() == "time from the path's start [s]"
+    boundary = [line for line in top.get_lines() if line.get_label() == "approach ends, path begins"]
+    assert len(boundary) == 1 and boundary[0].get_xdata()[0] == 0.0
+    starts = {label: next(line for line in top.get_lines() if line.get_label() == f"{label} position").get_xdata()[0]
+              for label in ("a", "b")}
+    assert starts == {"a": pytest.approx(-0.101), "b": pytest.approx(-0.251)}  # start event + a cycle + the approach
+    one = plots.figures([("a", run(approach_s=0.1))])["joints"].axes[-1]
+    assert one.get_xlabel() == "time [s]"  # one run: from its first sample, the boundary where the path began

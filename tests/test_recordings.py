@@ -6,6 +6,7 @@ the plots."""
 import json
 import math
 import warnings
+from pathlib import Path
 
 import jsonschema
 import msgpack
@@ -80,8 +81,9 @@ def test_the_mcap_package_reads_a_recording_with_its_schemas_attachment_and_meta
         assert metadata["pneumad"]["controller"] == "pid"
         assert json.loads(metadata["describe"]["json"]) == describe
     samples = recording.open_run(path).samples
-    assert samples[-1]["joints"]["bottom"]["angle_rad"] == pytest.approx(samples[-1]["joints"]["bottom"]["setpoint_rad"],
-                                                                         abs=math.radians(1.0))
+    assert samples[-1]["bottom.position"] == pytest.approx(samples[-1]["bottom.setpoint"], abs=math.radians(1.0))
+    layout = recording.open_run(path).layout
+    assert set(schema["properties"]) == set(layout.names) == set(samples[-1]) and layout.id == describe["cycle_layout_id"]
 
 
 def test_lost_telemetry_is_written_where_it_happened(tmp_path, session):
@@ -104,7 +106,7 @@ def test_a_recording_cut_short_reads_up_to_its_last_complete_chunk(tmp_path, ses
     whole, part = recording.open_run(full), recording.open_run(cut)
     assert part.truncated
     assert 0 < len(part.samples) < len(whole.samples)
-    assert part.samples == whole.samples[:len(part.samples)]  # what is there is right, in order
+    assert same(part.samples, whole.samples[:len(part.samples)])  # what is there is right, in order
     assert recording.export_csv(cut, tmp_path / "cut.csv") == len(part.samples)
 
 
@@ -145,15 +147,20 @@ def test_a_cut_recording_is_exported_plotted_and_loaded_saying_it_is_cut_and_how
         assert recording.load(full).cut == ""
 
 
+def same(a: list[dict], b: list[dict]) -> bool:
+    """Samples equal, NaN to NaN."""
+    return msgpack.packb(a) == msgpack.packb(b)
+
+
 def plots_text(run, path) -> list[str]:
     """Every text on the figures ``pneumactl plot`` draws of ``run`` (the file at ``path``)."""
     import matplotlib.pyplot as plt
 
-    from daemon.client import plots
+    from daemon.client import plot_marks, plots
     texts = []
     for fig in plots.figures([("run", run)]).values():
         if fig is not None:
-            plots._say_cut(fig, [run.cut_notice(path.name)])
+            plot_marks.say_cut(fig, [run.cut_notice(path.name)])
             texts += [t.get_text().replace("\n", " ") for t in fig.texts]
             plt.close(fig)
     return texts
@@ -221,17 +228,37 @@ def test_a_file_that_is_no_recording_is_refused_clearly(tmp_path):
         recording.open_run(text)
 
 
-def test_an_earlier_pnrec_still_exports(tmp_path, session):
-    describe, controller, messages = session
-    old = tmp_path / "old.pnrec"
-    with open(old, "wb") as f:  # the format of earlier versions, written as they wrote it
-        f.write(msgpack.packb({"format": recording.FORMAT, "software": "0.1", "started": 0.0, "describe": describe,
-                               "rig_source": describe["rig"]["source"], "controller": controller}))
-        for topic, message in messages:
-            f.write(msgpack.packb([topic, message]))
-    rows = recording.export_csv(old, tmp_path / "old.csv")
+DATA = Path(__file__).resolve().parent / "data"
+
+
+@pytest.mark.parametrize("name, joint, commands", [
+    ("sim-before-layout.pnrec", "middle", ["u.v_mv"]),
+    ("muscle-before-layout.mcap", "elbow", ["u.pressure_a", "u.pressure_b", "u.brake"])])
+def test_a_recording_made_before_the_cycle_layout_reads_into_the_same_flat_samples(tmp_path, name, joint, commands):
+    """Files made by the daemon before the layout (tests/data/make_before_layout.py, run on
+    that version): an earlier .pnrec's old columns and an MCAP's nested samples read as flat
+    samples keyed by the layout their describe implies; their chamber pressures were the
+    commanded ones, and say so; CSV and load give one column per field."""
+    path = DATA / name
+    run = recording.open_run(path)
+    assert "cycle_layout" not in run.describe  # made before it
+    assert set(run.samples[0]) == set(run.layout.names) and len(run.samples) >= 200
+    assert [f.quantity for f in run.layout.of_joint(joint, "command")] == commands
+    enabled = [s for s in run.samples if s["mode"] == "enabled"]
+    assert enabled and all(isinstance(s[f"{joint}.position"], float) and math.isfinite(s[f"{joint}.position"])
+                           for s in enabled)
+    first = run.layout.of_joint(joint, "commanded")[0].name
+    assert first.endswith("_cmd") and np.isfinite(run.column(first)).all()
+    assert all(math.isnan(s[f"{joint}.shadow.{commands[0][2:]}"]) for s in run.samples)  # no candidate ran
+    if "muscle" in name:  # the muscle's pressures commanded: u.pressure_a is what reached p_a_cmd when enabled
+        assert enabled[-1]["elbow.u.pressure_a"] == pytest.approx(enabled[-1]["elbow.p_a_cmd"], rel=0.05)
+    rows = recording.export_csv(path, tmp_path / "old.csv")
     lines = (tmp_path / "old.csv").read_text().splitlines()
-    assert rows == len(lines) - 1 >= 3000 and lines[0].startswith("cycle,t,bottom.angle_rad,middle.angle_rad")
+    assert rows == len(lines) - 1 == len(run.samples)
+    assert lines[0].split(",")[:3] == ["cycle [-]", "t [s]", f"{run.layout.names[2]} [rad]"]
+    data = recording.load(path)
+    assert data.layout.names == run.layout.names and set(run.layout.names) <= set(data)
+    assert np.array_equal(data[f"{joint}.position"], run.column(f"{joint}.position"))
 
 
 def test_an_mcap_from_before_the_foxglove_channels_reads_as_one_with_them(tmp_path, session, monkeypatch):
@@ -247,16 +274,22 @@ def test_an_mcap_from_before_the_foxglove_channels_reads_as_one_with_them(tmp_pa
         assert {c.topic for c in make_reader(f).get_summary().channels.values()} == {
             mcap_log.channel(t) for t in mcap_log.TOPICS}  # nothing but the earlier channels
     a, b = recording.load(old), recording.load(new)
-    assert set(a) == set(b) and all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
+    assert set(a) == set(b) and all(np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f") for k in a)
     assert recording.export_csv(old, tmp_path / "old.csv") == recording.export_csv(new, tmp_path / "new.csv")
     assert (tmp_path / "old.csv").read_text() == (tmp_path / "new.csv").read_text()
 
 
-def test_load_gives_numpy_columns_named_with_units(tmp_path, session):
+def test_load_gives_numpy_columns_one_per_field_with_the_layout(tmp_path, session):
     path = tmp_path / "run.mcap"
     write(path, session)
     data = recording.load(path)
-    assert {"t", "cycle", "bottom.angle_rad", "middle.u_volts", "internals.t", "internals.p.bottom"} <= set(data)
+    assert {"t", "cycle", "bottom.position", "middle.u.v_mv", "internals.t", "internals.p.bottom"} <= set(data)
+    assert data.layout.names == tuple(f["name"] for f in session[0]["cycle_layout"])
+    assert data.layout["bottom.position"].unit == "rad" and data["mode"][-1] == "enabled"
+    assert np.isnan(data["bottom.shadow.v_mv"]).all()  # no candidate ran: nothing written
+    recording.export_csv(path, tmp_path / "run.csv")
+    header = (tmp_path / "run.csv").read_text().splitlines()[0].split(",")
+    assert header == [f"{f.name} [{f.unit}]" for f in data.layout.fields]
     n = len(data["t"])
     assert all(len(data[k]) == n for k in data if not k.startswith("internals."))
     assert np.all(np.diff(data["t"]) > 0) and np.all(np.diff(data["cycle"]) == 1)
@@ -307,7 +340,7 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
     assert out.returncode == 0, out.stderr
     assert "bottom: step 5 deg, overshoot" in out.stdout
     data = recording.load(tmp_path / "step.mcap")
-    moved = math.degrees(data["bottom.angle_rad"][-1] - data["bottom.angle_rad"][0])
+    moved = math.degrees(data["bottom.position"][-1] - data["bottom.position"][0])
     assert abs(moved - 5.0) < 0.5  # the step settled in the recording
     assert (tmp_path / "step-joints.png").stat().st_size > 10_000
 
@@ -348,10 +381,11 @@ def test_a_muscle_rigs_recording_is_strict_json_that_validates_and_reads_back_na
     assert {"/pneumad/state", "/pneumad/commands", "/pneumad/tracking"} <= set(checked)
     samples = recording.open_run(path).samples
     assert len(samples) >= 1500
-    assert all(math.isnan(s["joints"]["elbow"]["u_volts"]) and math.isnan(s["force_n"]) for s in samples)
-    assert all(isinstance(s["joints"]["elbow"]["angle_rad"], float) for s in samples)
+    assert all(math.isnan(s["elbow.shadow.pressure_a"]) for s in samples)  # no candidate: null in the file
+    assert all(isinstance(s["elbow.position"], float) for s in samples)
     data = recording.load(path)
-    assert np.isnan(data["elbow.u_volts"]).all() and np.isfinite(data["elbow.angle_rad"]).all()
+    assert np.isnan(data["elbow.shadow.brake"]).all() and np.isfinite(data["elbow.position"]).all()
+    assert np.isfinite(data["elbow.p_a"]).all() and np.isfinite(data["elbow.p_a_cmd"]).all()  # measured, commanded
 
 
 def test_a_json_channels_message_is_strict_json_with_null_for_what_is_not_a_finite_number():

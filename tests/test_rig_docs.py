@@ -47,7 +47,7 @@ def test_the_check_lines_print_what_the_document_shows(tmp_path):
 def test_every_key_a_rig_file_takes_is_named_in_the_document():
     text = (ROOT / DOC).read_text()
     tables = [config.RigInfo, config.TransportConfig, config.ArmConfig, config.LimitsConfig, config.SafetyConfig,
-              config.RigConfig, JointConfig, LinkConfig, RegulatorConfig, ValveConfig, BrakeConfig,
+              config.TimingConfig, config.FlightRecorderConfig, config.RigConfig, JointConfig, LinkConfig, RegulatorConfig, ValveConfig, BrakeConfig,
               DirectionalValveConfig, *(sensor_kind(name).Config for name in kinds())]
     def named(key: str) -> bool:  # as a key (`channel`) or a table (`[joints.head]`, `[[inputs]]`)
         return re.search(rf"`\[{{0,2}}(?:[\w.]+\.)?{re.escape(key)}\]{{0,2}}`", text) is not None
@@ -57,11 +57,17 @@ def test_every_key_a_rig_file_takes_is_named_in_the_document():
     assert all(f"`{name}`" in text for name in kinds())  # and every built-in device kind
 
 
+def axis_position(message: dict) -> float:
+    """The axis's latest position [m] in a ``state`` message: the one place that reads its shape."""
+    return message["axis.position"][-1]
+
+
 def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
-    """The "Worked files" lines: the daemon on sim-axis with hold, enabled, holding for 2 s."""
+    """The "Worked files" lines: the daemon on sim-axis with hold, enabled, holding for 2 s; then
+    axis_pva switched in and a move to 150 mm, where the axis then is."""
     eps = private_endpoints(tmp_path)
-    daemon_line, enable = doc_blocks.commands(DOC, "Worked files", recordings=str(tmp_path / "rec"),
-                                              endpoints=options(eps))
+    daemon_line, enable, switch, move = doc_blocks.commands(DOC, "Worked files", recordings=str(tmp_path / "rec"),
+                                                            endpoints=options(eps))
     daemon = doc_runs.start(daemon_line, tmp_path)
     try:
         with Client(**eps, timeout=10.0) as client:
@@ -72,6 +78,16 @@ def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
             status = client.status()
             assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
             assert status["controller"] == "hold", status["controller"]
+            for line in (switch, move):
+                done = doc_runs.run(line, tmp_path, env=endpoint_env(eps), timeout=120)
+                assert done.returncode == 0, done.explain()
+            time.sleep(1.0)  # settled within 1 mm in 0.5 s (docs/controllers.md)
+            sub = client.subscribe((b"state",))
+            got = sub.receive(10.0)
+            sub.close()
+            assert got is not None and abs(axis_position(got[1]) - 0.150) < 2e-3, got
+            status = client.status()
+            assert status["state"] == "enabled" and status["controller"] == "axis_pva", status["cause"]
     finally:
         daemon.send_signal(signal.SIGTERM)
         try:

@@ -93,6 +93,9 @@ def test_an_observer_reads_and_may_estop_but_never_takes_the_lease(lab):
         with pytest.raises(RemoteError) as record_refused:  # the lab PC's disk is an operator's to fill
             bob.record_start()
         assert record_refused.value.code == P.FORBIDDEN and record_refused.value.data["role"] == "observer"
+        with pytest.raises(RemoteError) as snapshot_refused:
+            bob.record_snapshot()
+        assert snapshot_refused.value.code == P.FORBIDDEN
         for name in ("../etc/passwd", "x" * 81, ".hidden"):  # but the arguments come first (the order of checks)
             with pytest.raises(RemoteError) as malformed:
                 bob.record_start(name)

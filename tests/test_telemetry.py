@@ -12,12 +12,15 @@ import pytest
 import zmq
 
 from bench.common import child_process
+from daemon import assembly
 from daemon.messenger.process import MessengerError
 from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
 from daemon.testing.loop import dealer, make_loop, ok
 from daemon.wire import protocol
-from daemon.wire.telemetry_rows import HEADER, MODES, STATE_FIELDS, row_format, state_message
+from daemon.wire.cycle_layout import MODES
+from daemon.wire.telemetry_rows import HEADER, LayoutMismatch, state_message
+from hal import config
 
 
 @pytest.fixture
@@ -55,16 +58,28 @@ def test_a_state_row_holds_the_loops_own_values(served):
     loop.enable()
     loop.run(1000)  # the last cycle completes a batch of 10
     last = captured.of("state")[-1]
+    assert set(last) == {"seq", "layout", *loop.layout.names} and last["layout"] == loop.layout.id
     assert last["cycle"][-1] == loop.cycle
-    assert last["angle_rad"][-1] == list(loop.angles)
-    assert last["velocity_rad_s"][-1] == list(loop.velocities)
-    assert last["setpoint_rad"][-1] == list(loop.reference[0])
-    assert last["error_rad"][-1] == [r - q for r, q in zip(loop.reference[0], loop.angles)]
-    assert last["u_volts"][-1] == loop.u
-    assert last["p_head_pa"][-1] == list(loop.p_head) and last["p_rod_pa"][-1] == list(loop.p_rod)
-    assert last["out_volts"][-1] == list(loop.io.last_volts)
-    assert math.isnan(last["force_n"][-1]) == math.isnan(loop.force)
-    assert last["mode"][-1] == "enabled" and last["shadow_u_volts"][-1] is None
+    for i, j in enumerate(("bottom", "middle")):
+        assert last[f"{j}.position"][-1] == loop.angles[i]
+        assert last[f"{j}.velocity"][-1] == loop.velocities[i]
+        assert last[f"{j}.setpoint"][-1] == loop.reference[0][i]
+        assert last[f"{j}.error"][-1] == loop.reference[0][i] - loop.angles[i]
+        assert last[f"{j}.u.v_mv"][-1] == loop.u[i]
+        assert last[f"{j}.p_head_cmd"][-1] == loop.p_head[i] and last[f"{j}.p_rod_cmd"][-1] == loop.p_rod[i]
+        assert math.isnan(last[f"{j}.shadow.v_mv"][-1])  # no candidate runs
+    assert [last[f"out.{ch.name}"][-1] for ch in loop.io.transport.outputs] == list(loop.io.last_volts)
+    assert last["force"][-1] == loop.snapshot.measured[0]
+    assert last["mode"][-1] == "enabled"
+
+
+def test_outside_enabled_no_command_is_in_force_and_the_safe_pressures_are_the_commanded(served):
+    loop, captured, _ = served
+    loop.run(20)
+    last = captured.of("state")[-1]
+    assert last["mode"] == ["idle"] * 10
+    assert all(math.isnan(u) for u in last["bottom.u.v_mv"] + last["middle.u.v_mv"])
+    assert last["bottom.p_head_cmd"][-1] == loop.io.safe_pressures[0][0]
 
 
 def test_subscribers_get_the_same_messages_as_the_loop_sent(served):
@@ -76,30 +91,28 @@ def test_subscribers_get_the_same_messages_as_the_loop_sent(served):
     assert first["mode"] == sent["mode"] == ["idle"] * 10
 
 
-def test_a_state_batch_reads_back_column_by_column_in_the_documented_layout():
-    """A muscle-shaped batch (1 joint, 3 commands, 3 outputs), rows with and without a shadow
-    run: each column holds its own slice of every row, in the documented field order."""
-    n, m, k = 1, 3, 3
-    row = row_format(n, m, k)
-    body = bytearray(HEADER.size + 4 * row.size)
-    HEADER.pack_into(body, 0, 42, n, m, k, 4)
+def test_a_state_batch_reads_back_one_column_per_field_of_the_layout():
+    """A muscle rig's batch: each column holds its field of every row, ``cycle`` an integer,
+    ``mode`` by name; a batch of another layout is refused, never read wrong."""
+    layout = assembly.cycle_layout(config.load("sim-muscle"))
+    body = bytearray(HEADER.size + 4 * layout.row.size)
+    HEADER.pack_into(body, 0, 42, layout.id, 4)
     rows = []
     for i in range(4):
-        values = [float(100 * i + j) for j in range(5 * n + k + m + 1)]  # angle .. force, each its own number
-        shadow = (i % 2 == 1, *([0.5 + i] * k if i % 2 else [math.nan] * k))
-        row.pack_into(body, HEADER.size + i * row.size, 7 + i, 0.001 * i, *values, i % len(MODES), *shadow)
+        values = [float(100 * i + k) for k in range(layout.width)]
+        values[0], values[layout["mode"].index] = 7 + i, i % len(MODES)
+        layout.row.pack_into(body, HEADER.size + i * layout.row.size, *values)
         rows.append(values)
-    message = state_message(bytes(body))
-    assert list(message) == [*STATE_FIELDS, "seq"] and message["seq"] == 42
-    assert message["cycle"] == [7, 8, 9, 10] and message["t"] == [0.0, 0.001, 0.002, 0.003]
-    for name, start, width in (("angle_rad", 0, n), ("velocity_rad_s", n, n), ("setpoint_rad", 2 * n, n),
-                               ("u_volts", 3 * n, k), ("p_head_pa", 3 * n + k, n), ("p_rod_pa", 4 * n + k, n),
-                               ("out_volts", 5 * n + k, m)):
-        assert message[name] == [v[start:start + width] for v in rows], name
-    assert message["error_rad"] == [[v[2 * n] - v[0]] for v in rows]
-    assert message["force_n"] == [v[-1] for v in rows]
+    message = state_message(layout, bytes(body))
+    assert list(message) == ["seq", "layout", *layout.names] and message["seq"] == 42
+    assert message["cycle"] == [7, 8, 9, 10] and all(type(c) is int for c in message["cycle"])
+    for f in layout.fields[1:-1]:
+        assert message[f.name] == [v[f.index] for v in rows], f.name
     assert message["mode"] == [MODES[i % len(MODES)] for i in range(4)]
-    assert message["shadow_u_volts"] == [None, [1.5] * k, None, [3.5] * k]
+    assert message["elbow.p_a_cmd"] != message["elbow.p_a"]  # commanded and measured, each its own
+    other = assembly.cycle_layout(config.load())
+    with pytest.raises(LayoutMismatch, match="layout"):
+        state_message(other, bytes(body))
 
 
 def test_a_messenger_that_dies_is_replaced_and_the_loop_goes_on(served, capfd):
@@ -227,7 +240,8 @@ def test_a_telemetry_endpoint_in_use_is_a_clear_error():
     port = squatter.bind_to_random_port("tcp://127.0.0.1")
     try:
         with pytest.raises(MessengerError, match=f"cannot bind the telemetry endpoint tcp://127.0.0.1:{port}"):
-            ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", f"tcp://127.0.0.1:{port}")
+            ZmqServer("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", f"tcp://127.0.0.1:{port}",
+                      layout=assembly.cycle_layout(config.load()))
     finally:
         squatter.close(linger=0)
 

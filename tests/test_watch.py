@@ -1,5 +1,6 @@
 """``pneumactl watch``'s live view, rendered from real telemetry and a real status of the
-in-process loop: state, controller, lease, per-joint numbers and output bars, loop health."""
+in-process loop: state, controller, lease, per-joint numbers (through the cycle record's
+layout, in display units) and command bars, loop health."""
 import math
 
 from rich.console import Console
@@ -45,8 +46,9 @@ def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
     assert "enabled" in text and "controller pid" in text and "reference move" in text
     assert "lease held" in text
     last = captured.of("state")[-1]
-    for j, name in enumerate(("bottom", "middle")):
-        assert name in text and f"{last['u_volts'][-1][j]:+6.2f} V" in text
+    for name in ("bottom", "middle"):
+        assert name in text and f"v_mv {last[f'{name}.u.v_mv'][-1]:.2f} V" in text
+        assert f"{math.degrees(last[f'{name}.position'][-1]):.2f} deg" in text
     assert "loop: wake-up p99" in text and "faults: none" in text
     assert "idle -> enabled (enabled)" in text  # the events
     assert "recording: none" in text
@@ -72,7 +74,7 @@ def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_contro
     written = [loop.u[0]]  # the V_MV of every cycle the exchange runs: the reply is built in one of them
     reply = exchange(loop, sock, protocol.encode_request(1, "status"), each_cycle=lambda: written.append(loop.u[0]))
     moving = reply["result"]["joints"]["bottom"]
-    assert moving["output"] == "controller" and moving["u_volts"] in written
+    assert moving["output"] == "controller" and moving["commands"]["v_mv"] in written
     ok(loop, sock, "estop")
     loop.run(50)
     last_u = loop.u[0]
@@ -81,11 +83,11 @@ def test_status_and_watch_show_the_safe_state_written_in_an_estop_not_the_contro
     srv.close()
     bottom = status["joints"]["bottom"]
     safe = dict(zip([o[0] for o in describe["transport"]["outputs"]], loop.io.safe_volts))
-    assert bottom["output"] == "safe state" and bottom["u_volts"] is None
+    assert bottom["output"] == "safe state" and bottom["commands"]["v_mv"] is None
     assert bottom["written_volts"] and all(v == safe[ch] for ch, v in bottom["written_volts"].items())
     _, console = rendered(describe, captured, status)
     text = console.export_text()
-    assert "safe state" in text and f"{last_u:+6.2f} V" not in text
+    assert "safe state" in text and f"v_mv {last_u:.2f} V" not in text
     written = "  ".join(f"{name} {v:.2f} V" for name, v in safe.items())
     assert f"outputs written: {written}  (safe state)" in text
 
@@ -101,10 +103,10 @@ def test_no_tracking_error_is_shown_while_the_arm_is_not_enabled():
     srv.close()
     last = captured.of("state")[-1]
     assert last["mode"][-1] == "idle"
-    stale = [math.degrees(e) for e in last["error_rad"][-1]]
+    stale = [math.degrees(last[f"{j}.error"][-1]) for j in ("bottom", "middle")]
     assert max(abs(e) for e in stale) > 2.0  # what the old view showed, in red
     _, console = rendered(describe, captured, status)
-    rows = [line for line in console.export_text().splitlines() if line.strip(" │").startswith(("bottom", "middle"))]
+    rows = [line for line in console.export_text().splitlines() if line.strip(" │").startswith(("bottom ", "middle "))]
     assert len(rows) == 2
     for row, error in zip(rows, stale):
-        assert f"{error:7.2f}".strip() not in row and " - " in row, row
+        assert f" {error:.2f} deg" not in row and " - " in row, row

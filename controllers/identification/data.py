@@ -1,6 +1,8 @@
 """One joint's experiments, from a recording the caller has read (MCAP or .pnrec: the daemon's
 ``daemon.recordings.reading.Run``, or anything with its ``describe``, ``messages`` and
-``samples``), with the signals rebuilt by the caller's ``rebuild`` (the daemon's is
+``column(name)``: a field of the cycle record as an array, SI, by the record's names:
+``<joint>.position``, ``<joint>.setpoint``, ``<joint>.u.v_mv``, the commanded chamber pressures
+``<joint>.p_head_cmd`` and ``<joint>.p_rod_cmd``), with the signals rebuilt by the caller's ``rebuild`` (the daemon's is
 ``daemon.wire.signals.recorded``): controllers never import the daemon.
 
 An experiment is found by its ``reference`` start event, which carries the signal's settings
@@ -75,38 +77,40 @@ def experiments(run, source: str, rebuild: Rebuild, joint: str | None = None) ->
 
 def _experiment(run, rig: config.RigConfig, joint: str, first: int, last: float, info: dict,
                 rebuild: Rebuild) -> Experiment:
-    rows = [s for s in run.samples if first <= s["cycle"] < last]
-    if len(rows) < 100:
-        raise ValueError(f"{info['source']}: the {info['signal']['signal']} on {joint} has {len(rows)} samples "
+    cycles = np.asarray(run.column("cycle"))
+    rows = (cycles >= first) & (cycles < last)
+    if rows.sum() < 100:
+        raise ValueError(f"{info['source']}: the {info['signal']['signal']} on {joint} has {rows.sum()} samples "
                          f"recorded: too few to analyse (was the recording started before it?)")
-    cycles = np.array([s["cycle"] for s in rows])
+    cycles = cycles[rows]
     if np.any(np.diff(cycles) != 1):
         missing = int(np.sum(np.diff(cycles) - 1))
         raise ValueError(f"{info['source']}: {missing} cycles of the experiment are missing from the recording "
                          f"(a subscriber too slow?): record it with the daemon's recorder (record: true)")
     prior = prior_of(rig, joint)
-    t = np.array([s["t"] for s in rows])
-    data = {k: np.array([s["joints"][joint][k] for s in rows]) for k in ("angle_rad", "u_volts", "p_head_pa",
-                                                                           "p_rod_pa", "setpoint_rad")}
+    t = np.asarray(run.column("t"), dtype=float)[rows]
+    # the angle [rad], V_MV [V], the commanded chamber pressures [Pa] and the set-point [rad]
+    data = {k: np.asarray(run.column(f"{joint}.{k}"), dtype=float)[rows]
+            for k in ("position", "u.v_mv", "p_head_cmd", "p_rod_cmd", "setpoint")}
     # the pressures are changes from those that held the joint at rest before: for an input-side
     # experiment the operating point's V_MV through the head regulator (its first command
     # already carries the signal, and may be slew-limited)
-    head_ref = data["p_head_pa"][0]
+    head_ref = data["p_head_cmd"][0]
     if info["u_op_v"] is not None:
         jc = next(j for j in rig.joints if j.name == joint)
         head_ref = ITV0051(jc.head).pressure(jc.head.bias_volts + info["u_op_v"])
-    lever = prior.L * (prior.area_head * (data["p_head_pa"] - head_ref)
-                       - prior.area_rod * (data["p_rod_pa"] - data["p_rod_pa"][0]))
+    lever = prior.L * (prior.area_head * (data["p_head_cmd"] - head_ref)
+                       - prior.area_rod * (data["p_rod_cmd"] - data["p_rod_cmd"][0]))
     period = float(run.describe.get("period_s") or np.median(np.diff(t)))
-    grid, held, angle, time_base = on_the_period(t, period, data["angle_rad"])
+    grid, held, angle, time_base = on_the_period(t, period, data["position"])
     if info["signal"]["side"] == "input":
         # the instrument of the joint input-output method [V]: the input-side signal as the
         # planner built it, on the loop's clock from the open-loop phase's first cycle
         r = rebuild(info["signal"]).series(grid - grid[0])
     else:
-        r = np.degrees(data["setpoint_rad"] - data["setpoint_rad"][0])[held]  # [deg]
+        r = np.degrees(data["setpoint"] - data["setpoint"][0])[held]  # [deg]
     y = np.degrees(angle - angle[0])
-    return Experiment(period, lever[held], y, grid - grid[0], data["u_volts"][held], float(np.degrees(angle[0])),
+    return Experiment(period, lever[held], y, grid - grid[0], data["u.v_mv"][held], float(np.degrees(angle[0])),
                       {**info, "joint": joint, "time_base": time_base}, r)
 
 

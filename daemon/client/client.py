@@ -31,7 +31,9 @@ import msgpack
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
+from daemon.client.feeds import LatestState, Subscription
 from daemon.wire import catalog, protocol
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.keys import secure_client
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
@@ -103,6 +105,7 @@ class Client:
         self._keeper: threading.Thread | None = None
         self._stop_keeping = threading.Event()  # set: the keeper thread stops at once, not after its sleep
         self._deferred_timeout: float | None = None  # from describe, on the first deferred command
+        self._layout: CycleLayout | None = None  # the cycle record's, from describe (layout())
 
     def _dealer(self, endpoint: str) -> zmq.Socket:
         sock = self.context.socket(zmq.DEALER)
@@ -202,6 +205,30 @@ class Client:
     def describe(self):
         return self.call("describe")
 
+    def layout(self, message: dict | None = None) -> CycleLayout:
+        """The daemon's cycle record layout (``describe``'s ``cycle_layout``): what each column
+        of a ``state`` message is, its unit and display unit. Read once; read again when
+        ``message`` (a ``state`` message) names another layout (the daemon was restarted with
+        another rig file)."""
+        if self._layout is None or (message is not None and message.get("layout") != self._layout.id):
+            described = self.describe()
+            self._layout = CycleLayout.from_describe(described["cycle_layout"])
+            if self._layout.id != described["cycle_layout_id"]:
+                raise ValueError(f"describe's cycle_layout does not match its cycle_layout_id "
+                                 f"({self._layout.id} != {described['cycle_layout_id']})")
+        return self._layout
+
+    def sample(self, timeout: float | None = None) -> dict:
+        """The latest cycle's record by field name (SI values, ``mode`` by name), from the next
+        ``state`` message (about 10 ms away); TimeoutError if none comes within ``timeout``."""
+        with self.latest() as feed:
+            return feed.row(timeout)
+
+    def latest(self) -> LatestState:
+        """A subscription to the ``state`` topic whose :meth:`LatestState.row` is the newest
+        cycle record (for a client that reads it often: one subscription, not one a read)."""
+        return LatestState(self)
+
     def estop(self, who: str = "client"):
         """On the control socket: never queued behind other requests."""
         return self.call("estop", {"who": who}, control=True)
@@ -219,14 +246,20 @@ class Client:
         return self.call("reset")
 
     def set(self, angles_deg=None, xy_mm=None, duration_s: float = 0.0, record: bool = False,
-            stiffness_nm_deg=None):
-        """Move to joint angles [deg] or a tip point [mm]; ``stiffness_nm_deg`` (one number, or
-        one per joint) where the joints take a stiffness set-point."""
+            stiffness_nm_deg=None, positions=None, angles_rad=None):
+        """Move to joint positions (``positions``: deg on a rotary joint, mm on a linear one), joint
+        angles (``angles_deg``, or ``angles_rad`` [rad]: rotary joints only) or a tip point
+        (``xy_mm``); ``stiffness_nm_deg`` (one number, or one per joint) where the joints take a
+        stiffness set-point."""
         args = {"duration_s": duration_s, **_record(record)}
+        if positions is not None:
+            args["positions"] = list(positions)
         if stiffness_nm_deg is not None:
             args["stiffness_nm_deg"] = stiffness_nm_deg
         if angles_deg is not None:
             args["angles_deg"] = list(angles_deg)
+        if angles_rad is not None:
+            args["angles_rad"] = list(angles_rad)
         if xy_mm is not None:
             args["xy_mm"] = list(xy_mm)
         return self.call("set", args)
@@ -258,10 +291,10 @@ class Client:
             args["approach_s"] = approach_s
         return self.call("waypoints", args)
 
-    def steps(self, angles_deg, hold_s, record: bool = False):
-        """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds."""
-        return self.call("steps", {"angles_deg": [list(p) for p in angles_deg], "hold_s": list(hold_s),
-                                   **_record(record)})
+    def steps(self, angles_deg, hold_s, record: bool = False, key: str = "angles_deg"):
+        """Step to each row of ``angles_deg`` in turn, holding it ``hold_s[i]`` seconds; ``key``
+        "positions": the rows are positions, deg on a rotary joint and mm on a linear one."""
+        return self.call("steps", {key: [list(p) for p in angles_deg], "hold_s": list(hold_s), **_record(record)})
 
     def excite(self, signal: str, joint: str, amplitude_deg: float, record: bool = False, **settings):
         """An identification signal (chirp: f0_hz, f1_hz, duration_s; prbs: order, bit_s, periods)."""
@@ -285,6 +318,11 @@ class Client:
 
     def record_list(self):
         return self.call("record.list")
+
+    def record_snapshot(self, name: str | None = None):
+        """The flight recorder's last seconds (the rig file's ``[flight_recorder] seconds``) written
+        to a file in the daemon's recording directory; a ``record`` event (``flight``) says when it is."""
+        return self.call("record.snapshot", {"name": name} if name else {})
 
     @staticmethod
     def candidate(name: str, params: dict | None, design: str | None) -> dict:
@@ -364,7 +402,7 @@ class Client:
         self._keeper.start()
 
     # -- telemetry ------------------------------------------------------------------------
-    def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> "Subscription":
+    def subscribe(self, topics=(b"state", b"stats", b"event", b"internals")) -> Subscription:
         return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
 
 
@@ -391,35 +429,3 @@ def read_waypoints(path) -> dict:
     if columns and all(c.endswith("_deg") for c in columns):
         return {"angles_deg": points, "durations_s": durations}
     raise ValueError(f"{path}: columns after duration_s must be x_mm,y_mm or <joint>_deg, got {','.join(columns)}")
-
-
-class Subscription:
-    """Telemetry messages as (topic, dict), with a count of messages lost (by sequence)."""
-
-    def __init__(self, context: zmq.Context, endpoint: str, topics, secure=None):
-        self.sock = context.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        if secure is not None:
-            secure(self.sock)
-        self.sock.setsockopt(zmq.RCVHWM, 100000)
-        for topic in topics:
-            self.sock.setsockopt(zmq.SUBSCRIBE, topic)
-        self.sock.connect(endpoint)
-        self.last_seq: dict[bytes, int] = {}
-        self.lost = 0
-
-    def receive(self, timeout: float = 1.0):
-        """The next (topic, message), or None after ``timeout`` seconds."""
-        if not self.sock.poll(timeout * 1e3):
-            return None
-        topic, payload = self.sock.recv_multipart()
-        message = msgpack.unpackb(payload, raw=False)
-        seq = message.get("seq")
-        last = self.last_seq.get(topic)
-        if last is not None and seq is not None and seq > last + 1:
-            self.lost += seq - last - 1
-        self.last_seq[topic] = seq
-        return topic.decode(), message
-
-    def close(self) -> None:
-        self.sock.close(linger=0)

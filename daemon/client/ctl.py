@@ -72,7 +72,7 @@ def motion(client: Client, args):
     """A motion command (with the lease); ``--wait`` follows it to its end (and its recording)."""
     w, record = args.what, args.record
     if w == "set":
-        kw = {"xy_mm": args.values} if args.xy else {"angles_deg": args.values}
+        kw = {"xy_mm": args.values} if args.xy else {"positions": args.values}
         send = lambda: client.set(duration_s=args.duration, record=record, stiffness_nm_deg=args.stiffness,  # noqa: E731
                                   **kw)
     elif w == "path":
@@ -87,7 +87,7 @@ def motion(client: Client, args):
         levels = [[float(v) for v in level.split(",")] for level in args.levels]
         holds = [float(v) for v in args.hold.split(",")]
         holds = holds * len(levels) if len(holds) == 1 else holds
-        send = lambda: client.steps(levels, holds, record=record)  # noqa: E731
+        send = lambda: client.steps(levels, holds, record=record, key="positions")  # noqa: E731
     else:
         settings = {"chirp": {"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration},
                     "prbs": {"order": args.order, "bit_s": args.bit, "periods": args.periods},
@@ -129,7 +129,7 @@ def parser() -> argparse.ArgumentParser:
     w.add_argument("--seconds", type=float, default=None)
     s = sub.add_parser("set", help=COMMANDS["set"].doc)
     motion = [s]
-    s.add_argument("values", type=float, nargs="+")
+    s.add_argument("values", type=float, nargs="+", help="one position per joint: deg (rotary), mm (linear)")
     s.add_argument("--xy", action="store_true", help="values are x y in mm")
     s.add_argument("--duration", type=float, default=0.0, help=_help("set", "duration_s"))
     s.add_argument("--stiffness", type=float, default=None, metavar="NM_PER_DEG", help=_help("set", "stiffness_nm_deg"))
@@ -142,7 +142,8 @@ def parser() -> argparse.ArgumentParser:
     motion.append(wp)
     wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
     wp.add_argument("--approach", type=float, default=None, help=_help("waypoints", "approach_s"))
-    st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint angles [deg]")
+    st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint positions "
+                                             "[deg rotary, mm linear]")
     motion.append(st)
     st.add_argument("levels", nargs="+")
     st.add_argument("--hold", default="5", help="hold time per level [s], one value or one per level (comma list)")
@@ -203,10 +204,12 @@ def parser() -> argparse.ArgumentParser:
     rt = sub.add_parser("record.stop", help="end a recording the daemon is making")
     rt.add_argument("--name", default=None, help=_help("record.stop", "name"))
     sub.add_parser("record.list", help=COMMANDS["record.list"].doc)
+    rn = sub.add_parser("record.snapshot", help=COMMANDS["record.snapshot"].doc)
+    rn.add_argument("--name", default=None, help=_help("record.snapshot", "name"))
     e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")
-    pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs")
+    pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs, each from its path's start")
     pl.add_argument("files", nargs="+")
     pl.add_argument("--out", default=".", help="directory for the PNGs (default: here)")
     k = sub.add_parser("keys", help="new: make your own key pair; reload: have the daemon read its allow-list again")
@@ -392,6 +395,8 @@ def run(client: Client, args):
         return client.record_stop(args.name)
     if w == "record.list":
         return client.record_list()
+    if w == "record.snapshot":
+        return client.record_snapshot(args.name)
     if w == "controller":
         if args.action == "list":
             return client.controllers()

@@ -80,7 +80,7 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
     """Run the plan's experiments on ``joint`` while recording to ``path``."""
     describe = client.describe()
     rig = config.parse(describe["rig"]["source"], "<daemon>")
-    names = [j["name"] for j in describe["joints"]]
+    names = client.layout().owners()
     if joint not in names:
         raise SystemExit(f"no joint {joint!r} (joints: {', '.join(names)})")
     if client.status()["state"] != "enabled":
@@ -94,14 +94,14 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
         recorder.start()
         try:
             time.sleep(0.5)  # the subscription reaches the publisher
-            here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
+            here = setpoints_deg(client, names)
             target = operating_point(rig, j, at_deg or here, band_deg)
             if any(abs(a - b) > 0.01 for a, b in zip(target, here)):
                 reply = _move(client, target, here)
                 _wait(client, reply.get("duration_s", 0.0), "the move to the operating point")
                 _wait_for_rest(client, joint)
             for signal, settings in plan.experiments:
-                u_op = holding_volts(rig, joint, client.status()["joints"][joint]["setpoint_deg"])
+                u_op = holding_volts(rig, joint, setpoints_deg(client, [joint])[0])
                 reply = _excite(client, joint, j, describe, prior, signal, settings, plan.settle_s, amplitude, band_deg,
                                 u_op)
                 _wait(client, reply["duration_s"], f"{signal} on {joint}")
@@ -145,7 +145,7 @@ def _move(client: Client, target: list[float], here: list[float]) -> dict:
 
 def _excite(client, joint, j, describe, prior, signal, settings, settle_s, amplitude, band_deg, u_op) -> dict:
     """Start one experiment (the daemon records it too)."""
-    u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
+    u_range = v_mv_range(describe, joint)
     args = {**settings, "settle_s": settle_s, "band_deg": band_deg, "centre_hz": CENTRE_HZ}
     return excite_fitting(lambda volts: client.excite_input(signal, joint, volts, record=True, **args), signal,
                           amplitude if amplitude is not None else default_amplitude(prior, u_op, u_range),
@@ -179,21 +179,38 @@ def _wait(client: Client, seconds: float, what: str) -> None:
         raise SystemExit(f"{what}: the arm left the enabled state ({outcome['state']}: {outcome['cause']})")
 
 
+def setpoints_deg(client: Client, names: list[str]) -> list[float]:
+    """The joints' set-points [deg], as the latest cycle record has them."""
+    row = client.sample()
+    return [math.degrees(row[f"{n}.setpoint"]) for n in names]
+
+
+def v_mv_range(describe: dict, joint: str) -> tuple[float, float]:
+    """The joint's V_MV range [V], as ``describe``'s command interfaces declare it."""
+    c = next((c for c in describe["command_interfaces"] if c["joint"] == joint and c["name"] == "v_mv"), None)
+    if c is None:
+        raise SystemExit(f"joint {joint} takes no V_MV (its actuation is not a cylinder's regulator pair): "
+                         f"identification excites V_MV")
+    return c["low"], c["high"]
+
+
 def _wait_for_rest(client: Client, joint: str, timeout_s: float = 30.0) -> None:
     """Until feedback has brought the joint back to its set-point and it has stopped: over
     REST_S, every angle within REST_DEG of the set-point and their spread under REST_SPREAD_DEG
     (the telemetry's velocity is too noisy to judge rest by). On after ``timeout_s``, saying so."""
     start = time.monotonic()
     window: list[tuple[float, float, float]] = []
-    while time.monotonic() - start < timeout_s:
-        j = client.status()["joints"][joint]
-        now = time.monotonic()
-        window = [w for w in window if now - w[0] <= REST_S] + [(now, j["angle_deg"], j["setpoint_deg"])]
-        angles = [a for _, a, _ in window]
-        if (now - window[0][0] >= 0.9 * REST_S and max(angles) - min(angles) < REST_SPREAD_DEG
-                and all(abs(a - r) < REST_DEG for _, a, r in window)):
-            return
-        time.sleep(0.05)
+    with client.latest() as feed:
+        while time.monotonic() - start < timeout_s:
+            row = feed.row()
+            now = time.monotonic()
+            window = [w for w in window if now - w[0] <= REST_S] + [
+                (now, math.degrees(row[f"{joint}.position"]), math.degrees(row[f"{joint}.setpoint"]))]
+            angles = [a for _, a, _ in window]
+            if (now - window[0][0] >= 0.9 * REST_S and max(angles) - min(angles) < REST_SPREAD_DEG
+                    and all(abs(a - r) < REST_DEG for _, a, r in window)):
+                return
+            time.sleep(0.05)
     print(f"note: joint {joint} not at rest after {timeout_s:g} s; the next experiment starts anyway", file=sys.stderr)
 
 

@@ -225,15 +225,15 @@ def estimate(rig: RigConfig, unloaded: list[Reading], loaded: list[Reading]) -> 
 
 def client_arm(client, rig: RigConfig) -> Arm:
     """The routine's Arm through a daemon's client (it holds the lease): unhurried moves
-    (refused ones slowed as the daemon says), rest judged joint by joint, V_MV from status
-    (about 50 samples a second: plenty for a mean over whole periods)."""
-    from daemon.client.identify import _move, _wait_for_rest
+    (refused ones slowed as the daemon says), rest judged joint by joint, V_MV and the angle
+    from the latest cycle record beside the dither's time left from status (about 50 samples a
+    second: plenty for a mean over whole periods)."""
+    from daemon.client.identify import _move, setpoints_deg, _wait_for_rest
 
     names = [j.name for j in rig.joints]
 
     def move(target: list[float]) -> None:
-        here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
-        reply = _move(client, target, here)
+        reply = _move(client, target, setpoints_deg(client, names))
         time.sleep(reply.get("duration_s", 0.0))
         for name in names:
             _wait_for_rest(client, name)
@@ -242,12 +242,14 @@ def client_arm(client, rig: RigConfig) -> Arm:
         reply = client.call("excite", dither_args(rig, joint))
         time.sleep(sampling_starts_s(reply["duration_s"], seconds))
         rows = []
-        while not rows or rows[-1][0] > END_GUARD_S:  # to the window's end, by the dither's clock
-            s = client.status()
-            if s["joints"][joint]["u_volts"] is None:  # the safe state is written: no V_MV to balance
-                raise SystemExit(f"the arm left enabled during the dither ({s['state']}: {s['cause']}): no balance")
-            rows.append((s["reference_remaining_s"], s["joints"][joint]["u_volts"], s["joints"][joint]["angle_deg"]))
-            time.sleep(0.02)
+        with client.latest() as feed:
+            while not rows or rows[-1][0] > END_GUARD_S:  # to the window's end, by the dither's clock
+                s = client.status()
+                row = feed.row()
+                if s["state"] != "enabled":  # the safe state is written: no V_MV to balance
+                    raise SystemExit(f"the arm left enabled during the dither ({s['state']}: {s['cause']}): no balance")
+                rows.append((s["reference_remaining_s"], row[f"{joint}.u.v_mv"], math.degrees(row[f"{joint}.position"])))
+                time.sleep(0.02)
         time.sleep(END_GUARD_S)  # the dither's end
         return window_mean(rows, seconds, joint)
 
@@ -262,8 +264,10 @@ def run(client, reference: Path, unloaded: bool, apply: bool = False) -> dict:
     if client.status()["state"] != "enabled":
         raise SystemExit("the arm is not enabled: `pneumactl enable` first (the routine moves it)")
     targets, before = (postures(rig), None) if unloaded else load_reference(reference, rig)
+    from daemon.client.identify import setpoints_deg
+
     names = [j.name for j in rig.joints]
-    here = [client.status()["joints"][n]["setpoint_deg"] for n in names]
+    here = setpoints_deg(client, names)
     estimates = posture_estimates_s(rig, targets, here)
     print(f"payload identify: {len(targets)} postures, each a move and a {dither_s(rig, names[0]):.0f} s dither per "
           f"joint: about {sum(estimates) / 60:.0f} min (Ctrl-C stops it)", file=sys.stderr, flush=True)

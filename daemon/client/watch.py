@@ -1,16 +1,20 @@
 """``pneumactl watch``: the daemon at a glance, redrawn in place (rich) in a terminal.
 
 State and its cause, the controller and the running reference with the time it has left,
-the lease holder, per joint the angle, set-point, error and V_MV with a bar over the joint's
-output range (``safe state`` instead outside ``enabled``, where the safe state is written and
-no V_MV is; nor is there a tracking error then: the set-point is the last reference's, which
-nothing tracks, so the error shows ``-``), the output volts actually written, the loop's health from the ``stats`` topic,
-faults, the daemon's recordings in progress and the last events. Piped
-or redirected (no terminal), it prints one line every 100 ms instead, which a script can read.
+the lease holder, per joint its position, set-point and error in the position's display unit
+(deg for a rotary joint, mm for a linear one), each command interface with a bar over its
+range (``safe state`` instead outside ``enabled``, where the safe state is written and no
+command is; nor is there a tracking error then: the set-point is the last reference's, which
+nothing tracks, so the error shows ``-``), the joint's further measured and commanded values
+(named apart: ``p_head`` measured, ``p_head_cmd`` commanded), the rig's own sensors, the
+output volts actually written, the loop's health from the ``stats`` topic, faults, the
+daemon's recordings in progress and the last events. Every number, name and unit is the cycle
+record's layout's (``describe``'s ``cycle_layout``): a rig with other joints or sensors is
+shown as it is, with no code of its own. Piped or redirected (no terminal), it prints one line
+every 100 ms instead, which a script can read.
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections import deque
@@ -21,11 +25,16 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from daemon.client import fields
 from daemon.client.client import Client, RemoteError
+from daemon.wire.cycle_layout import CycleLayout
 
 STATE_STYLE = {"enabled": "bold green", "idle": "bold cyan", "fault": "bold red", "estop": "bold red",
                "starting": "yellow"}
 BAR = 16  # characters of an output bar (the view fits 80 columns)
+
+
+LARGE_ERROR = 2.0  # an error shown in red beyond this, in the position's display unit [deg or mm]
 
 
 def watch(client: Client, seconds: float | None) -> None:
@@ -36,14 +45,25 @@ def watch(client: Client, seconds: float | None) -> None:
         if sys.stdout.isatty():
             _live(client, sub, end)
         else:
-            _lines(sub, end)
+            _lines(client, sub, end)
     except (KeyboardInterrupt, BrokenPipeError):
         pass
     finally:
         sub.close()
 
 
-def _lines(sub, end) -> None:
+def line(layout: CycleLayout, m: dict, lost: int = 0) -> str:
+    """The last row of a ``state`` message as one line: mode, cycle, each joint's position and
+    error (``-`` outside ``enabled``) in their display units."""
+    row = fields.latest(m, layout)
+    enabled = row["mode"] == "enabled"
+    joints = "  ".join(f"{j} {fields.shown(layout[f'{j}.position'], row[f'{j}.position'], 11)} error "
+                       f"{fields.shown(layout[f'{j}.error'], row[f'{j}.error'] if enabled else None, 10)}"
+                       for j in layout.owners())
+    return f"{row['mode']:8s} cycle {row['cycle']:9d}  {joints}  lost {lost}"
+
+
+def _lines(client: Client, sub, end) -> None:
     last_print = 0.0
     while end is None or time.monotonic() < end:
         item = sub.receive(1.0)
@@ -55,16 +75,13 @@ def _lines(sub, end) -> None:
             print(f"EVENT {m.get('kind')}: {m.get('cause', '')} {m.get('to', '')}", flush=True)
         elif topic == "state" and time.monotonic() - last_print >= 0.1:
             last_print = time.monotonic()
-            q = "  ".join(f"{math.degrees(a):8.2f}" for a in m["angle_rad"][-1])
-            e = "  ".join(f"{math.degrees(a):6.2f}" if m["mode"][-1] == "enabled" else f"{'-':>6s}"
-                          for a in m["error_rad"][-1])
-            print(f"{m['mode'][-1]:8s} cycle {m['cycle'][-1]:9d}  angle deg {q}   error deg {e}  "
-                  f"lost {sub.lost}", flush=True)
+            layout = client.layout(m)
+            if fields.check(m, layout):
+                print(line(layout, m, sub.lost), flush=True)
 
 
 def _live(client: Client, sub, end) -> None:
-    describe = client.describe()
-    view = View(describe)
+    view = View(client.describe())
     try:
         view.recordings = {a["name"]: a["who"] for a in client.record_list()["active"]}
     except RemoteError:
@@ -75,6 +92,8 @@ def _live(client: Client, sub, end) -> None:
             item = sub.receive(0.1)
             if item is not None:
                 view.take(*item)
+            if view.foreign:  # the daemon now records another layout (restarted with another rig file)
+                view = view.again(client.describe())
             now = time.monotonic()
             if now >= status_due:
                 status_due = now + 0.5
@@ -87,21 +106,35 @@ def _live(client: Client, sub, end) -> None:
 
 
 class View:
-    """What the live view shows, from the telemetry and the last status."""
+    """What the live view shows, from the telemetry and the last status; every number through
+    the cycle record's layout (``describe``'s, or ``layout``)."""
 
-    def __init__(self, describe: dict):
-        self.joints = describe["joints"]
-        self.outputs = [o[0] for o in describe["transport"]["outputs"]]
-        self.state: dict | None = None
+    def __init__(self, describe: dict, layout: CycleLayout | None = None):
+        self.layout = layout or CycleLayout.from_describe(describe["cycle_layout"])
+        self.joints = self.layout.owners()
+        # each command interface's range (its bar's ends), as describe declares it
+        self.ranges = {(c["joint"], c["name"]): (c["low"], c["high"]) for c in describe.get("command_interfaces", [])}
+        self.state: dict | None = None  # the last row of the last state message, by field name
+        self.foreign = 0  # state messages of another layout, not read
         self.stats: dict | None = None
         self.status: dict = {}
         self.events: deque[str] = deque(maxlen=5)
         self.recordings: dict[str, str] = {}  # the daemon's recordings in progress: name -> who
         self.lost = 0
 
+    def again(self, describe: dict) -> "View":
+        """This view under the layout ``describe`` now gives (what it showed kept, but the state)."""
+        view = View(describe)
+        view.status, view.events, view.recordings, view.stats, view.lost = (
+            self.status, self.events, self.recordings, self.stats, self.lost)
+        return view
+
     def take(self, topic: str, m: dict) -> None:
         if topic == "state":
-            self.state = m
+            if fields.check(m, self.layout):
+                self.state = fields.latest(m, self.layout)
+            else:
+                self.foreign += 1
         elif topic == "stats":
             self.stats = m
         elif topic == "event":
@@ -116,6 +149,33 @@ class View:
             else:
                 self.events.append(f"{m.get('kind')}: {m.get('cause', '')} {m.get('to', '')}".strip())
 
+    def _joint_rows(self, joint: str, row: dict, safe: bool) -> list[list]:
+        """The joint's table rows: its position, set-point and error, then one command a row."""
+        layout = self.layout
+        pos, sp, err = (layout[f"{joint}.{q}"] for q in ("position", "setpoint", "error"))
+        error = fields.display(err, row[err.name])
+        commands: list[Text | str] = []
+        for f in layout.of_joint(joint, "command"):
+            if safe:
+                commands = [Text("safe state", style="bold red")]
+                break
+            command = f.quantity[2:]
+            commands.append(Text(f"{command} {fields.shown(f, row[f.name])} ").append_text(
+                _bar(row[f.name], *self.ranges.get((joint, command), (0.0, 0.0)))))
+        first = [joint, fields.shown(pos, row[pos.name]), fields.shown(sp, row[sp.name]),
+                 Text("-", style="dim") if safe else Text(fields.shown(err, row[err.name]),
+                                                          style="red" if abs(error) > LARGE_ERROR else "")]
+        commands = commands or [""]
+        return [first + [commands[0]]] + [["", "", "", "", c] for c in commands[1:]]
+
+    def _further(self, joint: str, row: dict) -> Text | None:
+        """The joint's further values, measured and commanded, each by its own name (None: none)."""
+        further = [f for f in self.layout.fields if f.owner == joint and (
+            f.group == "commanded" or f.group == "measured" and f.quantity not in ("position", "velocity"))]
+        if not further:
+            return None
+        return Text(f"{joint}: " + "  ".join(f"{f.quantity} {fields.shown(f, row[f.name])}" for f in further))
+
     def render(self) -> Panel:
         s = self.status
         state = s.get("state", "?")
@@ -126,24 +186,26 @@ class View:
                              (f" ({s.get('reference_remaining_s', 0):.1f} s left)" if s.get("reference_remaining_s") else ""),
                              ("   lease ", "dim"), _holder(s))
         table = Table(expand=True, box=None)
-        for name in ("joint", "angle deg", "set-point deg", "error deg", "V_MV", ""):
-            table.add_column(name, justify="right" if name not in ("joint", "") else "left", no_wrap=True)
+        for name in ("joint", "position", "set-point", "error", "commands"):
+            table.add_column(name, justify="right" if name in ("position", "set-point", "error") else "left",
+                             no_wrap=True)
         written = Text("outputs written: waiting for telemetry", style="dim")
+        rig = Text("")
+        further: list[Text] = []
         if self.state is not None:
-            m = self.state
-            safe = m["mode"][-1] != "enabled"  # the safe state is written, whatever the controller last said
-            for j, joint in enumerate(self.joints):
-                u = m["u_volts"][-1][j]
-                err = math.degrees(m["error_rad"][-1][j])
-                table.add_row(joint["name"], f"{math.degrees(m['angle_rad'][-1][j]):8.2f}",
-                              f"{math.degrees(m['setpoint_rad'][-1][j]):8.2f}",
-                              Text("-", style="dim") if safe else Text(f"{err:7.2f}", style="red" if abs(err) > 2.0
-                                                                         else ""),
-                              Text("safe state", style="bold red") if safe else f"{u:+6.2f} V",
-                              Text("") if safe else _bar(u, joint["u_min_volts"], joint["u_max_volts"]))
-            written = Text("outputs written: " + "  ".join(f"{name} {v:.2f} V" for name, v in
-                                                            zip(self.outputs, m["out_volts"][-1]))
+            row = self.state
+            safe = row["mode"] != "enabled"  # the safe state is written, whatever the controller last said
+            for joint in self.joints:
+                for cells in self._joint_rows(joint, row, safe):
+                    table.add_row(*cells)
+            further = [t for t in (self._further(joint, row) for joint in self.joints) if t is not None]
+            written = Text("outputs written: " + "  ".join(f"{f.quantity[len('out.'):]} {row[f.name]:.2f} V"
+                                                            for f in self.layout.of_group("output"))
                            + ("  (safe state)" if safe else ""))
+            own = [f for f in self.layout.of_group("measured") if not f.owner]
+            rig = Text("rig: " + "  ".join(f"{f.name} {fields.shown(f, row[f.name])}" for f in own) if own else "")
+        if self.foreign:
+            rig.append(f"  ({self.foreign} state messages of another layout not shown)", style="red")
         health = Text("loop: waiting for stats", style="dim")
         if self.stats is not None:
             st = self.stats
@@ -155,7 +217,7 @@ class View:
         recording = Text("recording: " + (", ".join(f"{name} ({who})" for name, who in self.recordings.items())
                                           or "none"), style="bold magenta" if self.recordings else "dim")
         events = Text("\n".join(self.events) or "no events yet", style="dim")
-        return Panel(Group(head, table, written, health, faults, recording, Text("events:", style="bold"), events),
+        return Panel(Group(head, table, *further, *([rig] if rig.plain else []), written, health, faults, recording, Text("events:", style="bold"), events),
                      title="pneumad", subtitle="Ctrl-C to leave")
 
 
@@ -166,11 +228,12 @@ def _holder(status: dict) -> str:
 
 
 def _bar(u: float, lo: float, hi: float) -> Text:
-    """V_MV on its range, zero marked: full at either limit."""
+    """A command on its range, zero marked (or its low end, for a range above zero): full at
+    either limit; none for a missing value or range."""
     span = hi - lo
-    if span <= 0:
+    if span <= 0 or u != u:
         return Text("")
-    zero = round(-lo / span * BAR)
+    zero = round(min(max(-lo / span, 0.0), 1.0) * BAR)
     at = min(max(round((u - lo) / span * BAR), 0), BAR)
     cells = [" "] * (BAR + 1)
     for i in range(min(zero, at), max(zero, at) + 1):

@@ -174,7 +174,8 @@ class LoopControls:
         self.tracking.clear()
         self._reference_running = trajectory.duration > 0.0 or record is not None  # a recorded step: its response
         approach = getattr(trajectory, "approach_s", None)  # a path after its approach: settle in between
-        self._settle = None if approach is None else SettleGate(approach, trajectory.sample(approach)[0], self.period)
+        self._settle = None if approach is None else SettleGate(approach, trajectory.sample(approach)[0], self.period,
+                                                                 self.io.position_units)
         if getattr(trajectory, "open_loop", False):
             self.open_loop = OpenLoopRun(trajectory, self.trajectory_t0, self.io.joint_names[trajectory.joint])
         if self._reference_running:

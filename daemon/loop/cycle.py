@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
+import types
 
 from controllers.base import (
     Controller,
@@ -24,19 +25,24 @@ from controllers.trajectory import Trajectory
 from daemon.loop.controls import LoopControls
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.parts import LoopParts
+from daemon.loop.record import RecordSpans, writer
 from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
+from daemon.loop.handles import LoopHandles, LoopQueries
 from daemon.loop.view import LoopView
+from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
+from hal import sensors
 from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
 
-class ControlLoop(LoopControls):
-    def __init__(self, io: RigIO, clock, parts: LoopParts, telemetry=None, server=None, contact_sensor=None,
-                 stats: LoopStats | None = None):
-        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`);
-        its timing counted into ``stats`` (default: banks of its own, for a loop without a messenger)."""
+class ControlLoop(LoopControls, LoopQueries):
+    def __init__(self, io: RigIO, clock, parts: LoopParts, layout: CycleLayout, telemetry=None, server=None,
+                 contact_sensor=None, stats: LoopStats | None = None):
+        """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`),
+        recording each cycle on ``layout`` (the rig's declared interfaces'); its timing counted
+        into ``stats`` (default: banks of its own, for a loop without a messenger)."""
         self.io = io
         self.rig = io.config
         self.clock = clock
@@ -74,7 +80,6 @@ class ControlLoop(LoopControls):
         self.pressures: tuple[float, ...] = ()  # measured chamber pairs [Pa] (joints with sensors)
         self.angles = [0.0] * self.n  # last valid angles [rad]
         self.velocities = [0.0] * self.n  # filtered [rad/s]
-        self.force = math.nan
         self.snapshot: Snapshot | None = None
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
@@ -90,7 +95,22 @@ class ControlLoop(LoopControls):
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
         self._heartbeat_due = 0.0
-        self.view = LoopView(self)  # what status and describe read
+        # the cycle record: made at the end of each cycle (_record), read by telemetry and status
+        self.layout = layout
+        self.record = layout.record()
+        self._mode_of, self._mode_index = None, 0.0  # the state whose index the record holds, and the index
+        self._spans = RecordSpans.of(layout, list(io.joint_names), [f"{c.joint}.{c.name}" for c in self.actuation.commands],
+                                     [i for i, d in enumerate(io.head) if d is not None],
+                                     [f"{p.owner}.{p.name}" if p.owner else p.name for p in sensors.measured(self.rig)],
+                                     [ch.name for ch in io.transport.outputs])
+        # this cycle's record, at the end of each cycle: _record(snap), made for these spans
+        self._record = types.MethodType(writer(self._spans, self.n, MODE_INDEX, State.ENABLED), self)
+        self.handles = LoopHandles(
+            self.rig, self.context, self.controller_plugins, self.period, self.actuation.commands, io.transport, clock,
+            self.supervisor, self.events, self.stats, self.feed_forward, tuple(io.joint_outputs), contact_sensor, layout,
+            self._latest, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
+            self._faults, self._stiffness)
+        self.view = LoopView(self.handles)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -105,6 +125,7 @@ class ControlLoop(LoopControls):
             self.supervisor.trip(f"transport: {exc}")
         self.hold()
         self.supervisor.started()
+        self._record(self.snapshot)  # what status reads before the first cycle
         self._deadline = self.clock.now() + self.period
         self._stats_due = self._deadline + self.stats_period
         self._heartbeat_due = self._deadline
@@ -204,6 +225,7 @@ class ControlLoop(LoopControls):
         self.cycle += 1
         self.stats.cycles += 1
         self.stats.cycles_total += 1
+        self._record(snap)
         if self.telemetry is not None:
             self.telemetry.record(self)
         self._drain_events()
@@ -214,7 +236,7 @@ class ControlLoop(LoopControls):
                 self.telemetry.stats(window)
         t4 = clock.now()
         if self.server is not None:
-            self.server.poll(self)
+            self.server.poll(self.cycle)
         if self.heartbeat is not None and wake >= self._heartbeat_due:
             self._heartbeat_due += self.heartbeat_interval
             self.heartbeat(self)
@@ -234,7 +256,6 @@ class ControlLoop(LoopControls):
                     raw = (q - self.angles[i]) * inv_dt
                     self.velocities[i] += a * (raw - self.velocities[i])
                     self.angles[i] = q
-        self.force = snap.force
         self.pressures = snap.pressures
 
     def _input_age(self, sample_t: float) -> float:

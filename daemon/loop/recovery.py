@@ -15,6 +15,9 @@ the same way. The limit rule would trip such an arm again in the cycle it was en
   noise at the limit is no new excursion), within the move's time plus ``RECOVER_GRACE_S``;
   else it trips, saying which. Once inside, its limit rule is the usual one.
 
+A linear joint's figures are in mm (``RECOVER_MM``: margin, inside, speed in mm/s, slack), and
+its messages and summary too (``position_mm``, ``limits_mm``, ``target_mm``).
+
 Constant work a cycle, one comparison per joint still outside, and only while one is.
 """
 from __future__ import annotations
@@ -27,23 +30,31 @@ RECOVER_SPEED_DEG_S = 2.0  # the move's mean speed [deg/s] ...
 RECOVER_MIN_S = 1.0  # ... and its shortest time [s]
 RECOVER_GRACE_S = 3.0  # the joint back inside within the move's time plus this [s]
 RECOVER_SLACK_DEG = 1.0  # further out than where it was enabled by more than this trips [deg]
+RECOVER_MM = {"margin": 2.0, "inside": 1.0, "speed": 20.0, "slack": 1.0}  # a linear joint's [mm, mm/s]
+_DEG = {"margin": RECOVER_MARGIN_DEG, "inside": RECOVER_INSIDE_DEG, "speed": RECOVER_SPEED_DEG_S,
+        "slack": RECOVER_SLACK_DEG}
+_SCALE = {"rad": (180.0 / math.pi, "deg"), "m": (1e3, "mm")}  # SI -> display, and its unit
 
 
 class Recovery:
     """Joints enabled outside their limits (``limits`` [rad] per joint, the arm at ``angles``
     [rad]) on their way back, one cycle of ``dt`` [s] a :meth:`check`."""
 
-    def __init__(self, names, limits, angles, dt: float):
+    def __init__(self, names, limits, angles, dt: float, units=()):
+        """``units``: each joint's position unit, "rad" (default) or "m"."""
         self.names = tuple(names)
-        margin, slack = math.radians(RECOVER_MARGIN_DEG), math.radians(RECOVER_SLACK_DEG)
-        inside = math.radians(RECOVER_INSIDE_DEG)
-        self.targets = list(angles)  # the move's end [rad]
+        self.units = tuple(units) or ("rad",) * len(self.names)
+        self.targets = list(angles)  # the move's end [rad or m]
         # per joint outside: (its index, its angle when enabled, the angle beyond which it trips,
         # the angle past which it is back inside, +1 below its low limit / -1 above its high one)
         self.outside: list[tuple[int, float, float, float, float]] = []
+        move_s = 0.0
         for j, (q, (lo, hi)) in enumerate(zip(angles, limits)):
             if lo <= q <= hi:
                 continue
+            scale = _SCALE[self.units[j]][0]
+            figures = _DEG if self.units[j] == "rad" else RECOVER_MM
+            margin, slack, inside = (figures[k] / scale for k in ("margin", "slack", "inside"))
             middle = 0.5 * (lo + hi)
             if q < lo:
                 self.targets[j] = min(lo + margin, middle)
@@ -51,8 +62,8 @@ class Recovery:
             else:
                 self.targets[j] = max(hi - margin, middle)
                 self.outside.append((j, q, q + slack, max(hi - inside, middle), -1.0))
-        farthest = max((abs(t - q) for t, q in zip(self.targets, angles)), default=0.0)
-        self.move_s = max(RECOVER_MIN_S, math.degrees(farthest) / RECOVER_SPEED_DEG_S)  # [s]
+            move_s = max(move_s, abs(self.targets[j] - q) * scale / figures["speed"])
+        self.move_s = max(RECOVER_MIN_S, move_s)  # [s]
         self.within_s = self.move_s + RECOVER_GRACE_S  # [s]
         self.limits = [(-math.inf, math.inf) if any(o[0] == j for o in self.outside) else lim
                        for j, lim in enumerate(limits)]  # the limit rule's, meanwhile: none for those outside
@@ -80,22 +91,31 @@ class Recovery:
                 del self.outside[k]
             elif (q - beyond) * side < 0.0:
                 return (f"joint {self.names[j]} enabled outside its limits went further out: "
-                        f"{math.degrees(q):.1f} deg, enabled at {math.degrees(start):.1f} deg "
-                        f"(limits {self._degrees(j)})")
+                        f"{self._shown(j, q)}, enabled at {self._shown(j, start)} (limits {self._shown_limits(j)})")
             elif late:
                 return (f"joint {self.names[j]} enabled outside its limits is not back inside within "
-                        f"{self.within_s:.1f} s: at {math.degrees(q):.1f} deg, enabled at "
-                        f"{math.degrees(start):.1f} deg (limits {self._degrees(j)})")
+                        f"{self.within_s:.1f} s: at {self._shown(j, q)}, enabled at {self._shown(j, start)} "
+                        f"(limits {self._shown_limits(j)})")
         return None
 
-    def _degrees(self, j: int) -> str:
+    def _shown(self, j: int, q: float) -> str:
+        scale, unit = _SCALE[self.units[j]]
+        return f"{q * scale:.1f} {unit}"
+
+    def _shown_limits(self, j: int) -> str:
+        scale, unit = _SCALE[self.units[j]]
         lo, hi = self._limits[j]
-        return f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg"
+        return f"{lo * scale:.1f}..{hi * scale:.1f} {unit}"
 
     def describe(self) -> dict:
         """What the ``recover`` event and ``enable``'s reply say: each joint outside, where it
-        is, its limits and the move's target [deg]; the move's time and the time allowed [s]."""
-        return {"joints": {self.names[j]: {"angle_deg": math.degrees(start), "limits_deg": [
-                    math.degrees(x) for x in self._limits[j]], "target_deg": math.degrees(self.targets[j])}
-                           for j, start, *_ in self.outside},
-                "move_s": self.move_s, "within_s": self.within_s}
+        is, its limits and the move's target (deg, or mm on a linear joint); the move's time and
+        the time allowed [s]."""
+        joints = {}
+        for j, start, *_ in self.outside:
+            scale, unit = _SCALE[self.units[j]]
+            what = "angle" if unit == "deg" else "position"
+            joints[self.names[j]] = {f"{what}_{unit}": start * scale, f"limits_{unit}": [x * scale for x in
+                                                                                          self._limits[j]],
+                                     f"target_{unit}": self.targets[j] * scale}
+        return {"joints": joints, "move_s": self.move_s, "within_s": self.within_s}

@@ -77,7 +77,7 @@ class Supervisor:
         self._bad_sensor = self._bad_speed = 0
         self.enables += 1
         recovery = None if angles is None else Recovery([j.name for j in self.rig.joints], self._limits, angles,
-                                                        self.dt)
+                                                        self.dt, [j.position_unit for j in self.rig.joints])
         self.recovery = recovery if recovery is not None and not recovery.finished else None
         self._enter(State.ENABLED, "enabled")
         if self.recovery is not None:

@@ -1,7 +1,7 @@
 """Telemetry: what the loop publishes, as msgpack on ZeroMQ PUB topics.
 
-- ``state``: every cycle, batched (``batch`` cycles a message), columns named with units;
-  ``shadow_u_volts`` is what a shadow-run candidate would have commanded (None without one);
+- ``state``: every cycle's record (:mod:`daemon.wire.cycle_layout`), batched (``batch`` cycles a
+  message), one column per field of the layout;
 - ``stats``: once a second, loop timing (latency and per-stage compute percentiles, overruns),
   summarised beside the loop from its histograms (:mod:`daemon.wire.loop_stats`);
 - ``event``: state changes, trips, controller switches, at once;
@@ -16,10 +16,11 @@ lives (docs/benchmarks.md, "Session of 2026-11-27 (fifth)"). A sample carries th
 time it was taken at.
 Every message carries a per-topic ``seq`` so a subscriber can count what it missed.
 
-The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's numbers into a
-fixed binary row (one ``struct`` call) and hands a batch of rows to ``send``; the messenger
-process (:mod:`daemon.messenger.process`) turns it into the msgpack message with
-:func:`daemon.wire.telemetry_rows.to_payload`.
+The loop does not serialise ``state``: :class:`Telemetry` packs each cycle's record into a
+binary row with the layout's ``row`` (one ``struct`` call) and hands a batch of rows, headed by
+the layout's id, to ``send``; the messenger process (:mod:`daemon.messenger.process`), given the
+layout when it was spawned, turns it into the msgpack message with
+:func:`daemon.wire.telemetry_rows.state_message`.
 ``internals`` is packed the same way, as numbers behind the controller's layout. The rare
 ``event`` messages are packed by the loop and passed on as they are; a ``stats``
 window is a small binary message that the messenger turns into percentiles.
@@ -27,32 +28,34 @@ Sending never blocks: whatever ``send`` cannot take at once is dropped, never wa
 """
 from __future__ import annotations
 
-import math
 from itertools import chain
 
 import msgpack
 
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.telemetry_rows import (
     HEADER,
     INTERNALS_HEADER,
-    MODE_INDEX,
     internals_layout,
     internals_values,
-    row_format,
 )
 
 
 class Telemetry:
-    def __init__(self, send, batch: int = 10):
+    def __init__(self, send, layout: CycleLayout, batch: int = 10):
         """``send(topic: bytes, body)`` must not block, and must copy ``body`` (bytes-like) if it
         keeps it: a state batch and an internals sample are passed as views of buffers this
-        object reuses, so the ring's put is their only copy."""
+        object reuses, so the ring's put is their only copy. ``layout``: the cycle record's."""
         self._send = send
         self.batch = batch
+        self.layout = layout
         self.seq = {b"state": 0, b"event": 0, b"internals": 0, b"contact": 0}  # stats: numbered by its window
-        self._shape: tuple[int, int] | None = None
+        self._row = layout.row
+        self._pack, self._size = layout.row.pack_into, layout.row.size
         self._rows = 0
-        self._buf = bytearray()
+        self._at = HEADER.size  # where the next row goes
+        self._buf = bytearray(HEADER.size + batch * self._row.size)
+        self._view = memoryview(self._buf)
         self._internals_of = None  # the controller whose internals buffer is ready (_internals_for)
         self._sampled: tuple[int, float] | None = None  # the cycle and time [s] of a sample not sent yet
         if batch < 3:
@@ -61,16 +64,10 @@ class Telemetry:
         self._sample_at, self._send_at = batch // 3, 2 * batch // 3  # rows 3 and 6 of a 10-cycle batch
 
     def record(self, loop) -> None:
-        """Pack this cycle's row into the batch; send the batch when it is full."""
-        if self._shape is None:
-            self._start(loop.n, len(loop.io.last_volts), len(loop.u))
-        snap = loop.snapshot
-        shadow_u = loop.shadow_run.u if loop.shadow_run is not None else None
-        self._row.pack_into(self._buf, HEADER.size + self._rows * self._row.size, loop.cycle,
-                            snap.t if snap is not None else loop.clock.now(), *loop.angles, *loop.velocities,
-                            *loop.reference[0], *loop.u, *loop.p_head, *loop.p_rod, *loop.io.last_volts,
-                            loop.force, MODE_INDEX[loop.supervisor.state], shadow_u is not None,
-                            *(shadow_u if shadow_u is not None else self._no_shadow))
+        """Pack this cycle's record (``loop.record``, on the layout) into the batch; send the
+        batch when it is full."""
+        self._pack(self._buf, self._at, *loop.record)
+        self._at += self._size
         self._rows += 1
         if self._rows >= self.batch:
             self.flush()
@@ -132,20 +129,13 @@ class Telemetry:
         if latest is not None:
             self._publish(b"contact", {"cycle": loop.cycle, "t": loop.clock.now(), **latest})
 
-    def _start(self, n: int, m: int, k: int) -> None:
-        self._shape = (n, m, k)
-        self._row = row_format(n, m, k)
-        self._no_shadow = (math.nan,) * k
-        self._buf = bytearray(HEADER.size + self.batch * self._row.size)
-        self._view = memoryview(self._buf)
-
     def flush(self) -> None:
         if not self._rows:
             return
         self.seq[b"state"] += 1
-        HEADER.pack_into(self._buf, 0, self.seq[b"state"], *self._shape, self._rows)
+        HEADER.pack_into(self._buf, 0, self.seq[b"state"], self.layout.id, self._rows)
         size = HEADER.size + self._rows * self._row.size
-        self._rows = 0
+        self._rows, self._at = 0, HEADER.size
         self._send(b"state", self._view[:size])
 
     def event(self, loop, event: dict) -> None:

@@ -9,7 +9,9 @@ a second. What it holds back is counted by kind and said in one line once lines 
 again; the ``event`` topic (and every recording) still has each one.
 
 A line reads ``KIND: WHAT (WHY) [cycle N, WHO]``, e.g.
-``trip: lease lost: the controlling client (alice) stopped renewing it [cycle 51234]``.
+``trip: lease lost: the controlling client (alice) stopped renewing it; flight recording
+flight-20261207-013000-trip-c51234.mcap [cycle 51234]``: a trip, an e-stop and a stalled loop
+name the flight recorder's file of the seconds before them (:mod:`daemon.wire.flight`).
 """
 from __future__ import annotations
 
@@ -119,5 +121,7 @@ def line(event: dict) -> str:
         what = " ".join(str(p) for p in (event.get("action"), subject) if p)
     why = cause or event.get("cut") or ""
     text = f"{what} ({why})" if what and why else what or why
+    if event.get("flight"):  # the flight recorder's file of its last seconds (daemon.wire.flight)
+        text += f"; flight recording {event['flight']}.mcap"
     where = f"cycle {event.get('cycle')}" + (f", {event['who']}" if event.get("who") else "")
     return f"{kind}: {text} [{where}]"

@@ -1,12 +1,18 @@
 """Telemetry that PlotJuggler plots as it comes (``pneumad run --plotjuggler ENDPOINT``).
 
 PlotJuggler's "ZMQ Subscriber" source parses each message with its msgpack parser, flattens
-nested maps into series named by their path (``/middle/angle_deg``) and, with "use field as
+nested maps into series named by their path (``/middle/position_deg``) and, with "use field as
 timestamp if available", takes each message's time from a field: so this PUB socket sends one
 single-frame msgpack map per loop cycle (a row, not the ``state`` topic's 10-cycle columns),
 each with its own ``t`` [s, the daemon's monotonic clock]; the controller's internals and the
 loop's timing come as rows of their own. Single frames, no topic frame: PlotJuggler versions
 that read one frame a message and those that take a topic frame first both parse them.
+
+A row holds every field of the cycle record (:mod:`daemon.wire.cycle_layout`) but the clock
+and the mode, each under its owner (a joint's name; the rig's own at the top) as
+``<quantity>_<unit>`` in the unit a person reads it in (deg for rad, mm for m:
+``/middle/position_deg``, ``/middle/p_head_cmd_Pa``, ``/force_N``); a field nobody wrote this
+cycle (NaN) is left out of the row.
 
 It runs in the messenger process, from the telemetry it already decoded; the loop never
 knows. PlotJuggler cannot do CURVE, so the endpoint must be local (loopback or ipc; reach it
@@ -15,23 +21,27 @@ from a laptop through ``ssh -L``) unless the daemon runs ``--insecure``.
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import msgpack
 import zmq
 
+from daemon.wire.cycle_layout import CycleLayout
+
 HWM = 20_000  # rows queued for a slow PlotJuggler before ZeroMQ drops (20 s)
 
 
 class PlotJugglerFeed:
-    def __init__(self, ctx: zmq.Context, endpoint: str, rings_dir: str):
+    def __init__(self, ctx: zmq.Context, endpoint: str, rings_dir: str, layout: CycleLayout):
         self.socket = ctx.socket(zmq.PUB)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.SNDHWM, HWM)
         self.socket.bind(endpoint)
         self._rings_dir = rings_dir
         self._joints: list[str] | None = None
+        # each plotted field: (name, owner, its key in the row, the scale to its display unit)
+        self._series = [(f.name, f.owner, f"{f.quantity}_{_key(f.display[0])}", f.display[1]) for f in layout.fields
+                        if f.group not in ("clock", "mode")]
 
     def joints(self, n: int) -> list[str]:
         """The joints' names from the daemon's describe (written at its start), else j0, j1 ..."""
@@ -44,20 +54,14 @@ class PlotJugglerFeed:
         return self._joints if len(self._joints) == n else [f"j{i}" for i in range(n)]
 
     def state(self, columns: dict) -> None:
-        """One row per cycle of a ``state`` batch (columns as :func:`daemon.wire.telemetry_rows.state_message` gives)."""
-        names = self.joints(len(columns["angle_rad"][0])) if columns["cycle"] else []
+        """One row per cycle of a ``state`` message (:func:`daemon.wire.telemetry_rows.state_message`)."""
+        series = [(columns[name], owner, key, scale) for name, owner, key, scale in self._series]
         for i, cycle in enumerate(columns["cycle"]):
             row = {"t": columns["t"][i], "cycle": cycle}
-            for j, name in enumerate(names):
-                q, r = columns["angle_rad"][i][j], columns["setpoint_rad"][i][j]
-                row[name] = {"angle_deg": math.degrees(q), "setpoint_deg": math.degrees(r),
-                             "error_deg": math.degrees(r - q),
-                             "velocity_deg_s": math.degrees(columns["velocity_rad_s"][i][j]),
-                             "u_volts": columns["u_volts"][i][j], "p_head_kpa": columns["p_head_pa"][i][j] / 1e3,
-                             "p_rod_kpa": columns["p_rod_pa"][i][j] / 1e3}
-            force = columns["force_n"][i]
-            if force == force:
-                row["force_n"] = force
+            for values, owner, key, scale in series:
+                x = values[i]
+                if x == x:
+                    (row.setdefault(owner, {}) if owner else row)[key] = x * scale
             self._send(row)
 
     def internals(self, message: dict) -> None:
@@ -84,3 +88,8 @@ class PlotJugglerFeed:
 
     def close(self) -> None:
         self.socket.close()
+
+
+def _key(unit: str) -> str:
+    """A unit as part of a series' name: ``deg/s`` -> ``deg_s``, ``N m`` -> ``N_m``, ``-`` -> ``1``."""
+    return unit.replace("/", "_").replace(" ", "_").replace("-", "1")

@@ -4,7 +4,8 @@ It owns the command and control ROUTER sockets and the telemetry PUB socket. Req
 the loop, and replies and telemetry come back, through shared-memory rings
 (:mod:`daemon.wire.ring`), so the loop passes a message with a memory copy: no system call, no
 ZeroMQ call, no serialisation of the state stream (this process turns the loop's binary
-rows into msgpack, :func:`daemon.wire.telemetry_rows.to_payload`), and no Python thread beside the
+rows into msgpack through the cycle record's layout it is given when spawned,
+:func:`daemon.wire.telemetry_rows.state_message`), and no Python thread beside the
 loop taking the GIL.
 
 Control-socket requests have a ring of their own, which the loop drains first, so an
@@ -57,7 +58,7 @@ from daemon.messenger.shared import (
 )
 from daemon.wire.keys import KeyFileError
 from daemon.wire.ring import Ring
-from hal.config import TimingConfig
+from hal.config import FlightRecorderConfig, TimingConfig
 from hal.process import Child, Helper, HelperFailed
 
 __all__ = ["END", "STALL_S", "TOPICS", "Heartbeat", "Messenger", "MessengerError", "create_rings"]  # the loop's side
@@ -80,8 +81,11 @@ class Messenger:
     def __init__(self, rings_dir: str, doorbell: int, command: str, control: str, telemetry: str,
                  stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False,
                  plotjuggler: str | None = None, foxglove: tuple[str, int] | None = None,
-                 timing: TimingConfig | None = None):
+                 timing: TimingConfig | None = None, layout: list[dict] | None = None,
+                 flight: FlightRecorderConfig | None = None):
         self.rings_dir = rings_dir
+        self.layout = layout  # the cycle record's fields (CycleLayout.describe): how a state batch reads
+        self.flight = flight  # the rig file's [flight_recorder] (with a recorder): trips name their flight files
         self.timing = timing  # the rig file's [timing]: the messenger judges the loop's timing by it
         self.foxglove = foxglove  # (host, port) of the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.plotjuggler = plotjuggler  # an endpoint for PlotJuggler's rows (daemon.messenger.plotjuggler)
@@ -117,7 +121,7 @@ class Messenger:
 
     def _args(self, endpoints: dict[str, str]) -> tuple:
         return (self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints,
-                self.foxglove, self.timing)
+                self.foxglove, self.timing, self.layout, self.flight)
 
     def check(self) -> str | None:
         """Called from the loop (every ``daemon.loop.port.MESSENGER_CHECK_CYCLES``), never
@@ -165,7 +169,8 @@ class Messenger:
 # -- in the messenger process ---------------------------------------------------------------
 def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str | None, recorder: bool,
           plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None,
-          timing: TimingConfig | None = None) -> int:
+          timing: TimingConfig | None = None, layout: list[dict] | None = None,
+          flight: FlightRecorderConfig | None = None) -> int:
     """The messenger process's main: its imports (where a spare waits: Child.standby), then
     bind the sockets, say ready with their endpoints, relay until the loop's END or the
     parent's end."""
@@ -174,12 +179,14 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
         Recorder,  # the process's own work: the daemon's side never needs them
     )
     from daemon.messenger.relay import Relay
+    from daemon.wire.cycle_layout import CycleLayout
     from daemon.wire.loop_stats import StatsBanks
     if plotjuggler:
         from daemon.messenger.plotjuggler import PlotJugglerFeed
     if foxglove:
         from daemon.messenger.foxglove_stream import FoxgloveStream
     child.standby()
+    cycle_layout = CycleLayout.from_describe(layout)
     ctx = zmq.Context()
     try:
         guard = Guard(ctx, keys) if keys else None
@@ -194,7 +201,7 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
             sockets[name] = open_socket(ctx, name, endpoints[name], guard)
         if plotjuggler:
             name = "plotjuggler"
-            feed = PlotJugglerFeed(ctx, plotjuggler, rings_dir)
+            feed = PlotJugglerFeed(ctx, plotjuggler, rings_dir, cycle_layout)
         if recorder:
             name = "recorder"
             link = Recorder(ctx, rings_dir)
@@ -211,8 +218,8 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     stats = StatsBanks.in_directory(rings_dir, create=False)
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})
-    Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, stall_s, guard, link, feed, stream,
-          timing=timing).run(child.parent_alive)
+    Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, cycle_layout, stall_s, guard,
+          link, feed, stream, timing=timing, flight=flight).run(child.parent_alive)
     for helper in (link, feed, stream):
         if helper is not None:
             helper.close()

@@ -28,11 +28,13 @@ from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.messenger.revocation import Revocations
 from daemon.messenger.journal import Journal
 from daemon.messenger.timing import TimingJudge
+from daemon.wire.flight import FlightNames
 from daemon.wire.ring import Ring, RingError
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
+from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.telemetry_rows import internals_message, state_message
-from hal.config import TimingConfig
+from hal.config import FlightRecorderConfig, TimingConfig
 
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
@@ -46,11 +48,12 @@ class Relay:
     telemetry from the loop's rings onto the sockets."""
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
-                 stats: StatsBanks, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
+                 stats: StatsBanks, layout: CycleLayout, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
                  plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None,
-                 timing: TimingConfig | None = None):
+                 timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.stats = stats  # the loop's timing histograms, summarised here once a window
+        self.layout = layout  # the cycle record's: how a state batch reads
         self.recorder = recorder
         self.plotjuggler = plotjuggler
         self.foxglove = foxglove  # the live Foxglove stream (daemon.messenger.foxglove_stream)
@@ -65,6 +68,8 @@ class Relay:
         self.revocations = Revocations(rings, heartbeat, self._tokens)  # keys a reload removed, told to the loop
         self.journal = Journal()  # every event published, a line of the daemon's log
         self.timing = TimingJudge(timing or TimingConfig(), rings, self._tokens)  # the rig file's [timing]
+        # a trip's flight file, named as its event goes out (daemon.wire.flight); only where the recorder writes it
+        self.flights = FlightNames(flight.after_s) if flight is not None and recorder is not None else None
         self.poller = zmq.Poller()
         for name in ("control", "command"):
             self.poller.register(sockets[name], zmq.POLLIN)
@@ -252,6 +257,7 @@ class Relay:
         self._injected += 1
         self._event_seq += 1
         event = {"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq, "source": source}
+        self._name_flight(event)
         self.journal.write(event)
         body = msgpack.packb(event)
         self.sockets["telemetry"].send_multipart((b"event", body))
@@ -286,7 +292,7 @@ class Relay:
             if topic == b"event":
                 body = self._renumber(body)
             try:
-                columns = state_message(body) if topic == b"state" else None
+                columns = state_message(self.layout, body) if topic == b"state" else None
                 if topic == b"stats":
                     summary = summarise(self.stats, body)
                     body = msgpack.packb(summary)
@@ -338,10 +344,19 @@ class Relay:
             event = msgpack.unpackb(body, raw=False)
         except Exception:
             return body
+        named = self._name_flight(event)
         self.journal.write(event)
         event["seq"] += self._injected
         self._event_seq = event["seq"]
-        return msgpack.packb(event) if self._injected else body
+        return msgpack.packb(event) if self._injected or named else body
+
+    def _name_flight(self, event: dict) -> bool:
+        """A trip's, an e-stop's or a stall's event gets the ``flight`` field: the file the recorder
+        writes its last seconds to (its journal line names it too). Whether it did."""
+        name = self.flights.name_for(event) if self.flights is not None else None
+        if name is not None:
+            event["flight"] = name
+        return name is not None
 
     @staticmethod
     def _get(ring: Ring) -> tuple[int, bytes] | None:

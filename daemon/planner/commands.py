@@ -87,21 +87,31 @@ def plan(ctx: PlanContext, request: dict, setpoint: Sequence[float], generation:
 
 
 def plan_set(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    """Move to joint angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
+    """Move to joint positions (``positions``: deg on a rotary joint, mm on a linear one), joint
+    angles (``angles_deg`` or ``angles_rad``) or a tip point (``xy_mm``), in
     ``duration_s`` with cubic time scaling (0: a step); where the joints take one, with a new
     stiffness set-point (``stiffness_nm_deg``, one number or one per joint)."""
-    duration = _number("set", args, "duration_s")  # exactly one of the three, numbers: the catalog's (the messenger)
-    if "angles_deg" in args:
+    duration = _number("set", args, "duration_s")  # exactly one of the four, numbers: the catalog's (the messenger)
+    if "positions" in args:
+        target = ctx.to_si(numbers(args, "positions", ctx.n))
+    elif "angles_deg" in args:
+        ctx.require_rotary("angles_deg")
         target = [math.radians(a) for a in numbers(args, "angles_deg", ctx.n)]
     elif "angles_rad" in args:
+        ctx.require_rotary("angles_rad")
         target = numbers(args, "angles_rad", ctx.n)
     else:
+        ctx.require_rotary("xy_mm")
         target = tip_angles(ctx, [float(v) for v in args["xy_mm"]]) + setpoint[2:]
     check_limits(ctx, target)
     stiffness = stiffness_setpoint(ctx, args, target) if "stiffness_nm_deg" in args else None
     move = trajectory.JointMove(setpoint, target, duration)
-    check_authority(ctx, "the move", move, None if duration else "the rig cannot hold that angle", "duration_s")
-    reply = {"target_deg": [math.degrees(q) for q in target], "duration_s": duration}
+    rotary = all(ctx.unit(j) == "rad" for j in range(ctx.n))
+    held = f"the rig cannot hold that {'angle' if rotary else 'position'}"
+    check_authority(ctx, "the move", move, None if duration else held, "duration_s")
+    reply = {"target": ctx.shown(target), "duration_s": duration}
+    if rotary:
+        reply["target_deg"] = [math.degrees(q) for q in target]
     if stiffness is not None:
         reply["stiffness_nm_deg"] = [k / DEG_PER_RAD for k in stiffness]
     return Plan(move, "set", reply, tuple(setpoint), stiffness=stiffness)
@@ -135,6 +145,7 @@ def stiffness_setpoint(ctx: PlanContext, args: dict, target: Sequence[float]) ->
 
 def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     """A reference path of rig-facts §1, after an approach move to its start."""
+    ctx.require_rotary("name")
     name = args["name"]  # one of PATHS: checked against the catalog by the messenger
     make, default_duration = PATHS[name]
     duration = _number("path", args, "duration_s", default_duration)
@@ -150,17 +161,19 @@ def plan_path(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 
 def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    """A path through waypoints, joint (``angles_deg``: one row per point) or Cartesian
-    (``xy_mm``), after an approach to the first; ``durations_s[i]`` is the time from point
+    """A path through waypoints, joint (``positions`` in each joint's unit or ``angles_deg``: one
+    row per point) or Cartesian (``xy_mm``), after an approach to the first; ``durations_s[i]`` is the time from point
     i to point i + 1, with cubic time scaling on each segment."""
     # One of angles_deg or xy_mm, 2-1000 points of numbers, a duration in bounds per segment: the catalog's (the
     # messenger's); one angle per joint is the rig's
-    key = "angles_deg" if "angles_deg" in args else "xy_mm"
-    points = [checked_numbers(key, row, ctx.n, i) if key == "angles_deg" else [float(v) for v in row]
+    key = next(k for k in ("positions", "angles_deg", "xy_mm") if k in args)
+    if key != "positions":
+        ctx.require_rotary(key)
+    points = [checked_numbers(key, row, ctx.n, i) if key != "xy_mm" else [float(v) for v in row]
               for i, row in enumerate(args[key])]
     durations = [float(d) for d in args["durations_s"]]
-    if key == "angles_deg":
-        points = [[math.radians(a) for a in p] for p in points]
+    if key != "xy_mm":
+        points = [ctx.to_si(p) for p in points]
         for p in points:
             check_limits(ctx, p)
         path = trajectory.joint_waypoints(points, durations)
@@ -173,11 +186,13 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
 
 
 def plan_steps(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
-    """A step sequence: jump to ``angles_deg[i]`` and hold it ``hold_s[i]`` seconds."""
+    """A step sequence: jump to ``positions[i]`` (or ``angles_deg[i]``) and hold it ``hold_s[i]`` seconds."""
     # 1-1000 levels of numbers, one hold in bounds per level: the catalog's (the messenger's); one angle per
     # joint is the rig's
-    levels = [[math.radians(a) for a in checked_numbers("angles_deg", row, ctx.n, i)]
-              for i, row in enumerate(args["angles_deg"])]
+    key = "positions" if "positions" in args else "angles_deg"
+    if key == "angles_deg":
+        ctx.require_rotary(key)
+    levels = [ctx.to_si(checked_numbers(key, row, ctx.n, i)) for i, row in enumerate(args[key])]
     holds = [float(h) for h in args["hold_s"]]
     for level in levels:
         check_limits(ctx, level)
@@ -236,10 +251,14 @@ def tip_angles(ctx: PlanContext, xy_mm, what: str = "") -> list[float]:
         raise CommandFailed(P.REFUSED, f"{what}{exc}", {"reason": "reach", "xy_mm": list(xy_mm)}) from None
 
 
-def check_limits(ctx: PlanContext, angles: Sequence[float]) -> None:
-    for name, (lo, hi), q in zip(ctx.joint_names, ctx.limits, angles):
+def check_limits(ctx: PlanContext, positions: Sequence[float]) -> None:
+    """A refusal naming the joint, in its unit (``angle_deg``/``limits_deg`` on a rotary joint,
+    ``position_mm``/``limits_mm`` on a linear one), unless every position [SI] is inside its limits."""
+    for j, (name, (lo, hi), q) in enumerate(zip(ctx.joint_names, ctx.limits, positions)):
         if not lo <= q <= hi:
-            raise CommandFailed(P.REFUSED, f"joint {name} set-point {math.degrees(q):.2f} deg is outside its limits "
-                                           f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
-                                {"reason": "limits", "joint": name, "angle_deg": math.degrees(q),
-                                 "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+            unit, scale = ctx.display(j)
+            what = "angle" if unit == "deg" else "position"
+            raise CommandFailed(P.REFUSED, f"joint {name} set-point {ctx.text(j, q)} is outside its limits "
+                                           f"{lo * scale:.1f}..{hi * scale:.1f} {unit}",
+                                {"reason": "limits", "joint": name, f"{what}_{unit}": q * scale,
+                                 f"limits_{unit}": [lo * scale, hi * scale]})

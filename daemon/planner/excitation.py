@@ -1,10 +1,12 @@
 """Planning identification experiments (``excite``), beside the loop (rig-facts §1 "Experiments").
 
 ``side: "reference"`` (the default) adds the signal to one joint's reference about its
-set-point [deg]: a closed-loop experiment. ``side: "input"`` holds every joint at its
+set-point (``amplitude_deg`` on a rotary joint, ``amplitude_mm`` on a linear one): a
+closed-loop experiment. ``side: "input"`` holds every joint at its
 set-point and, after ``settle_s``, adds the signal to the excited joint's V_MV [V] with its
 feedback set aside (:mod:`controllers.experiment`): an open-loop one. The input side is
-checked before it runs: the band (``band_deg`` about the set-point) inside the joint's limits,
+checked before it runs: the band (``band_deg`` about the set-point; a linear joint's
+``band_mm``) inside the joint's limits,
 the operating point's V_MV (from the nominal model) plus the signal's peak inside the V_MV
 range, and the nominal linear model's predicted excursion (friction and the centring aside,
 so an overestimate) inside the band; the centring PI's gains come from the nominal model
@@ -21,7 +23,7 @@ import numpy as np
 from controllers.experiment import InputExperiment
 from daemon.wire.catalog import MAX_DURATION_S, SIGNAL_SETTINGS
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed, choice
+from daemon.wire.arguments import CommandFailed, bad_args, choice
 from daemon.wire.signals import MAX_INPUT_DURATION_S, excite_number as _number, signal_of
 from daemon.planner.plans import Plan, PlanContext, check_authority
 
@@ -37,22 +39,36 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
     j = ctx.joint_names.index(joint)
     if side == "input":
         return _plan_input(ctx, args, setpoint, signal, joint, j)
-    amplitude = math.radians(_number(args, "amplitude_deg"))
+    unit, scale = ctx.display(j)
+    key = f"amplitude_{unit}"
+    other = "amplitude_mm" if unit == "deg" else "amplitude_deg"
+    if other in args or key not in args:
+        raise bad_args(f"joint {joint} is {'rotary' if unit == 'deg' else 'linear'}: give the reference side's "
+                       f"amplitude as {key}", other if other in args else key)
+    amplitude = _number(args, key) / scale
     excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
-    lo, hi = ctx.limits[j]
-    if not (lo <= setpoint[j] - excitation.peak and setpoint[j] + excitation.peak <= hi):
-        raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(setpoint[j]):.1f} deg +- "
-                                       f"{math.degrees(excitation.peak):.1f} deg leaves its limits "
-                                       f"{math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
-                            {"reason": "limits", "argument": "amplitude_deg", "joint": joint,
-                             "angle_deg": math.degrees(_outermost(setpoint[j], excitation.peak, lo, hi)),
-                             "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+    _check_band(ctx, j, setpoint[j], excitation.peak, key)
     check_authority(ctx, f"the {signal}", excitation,
                     "lower the amplitude" + (" or the top frequency" if signal != "prbs" else ""))
     excitation.definition = {"side": "reference", "signal": signal, "joint": joint,
-                             "amplitude_deg": math.degrees(amplitude), **_settings(args, signal)}
+                             key: amplitude * scale, **_settings(args, signal)}
     return Plan(excitation, signal, {"signal": signal, "joint": joint, "side": "reference",
                                      "duration_s": excitation.duration}, tuple(setpoint))
+
+
+def _check_band(ctx: PlanContext, j: int, centre: float, half: float, argument: str) -> None:
+    """A limits refusal in the joint's unit unless centre +- half [SI] is inside its limits."""
+    lo, hi = ctx.limits[j]
+    if lo <= centre - half and centre + half <= hi:
+        return
+    unit, scale = ctx.display(j)
+    what = "angle" if unit == "deg" else "position"
+    raise CommandFailed(P.REFUSED, f"joint {ctx.joint_names[j]} at {ctx.text(j, centre, 1)} +- "
+                                   f"{ctx.text(j, half, 1)} ({argument}) leaves its limits "
+                                   f"{lo * scale:.1f}..{hi * scale:.1f} {unit}",
+                        {"reason": "limits", "argument": argument, "joint": ctx.joint_names[j],
+                         f"{what}_{unit}": _outermost(centre, half, lo, hi) * scale,
+                         f"limits_{unit}": [lo * scale, hi * scale]})
 
 
 def _outermost(centre: float, half: float, lo: float, hi: float) -> float:
@@ -67,17 +83,16 @@ def _settings(args: dict, signal: str) -> dict:
 def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str, joint: str, j: int) -> Plan:
     volts = _number(args, "amplitude_v")
     settle = _number(args, "settle_s")
-    band = math.radians(_number(args, "band_deg"))
+    unit, scale = ctx.display(j)
+    band_key = f"band_{unit}"
+    other = "band_mm" if unit == "deg" else "band_deg"
+    if other in args:
+        raise bad_args(f"joint {joint} is {'rotary' if unit == 'deg' else 'linear'}: its band is {band_key}", other)
+    band = _number(args, band_key) / scale
     centre_hz = _number(args, "centre_hz")
     excitation = signal_of(args, signal, [0.0], 0, volts, MAX_INPUT_DURATION_S)
-    lo, hi = ctx.limits[j]
     q = setpoint[j]
-    if not (lo <= q - band and q + band <= hi):
-        raise CommandFailed(P.REFUSED, f"joint {joint} at {math.degrees(q):.1f} deg +- {math.degrees(band):.1f} deg "
-                                       f"(band_deg) leaves its limits {math.degrees(lo):.1f}..{math.degrees(hi):.1f} deg",
-                            {"reason": "limits", "argument": "band_deg", "joint": joint,
-                             "angle_deg": math.degrees(_outermost(q, band, lo, hi)),
-                             "limits_deg": [math.degrees(lo), math.degrees(hi)]})
+    _check_band(ctx, j, q, band, band_key)
     t = np.arange(0.0, excitation.duration, PREDICTION_STEP_S)
     u = excitation.series(t)
     peak = float(np.max(np.abs(u))) if len(u) else 0.0
@@ -91,7 +106,7 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
         centre = u_op if u_op is not None else 0.0
         if centre - peak < u_lo or centre + peak > u_hi:
             raise CommandFailed(P.REFUSED, f"joint {joint} needs about {centre:+.2f} V of V_MV to hold "
-                                           f"{math.degrees(q):.1f} deg; +- {peak:.2f} V of signal leaves the V_MV range "
+                                           f"{ctx.text(j, q, 1)}; +- {peak:.2f} V of signal leaves the command range "
                                            f"{u_lo:+.2f}..{u_hi:+.2f} V: lower amplitude_v",
                                 {"reason": "input_range", "argument": "amplitude_v", "joint": joint,
                                  "u_op_v": centre, "peak_v": peak, "range_v": [u_lo, u_hi]})
@@ -107,8 +122,8 @@ def _plan_input(ctx: PlanContext, args: dict, setpoint: list[float], signal: str
                                  "predicted_deg": math.degrees(excursion), "band_deg": math.degrees(band)})
     gains = centring_gains(model, centre_hz) if model is not None else (0.0, 0.0)
     definition = {"side": "input", "signal": signal, "joint": joint, "amplitude_v": volts, "settle_s": settle,
-                  "band_deg": math.degrees(band), "operating_point_deg": [math.degrees(a) for a in setpoint],
-                  "centre_v_per_deg": math.radians(gains[0]), **_settings(args, signal)}
+                  band_key: band * scale, f"operating_point_{unit}": ctx.shown(setpoint),
+                  f"centre_v_per_{unit}": gains[0] / scale, **_settings(args, signal)}
     experiment = InputExperiment(setpoint, j, excitation, settle, (q - band, q + band), definition, gains)
     reply = {"signal": signal, "joint": joint, "side": "input", "duration_s": experiment.duration, "settle_s": settle,
              "predicted_excursion_deg": None if excursion is None else math.degrees(excursion),

@@ -1,15 +1,19 @@
 """What a planner hands the loop, and what it knows of the rig: shared by the motion
 planners (:mod:`daemon.planner.commands`) and the excitation planner
-(:mod:`daemon.planner.excitation`), which both build on them. Angles in rad, durations in s."""
+(:mod:`daemon.planner.excitation`), which both build on them. Positions in SI inside (rad on
+a rotary joint, m on a linear one), at the protocol in the joint's display unit (deg, mm);
+durations in s."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from controllers import trajectory
 from controllers.feasibility import Authority, Infeasible
+from controllers.feasibility_axis import AxisAuthority
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed
-
+from daemon.wire.arguments import CommandFailed, bad_args
+from hal.interfaces import DISPLAY
 
 
 @dataclass(frozen=True)
@@ -22,17 +26,49 @@ class PlanContext:
     elbow: int
     authority: Authority | None  # None when a joint has no identified model: no authority check
     muscles: tuple = ()  # hal.muscle.MuscleJoint per joint (None: a cylinder joint, it takes no stiffness)
+    units: tuple[str, ...] = ()  # each joint's position unit, "rad" or "m" (default: all rad)
 
     @classmethod
     def of(cls, rig, context) -> "PlanContext":
-        models_known = all(m is not None for m in context.models)
+        fraction = rig.limits.authority_fraction
+        if all(m is not None for m in context.models):
+            authority = Authority.of(rig, context, fraction)
+        elif context.axes and all(a is not None for a in context.axes):
+            authority = AxisAuthority.of(context, fraction)
+        else:
+            authority = None
         return cls(tuple(context.joint_names), tuple(j.limits for j in rig.joints), tuple(rig.arm.link_lengths_m),
-                   rig.arm.elbow, Authority.of(rig, context, rig.limits.authority_fraction) if models_known else None,
-                   tuple(context.muscles))
+                   rig.arm.elbow, authority, tuple(context.muscles), tuple(j.position_unit for j in rig.joints))
 
     @property
     def n(self) -> int:
         return len(self.joint_names)
+
+    def unit(self, j: int) -> str:
+        return self.units[j] if self.units else "rad"
+
+    def display(self, j: int) -> tuple[str, float]:
+        """Joint j's display unit and its scale from SI: ("deg", 180/pi) or ("mm", 1000)."""
+        return DISPLAY[self.unit(j)]
+
+    def to_si(self, values: Sequence[float]) -> list[float]:
+        """One position per joint in its display unit (deg, mm) -> SI (rad, m)."""
+        return [v / self.display(j)[1] for j, v in enumerate(values)]
+
+    def shown(self, values: Sequence[float]) -> list[float]:
+        """SI positions -> each joint's display unit."""
+        return [v * self.display(j)[1] for j, v in enumerate(values)]
+
+    def text(self, j: int, value: float, digits: int = 2) -> str:
+        unit, scale = self.display(j)
+        return f"{value * scale:.{digits}f} {unit}"
+
+    def require_rotary(self, argument: str) -> None:
+        """bad_args naming ``argument`` (an angle or a tip point) on a rig with a linear joint."""
+        linear = [name for j, name in enumerate(self.joint_names) if self.unit(j) != "rad"]
+        if linear:
+            raise bad_args(f"{argument}: joint {linear[0]} is linear: give its position in mm with positions "
+                           f"(one per joint, deg on a rotary joint, mm on a linear one)", argument)
 
 
 @dataclass

@@ -15,6 +15,10 @@ own finish failed (a write error, a full disk), and, for a recorder that died wh
 (killed, or its daemon was), by the next recorder to start on the directory, before it serves
 anything. It knows those files by their markers (``.NAME.mcap.writing``, there while a recording
 runs) and leaves alone one whose writer still holds its lock (another daemon's recorder).
+
+Beside the recordings, the flight recorder (:mod:`daemon.recorder.flight`) holds the last seconds
+of every topic and writes them, into the same directory, for each trip, e-stop and stalled loop
+and on ``record.snapshot``.
 """
 from __future__ import annotations
 
@@ -32,8 +36,11 @@ import msgpack
 from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
+from daemon.wire.flight import PREFIX as FLIGHT_PREFIX
 from daemon.recordings.mcap_log import McapRecording, TelemetryEncoder
 from daemon.recordings.mcap_repair import repair
+from daemon.recorder.flight import FlightRecorder
+from hal.config import FlightRecorderConfig
 
 TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
 MAX_ACTIVE = 4
@@ -80,7 +87,7 @@ class Active:
 
 class Archive:
     def __init__(self, rings_dir: str, directory: str, max_bytes: float, min_free_bytes: float,
-                 emit: Callable[[dict], None]):
+                 emit: Callable[[dict], None], flight: FlightRecorderConfig | None = None):
         self.rings_dir, self.directory = rings_dir, os.path.abspath(directory)
         self.max_bytes, self.min_free_bytes = max_bytes, min_free_bytes
         self.emit = emit
@@ -91,7 +98,11 @@ class Archive:
             self.controller = json.load(f)
         self.encoder = TelemetryEncoder(self.describe)  # one encoding of each message for every recording
         self._disk_checked = 0.0
-        self._handlers = {"record.start": self._start_request, "record.stop": self._stop_request, "record.list": self._list}
+        # the last seconds of every topic, written on each trip (daemon.recorder.flight)
+        self.flight = FlightRecorder(flight or FlightRecorderConfig(), self._open_file, self._file_done,
+                                     lambda: (self.describe, self.controller), self._tell)
+        self._handlers = {"record.start": self._start_request, "record.stop": self._stop_request, "record.list": self._list,
+                          "record.snapshot": self._snapshot_request}
         catalog.check_handlers(("recorder",), self._handlers)
         self._preroll: deque[dict] = deque(maxlen=PREROLL_BATCHES)
         self.feed_t: float | None = None  # [s] the daemon's clock at the last state sample taken in (record.list)
@@ -149,6 +160,12 @@ class Archive:
                       f"{self.behind_s:.2f} s before the stop")
         return self.end(self.active[name], cause)
 
+    def _snapshot_request(self, args: dict, who: str) -> dict:
+        name = args.get("name")
+        if name is not None:  # the messenger checked it (the catalog's): checked again where it becomes a file name
+            catalog.COMMANDS["record.snapshot"].arg("name").check(name)
+        return self.flight.snapshot(name or f"{FLIGHT_PREFIX}{time.strftime('%Y%m%d-%H%M%S')}-snapshot", who, self.feed_t)
+
     def _list(self, args: dict, who: str) -> dict:
         try:
             entries = [e for e in os.scandir(self.directory) if e.name.endswith(".mcap") and e.is_file()]
@@ -158,7 +175,8 @@ class Archive:
         return {"directory": self.directory, "feed_t": self.feed_t,
                 "active": [a.summary(self.feed_t) for a in self.active.values()],
                 "files": [{"name": e.name[:-5], "bytes": e.stat().st_size, "modified_unix_s": e.stat().st_mtime}
-                          for e in entries[:LIST_LIMIT]], "more": max(len(entries) - LIST_LIMIT, 0)}
+                          for e in entries[:LIST_LIMIT]], "more": max(len(entries) - LIST_LIMIT, 0),
+                "flight": self.flight.summary()}
 
     # -- recordings ------------------------------------------------------------------------
     def _path(self, name: str) -> str:
@@ -207,22 +225,12 @@ class Archive:
             raise CommandFailed(P.BAD_STATE, f"{MAX_ACTIVE} recordings are running already: stop one first",
                                 {"reason": "recording"})
         try:
-            os.makedirs(self.directory, exist_ok=True)
-            self._check_free_space()
-            base, n = name, 1
-            while True:
-                try:
-                    f = open(self._path(name), "xb")
-                    break
-                except FileExistsError:
-                    n += 1
-                    name = f"{base}-{n}"
+            f, path = self._open_file(name)
+            name = os.path.basename(path)[:-len(".mcap")]
             plan = {} if ends_t is None else {"planned_end_t": ends_t}
             if seconds is not None:
                 plan = {"planned_s": seconds, **({"planned_end_t": self.feed_t + seconds} if self.feed_t is not None else {})}
             try:
-                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held while it is written: finish_left_files
-                open(self._marker(self._path(name)), "w").close()
                 writer = McapRecording(f, self.describe, self.controller, self.encoder, plan)
             except OSError:
                 f.close()
@@ -240,6 +248,33 @@ class Archive:
         self._tell({"kind": "record", "action": "start", "name": name, "file": active.path, "who": who,
                    "follows_reference": reference is not None})
         return active
+
+    def _open_file(self, name: str):
+        """A new file NAME.mcap (a taken name gets a -2, -3 ... suffix), locked and marked as being
+        written (finish_left_files); the open file and its path. OSError if it cannot be."""
+        os.makedirs(self.directory, exist_ok=True)
+        self._check_free_space()
+        base, n = name, 1
+        while True:
+            try:
+                f = open(self._path(name), "xb")
+                break
+            except FileExistsError:
+                n += 1
+                name = f"{base}-{n}"
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held while it is written: finish_left_files
+            open(self._marker(self._path(name)), "w").close()
+        except OSError:
+            f.close()
+            raise
+        return f, self._path(name)
+
+    def _file_done(self, path: str) -> None:
+        try:
+            os.remove(self._marker(path))
+        except OSError:
+            pass
 
     def end(self, active: Active, cause: str, failed: bool = False, write_error: bool = False) -> dict:
         """Close a recording; its summary (also an event). After a ``write_error`` (a record may
@@ -265,10 +300,7 @@ class Archive:
             except (OSError, ValueError) as exc:
                 cause += f", nor could it be finished ({getattr(exc, 'strerror', None) or exc}): pneumactl export, " \
                          f"plot and recordings.load read it up to its last complete chunk"
-        try:
-            os.remove(self._marker(active.path))
-        except OSError:
-            pass
+        self._file_done(active.path)
         try:
             summary["bytes"] = os.path.getsize(active.path)
         except OSError:
@@ -280,6 +312,7 @@ class Archive:
     def close(self, cause: str) -> None:
         for active in list(self.active.values()):
             self.end(active, cause)
+        self.flight.close()
 
     # -- telemetry --------------------------------------------------------------------------
     def message(self, topic: str, body: bytes) -> None:
@@ -290,8 +323,10 @@ class Archive:
         except Exception:
             return  # only the messenger sends these
         last_t = message["t"][-1] if topic == "state" and message.get("t") else None
+        self.flight.take(topic, body, last_t if last_t is not None else self.feed_t)
         if topic == "event":
             self._follow(message)
+            self.flight.event(message)
         elif topic == "state":
             self._preroll.append(message)
             if last_t is not None:

@@ -16,6 +16,8 @@ with an event, the file finished up to its last complete chunk; the loop never k
 started (a daemon's start, or again after a recorder died), it first finishes the files a dead
 recorder left (:meth:`daemon.recorder.archive.Archive.finish_left_files`). Its events wait
 (``EVENTS_HELD``) until the messenger is connected: a recorder just started has none yet.
+Between them it writes the flight recorder's files (:mod:`daemon.recorder.flight`), a slice of
+``BATCH_S`` at a time.
 
 The metadata of a recording (``describe``, the controller and its parameters) come from the
 files the daemon writes into the rings' directory at start (``describe.json``,
@@ -31,6 +33,7 @@ import os
 import signal
 import time
 
+from hal.config import FlightRecorderConfig
 from hal.process import Child, Helper, HelperFailed
 
 FEED = "recorder-feed"  # ipc socket names in the rings' directory
@@ -51,9 +54,10 @@ def endpoint(rings_dir: str, name: str) -> str:
 class RecorderProcess:
     """The daemon's handle on the recorder process (started, restarted if it dies, joined)."""
 
-    def __init__(self, rings_dir: str, directory: str, max_mb: float, min_free_mb: float):
+    def __init__(self, rings_dir: str, directory: str, max_mb: float, min_free_mb: float,
+                 flight: FlightRecorderConfig | None = None):
         self.rings_dir, self.directory = rings_dir, directory
-        self._proc = Helper("daemon.recorder.process:serve", (rings_dir, directory, max_mb, min_free_mb),
+        self._proc = Helper("daemon.recorder.process:serve", (rings_dir, directory, max_mb, min_free_mb, flight),
                             name="the recorder", death_signal=signal.SIGTERM, ignore=(signal.SIGINT,), nice=5)
 
     @property
@@ -97,7 +101,8 @@ def write_metadata(rings_dir: str, describe: dict, controller: dict) -> None:
 
 
 # -- in the recorder process ----------------------------------------------------------------
-def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_mb: float) -> int:
+def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_mb: float,
+          flight: FlightRecorderConfig | None = None) -> int:
     """The recorder process's main: bind its sockets, say ready, record until the feed's end,
     SIGTERM or the parent's end."""
     import zmq
@@ -117,7 +122,7 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     control.bind(endpoint(rings_dir, CONTROL))
     held: list[list[bytes]] = []  # events no messenger has taken yet
     archive = Archive(rings_dir, directory, max_mb * 1e6, min_free_mb * 1e6,
-                      lambda event: _send_event(control, held, json.dumps(event).encode()))
+                      lambda event: _send_event(control, held, json.dumps(event).encode()), flight)
     child.ready()
     archive.finish_left_files()
     poller = zmq.Poller()  # requests wake it at once; the feed waits in its queue, read in batches
@@ -144,6 +149,8 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
             for _, token, who, body in requests:
                 _send(control, [b"reply", token, archive.request(body, who.decode(errors="replace"))])
         archive.tick(time.monotonic())
+        writing = archive.flight.work(archive.feed_t, BATCH_S)  # a flight file, a slice at a time
+        behind = behind or writing
     archive.close("the daemon stopped")
     feed.close()
     control.close()

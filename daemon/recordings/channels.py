@@ -6,17 +6,28 @@ one layout (docs/foxglove-layout.json) serves live and recorded data.
 From the telemetry as subscribers see it (``state`` columns, ``internals``, ``stats``,
 ``event``, ``contact``), :class:`Frames` makes (topic, log time [ns], encoded message):
 
+Every per-cycle channel is made from the cycle record's fields (:mod:`daemon.wire.cycle_layout`,
+the describe's ``cycle_layout``), so a field a rig declares reaches its channel with no code
+for that rig:
+
 - ``/joint_states``: ``foxglove.JointStates`` (protobuf), one per loop cycle: per joint (named
-  as the rig file names it) position [rad], velocity [rad/s] and effort, the commanded chamber
-  pressure difference head - rod (a muscle pair's a - b) [Pa]: the torque needs a moment arm and areas
-  the daemon does not publish, the pressure difference is what drives the joint.
-- JSON-schema channels, one message per cycle: ``/pneumad/tracking`` (angle, set-point, error,
-  velocity [deg, deg/s], the loop's mode and the reference's phase: approach, settle, path or hold),
-  ``/pneumad/commands`` (each command interface in force with its limits: V_MV [V], a muscle
-  pair's pressures [Pa], brake [N m]; the output volts actually written; ``output`` says
-  ``safe state`` whenever the safe state is written instead of the controller's output),
-  ``/pneumad/pressures`` (the head and rod chambers' pressure commands [kPa], as written), ``/pneumad/tip`` (forward kinematics of
-  the first two joints [mm], measured and set-point);
+  as the rig file names it) position [rad or m], velocity [rad/s or m/s] and effort, the commanded
+  chamber pressure difference head - rod (a muscle pair's a - b) [Pa] (NaN on a joint that
+  commands no pressures): the torque needs a moment arm and areas the daemon does not publish,
+  the pressure difference is what drives the joint.
+- JSON-schema channels, one message per cycle: ``/pneumad/tracking`` (position, set-point,
+  error, velocity in the unit a person reads each joint in: ``position_deg`` on a rotary joint,
+  ``position_mm`` on a linear one; the loop's mode and the reference's phase: approach, settle,
+  path or hold), ``/pneumad/commands`` (each command interface in force with its limits: V_MV
+  [V], a muscle pair's pressures [Pa], brake [N m], a 5/3 valve [V]; null outside ``enabled``;
+  the output volts actually written; ``output`` says ``safe state`` whenever the safe state is
+  written instead of the controller's output), ``/pneumad/commanded_pressures`` (each chamber's
+  pressure command after the clamps [kPa], ``p_<chamber>_cmd_kpa``), and where the rig has
+  them, ``/pneumad/measured_pressures`` (each chamber transmitter's reading [kPa],
+  ``p_<chamber>_kpa``) and ``/pneumad/sensors`` (every other sensor in its SI unit: the rig's by
+  name, ``force``, ``supply_pressure``, a further input; a joint's further inputs under
+  ``joints.<name>``); ``/pneumad/tip`` (forward
+  kinematics of the first two joints [mm], measured and set-point, on a rig with link lengths);
   and one per message: ``/pneumad/controller`` (the internals, each signal's unit from the
   controller that published it), ``/pneumad/loop`` (timing), ``/pneumad/contact_estimate``.
 - ``/log`` (``foxglove.Log``) and ``/events`` (``foxglove.Event``) for the daemon's events:
@@ -32,8 +43,14 @@ import math
 import orjson
 from foxglove.messages import Event, JointState, JointStates, KeyValuePair, Log, LogLevel, Timestamp
 
+from daemon.recordings.legacy import layout_of
+from daemon.wire.cycle_layout import CycleLayout
+
 JOINT_STATES, LOG, EVENTS = "/joint_states", "/log", "/events"
-TRACKING, COMMANDS, PRESSURES, TIP = "/pneumad/tracking", "/pneumad/commands", "/pneumad/pressures", "/pneumad/tip"
+TRACKING, COMMANDS, TIP = "/pneumad/tracking", "/pneumad/commands", "/pneumad/tip"
+COMMANDED_PRESSURES, MEASURED_PRESSURES = "/pneumad/commanded_pressures", "/pneumad/measured_pressures"
+SENSORS = "/pneumad/sensors"
+TRACKED = ("position", "setpoint", "error", "velocity")  # a joint's tracking channel's quantities
 CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/contact_estimate"
 SAFE_STATE = "safe state"
 ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warnings below
@@ -53,27 +70,72 @@ def _numbers(*names: str) -> dict:
     return _obj({n: _NUMBER for n in names})
 
 
+def unit_key(unit: str) -> str:
+    """A unit as the end of a key: ``deg/s`` -> ``deg_s``."""
+    return unit.replace("/", "_").replace(" ", "_")
+
+
+class ChannelFields:
+    """Which of a layout's fields each per-cycle channel carries, under which key."""
+
+    def __init__(self, layout: CycleLayout):
+        self.layout = layout
+        self.joints = layout.owners()
+        # per joint: (field, key, scale) in the unit a person reads it in (deg, mm ...)
+        self.tracking = {j: [(f.name, f"{f.quantity}_{unit_key(f.display[0])}", f.display[1])
+                             for f in layout.of_joint(j) if f.quantity in TRACKED] for j in self.joints}
+        self.commands = {j: [(f.name, f.quantity[2:]) for f in layout.of_joint(j, "command")] for j in self.joints}
+        self.commanded = {j: [(f.name, f"{f.quantity}_kpa") for f in layout.of_joint(j, "commanded")]
+                          for j in self.joints}
+        self.measured = {j: [(f.name, f"{f.quantity}_kpa") for f in layout.of_joint(j, "measured")
+                             if f.quantity.startswith("p_") and f.unit == "Pa"] for j in self.joints}
+        chambers = {name for pairs in self.measured.values() for name, _ in pairs}
+        others = [f for f in layout.of_group("measured") if f.quantity not in ("position", "velocity")
+                  and f.name not in chambers]
+        self.sensors = [f.name for f in others if not f.owner]  # the rig's, by name
+        self.inputs = {j: [(f.name, f.quantity) for f in others if f.owner == j] for j in self.joints}  # a joint's
+        self.outputs = [(f.name, f.quantity[4:]) for f in layout.of_group("output")]
+
+    def effort(self, joint: str) -> tuple[str, str] | None:
+        """A joint's (first, second) commanded chamber pressure fields, if it commands pressures."""
+        pair = self.commanded[joint]
+        return (pair[0][0], pair[1][0]) if len(pair) == 2 else None
+
+
 def json_schemas(describe: dict) -> dict[str, dict]:
-    """Each JSON channel's schema for this daemon's rig (joints by name, its command interfaces)."""
-    joints = [j["name"] for j in describe["joints"]]
-    per_joint = lambda fields: _obj({j: fields(j) for j in joints})  # noqa: E731
-    commands = {j: [c["name"] for c in describe.get("command_interfaces", []) if c["joint"] == j] for j in joints}
+    """Each JSON channel's schema for this daemon's rig (joints by name, the fields of its cycle
+    layout); ``/pneumad/measured_pressures`` and ``/pneumad/sensors`` only where the rig has them."""
+    fields = ChannelFields(layout_of(describe))
+    layout = fields.layout
+    per_joint = lambda keys: _obj({j: _numbers(*keys(j)) for j in fields.joints})  # noqa: E731
     stamp = {"t": _TIME, "cycle": {"type": "integer"}}
     figures = _numbers("p50", "p99", "p99.9", "max")
-    return {
+    schemas = {
         TRACKING: _obj({**stamp, "mode": {"type": "string"}, "phase": {"type": "string"},
-                        "joints": per_joint(lambda j: _numbers("angle_deg", "setpoint_deg", "error_deg",
-                                                               "velocity_deg_s"))},
-                       "set-points and tracking errors per joint [deg]; the loop's mode, the reference's phase"),
+                        "joints": per_joint(lambda j: [k for _, k, _ in fields.tracking[j]])},
+                       "position, set-point, tracking error and velocity per joint, in the unit a person reads it "
+                       "in (deg or mm); the loop's mode, the reference's phase"),
         COMMANDS: _obj({**stamp, "output": {"type": "string"},
-                        "joints": per_joint(lambda j: _numbers(*(f"{c}{s}" for c in commands[j]
-                                                                 for s in ("", "_min", "_max")))),
-                        "written_volts": _obj({o[0]: _NUMBER for o in describe["transport"]["outputs"]})},
-                       "command interfaces in force and their limits (V_MV [V], pressures [Pa], brake [N m]); "
-                       "output volts written; output: controller or safe state"),
-        PRESSURES: _obj({**stamp, "joints": per_joint(lambda j: _numbers("p_head_kpa", "p_rod_kpa"))},
-                        "chamber pressure commands [kPa], after the rig's limits (a muscle pair: a, b); "
-                        "not measured pressures"),
+                        "joints": per_joint(lambda j: [f"{c}{s}" for _, c in fields.commands[j]
+                                                       for s in ("", "_min", "_max")]),
+                        "written_volts": _obj({ch: _NUMBER for _, ch in fields.outputs})},
+                       "command interfaces in force and their limits (V_MV [V], pressures [Pa], brake [N m], "
+                       "valve [V]); output volts written; output: controller or safe state"),
+        COMMANDED_PRESSURES: _obj({**stamp, "joints": per_joint(lambda j: [k for _, k in fields.commanded[j]])},
+                                  "chamber pressures COMMANDED [kPa], after the rig's limits (a muscle pair: a, b); "
+                                  "not measured"),
+    }
+    if any(fields.measured.values()):
+        schemas[MEASURED_PRESSURES] = _obj({**stamp, "joints": per_joint(lambda j: [k for _, k in fields.measured[j]])},
+                                           "chamber pressures MEASURED by their transmitters [kPa]")
+    if fields.sensors or any(fields.inputs.values()):
+        named = fields.sensors + [name for pairs in fields.inputs.values() for name, _ in pairs]
+        schemas[SENSORS] = _obj({**stamp, **{n: _NUMBER for n in fields.sensors},
+                                 "joints": _obj({j: _numbers(*(q for _, q in pairs))
+                                                 for j, pairs in fields.inputs.items() if pairs})},
+                                "every other sensor in its SI unit, the rig's by name, a joint's under joints: "
+                                + ", ".join(f"{n} [{layout[n].unit}]" for n in named))
+    schemas.update({
         TIP: _obj({**stamp, **_numbers("x_mm", "y_mm", "setpoint_x_mm", "setpoint_y_mm")["properties"]},
                   "tip position by forward kinematics of the first two joints [mm]"),
         CONTROLLER: _obj({**stamp, "controller": {"type": "string"},
@@ -83,7 +145,8 @@ def json_schemas(describe: dict) -> dict[str, dict]:
                     "latency_us": figures, "compute_us": figures}, "loop timing over a stats window [us]"),
         CONTACT: _obj({"t": _TIME, "frame": {"type": "integer"}, "age_s": _NUMBER,
                        "contact": {"type": ["object", "null"]}}, "the array sensor's contact estimate"),
-    }
+    })
+    return schemas
 
 
 def schema_name(topic: str) -> str:
@@ -144,26 +207,33 @@ class Frames:
 
     def __init__(self, describe: dict):
         self.describe = describe
-        self.joints = [j["name"] for j in describe["joints"]]
-        self.outputs = [o[0] for o in describe["transport"]["outputs"]]
-        interfaces = describe.get("command_interfaces") or [
-            {"joint": j["name"], "name": "v_mv", "low": j.get("u_min_volts"), "high": j.get("u_max_volts")}
-            for j in describe["joints"]]
-        self._commands = [(c["joint"], c["name"], k, c.get("low"), c.get("high")) for k, c in enumerate(interfaces)]
+        self.fields = fields = ChannelFields(layout_of(describe))
+        self.joints = fields.joints
+        limits = {(c["joint"], c["name"]): (c.get("low"), c.get("high")) for c in describe.get("command_interfaces") or
+                  [{"joint": j["name"], "name": "v_mv", "low": j.get("u_min_volts"), "high": j.get("u_max_volts")}
+                   for j in describe["joints"]]}
+        self._commands = {j: [(name, c, *limits.get((j, c), (None, None))) for name, c in fields.commands[j]]
+                          for j in self.joints}
         lengths = describe.get("arm", {}).get("link_lengths_mm", [])
-        self._links = lengths[:2] if len(lengths) >= 2 and len(self.joints) >= 2 else None
+        rotary = [fields.layout[f"{j}.position"].unit == "rad" for j in self.joints[:2]]
+        self._links = lengths[:2] if len(lengths) >= 2 and len(self.joints) >= 2 and all(rotary) else None
+        self._efforts = [(j, fields.effort(j)) for j in self.joints]
         self._reference: tuple[float, float, float] | None = None  # start, approach end, end [s]
         self._settling = False  # a path's approach has ended and its clock has not started (its `settled` event)
         self._started: dict[int, float] = {}  # reference generation -> start [s]
+        self._per_cycle = [(JOINT_STATES, self._joint_states), (TRACKING, self._tracking),
+                           (COMMANDS, self._commands_in_force), (COMMANDED_PRESSURES, self._commanded),
+                           (TIP, self._tip_position)]
+        if any(fields.measured.values()):
+            self._per_cycle.append((MEASURED_PRESSURES, self._measured))
+        if fields.sensors or any(fields.inputs.values()):
+            self._per_cycle.append((SENSORS, self._sensors))
 
     def state(self, m: dict, wanted=None, rows=None) -> list[tuple[str, int, bytes]]:
-        """Per cycle of a ``state`` batch: joint states, tracking, commands, pressures, tip
-        (``wanted``: only these topics, e.g. those a client subscribed to; None: all; ``rows``:
-        only these cycles of the batch, by index; None: all)."""
-        makers = [(topic, make) for topic, make in ((JOINT_STATES, self._joint_states), (TRACKING, self._tracking),
-                                                   (COMMANDS, self._commands_in_force), (PRESSURES, self._pressures),
-                                                   (TIP, self._tip_position))
-                  if wanted is None or topic in wanted]
+        """Per cycle of a ``state`` message: joint states, tracking, commands, commanded (and
+        measured) pressures, sensors, tip (``wanted``: only these topics, e.g. those a client
+        subscribed to; None: all; ``rows``: only these cycles of the batch, by index; None: all)."""
+        makers = [(topic, make) for topic, make in self._per_cycle if wanted is None or topic in wanted]
         out = []
         for i in range(len(m["cycle"])) if rows is None else rows:
             stamp = ns(m["t"][i])
@@ -174,36 +244,44 @@ class Frames:
         return out
 
     def _joint_states(self, m: dict, i: int) -> bytes:
-        q, w, ph, pr = m["angle_rad"][i], m["velocity_rad_s"][i], m["p_head_pa"][i], m["p_rod_pa"][i]
         return JointStates(timestamp=_stamp(m["t"][i]), joints=[
-            JointState(name=name, position=q[j], velocity=w[j], effort=ph[j] - pr[j])
-            for j, name in enumerate(self.joints)]).encode()
+            JointState(name=j, position=m[f"{j}.position"][i], velocity=m[f"{j}.velocity"][i],
+                       effort=m[pair[0]][i] - m[pair[1]][i] if pair is not None else math.nan)
+            for j, pair in self._efforts]).encode()
 
     def _tracking(self, m: dict, i: int) -> bytes:
-        t, q, r, w = m["t"][i], m["angle_rad"][i], m["setpoint_rad"][i], m["velocity_rad_s"][i]
+        t = m["t"][i]
         return json_bytes({"t": t, "cycle": m["cycle"][i], "mode": m["mode"][i], "phase": self._phase(t),
-                           "joints": {name: {"angle_deg": math.degrees(q[j]), "setpoint_deg": math.degrees(r[j]),
-                                             "error_deg": math.degrees(r[j] - q[j]),
-                                             "velocity_deg_s": math.degrees(w[j])}
-                                      for j, name in enumerate(self.joints)}})
+                           "joints": {j: {key: m[name][i] * scale for name, key, scale in keys}
+                                      for j, keys in self.fields.tracking.items()}})
 
     def _commands_in_force(self, m: dict, i: int) -> bytes:
-        safe, u = m["mode"][i] != "enabled", m["u_volts"][i]  # outside enabled the safe state is written
-        joints: dict[str, dict] = {name: {} for name in self.joints}
-        for joint, name, k, low, high in self._commands:
-            joints[joint].update({name: None if safe else u[k], f"{name}_min": low, f"{name}_max": high})
+        safe = m["mode"][i] != "enabled"  # outside enabled the safe state is written (the record: NaN, null here)
+        joints = {j: {key: value for name, c, low, high in commands
+                      for key, value in ((c, m[name][i]), (f"{c}_min", low), (f"{c}_max", high))}
+                  for j, commands in self._commands.items()}
         return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "output": SAFE_STATE if safe else "controller",
-                           "joints": joints, "written_volts": dict(zip(self.outputs, m["out_volts"][i]))})
+                           "joints": joints, "written_volts": {ch: m[name][i] for name, ch in self.fields.outputs}})
 
-    def _pressures(self, m: dict, i: int) -> bytes:
-        ph, pr = m["p_head_pa"][i], m["p_rod_pa"][i]
+    def _commanded(self, m: dict, i: int) -> bytes:
         return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "joints": {
-            name: {"p_head_kpa": ph[j] / 1e3, "p_rod_kpa": pr[j] / 1e3} for j, name in enumerate(self.joints)}})
+            j: {key: m[name][i] / 1e3 for name, key in pairs} for j, pairs in self.fields.commanded.items()}})
+
+    def _measured(self, m: dict, i: int) -> bytes:
+        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "joints": {
+            j: {key: m[name][i] / 1e3 for name, key in pairs} for j, pairs in self.fields.measured.items()}})
+
+    def _sensors(self, m: dict, i: int) -> bytes:
+        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], **{n: m[n][i] for n in self.fields.sensors},
+                           "joints": {j: {q: m[name][i] for name, q in pairs}
+                                      for j, pairs in self.fields.inputs.items() if pairs}})
 
     def _tip_position(self, m: dict, i: int) -> bytes | None:
         if self._links is None:
             return None
-        (x, y), (sx, sy) = self._tip(m["angle_rad"][i]), self._tip(m["setpoint_rad"][i])
+        a, b = self.joints[:2]
+        (x, y) = self._tip((m[f"{a}.position"][i], m[f"{b}.position"][i]))
+        (sx, sy) = self._tip((m[f"{a}.setpoint"][i], m[f"{b}.setpoint"][i]))
         return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], "x_mm": x, "y_mm": y,
                            "setpoint_x_mm": sx, "setpoint_y_mm": sy})
 

@@ -4,11 +4,14 @@ One channel per telemetry topic (``/pneumad/state``, ``/pneumad/stats``, ``/pneu
 ``/pneumad/internals``, ``/pneumad/contact``), each message JSON-encoded against a JSON Schema (encoding
 ``jsonschema``, which both viewers read natively). ``state`` is written one message per
 loop cycle, not per batch: its log time is the sample's time on the daemon's monotonic
-clock [ns] and its sequence number the cycle, and each joint's numbers sit under the joint's
-name (``joints.middle.angle_rad``), so a viewer plots them by name. Lost telemetry (a gap in
+clock [ns] and its sequence number the cycle, and it is the cycle's record, flat, one key per
+field of the cycle layout (:mod:`daemon.wire.cycle_layout`: ``middle.position`` [rad],
+``middle.p_head_cmd`` [Pa] ...; a number nobody wrote is null), its schema made from the layout
+with each field's unit, so a viewer plots them by name. Lost telemetry (a gap in
 a topic's ``seq``) is written where it happened, on ``/pneumad/gap``. The rig file is an
-attachment; ``describe``, the controller and its parameters, the software version and the
-rig hash are metadata records.
+attachment; ``describe`` (with the ``cycle_layout``), the controller and its parameters, the
+software version and the rig hash are metadata records. Recordings made before the layout
+(nested samples) read into the same flat samples (:mod:`daemon.recordings.legacy`).
 
 Beside them, the Foxglove channels of the live stream (:mod:`daemon.recordings.channels`:
 ``/joint_states``, ``/pneumad/tracking`` ..., ``/log``, ``/events``), with the same schemas, so
@@ -39,12 +42,12 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from daemon.recordings.channels import Frames, json_bytes, json_schemas, ns, protobuf_schemas, schema_name
+from daemon.recordings.legacy import Converter, layout_of
 from daemon.recordings.mcap_repair import CUT
+from daemon.wire.cycle_layout import MODES, CycleLayout
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
-PER_JOINT = ("angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts", "p_head_pa", "p_rod_pa")
-STATE_SCALARS = {"cycle": "integer", "t": "number", "force_n": ["number", "null"], "mode": "string"}
 TOPICS = ("state", "stats", "event", "internals", "contact", "gap")
 NAN = float("nan")
 
@@ -53,13 +56,14 @@ def channel(topic: str) -> str:
     return f"/pneumad/{topic}"
 
 
-def state_schema(joints: list[str]) -> dict:
-    number = {"type": ["number", "null"]}  # null: no such number this cycle (a joint with no V_MV, no force sensor)
-    per_joint = {"type": "object", "properties": {k: number for k in PER_JOINT + ("shadow_u_volts",)}}
-    return {"title": "pneumad state sample (one loop cycle; SI units, volts at the hardware edge)", "type": "object",
-            "properties": {**{k: {"type": v} for k, v in STATE_SCALARS.items()},
-                           "joints": {"type": "object", "properties": {j: per_joint for j in joints}},
-                           "out_volts": {"type": "object", "additionalProperties": number}}}
+def state_schema(layout: CycleLayout) -> dict:
+    """The ``/pneumad/state`` schema: one property per field of the layout, with its unit."""
+    def prop(f) -> dict:
+        kind = {"cycle": "integer", "mode": "string"}.get(f.name, ["number", "null"])  # null: nobody wrote it
+        extra = {"enum": list(MODES)} if f.name == "mode" else {}
+        return {"type": kind, "description": f"{f.group}, {f.unit}", **extra}
+    return {"title": "pneumad state sample: one loop cycle's record (SI units, volts at the hardware edge)",
+            "type": "object", "properties": {f.name: prop(f) for f in layout.fields}}
 
 
 OTHER_SCHEMAS = {
@@ -76,41 +80,12 @@ OTHER_SCHEMAS = {
 }
 
 
-def command_fields(describe: dict) -> tuple[list[int], list[tuple[str, int]]]:
-    """Where each joint's V_MV sits in a state message's ``u_volts`` (-1: the joint takes none),
-    and the other commands (a muscle pair's pressures and brake) as ("joint.name", index):
-    from ``describe``'s ``command_interfaces`` (a recording older than it: one V_MV a joint)."""
-    interfaces = describe.get("command_interfaces")
-    joints = [j["name"] for j in describe["joints"]]
-    if interfaces is None:
-        return list(range(len(joints))), []
-    v_mv = {c["joint"]: k for k, c in enumerate(interfaces) if c["name"] == "v_mv"}
-    others = [(f"{c['joint']}.{c['name']}", k) for k, c in enumerate(interfaces) if c["name"] != "v_mv"]
-    return [v_mv.get(name, -1) for name in joints], others
-
-
-def state_samples(m: dict, joints: list[str], outputs: list[str], fields=None, missing=NAN) -> Iterator[dict]:
-    """A ``state`` batch (columns, as published) as one sample per cycle, each joint's numbers
-    under its name (``fields``: :func:`command_fields`; default one V_MV a joint), and commands
-    other than V_MV under ``commands``: what a recording holds and what its readers return.
-    A number the cycle has not (a joint with no V_MV, no force sensor) is ``missing``: NaN for
-    a reader, None where the sample is written as JSON."""
-    u_index, others = fields if fields is not None else (list(range(len(joints))), [])
-    for i, cycle in enumerate(m["cycle"]):
-        shadow, u = m["shadow_u_volts"][i], m["u_volts"][i]
-        per_joint = {}
-        for j, name in enumerate(joints):
-            per_joint[name] = {k: m[k][i][j] for k in PER_JOINT if k != "u_volts"}
-            k = u_index[j]
-            per_joint[name]["u_volts"] = u[k] if k >= 0 else missing
-            if shadow is not None:
-                per_joint[name]["shadow_u_volts"] = shadow[k] if k >= 0 else missing
-        force = m["force_n"][i]
-        sample = {"cycle": cycle, "t": m["t"][i], "joints": per_joint, "out_volts": dict(zip(outputs, m["out_volts"][i])),
-                  "force_n": force if force == force else missing, "mode": m["mode"][i]}
-        if others:
-            sample["commands"] = {key: u[k] for key, k in others}
-        yield sample
+def state_samples(layout: CycleLayout, m: dict) -> Iterator[dict]:
+    """A ``state`` message (columns, as published) as one flat sample per cycle, keyed by the
+    layout's field names: what a recording holds and what its readers return."""
+    columns = [(name, m[name]) for name in layout.names]
+    for i in range(len(m["cycle"])):
+        yield {name: values[i] for name, values in columns}
 
 
 class TelemetryEncoder:
@@ -121,9 +96,7 @@ class TelemetryEncoder:
     message once."""
 
     def __init__(self, describe: dict):
-        self.joints = [j["name"] for j in describe["joints"]]
-        self._outputs = [o[0] for o in describe["transport"]["outputs"]]
-        self._fields = command_fields(describe)
+        self.layout = layout_of(describe)
         self._frames = Frames(describe)  # the Foxglove channels, as the live stream serves them
         self._last_t = 0.0
 
@@ -134,7 +107,7 @@ class TelemetryEncoder:
             return []
         out = [(name, stamp, data, 0) for name, stamp, data in self._frames.of(topic, message)]
         if topic == "state":
-            for row in state_samples(message, self.joints, self._outputs, self._fields, missing=None):
+            for row in state_samples(self.layout, message):
                 out.append((STATE_CHANNEL, ns(row["t"]), json_bytes(row), row["cycle"]))
                 self._last_t = row["t"]
         else:
@@ -160,7 +133,7 @@ class McapRecording:
         self._writer.start(PROFILE, f"pneumad {describe.get('version', '?')}")
         self._ids: dict[str, int] = {}  # channel -> its id in this file
         for topic in TOPICS:
-            schema = state_schema(self.encoder.joints) if topic == "state" else OTHER_SCHEMAS[topic]
+            schema = state_schema(self.encoder.layout) if topic == "state" else OTHER_SCHEMAS[topic]
             sid = self._writer.register_schema(f"pneumad.{topic}", "jsonschema", json.dumps(schema).encode())
             self._ids[channel(topic)] = self._writer.register_channel(channel(topic), "json", sid)
         self._ours = set(self._ids)
@@ -265,6 +238,11 @@ class Contents:
         return json.loads(self.metadata["controller"]["json"])
 
     @property
+    def layout(self) -> CycleLayout:
+        """The state samples' fields (the describe's ``cycle_layout``, or the one it implies)."""
+        return layout_of(self.describe)
+
+    @property
     def plan(self) -> dict[str, float]:
         """How long the recording was meant to run (``planned_s``, ``planned_end_t``), where it says."""
         pneumad = self.metadata.get("pneumad", {})
@@ -272,14 +250,14 @@ class Contents:
 
 
 def _null_to_nan(sample: dict) -> None:
-    """A state sample as written (a number it had not is null, :func:`state_samples`) back to
-    what its readers take: NaN for each such number."""
-    if sample.get("force_n") is None:
-        sample["force_n"] = NAN
-    for group in (*sample["joints"].values(), sample["out_volts"], sample.get("commands", {})):
-        for key, value in group.items():
-            if value is None:
-                group[key] = NAN
+    """A state sample as written (a number nobody wrote is null, as JSON has no NaN) back to
+    what its readers take: NaN for each such number (in a nested one, made before the layout,
+    its groups' numbers)."""
+    for key, value in sample.items():
+        if value is None:
+            sample[key] = NAN
+        elif isinstance(value, dict):
+            _null_to_nan(value)
 
 
 def read(path) -> Contents:
@@ -317,4 +295,8 @@ def read(path) -> Contents:
                          f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(float(cut.get('repaired_unix_s', 0))))}")
     if "describe" not in out.metadata:
         raise ValueError(f"{path}: not a pneumad MCAP recording (no describe metadata{': ' + out.truncated if out.truncated else ''})")
+    states = out.messages["state"]
+    if states and "joints" in states[0]:  # nested: made before the cycle layout
+        convert = Converter(out.describe).nested
+        out.messages["state"] = [convert(s) for s in states]
     return out

@@ -21,6 +21,8 @@ import msgpack
 import numpy as np
 
 from daemon.recordings import mcap_log
+from daemon.recordings.legacy import Converter, layout_of
+from daemon.wire.cycle_layout import MODES, CycleLayout
 from daemon.wire.telemetry_rows import CONTACT_FIELDS
 
 FORMAT = "pneumad-recording/1"
@@ -30,9 +32,11 @@ MCAP_MAGIC = b"\x89MCAP"
 @dataclass
 class Run:
     """A recording's contents: the daemon's describe answer, the controller at the start,
-    one state sample per cycle (:func:`daemon.recordings.mcap_log.state_samples`'s shape), the other
-    topics' messages, whether the file was cut short (``truncated``: how; "" if not) and how long
-    it was meant to run where it says (``plan``: ``planned_s``, ``planned_end_t``)."""
+    one flat state sample per cycle keyed by the cycle layout's field names (``layout``:
+    ``{"cycle": 7, "t": 0.007, "middle.position": 0.52, ..., "mode": "enabled"}``, SI units,
+    NaN for a number nobody wrote), the other topics' messages, whether the file was cut short
+    (``truncated``: how; "" if not) and how long it was meant to run where it says (``plan``:
+    ``planned_s``, ``planned_end_t``)."""
 
     describe: dict
     controller: dict
@@ -40,10 +44,26 @@ class Run:
     messages: dict[str, list[dict]] = field(default_factory=dict)
     truncated: str = ""
     plan: dict[str, float] = field(default_factory=dict)
+    layout: CycleLayout | None = None  # default: the describe's (layout_of)
+
+    def __post_init__(self):
+        if self.layout is None:
+            self.layout = layout_of(self.describe)
 
     @property
     def joints(self) -> list[str]:
         return [j["name"] for j in self.describe["joints"]]
+
+    def column(self, name: str) -> np.ndarray:
+        """One field over the run, a float per cycle (NaN where nothing was written); ``mode``
+        as the index into :data:`daemon.wire.cycle_layout.MODES`. KeyError for a field the
+        layout has not."""
+        if name not in self.layout:
+            raise KeyError(f"{name!r} is not a field of this recording (its fields: {', '.join(self.layout.names)})")
+        if name == "mode":
+            return np.array([MODES.index(s["mode"]) if s["mode"] in MODES else np.nan for s in self.samples],
+                            dtype=float)
+        return np.array([s.get(name, np.nan) for s in self.samples], dtype=float)
 
     def cut_notice(self, name: str) -> str:
         """"" for a whole recording; for a cut one (``name``: its file's), that it is cut, how,
@@ -74,10 +94,12 @@ class CutRecording(UserWarning):
 
 
 class Columns(dict):
-    """:func:`load`'s columns by name; ``cut``: "" for a whole recording, else what
-    :meth:`Run.cut_notice` says (truthy: the run is not all there)."""
+    """:func:`load`'s columns by name; ``layout``: the state columns' fields (units, owners);
+    ``cut``: "" for a whole recording, else what :meth:`Run.cut_notice` says (truthy: the run
+    is not all there)."""
 
     cut: str = ""
+    layout: CycleLayout | None = None
 
 
 def open_run(path) -> Run:
@@ -87,7 +109,8 @@ def open_run(path) -> Run:
     if magic == MCAP_MAGIC:
         found = mcap_log.read(path)
         messages = {t: m for t, m in found.messages.items() if t != "state"}
-        return Run(found.describe, found.controller, found.messages["state"], messages, found.truncated, found.plan)
+        return Run(found.describe, found.controller, found.messages["state"], messages, found.truncated, found.plan,
+                   found.layout)
     return _read_pnrec(path)
 
 
@@ -103,11 +126,11 @@ def _read_pnrec(path) -> Run:
         if not isinstance(header, dict) or header.get("format") != FORMAT:
             raise ValueError(f"{path}: not a pneumad recording (neither MCAP nor {FORMAT})")
         run = Run(header["describe"], header["controller"])
-        outputs = [o[0] for o in run.describe["transport"]["outputs"]]
+        convert = Converter(run.describe).columns  # its state messages' columns, as they were then
         try:
             for topic, message in unpacker:
                 if topic == "state":
-                    run.samples.extend(mcap_log.state_samples(message, run.joints, outputs, mcap_log.command_fields(run.describe)))
+                    run.samples.extend(convert(message))
                 else:
                     run.messages.setdefault(topic, []).append(message)
         except (ValueError, msgpack.UnpackException) as exc:
@@ -116,40 +139,42 @@ def _read_pnrec(path) -> Run:
 
 
 def export_csv(path, out, run: Run | None = None) -> int:
-    """Write the state stream as CSV, one row per cycle, columns named with units; rows written
-    (of a cut recording, every row up to the cut: its :meth:`Run.cut_notice` says so). ``run``:
-    the recording at ``path`` opened already."""
+    """Write the state stream as CSV, one row per cycle, one column per field of the layout
+    (headed ``name [unit]``, SI units; an empty cell where nothing was written); rows written (of
+    a cut recording, every row up to the cut: its :meth:`Run.cut_notice` says so). ``run``: the
+    recording at ``path`` opened already."""
     run = run if run is not None else open_run(path)
-    outputs = [o[0] for o in run.describe["transport"]["outputs"]]
-    columns = (["cycle", "t"] + [f"{n}.{f}" for f in mcap_log.PER_JOINT for n in run.joints]
-               + [f"volts.{o}" for o in outputs] + ["force_n", "mode"])
+    names = run.layout.names
     with open(out, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(columns)
+        w.writerow([f"{f.name} [{f.unit}]" for f in run.layout.fields])
         for s in run.samples:
-            w.writerow([s["cycle"], s["t"]] + [s["joints"][n][f] for f in mcap_log.PER_JOINT for n in run.joints]
-                       + [s["out_volts"].get(o) for o in outputs] + [s["force_n"], s["mode"]])
+            w.writerow(["" if (v := s.get(name)) is None or v != v else v for name in names])
     return len(run.samples)
 
 
 def load(path) -> Columns:
-    """The state stream as numpy columns named with their units (``t``, ``cycle``,
-    ``middle.angle_rad`` ...), and the controller's internal signals as
-    ``internals.t`` and ``internals.<signal>.<joint>`` where recorded, and the array sensor's
-    estimates as ``contact.frame_t``, ``contact.<field>`` (NaN where nothing touched): for a notebook.
-    ``pandas.DataFrame(load(path))`` works for the state columns (same length). A cut recording
-    gives what it holds, with a :class:`CutRecording` warning and ``.cut`` saying how much is missing."""
+    """The state stream as numpy columns, one per field of the cycle layout (``t``, ``cycle``,
+    ``middle.position`` [rad] ..., SI units, NaN where nothing was written; ``cycle`` integers,
+    ``mode`` the state's names; ``.layout`` says each one's unit), and the controller's internal
+    signals as ``internals.t`` and ``internals.<signal>.<joint>`` where recorded, and the array
+    sensor's estimates as ``contact.frame_t``, ``contact.<field>`` (NaN where nothing touched):
+    for a notebook. ``pandas.DataFrame(load(path))`` works for the state columns (same length).
+    A cut recording gives what it holds, with a :class:`CutRecording` warning and ``.cut`` saying
+    how much is missing."""
     run = open_run(path)
     out = Columns()
+    out.layout = run.layout
     out.cut = run.cut_notice(str(path))
     if out.cut:
         warnings.warn(out.cut, CutRecording, stacklevel=2)
-    out["t"] = np.array([s["t"] for s in run.samples], dtype=float)
-    out["cycle"] = np.array([s["cycle"] for s in run.samples], dtype=np.int64)
-    out["force_n"] = np.array([s["force_n"] for s in run.samples], dtype=float)
-    for name in run.joints:
-        for key in mcap_log.PER_JOINT:
-            out[f"{name}.{key}"] = np.array([s["joints"][name][key] for s in run.samples], dtype=float)
+    for name in run.layout.names:
+        if name == "cycle":
+            out[name] = np.array([s["cycle"] for s in run.samples], dtype=np.int64)
+        elif name == "mode":
+            out[name] = np.array([s["mode"] for s in run.samples], dtype=str)
+        else:
+            out[name] = run.column(name)
     internals = run.messages.get("internals", [])
     if internals:
         out["internals.t"] = np.array([m["t"] for m in internals], dtype=float)

@@ -31,6 +31,7 @@ class Captured:
         self._decoded = 0  # the messages before this index are decoded
         self.stats: StatsBanks | None = None  # the loop's histograms (LoopStats.banks), to summarise its windows
         self.release_stats = True  # False beside a messenger, which clears and hands the banks back itself
+        self.layout = None  # the loop's cycle layout (follow): how its state batches read
 
     def __call__(self, topic: bytes, body: bytes | bytearray | memoryview) -> None:
         if topic == b"stats":  # summarised now: the banks it reads move on
@@ -43,17 +44,31 @@ class Captured:
         for i in range(self._decoded, len(self._messages)):
             topic, body = self._messages[i]
             if isinstance(body, bytes):  # a state batch's columns are already what a subscriber decodes
-                self._messages[i] = (topic, state_message(body) if topic == "state" else
-                                     msgpack.unpackb(to_payload(topic.encode(), body), raw=False))
+                self._messages[i] = (topic, state_message(self.layout, body) if topic == "state" else
+                                     msgpack.unpackb(to_payload(self.layout, topic.encode(), body), raw=False))
         self._decoded = len(self._messages)
         return self._messages
 
     def follow(self, loop: ControlLoop, beside_messenger: bool = False) -> None:
-        """Summarise ``loop``'s stats windows, as its messenger would."""
+        """Read ``loop``'s state batches on its layout and summarise its stats windows, as its
+        messenger would."""
         self.stats, self.release_stats = loop.stats.banks, not beside_messenger
+        self.layout = loop.layout
 
     def of(self, topic: str) -> list[dict]:
         return [m for t, m in self.messages if t == topic]
+
+    def fields(self, group: str, quantity: str | None = None) -> list[str]:
+        """The names of the layout's fields of ``group`` (one ``quantity`` of it), in record
+        order: ``fields("measured", "position")`` is each joint's position, in joint order."""
+        return [f.name for f in self.layout.of_group(group) if quantity is None or f.quantity == quantity]
+
+    def series(self, names: list[str]):
+        """(cycle, [the named fields' values]) for each cycle of the state stream."""
+        for m in self.of("state"):
+            columns = [m[name] for name in names]
+            for k, cycle in enumerate(m["cycle"]):
+                yield cycle, [column[k] for column in columns]
 
 
 def virtual_loop(rig: config.RigConfig, controller: str = "pid", publish=None,
@@ -71,7 +86,8 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     it, so the messenger's stall watch (``loop_stall_s``) is set long: a test that thinks
     for a second between two requests has not stalled a real-time loop."""
     rig = config.parse(rig_text) if rig_text else config.load()
-    srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s) if server else None
+    srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s,
+                    layout=assembly.cycle_layout(rig)) if server else None
     captured = Captured()
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
     loop = virtual_loop(rig, controller, send, plugins, srv.stats_banks if srv is not None else None)
@@ -151,7 +167,7 @@ def run_seconds(loop: ControlLoop, seconds: float) -> None:
 
 def tracking(captured: Captured, after_cycle: int = 0) -> tuple[list[float], list[float]]:
     """Max |error| per joint [deg] and RMS per joint [deg] over the state stream."""
-    errors = [e for m in captured.of("state") for c, e in zip(m["cycle"], m["error_rad"]) if c > after_cycle]
+    errors = [e for c, e in captured.series(captured.fields("reference", "error")) if c > after_cycle]
     n = len(errors[0])
     worst = [max(abs(math.degrees(e[j])) for e in errors) for j in range(n)]
     rms = [math.sqrt(sum(math.degrees(e[j]) ** 2 for e in errors) / len(errors)) for j in range(n)]

@@ -230,9 +230,10 @@ SIGNAL_SETTINGS = {"chirp": ("f0_hz", "f1_hz", "duration_s"), "prbs": ("order", 
                     "multisine": ("f0_hz", "f1_hz", "components", "period_s", "periods"),
                     "steps": ("levels", "hold_s")}
 _EXCITE_VARIANTS = (
-    Variant("side", "reference", takes=("amplitude_deg",), requires=("amplitude_deg",),
+    Variant("side", "reference", takes=("amplitude_deg", "amplitude_mm"),
             limits=(("signal", ("chirp", "prbs", "multisine")),)),
-    Variant("side", "input", takes=("amplitude_v", "settle_s", "band_deg", "centre_hz"), requires=("amplitude_v",)),
+    Variant("side", "input", takes=("amplitude_v", "settle_s", "band_deg", "band_mm", "centre_hz"),
+            requires=("amplitude_v",)),
     *(Variant("signal", signal, takes=keys) for signal, keys in SIGNAL_SETTINGS.items()))
 _APPROACH = Arg("approach_s", "number", "the approach move to the start; default the shortest feasible x 1.25, "
                 "at least 0.5 s", 0.0, 600.0, "s")
@@ -249,12 +250,13 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             sockets=BOTH),
     Command("status", "loop", "the daemon's state now", (
         "state", "cause", "cycle", "t", "controller", "shadow", "reference", "reference_remaining_s", "joints",
-        "force_n", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
+        "rig", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
         "overruns_total", "scheduling", "load", "transport", "telemetry", "helpers", "controllers_refused", "daemon",
         "timing"),
             sockets=BOTH),
     Command("describe", "loop", "the rig, its limits and what the daemon serves", (
-        "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "arm", "limits", "tracking",
+        "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "cycle_layout", "cycle_layout_id",
+        "arm", "limits", "tracking",
         "transport", "units", "controllers", "states", "commands", "control_commands", "deferred_commands",
         "deferred_timeout_s", "security")),
     Command("lease.acquire", "loop", "take the lease", ("lease", "ttl_s"), (
@@ -268,8 +270,10 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("who", "string", "who stops it (first 64 characters kept)", high=64),), sockets=BOTH, strict=False),
     Command("abort", "loop", "stop any reference, hold the present position", ("reference",), sockets=BOTH),
     Command("reset", "loop", "fault/estop -> idle", _STATE, lease=True, errors=(P.BAD_STATE,)),
-    Command("set", "planner", "move to joint angles or a tip point", ("target_deg", "duration_s", "stiffness_nm_deg",
-                                                                      "cycle", "recording"), (
+    Command("set", "planner", "move to joint positions or a tip point", ("target", "target_deg", "duration_s",
+                                                                        "stiffness_nm_deg", "cycle", "recording"), (
+        Arg("positions", "list", "one per joint, in its unit: deg on a rotary joint, mm on a linear one",
+            unit="deg | mm", item=NUMBER),
         Arg("angles_deg", "list", "one angle per joint", unit="deg", item=NUMBER),
         Arg("angles_rad", "list", "one angle per joint", unit="rad", item=NUMBER),
         Arg("xy_mm", "list", "the tip [x, y]", 2, 2, "mm", item=NUMBER),
@@ -277,7 +281,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("stiffness_nm_deg", "number_or_list", "stiffness set-point, one or one per joint (muscle joints)",
             0.0, 10.0, "N m/deg"),
         _record("the move")), lease=True, deferred=True, errors=_REFUSALS,
-        one_of=("angles_deg", "angles_rad", "xy_mm")),
+        one_of=("angles_deg", "angles_rad", "xy_mm", "positions")),
     Command("path", "planner", "a reference path after an approach to its start", (
         "path", "duration_s", "approach_s", "approach_chosen", "stretched_from_s", "total_s", "cycle", "recording"), (
         Arg("name", "string", "the path", required=True, choices=("translation", "circle")),
@@ -286,19 +290,24 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         _APPROACH, _record("the path")), lease=True, deferred=True, errors=_REFUSALS),
     Command("waypoints", "planner", "a path through waypoints after an approach to the first", (
         "points", "duration_s", "approach_s", "approach_chosen", "total_s", "cycle", "recording"), (
+        Arg("positions", "list", "joint waypoints, one position per joint each (deg rotary, mm linear)", 2, 1000,
+            "deg | mm", item=NUMBERS),
         Arg("angles_deg", "list", "joint waypoints, one angle per joint each", 2, 1000, "deg", item=NUMBERS),
         Arg("xy_mm", "list", "Cartesian waypoints [x, y]", 2, 1000, "mm", item=element("list", 2, 2, item=NUMBER)),
         Arg("durations_s", "list", "one per segment, one fewer than the points (0.01-3600 s each)", 1, 999, "s",
             required=True, item=element("number", 0.01, MAX_DURATION_S, "s")),
-        _APPROACH, _record("the path")), lease=True, deferred=True, errors=_REFUSALS, one_of=("angles_deg", "xy_mm"),
-        lengths=(("durations_s", ("angles_deg", "xy_mm"), -1),)),
+        _APPROACH, _record("the path")), lease=True, deferred=True, errors=_REFUSALS,
+        one_of=("angles_deg", "xy_mm", "positions"),
+        lengths=(("durations_s", ("positions", "angles_deg", "xy_mm"), -1),)),
     Command("steps", "planner", "a step to each level in turn, held for its time", (
         "levels", "duration_s", "cycle", "recording"), (
-        Arg("angles_deg", "list", "levels, one angle per joint each", 1, 1000, "deg", required=True, item=NUMBERS),
+        Arg("positions", "list", "levels, one position per joint each (deg rotary, mm linear)", 1, 1000, "deg | mm",
+            item=NUMBERS),
+        Arg("angles_deg", "list", "levels, one angle per joint each", 1, 1000, "deg", item=NUMBERS),
         Arg("hold_s", "list", "one per level (0.001-3600 s each)", 1, 1000, "s", required=True,
             item=element("number", 0.001, MAX_DURATION_S, "s")),
-        _record("the steps")), lease=True, deferred=True, errors=_REFUSALS,
-        lengths=(("hold_s", ("angles_deg",), 0),)),
+        _record("the steps")), lease=True, deferred=True, errors=_REFUSALS, one_of=("angles_deg", "positions"),
+        lengths=(("hold_s", ("positions", "angles_deg"), 0),)),
     Command("excite", "planner", "an identification signal on one joint's reference or V_MV", (
         "signal", "joint", "side", "duration_s", "settle_s", "predicted_excursion_deg", "u_op_estimate_v", "cycle",
         "recording"), (
@@ -307,10 +316,13 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         Arg("signal", "string", "the signal (steps: input side only)", required=True,
             choices=("chirp", "prbs", "multisine", "steps")),
         Arg("joint", "string", "the joint's name", required=True),
-        Arg("amplitude_deg", "number", "reference side: the amplitude", 0.01, 45.0, "deg"),
+        Arg("amplitude_deg", "number", "reference side: the amplitude (a rotary joint: required)", 0.01, 45.0, "deg"),
+        Arg("amplitude_mm", "number", "reference side: the amplitude (a linear joint: required)", 0.01, 500.0, "mm"),
         Arg("amplitude_v", "number", "input side: the amplitude", 0.01, 10.0, "V"),
         Arg("settle_s", "number", "input side: feedback holds this long first", 0.2, 60.0, "s", 2.0),
         Arg("band_deg", "number", "input side: held where it is past set-point +- this", 0.5, 45.0, "deg", 10.0),
+        Arg("band_mm", "number", "input side, a linear joint: held where it is past set-point +- this", 0.5, 500.0,
+            "mm", 20.0),
         Arg("centre_hz", "number", "input side: the centring PI's crossover, 0: none", 0.0, 0.2, "Hz", 0.03),
         Arg("f0_hz", "number", "chirp, multisine: the lowest frequency (multisine: at least 1/period_s)",
             0.001, 100.0, "Hz", 0.1),
@@ -352,8 +364,11 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("record.stop", "recorder", "end a recording the daemon makes", (*_RECORDING, "cause"), (
         _recording_name("which (needed when several run)"),), role=OPERATOR,
             errors=(P.BAD_STATE,)),
-    Command("record.list", "recorder", "the daemon's recordings", ("directory", "feed_t", "active", "files", "more"),
-            errors=(P.BAD_STATE,)),
+    Command("record.list", "recorder", "the daemon's recordings", ("directory", "feed_t", "active", "files", "more",
+                                                                   "flight"), errors=(P.BAD_STATE,)),
+    Command("record.snapshot", "recorder", "the flight recorder's last seconds written to a file now",
+            ("name", "from_t", "to_t", "seconds"), (_recording_name("the file's name without .mcap"),),
+            role=OPERATOR, errors=(P.BAD_STATE,)),
     Command("keys.reload", "messenger", "read the keys' allow-list again", (
         "allowed", "added", "removed", "problems"), role=OPERATOR, errors=(P.BAD_STATE,)),
 )}

@@ -1,6 +1,7 @@
-"""The ``state`` topic's binary rows: the loop packs one per cycle (:mod:`daemon.loop.telemetry`),
-the messenger turns a batch of them into the msgpack columns subscribers see
-(docs/protocol.md, "Telemetry"). Both sides read the layout from here."""
+"""The ``state`` topic's binary batches: the loop packs one cycle record a row
+(:mod:`daemon.loop.telemetry`, with the cycle layout's ``row``), the messenger turns a batch into
+the msgpack columns subscribers see (docs/protocol.md, "The cycle record"). Both sides read the
+batch's framing from here and its rows through :class:`daemon.wire.cycle_layout.CycleLayout`."""
 from __future__ import annotations
 
 import functools
@@ -8,48 +9,30 @@ import struct
 
 import msgpack
 
-from daemon.wire.states import State
+from daemon.wire.cycle_layout import CycleLayout
 
-STATE_FIELDS = ("cycle", "t", "angle_rad", "velocity_rad_s", "setpoint_rad", "error_rad", "u_volts",
-                "p_head_pa", "p_rod_pa", "out_volts", "force_n", "mode", "shadow_u_volts")
 # the ``contact`` topic's estimate: centre, semi-axes, peak pressure, shape, force, each with its 1 sigma;
 # the track's age in estimated frames
 CONTACT_FIELDS = ("cx", "cy", "a", "b", "p_max", "beta", "force_n", "area_m2", "taxels", "residual", "track_frames",
                   "cx_sd", "cy_sd", "a_sd", "b_sd", "p_max_sd", "beta_sd", "force_sd_n")
-MODES = tuple(s.value for s in State)
-MODE_INDEX = {s: i for i, s in enumerate(State)}
-# A state batch: seq, joints n, outputs m, commands k, rows; then the rows (see row_format).
-HEADER = struct.Struct("<QHHHH")
+# A state batch: seq, the layout's id, the count of rows; then the rows (CycleLayout.row each).
+HEADER = struct.Struct("<QIH")
 
 
-@functools.lru_cache(maxsize=8)
-def row_format(n: int, m: int, k: int) -> struct.Struct:
-    """One cycle: cycle, t [s]; angle, velocity, set-point [rad, rad/s, rad] per joint; the k
-    commands u (V_MV [V] per cylinder joint; a muscle pair's pressures [Pa] and brake [N m]);
-    p_head, p_rod [Pa] per joint (the pressure pair: a muscle pair's a and b); out volts per
-    output [V]; force [N]; mode index; shadow flag; shadow u per command (NaN without a shadow run)."""
-    return struct.Struct(f"<qd{5 * n + k + m + 1}dBB{k}d")
+class LayoutMismatch(ValueError):
+    """A batch packed on a layout other than the reader's."""
 
 
-def state_message(body: bytes) -> dict:
-    """The ``state`` message (columns, as subscribers see it) of a batch from :class:`Telemetry`:
-    built a column at a time (a quarter cheaper than row by row: the messenger does it 100 times
-    a second, an in-process test for every batch it reads)."""
-    seq, n, m, k, count = HEADER.unpack_from(body)
-    row = row_format(n, m, k)
+def state_message(layout: CycleLayout, body: bytes) -> dict:
+    """The ``state`` message of a batch from :class:`daemon.loop.telemetry.Telemetry`:
+    ``{"seq", "layout", **layout.columns(rows)}``, one column per field of the layout (built a
+    column at a time: the messenger does it 100 times a second)."""
+    seq, layout_id, count = HEADER.unpack_from(body)
+    if layout_id != layout.id:
+        raise LayoutMismatch(f"a state batch of layout {layout_id:#010x}, read on layout {layout.id:#010x}")
+    row = layout.row
     rows = list(row.iter_unpack(body[HEADER.size:HEADER.size + count * row.size]))
-    w, ref, u = 2 + n, 2 + 2 * n, 2 + 3 * n  # where each group of a row starts (see row_format)
-    head = u + k
-    rod, out = head + n, head + 2 * n
-    force = out + m
-    message = dict(zip(STATE_FIELDS, (
-        [r[0] for r in rows], [r[1] for r in rows], [list(r[2:w]) for r in rows], [list(r[w:ref]) for r in rows],
-        [list(r[ref:u]) for r in rows], [[a - b for a, b in zip(r[ref:u], r[2:w])] for r in rows],
-        [list(r[u:head]) for r in rows], [list(r[head:rod]) for r in rows], [list(r[rod:out]) for r in rows],
-        [list(r[out:force]) for r in rows], [r[force] for r in rows], [MODES[r[force + 1]] for r in rows],
-        [list(r[force + 3:]) if r[force + 2] else None for r in rows])))
-    message["seq"] = seq
-    return message
+    return {"seq": seq, "layout": layout_id, **layout.columns(rows)}
 
 
 # An internals sample: seq, cycle, t [s], the layout's length, signals, joints; then the layout
@@ -78,10 +61,10 @@ def internals_message(body: bytes) -> dict:
             "signals": {name: list(values[i * cols:(i + 1) * cols]) for i, name in enumerate(names)}, "seq": seq}
 
 
-def to_payload(topic: bytes, body: bytes) -> bytes:
+def to_payload(layout: CycleLayout, topic: bytes, body: bytes) -> bytes:
     """What goes out on the PUB socket for what the loop's telemetry sent."""
     if topic == b"state":
-        return msgpack.packb(state_message(body))
+        return msgpack.packb(state_message(layout, body))
     if topic == b"internals":
         return msgpack.packb(internals_message(body))
     return body

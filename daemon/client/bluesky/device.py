@@ -1,15 +1,21 @@
-"""A pneumad rig as an ophyd-async device, built from the daemon's ``describe`` and ``status``
-(no hand-written list of joints or signals): what a Bluesky RunEngine reads and moves.
+"""A pneumad rig as an ophyd-async device, built from the daemon's ``describe`` (its cycle
+record layout: no hand-written list of joints or signals): what a Bluesky RunEngine reads and moves.
 
-- ``rig.joints[i]`` is a ``Movable``: ``set(angle_deg)`` is the daemon's planned ``set`` of
-  that joint (the others keep their set-points), and its status completes once the move has
-  ended and the joint has settled; a refusal fails it with the daemon's RemoteError (code,
-  message and data intact), a trip with the daemon's cause.
-- Readable signals: per joint, every number ``status`` carries for it (angle [deg] hinted,
-  set-point, velocity, V_MV; a muscle joint's measured pressures [Pa] and stiffness); for the
-  rig, the force [N] and the state, and on a rig with an array sensor the latest contact
-  estimate (``contact_cx`` ... [m, Pa, N], NaN while nothing touches). Configuration: the controller, its parameters, the rig
-  file's hash and name. Each signal's source is ``pneumad://<rig>/<joint|rig>/<signal>``.
+- ``rig.joints[i]`` is a ``Movable``: ``set(position)`` [the joint's display unit: deg for a
+  rotary joint, mm for a linear one] is the daemon's planned ``set`` of that joint (the others
+  keep their set-points), and its status completes once the move has ended and the joint has
+  settled; a refusal fails it with the daemon's RemoteError (code, message and data intact),
+  a trip with the daemon's cause.
+- Readable signals: per joint, one per field of the cycle record it owns (``position``
+  hinted, ``velocity``, ``setpoint``, ``error``, each command ``u_<command>``, commanded and
+  measured pressures ``p_<chamber>_cmd`` and ``p_<chamber>``, further inputs by name, the
+  shadow's ``shadow_<command>``), in the field's display unit (deg, mm, else SI), NaN where the
+  record has nothing (a command outside ``enabled``); for the rig, its own sensors by name
+  (``force``, ``supply_pressure`` ...) and the state, and on a rig with an array sensor the
+  latest contact estimate (``contact_cx`` ... [m, Pa, N], NaN while nothing touches).
+  Configuration: the controller, its parameters, the rig file's hash and name. Each signal's
+  source is ``pneumad://<rig>/<joint|rig>/<field>``; values come from the latest ``state``
+  message (:meth:`RigLink.follow`), the state from ``status``.
 - ``stage`` takes the lease (renewed in the background) and enables the arm; ``unstage``
   hands the lease back: a run holds the arm for its length and no longer.
 """
@@ -22,10 +28,8 @@ import math
 import time
 from functools import partial
 
-import numpy as np
 from bluesky.protocols import Movable
 from ophyd_async.core import (
-    Array1D,
     AsyncStatus,
     DeviceVector,
     SignalR,
@@ -37,18 +41,20 @@ from ophyd_async.core import (
 from daemon.client.bluesky.link import RigLink
 from daemon.client.client import RemoteError
 from daemon.wire import protocol as P
+from daemon.wire.cycle_layout import Field
 from hal import config
 
 log = logging.getLogger(__name__)
 
-SETTLED_DEG = 1.0  # a move has settled once within this of its target [deg] (PID's friction band: the
-#                     middle joint's stiction can hold it 0.6 deg off) ...
-STILL_SPREAD_DEG = 0.6  # ... its angle spread over at most this [deg] (2 deg/s over the window; judged by
-#                          the angle, not by the status's velocity, a 10 Hz filtered difference of a noisy
-#                          angle: a few deg/s at rest) ...
+SETTLED = 1.0  # a move has settled once within this of its target [deg, or mm on a linear joint] (PID's
+#                friction band: the middle joint's stiction can hold it 0.6 deg off) ...
+STILL_SPREAD = 0.6  # ... its position spread over at most this [deg or mm] (2 deg/s over the window; judged by
+#                     the position, not by the velocity, a 10 Hz filtered difference of a noisy angle: a few
+#                     deg/s at rest) ...
 SETTLED_FOR_S = 0.3  # ... for this long [s]
 SETTLE_LIMIT_S = 30.0  # after the reference's end, at most this long to settle [s]
 POLL_S = 0.05
+TRIP_GRACE_S = 2.0  # a move the arm's trip cut short fails after this [s], unless the RunEngine stopped it first
 LEASE_TTL_S = 5.0  # the run's lease [s]: a RunEngine's process (plans, callbacks, a Tiled writer) is busy
 #                    enough that, beside two CPU hogs, its renewals once missed the rig file's 2 s and the
 #                    arm tripped mid-plan; a client that dies leaves the arm held this long before the
@@ -70,29 +76,23 @@ def _number(value) -> float:
     return math.nan if value is None else float(value)
 
 
-def _unit(field: str) -> str | None:
-    """The unit a status field's name ends in (``angle_deg`` -> deg)."""
-    for suffix, unit in (("_deg_s", "deg/s"), ("_deg", "deg"), ("_volts", "V"), ("_pa", "Pa"), ("_nm_deg", "N m/deg"),
-                         ("_n", "N")):
-        if field.endswith(suffix):
-            return unit
-    return None
-
-
-def _signal(link: RigLink, path: tuple[str, ...], pick, sample) -> SignalR:
-    """A read-only signal at ``path`` whose value is ``pick(status)``; its type from ``sample``."""
-    if isinstance(sample, list):
-        async def get():
-            return np.array([_number(v) for v in pick(await link.status())], dtype=float)
-        return SignalR(_StatusBackend(Array1D[np.float64], link.source(*path), get, _unit(path[-1])))
-    if isinstance(sample, str):
-        async def get():
-            return pick(await link.status())
-        return SignalR(_StatusBackend(str, link.source(*path), get))
-
+def _status_signal(link: RigLink, path: tuple[str, ...], pick) -> SignalR:
+    """A read-only text signal at ``path`` whose value is ``pick(status)``."""
     async def get():
-        return _number(pick(await link.status()))
-    return SignalR(_StatusBackend(float, link.source(*path), get, _unit(path[-1])))
+        return pick(await link.status())
+    return SignalR(_StatusBackend(str, link.source(*path), get))
+
+
+def _field_signal(link: RigLink, field: Field) -> SignalR:
+    """The latest value of one field of the cycle record, in its display unit."""
+    unit, scale = field.display
+    return SignalR(_StatusBackend(float, link.source(field.owner or "rig", field.quantity),
+                                  lambda: _number(link.row.get(field.name)) * scale, unit))
+
+
+def attribute(field: Field) -> str:
+    """A field's signal's attribute: its quantity, dots as underscores (``u.v_mv`` -> ``u_v_mv``)."""
+    return field.quantity.replace(".", "_")
 
 
 CONTACT_SIGNALS = {"cx": "m", "cy": "m", "a": "m", "b": "m", "p_max": "Pa", "force_n": "N", "cx_sd": "m", "cy_sd": "m",
@@ -106,37 +106,60 @@ def _contact(link: RigLink, field: str) -> float:
     return _number(estimate.get(field)) if estimate else math.nan
 
 
+async def stopped_within(stopped: asyncio.Event, seconds: float) -> bool:
+    """Whether the RunEngine stops the move within ``seconds`` (a suspender acting on the same
+    trip from the event topic) rather than the move failing the plan."""
+    try:
+        await asyncio.wait_for(stopped.wait(), seconds)
+    except TimeoutError:
+        return False
+    return True
+
+
 class PneumadJoint(StandardReadable, Movable):
-    """One joint: its status fields as signals (the angle hinted), and ``set`` a planned move."""
+    """One joint: its fields of the cycle record as signals (the position hinted), and ``set``
+    a planned move."""
 
-    def __init__(self, link: RigLink, rig: "PneumadRig", index: int, fields: dict, name: str = ""):
+    def __init__(self, link: RigLink, rig: "PneumadRig", joint: str, name: str = ""):
         # the rig's move time and settling wait, not the rig itself: a Device attribute is a child
-        self._link, self._move_s, self._settled, self.index = link, lambda: rig.move_s, rig.settled, index
-        self.joint = link.describe["joints"][index]["name"]
+        self._link, self._move_s, self._settled, self.joint = link, lambda: rig.move_s, rig.settled, joint
+        self.position_field = link.layout[f"{joint}.position"]
+        self._stopped = asyncio.Event()  # the RunEngine stopped the move in progress (a suspension)
         with self.add_children_as_readables(StandardReadableFormat.HINTED_UNCACHED_SIGNAL):
-            self.angle_deg = _signal(link, (self.joint, "angle_deg"), self._field("angle_deg"), 0.0)
+            self.position = _field_signal(link, self.position_field)
         with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
-            for field, sample in fields.items():
-                if field != "angle_deg" and (isinstance(sample, (int, float, list)) or sample is None):
-                    setattr(self, field, _signal(link, (self.joint, field), self._field(field),
-                                                 0.0 if sample is None else sample))
+            for field in link.layout.of_joint(joint):
+                if field.quantity != "position":
+                    setattr(self, attribute(field), _field_signal(link, field))
         super().__init__(name=name)
-
-    def _field(self, field: str):
-        return lambda status: status["joints"][self.joint].get(field)
 
     @AsyncStatus.wrap
     async def set(self, value: float) -> None:
-        """Move this joint to ``value`` [deg] (a cubic of ``rig.move_s``, 0: a step), the others
-        staying at their set-points, and wait until it has settled there."""
+        """Move this joint to ``value`` [its position's display unit: deg or mm] (a cubic of
+        ``rig.move_s``, 0: a step), the others staying at their set-points, and wait until it
+        has settled there. A move the arm's trip cuts short ends quietly once the RunEngine
+        stops it (a suspender rewinds the plan: daemon.client.bluesky.suspend), else fails with
+        the daemon's words."""
+        self._stopped.clear()
         link = self._link
-        status = await link.status()
-        names = [j["name"] for j in link.describe["joints"]]
-        targets = [status["joints"][n]["setpoint_deg"] for n in names]
-        targets[self.index] = float(value)
-        reply = await link.call("set", angles_deg=targets, duration_s=self._move_s())
+        layout = link.layout
+        joints = layout.owners()
+        # each joint's set-point in its display unit, as ``set``'s positions take them (deg, mm)
+        targets = [link.row[f"{j}.setpoint"] * layout[f"{j}.position"].display[1] for j in joints]
+        targets[joints.index(self.joint)] = float(value)
+        try:
+            reply = await link.call("set", positions=targets, duration_s=self._move_s())
+        except RemoteError as exc:
+            if exc.code != P.BAD_STATE or not await stopped_within(self._stopped, TRIP_GRACE_S):
+                raise
+            return
         link.forget_status()
-        await self._settled({self.joint: float(value)}, reply["duration_s"])
+        await self._settled({self.joint: float(value)}, reply["duration_s"], self._stopped)
+
+    async def stop(self, success: bool = True) -> None:
+        """The RunEngine stops every moved device when it suspends a plan: a move in progress
+        then ends without failing the plan (it is made again on resume)."""
+        self._stopped.set()
 
 
 class PneumadRig(StandardReadable):
@@ -145,23 +168,24 @@ class PneumadRig(StandardReadable):
     def __init__(self, link: RigLink, name: str = "", hdf5_directory: str = "."):
         self.link = link
         self.hdf5_directory = hdf5_directory  # where plans write the daemon's records as HDF5
-        status = link.client.status()
+        contact = config.parse(link.describe["rig"]["source"], "<daemon>").contact_sensor is not None
+        link.follow(contact)  # the cycle record's layout, and its latest row from here on
         self.move_s = 2.0  # a joint's set: the cubic move's duration [s] (0: a step)
-        self.settled_deg = SETTLED_DEG  # a move has settled within this of its target [deg]
+        self.settled_within = SETTLED  # a move has settled within this of its target [each joint's display unit]
         with self.add_children_as_readables():
-            self.joints = DeviceVector({i: PneumadJoint(link, self, i, status["joints"][j["name"]])
-                                        for i, j in enumerate(link.describe["joints"])})
+            self.joints = DeviceVector({i: PneumadJoint(link, self, joint) for i, joint in enumerate(link.layout.owners())})
         with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
-            self.force_n = _signal(link, ("rig", "force_n"), lambda s: s.get("force_n"), 0.0)
-            self.state = _signal(link, ("rig", "state"), lambda s: s["state"], "")
-        if config.parse(link.describe["rig"]["source"], "<daemon>").contact_sensor is not None:
-            link.follow_contact()
+            for field in link.layout.of_group("measured"):
+                if not field.owner:  # the rig's own sensors: force, supply_pressure ...
+                    setattr(self, attribute(field), _field_signal(link, field))
+            self.state = _status_signal(link, ("rig", "state"), lambda s: s["state"])
+        if contact:
             with self.add_children_as_readables(StandardReadableFormat.UNCACHED_SIGNAL):
                 for field, unit in CONTACT_SIGNALS.items():
                     setattr(self, f"contact_{field}", SignalR(_StatusBackend(
                         float, link.source("contact", field), partial(_contact, link, field), unit)))
         with self.add_children_as_readables(StandardReadableFormat.CONFIG_SIGNAL):
-            self.controller = _signal(link, ("rig", "controller"), lambda s: s["controller"], "")
+            self.controller = _status_signal(link, ("rig", "controller"), lambda s: s["controller"])
             self.controller_params = SignalR(_StatusBackend(str, link.source("rig", "controller_params"),
                                                             self._controller_params))
             self.rig_hash = SignalR(_StatusBackend(str, link.source("rig", "hash"),
@@ -187,13 +211,17 @@ class PneumadRig(StandardReadable):
     async def stage(self) -> None:
         """Take the lease for the run (renewed in the background) and enable the arm."""
         await super().stage()
+        await self.take_lease()
+        if (await self.link.call("status"))["state"] != "enabled":
+            await self.link.call("enable")
+        self.link.forget_status()
+
+    async def take_lease(self) -> None:
+        """Hold the rig's lease (renewed in the background), unless this client holds it."""
         client = self.link.client
         if client.lease is None:
             await self.link.call("acquire_lease", LEASE_TTL_S)
             client.keep_lease()
-        if (await self.link.call("status"))["state"] != "enabled":
-            await self.link.call("enable")
-        self.link.forget_status()
 
     @AsyncStatus.wrap
     async def unstage(self) -> None:
@@ -207,34 +235,40 @@ class PneumadRig(StandardReadable):
                 log.warning("%s: the lease had lapsed before the run handed it back: %s", self.link.rig_name, exc)
         await super().unstage()
 
-    async def settled(self, targets_deg: dict[str, float], move_s: float) -> None:
+    async def settled(self, targets: dict[str, float], move_s: float, stopped: asyncio.Event) -> None:
         """Return once the reference has ended and each named joint has stayed within
-        ``settled_deg`` of its target for SETTLED_FOR_S, its angle spread over that time at most
-        STILL_SPREAD_DEG; RuntimeError if the arm leaves the enabled state (with the
-        daemon's cause) or does not settle in time."""
+        ``settled_within`` of its target [its display unit] for SETTLED_FOR_S, its position
+        spread over that time at most STILL_SPREAD, or once the RunEngine has ``stopped`` the
+        move after the arm left the enabled state (a suspension); RuntimeError if it left it
+        and nothing stopped the move within TRIP_GRACE_S (with the daemon's cause), or if it
+        does not settle in time."""
         deadline = time.monotonic() + move_s + SETTLE_LIMIT_S
-        still_since, seen = None, {}  # seen: each joint's lowest and highest angle since still_since [deg]
+        layout = self.link.layout
+        shown = {n: layout[f"{n}.position"] for n in targets}
+        still_since, seen = None, {}  # seen: each joint's lowest and highest position since still_since
         while True:
             status = await self.link.call("status")
             if status["state"] != "enabled":
+                if await stopped_within(stopped, TRIP_GRACE_S):
+                    return
                 raise RuntimeError(f"{self.link.rig_name}: the arm is {status['state']}: {status.get('cause', '')}")
-            joints = status["joints"]
-            angles = {n: joints[n]["angle_deg"] for n in targets_deg}
+            row = self.link.row
+            here = {n: _number(row.get(f.name)) * f.display[1] for n, f in shown.items()}
             now = time.monotonic()
-            if status["reference_remaining_s"] <= 0.0 and all(abs(angles[n] - t) <= self.settled_deg
-                                                              for n, t in targets_deg.items()):
+            if status["reference_remaining_s"] <= 0.0 and all(abs(here[n] - t) <= self.settled_within
+                                                              for n, t in targets.items()):
                 if still_since is not None:
-                    seen = {n: (min(lo, angles[n]), max(hi, angles[n])) for n, (lo, hi) in seen.items()}
-                if still_since is None or any(hi - lo > STILL_SPREAD_DEG for lo, hi in seen.values()):
-                    still_since, seen = now, {n: (a, a) for n, a in angles.items()}  # (again) from here
+                    seen = {n: (min(lo, here[n]), max(hi, here[n])) for n, (lo, hi) in seen.items()}
+                if still_since is None or any(hi - lo > STILL_SPREAD for lo, hi in seen.values()):
+                    still_since, seen = now, {n: (a, a) for n, a in here.items()}  # (again) from here
                 elif now - still_since >= SETTLED_FOR_S:
                     return
             else:
                 still_since = None
             if now > deadline:
-                where = ", ".join(f"{n} at {joints[n]['angle_deg']:.2f} deg" for n in targets_deg)
+                where = ", ".join(f"{n} at {here[n]:.2f} {f.display[0]}" for n, f in shown.items())
                 raise RuntimeError(f"{self.link.rig_name}: not settled within {SETTLE_LIMIT_S:g} s of the move's end "
-                                   f"({where}; targets {targets_deg})")
+                                   f"({where}; targets {targets})")
             await asyncio.sleep(POLL_S)
 
     def close(self) -> None:

@@ -4,7 +4,9 @@ loop, ``describe`` read once, and one ``status`` shared by every signal read at 
 The client is synchronous (ZeroMQ requests, each with its time-out); the RunEngine is asyncio.
 Every request goes through :meth:`RigLink.call`, in a worker thread, so a slow daemon never
 blocks the event loop; the client's own lock keeps requests one at a time. A ``read`` of a
-rig's signals asks for ``status`` once: readings taken within ``FRESH_S`` share it.
+rig's signals reads the latest cycle record, which a background subscription to the ``state``
+topic keeps (:meth:`RigLink.follow`); the state of the arm and the reference come from
+``status``, asked once for readings taken within ``FRESH_S``.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import time
 from functools import partial
 
 from daemon.client.client import Client
+from daemon.wire.cycle_layout import CycleLayout
 
 FRESH_S = 0.05  # one status answers every signal read within this [s]
 
@@ -31,6 +34,8 @@ class RigLink:
         self._status_t = -1.0
         self._status_lock: asyncio.Lock | None = None
         self.contact: dict | None = None  # the array sensor's latest estimate (the contact topic's message)
+        self.layout: CycleLayout | None = None  # the cycle record's (describe's), once followed
+        self.row: dict = {}  # the latest cycle record, by field name (SI), once followed
         self._feed: threading.Thread | None = None
         self._stop_feed = threading.Event()
 
@@ -64,22 +69,35 @@ class RigLink:
         """The next read asks the daemon again (after a command changed what it would say)."""
         self._status_t = -1.0
 
-    def follow_contact(self) -> None:
-        """Keep :attr:`contact` at the daemon's latest contact estimate, from a background
-        subscription (the estimates come at the sensor process's rate, not on request)."""
-        subscription = self.client.subscribe((b"contact",))
+    def follow(self, contact: bool = False) -> None:
+        """Keep :attr:`row` at the daemon's latest cycle record (by field name, SI, through
+        :attr:`layout`) and, with ``contact``, :attr:`contact` at its latest contact estimate,
+        from a background subscription (the state comes 100 times a second, not on request);
+        returns once the first row is in (TimeoutError after the client's time-out)."""
+        self.layout = self.client.layout()
+        subscription = self.client.subscribe((b"state", b"contact") if contact else (b"state",))
+        first = threading.Event()
 
         def feed():
             try:
                 while not self._stop_feed.is_set():
                     received = subscription.receive(0.2)
-                    if received is not None:
-                        self.contact = received[1]
+                    if received is None:
+                        continue
+                    topic, message = received
+                    if topic == "contact":
+                        self.contact = message
+                    elif message.get("layout") == self.layout.id:
+                        self.row = {name: message[name][-1] for name in self.layout.names}
+                        first.set()
             finally:
                 subscription.close()
 
-        self._feed = threading.Thread(target=feed, name="pneumad-contact", daemon=True)
+        self._feed = threading.Thread(target=feed, name="pneumad-state", daemon=True)
         self._feed.start()
+        if not first.wait(self.client.timeout):
+            raise TimeoutError(f"{self.rig_name}: no state message in the daemon's layout within "
+                               f"{self.client.timeout:g} s ({self.client.endpoints['telemetry']})")
 
     def close(self) -> None:
         self._stop_feed.set()

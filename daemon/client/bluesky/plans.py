@@ -15,6 +15,7 @@ reference beside it, as for any client.
 from __future__ import annotations
 
 import json
+import math
 
 import bluesky.plan_stubs as bps
 import bluesky.preprocessors as bpp
@@ -49,6 +50,7 @@ def _recorded(rig: PneumadRig, flights, md: dict):
             stream = "record" if k == 0 else f"record_{k}"
             yield from bps.prepare(record, flight, wait=True)
             yield from bps.declare_stream(record, name=stream, collect=True)
+            yield from bps.checkpoint()  # a trip during the flight: a suspender flies it again from here
             yield from bps.kickoff(record, wait=True)
             yield from bps.complete(record, wait=True)
             yield from bps.collect(record, name=stream)
@@ -56,21 +58,29 @@ def _recorded(rig: PneumadRig, flights, md: dict):
     return (yield from run())
 
 
-def step_response(rig, joint: str, step_deg: float, md: dict | None = None):
-    """A step of ``step_deg`` [deg] on ``joint`` from its set-point, recorded until it has settled."""
-    names = [j["name"] for j in rig.link.describe["joints"]]
+def step_response(rig, joint: str, step: float, md: dict | None = None):
+    """A step of ``step`` [the joint's display unit: deg on a rotary joint, mm on a linear one]
+    on ``joint`` from its set-point, recorded until it has settled."""
+    layout = rig.link.layout
+    names = layout.owners()
     if joint not in names:
         raise ValueError(f"{rig.link.rig_name} has no joint {joint!r} (joints: {', '.join(names)})")
-    j = names.index(joint)
+    field = layout[f"{joint}.setpoint"]
+    target = {}
+
+    targets: list[float] = []  # [display units], from the set-points at the first flight: a flight
+    #                             flown again after a trip (a suspender) steps to the same target
 
     def send(client):
-        joints = client.status()["joints"]
-        targets = [joints[n]["setpoint_deg"] for n in names]
-        targets[j] += step_deg
-        return client.set(angles_deg=targets, duration_s=0.0, record=True)
+        if not targets:
+            here = client.sample()  # the set-points [SI] as the latest cycle record has them
+            targets.extend(here[f"{n}.setpoint"] * layout[f"{n}.position"].display[1] for n in names)
+            targets[names.index(joint)] += step
+            target[joint] = targets[names.index(joint)]
+        return client.set(positions=targets, duration_s=0.0, record=True)
 
-    meta = yield from _metadata(rig, "step_response", {"joint": joint, "step_deg": step_deg})
-    flight = Flight(send, settle=lambda reply: {joint: reply["target_deg"][j]})
+    meta = yield from _metadata(rig, "step_response", {"joint": joint, "step": step, "unit": field.display[0]})
+    flight = Flight(send, settle=lambda reply: dict(target))
     return (yield from _recorded(rig, [flight], {**meta, **(md or {})}))
 
 
@@ -90,21 +100,20 @@ def identification(rig, joint: str, quick: bool = True, experiments: list[dict] 
     (instead of the plan's, e.g. one more chirp): each ``{"signal": ..., <excite's settings>}``,
     as ``excite`` takes them (docs/protocol.md)."""
     describe = rig.link.describe
-    names = [x["name"] for x in describe["joints"]]
+    names = rig.link.layout.owners()
     if joint not in names:
         raise ValueError(f"{rig.link.rig_name} has no joint {joint!r} (joints: {', '.join(names)})")
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
-    j = names.index(joint)
     prior = prior_of(rig_config, joint)
     plan = identify.Plan.of(quick)
     if experiments is not None:
         plan = identify.Plan(tuple((e["signal"], {k: v for k, v in e.items() if k != "signal"}) for e in experiments),
                              plan.settle_s)
-    u_range = (describe["joints"][j]["u_min_volts"], describe["joints"][j]["u_max_volts"])
+    u_range = identify.v_mv_range(describe, joint)
 
     def experiment(signal: str, settings: dict) -> Flight:
         def send(client):
-            u_op = identify.holding_volts(rig_config, joint, client.status()["joints"][joint]["setpoint_deg"])
+            u_op = identify.holding_volts(rig_config, joint, math.degrees(client.sample()[f"{joint}.setpoint"]))
             args = {**settings, "settle_s": plan.settle_s}
             return identify.excite_fitting(lambda volts: client.excite_input(signal, joint, volts, record=True, **args),
                                            signal, identify.default_amplitude(prior, u_op, u_range), fixed=False)
@@ -133,7 +142,7 @@ def payload_dithers(rig, postures: list[list[float]] | None = None, periods: int
     routine's ``AVERAGED_S`` window does not fit: average over a shorter ``seconds``."""
     describe = rig.link.describe
     rig_config = config.parse(describe["rig"]["source"], "<daemon>")
-    names = [j["name"] for j in describe["joints"]]
+    names = rig.link.layout.owners()
     postures = payload_routine.postures(rig_config) if postures is None else [list(map(float, p)) for p in postures]
     if any(len(p) != len(names) for p in postures):
         raise ValueError(f"a posture is one angle [deg] for each of {', '.join(names)}")
@@ -143,7 +152,7 @@ def payload_dithers(rig, postures: list[list[float]] | None = None, periods: int
     flights = []
     for target in postures:
         flights.append(Flight(lambda c, t=target: c.set(angles_deg=t, duration_s=identify.move_duration(
-            t, [c.status()["joints"][n]["setpoint_deg"] for n in names]), record=True),
+            t, [math.degrees(c.sample()[f"{n}.setpoint"]) for n in names]), record=True),
             settle=lambda reply: dict(zip(names, reply["target_deg"]))))
         for name in names:
             flights.append(Flight(lambda c, n=name: c.call("excite", {**payload_routine.dither_args(rig_config, n),

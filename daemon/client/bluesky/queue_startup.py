@@ -8,11 +8,14 @@ It reads a JSON file named by ``PNEUMAD_BLUESKY_CONFIG``::
                          "telemetry": "tcp://arm-pc:5562", "key_file": "/etc/pneumad/queue.key_secret"},
               "muscle": {"command": "tcp://muscle-pc:5560", ...}},
      "tiled": {"uri": "http://data-pc:8000", "api_key": "..."},
-     "hdf5_directory": "/data/pneumad"}
+     "hdf5_directory": "/data/pneumad", "suspend_on_trip": true}
 
 Each rig becomes a device of that name (``arm``, ``muscle``) that a queue item names as its
 first argument; ``hdf5_directory`` must be readable by the Tiled server (its
 ``readable_storage``). A rig that cannot be reached stops the worker's start with the reason.
+With ``suspend_on_trip`` (the default) each rig's suspender is installed
+(:mod:`daemon.client.bluesky.suspend`): a trip or an e-stop of any rig pauses the running plan
+until that rig is reset and enabled, and the queue keeps its items meanwhile.
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ from tiled.client import from_uri
 
 from daemon.client.bluesky.device import PneumadRig
 from daemon.client.bluesky.plans import identification, path_run, payload_dithers, step_response
+from daemon.client.bluesky.suspend import suspender
 
 __all__ = ["RE", "identification", "path_run", "payload_dithers", "step_response"]
 
@@ -36,4 +40,7 @@ for _name, _endpoints in _config["rigs"].items():
     __all__.append(_name)
 
 RE = RunEngine({})
+if _config.get("suspend_on_trip", True):
+    for _name in _config["rigs"]:
+        RE.install_suspender(suspender(globals()[_name]))
 RE.subscribe(TiledWriter(from_uri(_config["tiled"]["uri"], api_key=_config["tiled"].get("api_key"))))

@@ -25,8 +25,8 @@ from ophyd_async.core import AsyncStatus
 
 from daemon.client import progress
 from daemon.client.client import Client
-from daemon.client.bluesky.device import PneumadRig
-from daemon.recordings import mcap_log, reading
+from daemon.client.bluesky.device import TRIP_GRACE_S, PneumadRig, stopped_within
+from daemon.recordings import reading
 
 
 @dataclass
@@ -51,6 +51,12 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
         self._file: str | None = None
         self._rows = 0
         self._emitted = False
+        self._stopped = asyncio.Event()  # the RunEngine paused the flight (a suspension: it is flown again)
+
+    def pause(self) -> None:
+        """The RunEngine suspends the plan (the arm tripped: daemon.client.bluesky.suspend): the
+        flight in progress ends without failing; the plan flies it again from its checkpoint."""
+        self._stopped.set()
 
     @property
     def name(self) -> str:
@@ -60,12 +66,11 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
     def parent(self):
         return None
 
-    def _keys(self) -> list[tuple[str, str]]:
-        """(data key, HDF5 dataset) of each state column, from the rig's ``describe``."""
-        out = [("t", "/t"), ("cycle", "/cycle"), ("force_n", "/force_n")]
-        for joint in self.rig.link.describe["joints"]:
-            out += [(f"{joint['name']}_{column}", f"/{joint['name']}/{column}") for column in mcap_log.PER_JOINT]
-        return [(f"{self.name}_{key}", dataset) for key, dataset in out]
+    def _keys(self) -> list[tuple[str, str, str]]:
+        """(data key, HDF5 dataset, SI unit) of each number of the cycle record, from the rig's
+        layout (``mode``, a name, is in the file but not a stream's number)."""
+        return [(f"{self.name}_{f.name.replace('.', '_')}", dataset(f.name), f.unit)
+                for f in self.rig.link.layout.fields if f.name != "mode"]
 
     @AsyncStatus.wrap
     async def prepare(self, value: Flight) -> None:
@@ -73,6 +78,7 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
 
     @AsyncStatus.wrap
     async def kickoff(self) -> None:
+        self._stopped.clear()
         if self._flight is None:
             raise RuntimeError(f"{self.name}: prepare() a Flight before kickoff")
         reply = await asyncio.to_thread(self._flight.send, self.rig.link.client)
@@ -87,10 +93,14 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
     async def complete(self) -> None:
         link = self.rig.link
         if self._settle_deg:
-            await self.rig.settled(self._settle_deg, self._total_s)
+            await self.rig.settled(self._settle_deg, self._total_s, self._stopped)
+            if self._stopped.is_set():
+                return
         else:
             ended = await asyncio.to_thread(_follow, link.client, self._total_s)
             if ended["state"] != "enabled":
+                if await stopped_within(self._stopped, TRIP_GRACE_S):
+                    return
                 raise RuntimeError(f"{link.rig_name}: the arm is {ended['state']}: {ended['cause']}")
         path = await asyncio.to_thread(progress.recording_file, link.client, self._recording)
         if path is None or not os.path.exists(path):
@@ -101,9 +111,9 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
 
     def describe_collect(self) -> dict:
         return {key: {"source": f"{self.rig.link.source('record', dataset.strip('/'))}", "shape": [],
-                      "dtype": "integer" if dataset == "/cycle" else "number",
+                      "dtype": "integer" if dataset == "/cycle" else "number", "units": unit,
                       "dtype_numpy": "<i8" if dataset == "/cycle" else "<f8", "external": "STREAM:"}
-                for key, dataset in self._keys()}
+                for key, dataset, unit in self._keys()}
 
     def get_index(self) -> int:
         return self._rows
@@ -113,7 +123,7 @@ class DaemonRecord(Flyable, Preparable, Collectable, WritesStreamAssets):
             return
         stop = self._rows if index is None else min(index, self._rows)
         self._emitted = True
-        for key, dataset in self._keys():
+        for key, dataset, _ in self._keys():
             bundle = compose_stream_resource(mimetype="application/x-hdf5", uri=f"file://localhost{self._file}",
                                              data_key=key, parameters={"dataset": dataset, "chunk_shape": (stop,)})
             yield "stream_resource", bundle.stream_resource_doc
@@ -130,17 +140,26 @@ def _follow(client, total_s: float) -> dict:
         time.sleep(0.1)
 
 
+def dataset(name: str) -> str:
+    """The HDF5 dataset of a column :func:`daemon.recordings.reading.load` names: its dots as
+    groups (``bottom.u.v_mv`` -> ``/bottom/u/v_mv``)."""
+    return "/" + name.replace(".", "/")
+
+
 def to_hdf5(recording: str, out: str) -> int:
-    """The state stream of a daemon's recording as HDF5 datasets ``/t``, ``/cycle``,
-    ``/force_n``, ``/<joint>/<column>`` (SI units, as :func:`daemon.recordings.reading.load`
-    names them), the internals and contact streams under ``/internals`` and ``/contact``;
-    the number of rows."""
+    """The state stream of a daemon's recording as HDF5 datasets, one per field of its cycle
+    record (``/t``, ``/cycle``, ``/<joint>/position``, ``/<joint>/u/v_mv`` ..., SI units, as
+    :func:`daemon.recordings.reading.load` names them; ``/mode`` as text), the internals and
+    contact streams under ``/internals`` and ``/contact``; the number of rows."""
     columns = reading.load(recording)
     os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
     with h5py.File(out, "w") as f:
         for name, values in columns.items():
-            group, _, leaf = name.rpartition(".")
-            path = "/" + name.replace(".", "/") if group else "/" + leaf
-            f.create_dataset(path, data=np.asarray(values))
+            values = np.asarray(values)
+            if values.dtype.kind in "OU":  # text (the mode's name): HDF5 takes it as bytes
+                values = values.astype("S")
+            f.create_dataset(dataset(name), data=values)
+            if name in columns.layout:
+                f[dataset(name)].attrs["unit"] = columns.layout[name].unit
         f.attrs["source"] = os.path.abspath(recording)
     return len(columns["t"])
