@@ -75,6 +75,9 @@ class SimOptions:
     # its own processor (sim_backend/plant_thread.py), when the loop runs at a real-time priority
     # for the thread to take, else in each of the loop's reads; "always"; "never"
     beside_loop: str = "realtime"
+    # the cylinder arm's step compiled (sim_backend/compiled_plant.py): equal to float rounding,
+    # several times faster; for evaluations (pneumactl evaluate). Stribeck friction, no payload or wall.
+    compiled: bool = False
     joints: dict[str, SimJointOptions] = field(default_factory=dict)
     wall: WallOptions = WallOptions()
     payload: PayloadOptions = PayloadOptions()

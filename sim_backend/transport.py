@@ -80,8 +80,14 @@ def plant_for(rig: RigConfig, options: SimOptions):
     """The plant of the rig's kind (module docstring); ConfigError for a rig the simulator has
     no model of."""
     kinds = {(j.kind, j.actuation) for j in rig.joints}
+    if kinds == {(ROTARY, CYLINDER)} and options.compiled:
+        from sim_backend.compiled_plant import CompiledArm  # numba: imported only when asked for
+        return CompiledArm(rig, options)
     if kinds == {(ROTARY, CYLINDER)}:
         return SimArm(rig, options)
+    if options.compiled:
+        raise ConfigError("transport.options.compiled: only the planar arm of cylinder joints has a compiled plant; "
+                          "this rig's runs on the Python one (set compiled = false)")
     if kinds == {(ROTARY, MUSCLE_PAIR)}:
         return SimMuscleRig(rig, options)
     if kinds == {(LINEAR, VALVE)}:
@@ -116,6 +122,7 @@ class SimTransport(Transport):
         self.options = options
         self.clock = clock
         self.arm = plant_for(rig, options)  # the plant, whatever the rig's kind
+        self._advance_many = getattr(self.arm, "advance", None)  # the compiled plant: a catch-up in one call
         self._supply_pa = self.arm.supply_pa  # [Pa gauge] restored when a lost supply comes back
         self._rng = random.Random(options.seed)
         self._vsup = options.supply_volts
@@ -254,8 +261,11 @@ class SimTransport(Transport):
             self._health.counters["plant_steps_skipped"] = self._health.counters.get("plant_steps_skipped", 0) + due - limit
             self._steps += due - limit
             due = limit
-        for _ in range(due):
-            self.arm.step(self._out)
+        if self._advance_many is None:
+            for _ in range(due):
+                self.arm.step(self._out)
+        elif due > 0:
+            self._advance_many(self._out, due)
         self._steps += max(due, 0)
         self._next_step_t = self._t0 + h * (self._steps + 1 - 1e-6)
 

@@ -178,3 +178,10 @@ class UnsendableWhenBuilt(_BuildsBadly):
 def imported(module: str) -> bool:
     """Whether ``module`` was ever imported in this process (asked of a worker by a test)."""
     return module in sys.modules
+
+
+class LabPDFF(PID):
+    """A lab's own controller, as a plugin reached by its module path: the PID under a name of
+    its own (what ``pneumactl evaluate`` and the robustness bench take beside the built-ins)."""
+
+    name = "lab_pdff"

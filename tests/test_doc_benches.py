@@ -22,7 +22,8 @@ DOCUMENTS = ["docs/benchmarks.md", "docs/controllers.md", "docs/estimation.md", 
 SECONDS = {"sim_cost": 10, "loop_latency": 15, "cycle_cost": 6, "latency": 4, "controller_cost": 2,
            "switch_load": 30, "transport_cost": 40, "transport_hil": 20, "command_stall": 25, "fuzz": 20,
            "soak": 15, "contact_force": 20, "contact_loop": 15, "compare_controllers": 20, "thesis_corners": 7,
-           "robustness": 90, "payload": 2, "identification": 60, "muscle_steps": 20, "axis_control": 20}
+           "robustness": 90, "payload": 2, "identification": 60, "muscle_steps": 20, "axis_control": 20,
+           "evaluation_cost": 30}
 
 
 def chrt(match) -> str:

@@ -37,7 +37,7 @@ def test_sliding_mode_holds_after_a_fast_path_without_alternating_its_output_eve
     moves the middle joint's sigma 7.5 times as much), its output alternated every cycle while
     holding (0.4-0.8 V peak to peak, 340-400 V/s of output motion). Now it moves under 5 V/s."""
     loop = S.make_loop(controller, options=S.example_options(controller))
-    path = paths(loop, with_circle=False)["line (vertical)"]
+    path = paths(loop, with_circle=False)["line"]
     loop = S.make_loop(controller, plant=Plant("nominal, no noise", noise=False).sim_options(),
                        replace=S.NO_TRACKING_RULE)
     S.approach(loop, path.sample(0.0)[0])

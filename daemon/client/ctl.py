@@ -218,6 +218,8 @@ def parser() -> argparse.ArgumentParser:
     k.add_argument("name", nargs="?", help="new: your key's name (e.g. your login)")
     k.add_argument("--dir", default=os.path.expanduser("~/.config/pneumad"), help="new: where (default ~/.config/pneumad)")
     doctor.add_parser(sub)
+    ev = sub.add_parser("evaluate", add_help=False, help="controllers on the rig's model over references and plant "
+                        "variations, faster than real time (pneumactl evaluate --help)")
     return p
 
 
@@ -275,6 +277,11 @@ def main(argv=None) -> int:
 
 
 def _main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args, _ = parser().parse_known_args(argv)
+    if args.what == "evaluate":  # a process of its own (the daemon's loop on a virtual clock, a pool): never imported here
+        import subprocess
+        return subprocess.call([sys.executable, "-m", "evaluation", *argv[argv.index("evaluate") + 1:]])
     args = parser().parse_args(argv)
     if args.what == "identify" and args.source:
         return identify(None, args)

@@ -1,0 +1,188 @@
+"""The fast engine: the daemon's loop, set up by the daemon's own code (assembly, start, switch,
+enable), then cycled by :func:`evaluation.kernel.cycle` with the controller stepped in Python
+between two calls. What it takes over is read once from the loop, its rig I/O and its simulated
+transport (their attributes, as the set-up left them); tests/test_evaluation.py holds its
+trajectories equal to the loop's own.
+
+It runs what an evaluation needs of the loop and refuses the rest (:func:`refusal`): a rig of
+cylinder joints with RDC506 position sensors, no chamber transmitters (the controllers would
+read pressures), the simulated transport with its compiled plant stepping once a period. Other
+inputs (the force sensor) are swept, so the noise follows the same sequence, but not read: the
+loop engine checks their plausibility. No shadow, open-loop run, known load or tracking rule.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from controllers.base import JointState, Reference, check_output
+from evaluation import kernel as K
+from hal.potentiometer import RDC506
+
+_SAMPLES: dict = {}  # (reference key, t0) -> its samples cycle by cycle: shared by a worker's cases on it
+WHAT = {"position": 0, "first": 1, "second": 2, "force": 3, "supply_pressure": 4, "supply": 5, "constant": 5}
+
+
+def refusal(loop) -> str:
+    """Why the fast engine cannot run this loop ("" when it can)."""
+    transport = loop.io.transport
+    if getattr(transport, "backend", "") != "sim" or not hasattr(getattr(transport, "arm", None), "_coef"):
+        return "the simulated transport with its compiled plant (transport option compiled = true)"
+    if abs(transport.options.step_s - loop.period) > 1e-12:
+        return "one plant step a period"
+    if any(not isinstance(s, RDC506) for _, s in loop.io._positions):
+        return "RDC506 position sensors"
+    if loop.io._pressure_slots:
+        return "a rig without chamber transmitters"
+    if loop.tracking.on or loop.shadow_run is not None or loop.feed_forward.load is not None:
+        return "no tracking rule, shadow or known load"
+    if transport._faults:
+        return "no injected fault"
+    return ""
+
+
+class FastLoop:
+    """The loop's state taken over after its set-up; :meth:`run` cycles it."""
+
+    def __init__(self, loop, cycles: int):
+        """``cycles``: how many cycles at most will run (the noise is drawn for them beforehand)."""
+        why = refusal(loop)
+        if why:
+            raise ValueError(f"the fast engine needs {why}")
+        io, transport, arm, sup = loop.io, loop.io.transport, loop.io.transport.arm, loop.supervisor
+        self.loop, self.controller, self.period = loop, loop.controller, loop.period
+        self.n, self.width = loop.n, loop.actuation.width
+        self.deadline, self.now = loop._deadline, loop.clock.now()
+        self.trajectory, self.t0 = loop.trajectory, loop.trajectory_t0
+        self.reference = loop.reference
+        self.stiffness = list(loop.stiffness)
+        self.pressures = loop.snapshot.pressures
+        self.u = list(loop.u)
+        self.cause = ""
+        self.samples = None  # a reference's samples kept across cases (set_trajectory)
+        n = self.n
+        J = np.zeros((n, K.J_WIDTH))
+        pairs = {i: (ih, ir) for i, _, ih, _, ir in io._pairs}
+        for i, (_, s) in enumerate(io._positions):
+            c = s.config
+            J[i, K.J_SIG:K.J_THI + 1] = (s._index, s._supply, c.supply_volts, s._angle0, s._gain, c.zero_ratio,
+                                         s._lo, s._hi, s._ratio_lo, s._ratio_hi, s._travel_lo, s._travel_hi)
+        for k, i, head, bias, rod_pa in loop.actuation._cylinders:
+            rod = io.rod[i]
+            J[i, K.J_OUT_HEAD], J[i, K.J_OUT_ROD] = pairs[i]
+            J[i, K.J_BIAS], J[i, K.J_ROD_PA] = bias, rod_pa
+            J[i, K.J_H_SLOPE:K.J_R_PMAX + 1] = (head._slope, head._offset, head._p_min, head._p_max,
+                                                rod._slope, rod._offset, rod._p_min, rod._p_max)
+        for i, ((lo, hi), w) in enumerate(zip(sup._limits, sup._max_speed)):
+            J[i, K.J_QMIN], J[i, K.J_QMAX], J[i, K.J_WMAX] = lo, hi, w
+        J[:, K.J_ANGLE], J[:, K.J_VEL] = loop.angles, loop.velocities
+        J[:, K.J_PH], J[:, K.J_PR] = loop.p_head, loop.p_rod
+        C = np.zeros((len(transport.inputs), K.C_WIDTH))
+        for c, ((what, joint, offset, slope), adc) in enumerate(zip(transport._sensing, transport._adc)):
+            C[c, :K.C_VALUE] = (WHAT[what], joint, offset, slope, *adc)
+        O = np.zeros((len(transport.outputs), K.O_WIDTH))
+        for o, (dac, v) in enumerate(zip(transport._dac, transport._out)):
+            O[o] = (*dac, v)
+        G = np.zeros(K.G_WIDTH)
+        G[K.G_PREV_T], G[K.G_FILTER_W] = loop.snapshot.t, loop._filter_w
+        G[K.G_STEP_S], G[K.G_T0], G[K.G_SUPPLY_PA] = transport.options.step_s, transport._t0, arm.supply_pa
+        G[K.G_P_MAX], G[K.G_DP], G[K.G_SIGMA] = sup._p_max, sup._dp, transport.options.adc_noise_volts
+        G[K.G_CONTACT_F], G[K.G_REG:K.G_REG + 5] = arm.contact_force_n, arm._reg
+        Kc = np.zeros(K.K_WIDTH, dtype=np.int64)
+        Kc[K.K_STEPS], Kc[K.K_BAD_SENSOR], Kc[K.K_BAD_SPEED] = transport._steps, sup._bad_sensor, sup._bad_speed
+        Kc[K.K_N_BAD] = sup._n_bad
+        self.J, self.C, self.O, self.G, self.K = J, C, O, G, Kc
+        self.noise = _noise(transport._rng, len(transport.inputs) * (cycles + 1)) if G[K.G_SIGMA] > 0 else np.zeros(1)
+        self.plant = (arm._coef, arm._buf, arm._state, arm._k, np.zeros(n))
+        self.U, self.A = np.zeros(self.width + n), np.zeros(2 * n)
+
+    def set_trajectory(self, trajectory, key=None) -> None:
+        """As :meth:`daemon.loop.controls.LoopControls.set_trajectory`: from the next cycle on.
+        ``key`` names the reference (the same key, the same trajectory): its samples are then
+        kept for the next case that runs it from the same t0 (the cycles' times are then the
+        same floats: every case counts its deadlines from the same start), so the controllers
+        compared on one plant and path sample it once."""
+        self.trajectory, self.t0 = trajectory, self.now + self.period
+        self.reference = trajectory.sample(0.0)
+        self.samples = None
+        if key is not None:
+            if (key, self.t0) not in _SAMPLES:
+                while len(_SAMPLES) >= 2:
+                    del _SAMPLES[next(iter(_SAMPLES))]
+                _SAMPLES[(key, self.t0)] = []
+            self.samples = _SAMPLES[(key, self.t0)]
+
+    def run(self, cycles: int, log: np.ndarray | None = None) -> bool:
+        """``cycles`` cycles (each logged as reference, angles, output into ``log``'s rows when
+        given); False after a trip (its cause in :attr:`cause`)."""
+        J, C, O, G, Kc, noise, U, A = self.J, self.C, self.O, self.G, self.K, self.noise, self.U, self.A
+        coef, buf, state, k, tau = self.plant
+        cycle, step, width, n, period = K.cycle, self.controller.step, self.width, self.n, self.period
+        trajectory, t0, stiffness, pressures = self.trajectory, self.t0, self.stiffness, self.pressures
+        L = np.zeros((0, 2 * n + width)) if log is None else log
+        Kc[K.K_LOG] = -1  # the first row is this run's first cycle: logged from the second call on
+        deadline, commands, references, samples = self.deadline, range(width), range(n), self.samples
+        kept = len(samples) if samples is not None else 0
+        for i in range(cycles):
+            now = deadline
+            outcome = cycle(now, J, C, O, G, Kc, noise, coef, buf, state, k, tau, U, A, L)
+            if outcome:
+                self._trip(outcome)
+                break
+            if i < kept:
+                ref = samples[i]
+            else:
+                ref = trajectory.sample(now - t0)
+                if samples is not None:
+                    samples.append(ref)
+            both = A.tolist()
+            angles, velocities = both[:n], both[n:]
+            try:
+                u = step(JointState(now, angles, velocities, pressures), Reference(*ref, stiffness))
+                check_output(u, width)
+            except Exception as exc:  # as the loop: a failing controller trips
+                self.cause = f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}"
+                break
+            for c in commands:
+                U[c] = u[c]
+            q = ref[0]
+            for j in references:
+                U[width + j] = q[j]
+            Kc[K.K_WRITE] = 1
+            if i == 0 and log is not None:
+                Kc[K.K_LOG] = 0
+            deadline += period
+            self.now = now
+        else:
+            K.log_row(J, Kc, U, L)
+            self.deadline, self.reference, self.u = deadline, ref, list(u)
+            return True
+        self.deadline = deadline
+        return False
+
+    def _trip(self, outcome: int) -> None:
+        code, i = divmod(outcome, 16)
+        joint = self.loop.rig.joints[i]
+        if code == K.SENSOR_TRIP:
+            label, sensor = self.loop.io._positions[i]
+            fault = sensor.fault(self.C[:, K.C_VALUE].tolist())
+            self.cause = f"{label}: {fault} ({self.K[K.K_BAD_SENSOR]} samples in a row)"
+        elif code == K.LIMIT_TRIP:
+            self.cause = f"joint {joint.name} at {joint.shown(self.J[i, K.J_ANGLE])} is outside its limits " \
+                         f"{joint.shown_limits()}"
+        else:
+            self.cause = f"joint {joint.name} moving at {joint.shown(self.J[i, K.J_VEL], True)}, " \
+                         f"over its {joint.shown(joint.max_speed, True)} limit"
+
+
+def _noise(rng, count: int) -> np.ndarray:
+    """The next ``count`` values ``rng.gauss(0, 1)`` would give (``rng``: a ``random.Random``):
+    its Mersenne Twister state in numpy's, whose doubles are CPython's (genrand_res53)."""
+    version, internal, pending = rng.getstate()
+    mt = np.random.RandomState()
+    mt.set_state(("MT19937", np.array(internal[:-1], dtype=np.uint32), internal[-1], 0, 0.0))
+    first = math.nan if pending is None else pending
+    draws = count - (0 if pending is None else 1)
+    uniforms = mt.random_sample(2 * ((max(draws, 0) + 1) // 2))
+    return K.gauss_pairs(uniforms, first)

@@ -1,0 +1,55 @@
+"""Every case of an evaluation on every core: a process pool, the longest cases first."""
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+import time
+from pathlib import Path
+
+from controllers.base import ControllerContext
+from evaluation import cases, runner
+from hal.actuation import RigActuation
+
+
+def _work(task) -> runner.Case:
+    """One case in a worker; an error of its own (not a trip: those are the case's figures) is
+    its ``tripped`` cause, so one case's failure names itself and the others still run."""
+    rig, controller, params, plant, name, trace, engine = task
+    label = Path(name).name if name not in cases.PATHS else name
+    try:
+        context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
+        path = cases.reference(rig, context, name)
+        return runner.run_case(rig, controller, plant, label, path, params, runner.construction_options(controller),
+                               engine=engine, trace=trace)
+    except Exception as exc:  # noqa: BLE001 - reported in the table, never silent
+        return runner.Case(controller, plant.name, label, math.nan, tripped=f"evaluation failed: "
+                           f"{type(exc).__name__}: {exc}")
+
+
+def tasks(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,
+          engine: str = "auto"):
+    """Every case, the longest first (the pool stays busy to the end), the controllers on one
+    plant and reference one after another (a worker samples the reference once for them)."""
+    out = []
+    for controller in controllers:
+        for k, plant in enumerate(plants):
+            for name in references or cases.default_references(plant):
+                out.append((rig, controller, params if controller == controllers[0] else None, plant, name, k == 0,
+                            engine))
+    weight = {"translation": 0, "circle": 1, "figure-eight": 2, "square": 3, "line": 4, "steps": 5}
+    return sorted(out, key=lambda t: (weight.get(t[4], -1), plants.index(t[3]), controllers.index(t[1])))
+
+
+def run(rig, controllers: list[str], params: dict, plants: list[cases.Plant], references: list[str] | None,
+        engine: str = "auto", jobs: int | None = None) -> tuple[list[runner.Case], float]:
+    """Every case (controllers x plants x references; the robustness grid's paths when none are
+    named), in controller then plant order, and the wall time they took [s]."""
+    work = tasks(rig, controllers, params, plants, references, engine)
+    start = time.monotonic()
+    with multiprocessing.Pool(max(1, jobs or os.cpu_count())) as workers:
+        results = workers.map(_work, work, chunksize=1)
+    elapsed = time.monotonic() - start
+    names = [p.name for p in plants]
+    results.sort(key=lambda c: (controllers.index(c.controller), names.index(c.plant)))
+    return results, elapsed
