@@ -44,7 +44,9 @@ from hal.interfaces import ROTARY
 EPS = 0.05  # the fraction each candidate's sensitivity is simulated at [-]
 EXPLAINED = 0.8  # R^2 a candidate must reach to be named [-]
 MARGIN = 0.01  # ... and by how much it must beat the runner-up [-]
+MAX_STEPS = 1000  # a gap between two cycles longer than this many model steps starts the model again
 SNAPSHOT_S = 0.5  # the model's state is kept this often, to replay a candidate from the onset [s]
+NAME_AGAIN_S = 10.0  # the cause is named again this long after the drift's event, on more of it [s]
 ONSET_FRACTION = 0.25  # the residual's onset: where |r| last was below this fraction of the band
 CAUSES = {  # candidate -> (what the event says, the size's name, its plausible range)
     "offset": ("a potentiometer offset", "offset_deg", (-90.0, 90.0)),
@@ -60,7 +62,7 @@ class Verdict:
     """What a joint's watch says after a batch: an event's content when the verdict changed."""
 
     joint: str
-    action: str  # "drift" (left the band) or "recovered" (back inside)
+    action: str  # "drift" (left the band), "cause" (named again on more of the drift) or "recovered" (back inside)
     cause: str
     details: dict
 
@@ -80,7 +82,10 @@ class JointWatch:
         self._warming: JointModel | None = None  # its chambers following the commands, not yet anchored
         self._warm_since = 0.0
         n = int(round(config.history_s / dt))
-        self.history = {k: deque(maxlen=n) for k in ("t", "head", "rod", "measured", "predicted")}
+        # per sample: its time, the command held since the sample before (and for how many
+        # model steps), what was measured and what the model predicted
+        self.history = {k: deque(maxlen=n) for k in ("t", "head", "rod", "steps", "measured", "predicted")}
+        self._pending: tuple[float, float, float] | None = None  # (t, head, rod) of the last cycle: in force now
         self._snapshots: deque[tuple[int, JointModel]] = deque(maxlen=int(config.history_s / SNAPSHOT_S) + 2)
         self._count = 0  # samples fed since the model was anchored (indexes the snapshots)
         self._next_snapshot = 0
@@ -90,56 +95,67 @@ class JointWatch:
         self.inside_since: float | None = None
         self.flagged = False
         self.cause: dict | None = None  # the last drift's named cause
+        self._name_again_at: float | None = None  # [s] when the cause is named again, on more of the drift
 
     # -- feeding -----------------------------------------------------------------------------
     def feed(self, t: float, head_pa: float, rod_pa: float, measured_rad: float, velocity_rad_s: float) -> float:
-        """One cycle: the pressures [Pa] the loop commanded for the step after its read, and the
-        position [rad] and velocity [rad/s] it read. The residual [deg] (NaN before the model
-        is anchored)."""
+        """One cycle at ``t`` [s]: the position [rad] and velocity [rad/s] the loop read, and the
+        pressures [Pa] it then commanded, held until its next cycle. The model first steps on the
+        previous cycle's command for the time between the two (the plant steps by its clock: a
+        late cycle held the command for several steps). The residual [deg] (NaN before the
+        model is anchored)."""
         if not (math.isfinite(head_pa) and math.isfinite(rod_pa) and math.isfinite(measured_rad)):
             self.restart()  # (a cycle without a reading or a command: the model has lost the arm)
             return math.nan
         measured = math.degrees(measured_rad)
-        if self.model is None:
-            self._anchor(t, head_pa, rod_pa, measured, math.degrees(velocity_rad_s) if math.isfinite(velocity_rad_s)
-                         else 0.0)
-            if self.model is None:
-                return math.nan
-        predicted = self.model.th
+        previous, self._pending = self._pending, (t, head_pa, rod_pa)
+        steps = int(round((t - previous[0]) / self.dt)) if previous is not None else 0
+        if previous is not None and not 0 < steps <= MAX_STEPS:
+            self.restart()  # the clock went back, or a gap too long to step over
+            self._pending = (t, head_pa, rod_pa)
+            return math.nan
+        model = self.model
+        if model is None:
+            velocity = math.degrees(velocity_rad_s) if math.isfinite(velocity_rad_s) else 0.0
+            self._anchor(t, previous, steps, measured, velocity)
+            return math.nan
+        for _ in range(steps):
+            model.step(previous[1], previous[2])
+        predicted = model.th
         h = self.history
-        h["t"].append(t)
-        h["head"].append(head_pa)
-        h["rod"].append(rod_pa)
-        h["measured"].append(measured)
-        h["predicted"].append(predicted)
+        for key, value in (("t", t), ("head", previous[1]), ("rod", previous[2]), ("steps", steps),
+                           ("measured", measured), ("predicted", predicted)):
+            h[key].append(value)
         self.residual.append(measured - predicted)
-        if self._count >= self._next_snapshot:
-            self._snapshots.append((self._count, copy.deepcopy(self.model)))
-            self._next_snapshot = self._count + int(round(SNAPSHOT_S / self.dt))
-        self.model.step(head_pa, rod_pa)
         self._count += 1
+        if self._count >= self._next_snapshot:
+            self._snapshots.append((self._count, copy.deepcopy(model)))
+            self._next_snapshot = self._count + int(round(SNAPSHOT_S / self.dt))
         return measured - predicted
 
-    def _anchor(self, t: float, head: float, rod: float, measured: float, velocity: float) -> None:
+    def _anchor(self, t: float, previous: tuple | None, steps: int, measured: float, velocity: float) -> None:
         """Warm the model's chambers on the commands for ``settle_s`` (the pressure path is the
         commands' alone: by then its start no longer shows), then start it at the measured angle
         and velocity."""
+        if previous is None:
+            return
         warm = self._warming
         if warm is None:
-            self._warming = JointModel(self.params, self.dt, self.neutral_deg, self.stops, initial_deg=measured,
-                                       initial_pset=(head, rod))
-            self._warm_since = t
-            self._warming.step(head, rod)
-            return
-        if t - self._warm_since < self.settle_s:
-            warm.step(head, rod)
-            return
-        warm.th, warm.w = min(max(measured, self.stops[0]), self.stops[1]), velocity
-        self.model, self._warming = warm, None
+            warm = self._warming = JointModel(self.params, self.dt, self.neutral_deg, self.stops,
+                                              initial_deg=measured, initial_pset=previous[1:])
+            self._warm_since = previous[0]
+        for _ in range(steps):
+            warm.step(previous[1], previous[2])
+        if t - self._warm_since >= self.settle_s:
+            warm.th, warm.w = min(max(measured, self.stops[0]), self.stops[1]), velocity
+            self.model, self._warming = warm, None
+            self._count = 0
+            self._snapshots.append((0, copy.deepcopy(warm)))
+            self._next_snapshot = int(round(SNAPSHOT_S / self.dt))
 
     def restart(self) -> None:
         """Forget the model's state: it anchors again once the commands hold still."""
-        self.model = self._warming = None
+        self.model = self._warming = self._pending = None
         for q in (*self.history.values(), self.residual):
             q.clear()
         self._snapshots.clear()
@@ -147,6 +163,11 @@ class JointWatch:
         self.outside_since = self.inside_since = None
 
     # -- judging -----------------------------------------------------------------------------
+    def t_since_onset(self) -> float:
+        """[s] from the named drift's onset to the last sample."""
+        onset = (self.cause or {}).get("onset_t", math.nan)
+        return self.history["t"][-1] - onset if self.history["t"] else math.nan
+
     def residuals(self) -> np.ndarray:
         return np.asarray(self.history["measured"]) - np.asarray(self.history["predicted"])
 
@@ -164,8 +185,9 @@ class JointWatch:
 
     def judge(self, t: float, stats: dict) -> Verdict | None:
         """The band's verdict at ``t`` [s] on the window's ``stats``: a Verdict when the joint
-        has been outside the band for ``hold_s`` (drift, its cause named) or back inside for as
-        long after a drift."""
+        has been outside the band for ``hold_s`` (drift, its cause named) or back inside for
+        ``recover_s`` after a drift (a drift that shows only while the arm moves, grown friction,
+        comes back inside while it rests)."""
         band, hold = self.config.band_deg, self.config.hold_s
         if stats["window_fill"] < 1.0 and not stats["rms_deg"] > band:
             return None  # a window not yet full judges only against the band's upper side
@@ -174,13 +196,17 @@ class JointWatch:
             self.inside_since = None
             self.outside_since = self.outside_since if self.outside_since is not None else t
             if not self.flagged and t - self.outside_since >= hold:
-                self.flagged = True
+                self.flagged, self._name_again_at = True, t + NAME_AGAIN_S
                 self.cause = name_cause(self)
                 return Verdict(self.name, "drift", _cause_text(self, stats), self.cause)
-        else:
+        if self.flagged and self._name_again_at is not None and t >= self._name_again_at:
+            self._name_again_at = None  # the candidates' shapes part as the drift goes on: named again, once
+            self.cause = name_cause(self)
+            return Verdict(self.name, "cause", _cause_text(self, stats, again=True), self.cause)
+        if not outside:
             self.outside_since = None
             self.inside_since = self.inside_since if self.inside_since is not None else t
-            if self.flagged and t - self.inside_since >= hold:
+            if self.flagged and t - self.inside_since >= self.config.recover_s:
                 self.flagged = False
                 return Verdict(self.name, "recovered",
                                f"the residual's RMS {stats['rms_deg']:.2f} deg is back inside the band "
@@ -188,7 +214,7 @@ class JointWatch:
         return None
 
 
-def _cause_text(watch: JointWatch, stats: dict) -> str:
+def _cause_text(watch: JointWatch, stats: dict, again: bool = False) -> str:
     found = watch.cause or {}
     what = (f"likely {CAUSES[found['likely']][0]} ({CAUSES[found['likely']][1]} {found['size']:.3g}, "
             f"explains {100 * found['explained']:.0f} % of the residual since its onset)"
@@ -196,6 +222,8 @@ def _cause_text(watch: JointWatch, stats: dict) -> str:
             f"cause unclear (best: {CAUSES[found['best']][0]}, explains {100 * found['explained']:.0f} %; then "
             f"{CAUSES[found['runner_up']][0] if found.get('runner_up') else 'none'})"
             if found.get("best") else "cause unclear")
+    if again:
+        return f"named again on {watch.t_since_onset():.0f} s of the drift: {what}"
     return (f"the arm left its model: residual RMS {stats['rms_deg']:.2f} deg (mean {stats['mean_deg']:+.2f} deg) "
             f"over {watch.config.window_s:g} s, band {watch.config.band_deg:g} deg; {what}")
 
@@ -210,32 +238,35 @@ def name_cause(watch: JointWatch) -> dict:
         return {"likely": None, "best": None, "explained": 0.0, "size": math.nan, "onset_t": math.nan}
     quiet = np.flatnonzero(np.abs(r) <= ONSET_FRACTION * watch.config.band_deg)
     onset = int(quiet[-1]) + 1 if len(quiet) else 0
-    onset = min(onset, len(r) - 5)
-    first = watch._count - len(r)  # the history's first sample, counted from the anchor
+    onset = max(min(onset, len(r) - 5), 0)
+    first = watch._count - len(r)  # samples are counted from 1 at the anchor: history[i] is sample first + i + 1
     kept = [s for s in watch._snapshots if s[0] >= first]  # the model's states whose commands are still kept
     if not kept:
         return {"likely": None, "best": None, "explained": 0.0, "size": math.nan, "onset_t": math.nan}
-    base = max((s for s in kept if s[0] <= first + onset), key=lambda s: s[0], default=kept[0])
-    start = base[0] - first  # the snapshot's sample in the history
-    head, rod = np.asarray(h["head"]), np.asarray(h["rod"])
-    nominal = copy.deepcopy(base[1])
-    k = start
-    while k < onset:
-        nominal.step(head[k], rod[k])
-        k += 1
-    onset = k
+    base = max((s for s in kept if s[0] <= first + onset + 1), key=lambda s: s[0], default=kept[0])
+    head, rod, steps = np.asarray(h["head"]), np.asarray(h["rod"]), np.asarray(h["steps"], dtype=int)
+
+    def advance(model: JointModel, i: int, scale_head: float = 1.0, scale_rod: float = 1.0) -> None:
+        for _ in range(steps[i]):  # sample i's command, for the steps it was held
+            model.step(head[i] * scale_head, rod[i] * scale_rod)
+
+    nominal = copy.deepcopy(base[1])  # the state at sample base[0]
+    i = base[0] - first  # the next sample's index
+    onset = max(onset, i - 1)
+    while i <= onset:
+        advance(nominal, i)
+        i += 1
     members = {name: copy.deepcopy(nominal) for name in ("nominal", "leak_head", "leak_rod", "gain", "friction")}
     members["friction"].scale_friction(1.0 + EPS)
+    scales = {"nominal": (1.0, 1.0), "leak_head": (1 - EPS, 1.0), "leak_rod": (1.0, 1 - EPS),
+              "gain": (1 - EPS, 1 - EPS), "friction": (1.0, 1.0)}
     track = {name: np.empty(len(r) - onset) for name in members}
-    for i in range(onset, len(r)):
+    for name, m in members.items():
+        track[name][0] = m.th
+    for i in range(onset + 1, len(r)):
         for name, m in members.items():
+            advance(m, i, *scales[name])
             track[name][i - onset] = m.th
-        ph, pr = head[i], rod[i]
-        members["nominal"].step(ph, pr)
-        members["leak_head"].step(ph * (1 - EPS), pr)
-        members["leak_rod"].step(ph, pr * (1 - EPS))
-        members["gain"].step(ph * (1 - EPS), pr * (1 - EPS))
-        members["friction"].step(ph, pr)
     y = r[onset:]
     sensitivities = {"offset": np.ones_like(y)}
     for name in ("leak_head", "leak_rod", "gain", "friction"):
@@ -251,7 +282,9 @@ def name_cause(watch: JointWatch) -> dict:
         fits[name] = (1.0 - float(((y - size * s) @ (y - size * s))) / energy, size)
     if not fits:
         return {"likely": None, "best": None, "explained": 0.0, "size": math.nan, "onset_t": float(h["t"][onset])}
-    ranked = sorted(fits, key=lambda n: fits[n][0], reverse=True)
+    # a size outside its candidate's range is no explanation (a leak that gained pressure)
+    ranked = sorted((n for n in fits if CAUSES[n][2][0] < fits[n][1] < CAUSES[n][2][1]), key=lambda n: fits[n][0],
+                    reverse=True) or sorted(fits, key=lambda n: fits[n][0], reverse=True)
     best = ranked[0]
     explained, size = fits[best]
     low, high = CAUSES[best][2]

@@ -146,7 +146,8 @@ class ModelWatchConfig:
     enabled: bool = True  # run the model beside the loop (a process of its own)
     band_deg: float = 1.0  # the residual's RMS over window_s beyond this is drift [deg]
     window_s: float = 2.0  # the residual's statistics are over this window [s]
-    hold_s: float = 0.5  # outside the band this long before the event (and back inside this long) [s]
+    hold_s: float = 0.5  # outside the band this long before the event [s]
+    recover_s: float = 10.0  # back inside the band this long after a drift before the event saying so [s]
     history_s: float = 30.0  # commands and residuals kept to name a cause from [s]
     publish_hz: float = 10.0  # the ``model`` topic's rate [Hz]
 
@@ -154,6 +155,7 @@ class ModelWatchConfig:
         require(self.band_deg > 0, "band_deg", "must be > 0")
         require(0.1 <= self.window_s <= 60.0, "window_s", "must be within 0.1-60 s")
         require(0.0 <= self.hold_s <= 60.0, "hold_s", "must be within 0-60 s")
+        require(0.0 <= self.recover_s <= 3600.0, "recover_s", "must be within 0-3600 s")
         require(self.window_s <= self.history_s <= 600.0, "history_s", "must be within window_s-600 s")
         require(0.1 <= self.publish_hz <= 100.0, "publish_hz", "must be within 0.1-100 Hz")
 

@@ -115,6 +115,7 @@ class LoopView:
             "transport": vars(loop.io.transport.health()),
             "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
             "helpers": loop.server.helpers_health() if loop.server is not None else None,
+            "model": loop.server.model_status() if loop.server is not None else None,
         }
 
     def _joint(self, i: int) -> dict:
