@@ -1,0 +1,75 @@
+"""Drift on the simulated rig for the model beside the arm (docs/model.md): the built-in rig with
+a drift from a time on (``[transport.options.joints.NAME]``, docs/simulator.md "Drift"), the
+real loop on a virtual clock moving the arm back and forth through waypoints, and its state
+messages fed to :class:`controllers.drift.ModelWatch` as the model process feeds them."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from controllers.drift import ModelWatch
+from daemon.testing.loop import dealer, make_loop, ok, run_seconds
+from hal import config
+
+REST = (141.8, -90.0)  # where the built-in rig's joints rest at the bias pressures [deg]
+SWING = ((135.0, -95.0), (148.0, -85.0), REST)  # the waypoints the arm goes through in turn, 2 s apart
+DRIFTS = {  # the four the tests inject, on the bottom joint
+    "offset": "sensor_offset_deg = 2.0",
+    "leak_head": 'leak = "head"\nleak_fraction = 0.1',
+    "friction": "friction_scale = 2.0",
+    "gain": "regulator_gain = 0.8",
+}
+
+
+def drifted_rig(drift: str = "", joint: str = "bottom", at_s: float = 8.0, base: str | None = None) -> str:
+    """The built-in rig's text (or ``base``) with ``drift`` (TOML lines) on ``joint`` from ``at_s``."""
+    text = base if base is not None else config.load().source
+    if drift:
+        text = text.replace("\n[arm]\n", f"\n[transport.options.joints.{joint}]\nfault_at_s = {at_s}\n{drift}\n\n[arm]\n",
+                            1)
+    return text
+
+
+@dataclass
+class Watched:
+    """What the model said of a run: its ``model`` messages and verdicts (with the model's time)."""
+
+    messages: list[dict] = field(default_factory=list)
+    verdicts: list[tuple[float, object]] = field(default_factory=list)
+    residuals: dict[str, list[float]] = field(default_factory=dict)
+    times: list[float] = field(default_factory=list)
+
+
+def swing(rig_text: str, seconds: float, period_s: float = 2.0) -> list[dict]:
+    """The loop on ``rig_text`` enabled, swinging through SWING (a waypoint each ``period_s``)
+    for ``seconds`` of its virtual clock; its state messages."""
+    loop, captured, server = make_loop(rig_text, server=True)
+    try:
+        sock = dealer(server)
+        lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60})["lease"]
+        ok(loop, sock, "enable", lease=lease)
+        points = [list(REST)] + [list(p) for p in SWING] * int(seconds / (period_s * len(SWING)) + 1)
+        ok(loop, sock, "waypoints", {"angles_deg": points, "durations_s": [period_s] * (len(points) - 1)}, lease=lease)
+        run_seconds(loop, seconds - loop.clock.now())
+        return captured.of("state")
+    finally:
+        loop.stop()
+        server.close()
+
+
+def watch(rig_text: str, states: list[dict], publish_hz: float | None = None) -> Watched:
+    """``states`` fed to the model of ``rig_text``'s rig, judged at its ``publish_hz``."""
+    rig = config.parse(rig_text)
+    model = ModelWatch(rig)
+    period = 1.0 / (publish_hz or rig.model_watch.publish_hz)
+    out = Watched(residuals={name: [] for name in model.joints})
+    due = -1.0
+    for m in states:
+        for name, r in model.feed(m).items():
+            out.residuals[name] += r
+        out.times += m["t"]
+        if model.t >= due:
+            due = model.t + period
+            message, verdicts = model.judge()
+            out.messages.append(message)
+            out.verdicts += [(model.t, v) for v in verdicts]
+    return out
