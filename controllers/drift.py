@@ -86,11 +86,12 @@ class JointWatch:
         # model steps), what was measured and what the model predicted
         self.history = {k: deque(maxlen=n) for k in ("t", "head", "rod", "steps", "measured", "predicted")}
         self._pending: tuple[float, float, float] | None = None  # (t, head, rod) of the last cycle: in force now
+        self._t0, self._grid = 0.0, 0  # [s] the first cycle's time, and the model's steps since it
         self._snapshots: deque[tuple[int, JointModel]] = deque(maxlen=int(config.history_s / SNAPSHOT_S) + 2)
         self._count = 0  # samples fed since the model was anchored (indexes the snapshots)
         self._next_snapshot = 0
-        self._window = int(round(config.window_s / dt))
-        self.residual: deque[float] = deque(maxlen=self._window)  # the window's residuals [deg]
+        self.residual: deque[float] = deque(maxlen=n)  # measured - predicted per sample [deg]
+        self._anchored_t = math.nan  # [s] when the model started
         self.outside_since: float | None = None
         self.inside_since: float | None = None
         self.flagged = False
@@ -109,10 +110,15 @@ class JointWatch:
             return math.nan
         measured = math.degrees(measured_rad)
         previous, self._pending = self._pending, (t, head_pa, rod_pa)
-        steps = int(round((t - previous[0]) / self.dt)) if previous is not None else 0
-        if previous is not None and not 0 < steps <= MAX_STEPS:
+        # the plant's steps between the two cycles, on its grid of dt from the first (two cycles
+        # closer than a step, a late one's catching up, may share one: no step between them)
+        grid = int(math.floor((t - self._t0) / self.dt + 0.5)) if previous is not None else 0
+        steps, self._grid = grid - self._grid, grid
+        if previous is None:
+            self._t0 = t
+        elif not 0 <= steps <= MAX_STEPS:
             self.restart()  # the clock went back, or a gap too long to step over
-            self._pending = (t, head_pa, rod_pa)
+            self._pending, self._t0 = (t, head_pa, rod_pa), t
             return math.nan
         model = self.model
         if model is None:
@@ -148,7 +154,7 @@ class JointWatch:
             warm.step(previous[1], previous[2])
         if t - self._warm_since >= self.settle_s:
             warm.th, warm.w = min(max(measured, self.stops[0]), self.stops[1]), velocity
-            self.model, self._warming = warm, None
+            self.model, self._warming, self._anchored_t = warm, None, t
             self._count = 0
             self._snapshots.append((0, copy.deepcopy(warm)))
             self._next_snapshot = int(round(SNAPSHOT_S / self.dt))
@@ -156,6 +162,7 @@ class JointWatch:
     def restart(self) -> None:
         """Forget the model's state: it anchors again once the commands hold still."""
         self.model = self._warming = self._pending = None
+        self._grid = 0
         for q in (*self.history.values(), self.residual):
             q.clear()
         self._snapshots.clear()
@@ -169,19 +176,21 @@ class JointWatch:
         return self.history["t"][-1] - onset if self.history["t"] else math.nan
 
     def residuals(self) -> np.ndarray:
-        return np.asarray(self.history["measured"]) - np.asarray(self.history["predicted"])
+        return np.asarray(self.residual)
 
     def statistics(self) -> dict:
-        """The residual over the last window [deg]: mean, RMS, largest |r|, and how full the
-        window is (its statistics are judged once it is full)."""
+        """The residual over the last ``window_s`` [deg]: mean, RMS, largest |r|, and how much of
+        the window the model has run for (its statistics are judged once it is full)."""
         h = self.history
-        n = len(self.residual)
-        if n == 0:
+        if not h["t"]:
             return {"anchored": self.model is not None, "mean_deg": math.nan, "rms_deg": math.nan,
                     "max_abs_deg": math.nan, "window_fill": 0.0, "flagged": self.flagged}
-        r = np.fromiter(itertools.islice(self.residual, len(self.residual) - n, None), float, n)
+        now, since = h["t"][-1], h["t"][-1] - self.config.window_s
+        recent = list(itertools.takewhile(lambda x: x[0] > since, zip(reversed(h["t"]), reversed(self.residual))))
+        r = np.fromiter((x[1] for x in recent), float, len(recent))
+        fill = min((now - self._anchored_t) / self.config.window_s, 1.0)
         return {"anchored": True, "mean_deg": float(r.mean()), "rms_deg": float(np.sqrt(np.mean(r * r))),
-                "max_abs_deg": float(np.abs(r).max()), "window_fill": n / self._window, "flagged": self.flagged}
+                "max_abs_deg": float(np.abs(r).max()), "window_fill": fill, "flagged": self.flagged}
 
     def judge(self, t: float, stats: dict) -> Verdict | None:
         """The band's verdict at ``t`` [s] on the window's ``stats``: a Verdict when the joint

@@ -5,8 +5,10 @@ messages fed to :class:`controllers.drift.ModelWatch` as the model process feeds
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from controllers.drift import ModelWatch
+from daemon.recordings.mcap_log import McapRecording
 from daemon.testing.loop import dealer, make_loop, ok, run_seconds
 from hal import config
 
@@ -39,17 +41,25 @@ class Watched:
     times: list[float] = field(default_factory=list)
 
 
-def swing(rig_text: str, seconds: float, period_s: float = 2.0) -> list[dict]:
+def swing(rig_text: str, seconds: float, period_s: float = 2.0, record: str | Path | None = None) -> list[dict]:
     """The loop on ``rig_text`` enabled, swinging through SWING (a waypoint each ``period_s``)
-    for ``seconds`` of its virtual clock; its state messages."""
+    for ``seconds`` of its virtual clock; its state messages (and, ``record``, an MCAP recording
+    of all it published there, as the daemon's recorder writes one)."""
     loop, captured, server = make_loop(rig_text, server=True)
     try:
         sock = dealer(server)
+        describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
         lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60})["lease"]
         ok(loop, sock, "enable", lease=lease)
         points = [list(REST)] + [list(p) for p in SWING] * int(seconds / (period_s * len(SWING)) + 1)
         ok(loop, sock, "waypoints", {"angles_deg": points, "durations_s": [period_s] * (len(points) - 1)}, lease=lease)
         run_seconds(loop, seconds - loop.clock.now())
+        if record is not None:
+            with open(record, "wb") as f:
+                rec = McapRecording(f, describe, controller)
+                for topic, message in captured.messages:
+                    rec.write(topic, message)
+                rec.finish()
         return captured.of("state")
     finally:
         loop.stop()
