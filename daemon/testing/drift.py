@@ -4,6 +4,7 @@ real loop on a virtual clock moving the arm back and forth through waypoints, an
 messages fed to :class:`controllers.drift.ModelWatch` as the model process feeds them."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,10 +42,12 @@ class Watched:
     times: list[float] = field(default_factory=list)
 
 
-def swing(rig_text: str, seconds: float, period_s: float = 2.0, record: str | Path | None = None) -> list[dict]:
+def swing(rig_text: str, seconds: float, period_s: float = 2.0, record: str | Path | None = None,
+          feed: Callable[[dict], None] | None = None) -> list[dict]:
     """The loop on ``rig_text`` enabled, swinging through SWING (a waypoint each ``period_s``)
     for ``seconds`` of its virtual clock; its state messages (and, ``record``, an MCAP recording
-    of all it published there, as the daemon's recorder writes one)."""
+    of all it published there, as the daemon's recorder writes one). ``feed``: each state message
+    is handed to it a second at a time instead, and none kept (a long run)."""
     loop, captured, server = make_loop(rig_text, server=True)
     try:
         sock = dealer(server)
@@ -53,6 +56,12 @@ def swing(rig_text: str, seconds: float, period_s: float = 2.0, record: str | Pa
         ok(loop, sock, "enable", lease=lease)
         points = [list(REST)] + [list(p) for p in SWING] * int(seconds / (period_s * len(SWING)) + 1)
         ok(loop, sock, "waypoints", {"angles_deg": points, "durations_s": [period_s] * (len(points) - 1)}, lease=lease)
+        if feed is not None:
+            while loop.clock.now() < seconds:
+                run_seconds(loop, min(1.0, seconds - loop.clock.now()))
+                for m in captured.drain("state"):
+                    feed(m)
+            return []
         run_seconds(loop, seconds - loop.clock.now())
         if record is not None:
             with open(record, "wb") as f:

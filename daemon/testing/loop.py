@@ -58,6 +58,13 @@ class Captured:
     def of(self, topic: str) -> list[dict]:
         return [m for t, m in self.messages if t == topic]
 
+    def drain(self, topic: str) -> list[dict]:
+        """The messages of ``topic`` so far, every message kept so far forgotten (a long run read
+        a part at a time)."""
+        found = self.of(topic)
+        self._messages, self._decoded = [], 0
+        return found
+
 
 def virtual_loop(rig: config.RigConfig, controller: str = "pid", publish=None,
                  plugins: dict[str, str] | None = None, stats_banks=None) -> ControlLoop:
