@@ -8,7 +8,8 @@ for a while is drift, and the shape of the residual since it left zero names the
 **Anchoring.** The model's chambers follow the commanded pressures from the first cycle it is
 fed (and again after a gap in the cycles); after the dead time and five regulator lags
 (T_dly + 5 T_ep) their start no longer shows (e^-5), and the model starts from the measured
-angle and velocity. From then on it runs free on the commands: it is never corrected
+angle, moving at its slope over those last moments (not at the loop's velocity estimate: its
+noise is larger than the Stribeck velocity, :meth:`JointWatch._anchor`). From then on it runs free on the commands: it is never corrected
 by the measurement, so a drift is not absorbed (an observer would learn a potentiometer's
 offset as the state). The joint model is stable (spring K, damping D), so a model error does
 not grow without bound.
@@ -81,6 +82,7 @@ class JointWatch:
         self.model: JointModel | None = None  # anchored: predicting
         self._warming: JointModel | None = None  # its chambers following the commands, not yet anchored
         self._warm_since = 0.0
+        self._warm_samples: list[tuple[float, float]] = []  # (t, measured angle) over the warm-up
         n = int(round(config.history_s / dt))
         # per sample: its time, the command held since the sample before (and for how many
         # model steps), what was measured and what the model predicted
@@ -99,8 +101,8 @@ class JointWatch:
         self._name_again_at: float | None = None  # [s] when the cause is named again, on more of the drift
 
     # -- feeding -----------------------------------------------------------------------------
-    def feed(self, t: float, head_pa: float, rod_pa: float, measured_rad: float, velocity_rad_s: float) -> float:
-        """One cycle at ``t`` [s]: the position [rad] and velocity [rad/s] the loop read, and the
+    def feed(self, t: float, head_pa: float, rod_pa: float, measured_rad: float) -> float:
+        """One cycle at ``t`` [s]: the position [rad] the loop read, and the
         pressures [Pa] it then commanded, held until its next cycle. The model first steps on the
         previous cycle's command for the time between the two (the plant steps by its clock: a
         late cycle held the command for several steps). The residual [deg] (NaN before the
@@ -122,8 +124,7 @@ class JointWatch:
             return math.nan
         model = self.model
         if model is None:
-            velocity = math.degrees(velocity_rad_s) if math.isfinite(velocity_rad_s) else 0.0
-            self._anchor(t, previous, steps, measured, velocity)
+            self._anchor(t, previous, steps, measured)
             return math.nan
         for _ in range(steps):
             model.step(previous[1], previous[2])
@@ -139,21 +140,28 @@ class JointWatch:
             self._next_snapshot = self._count + int(round(SNAPSHOT_S / self.dt))
         return measured - predicted
 
-    def _anchor(self, t: float, previous: tuple | None, steps: int, measured: float, velocity: float) -> None:
+    def _anchor(self, t: float, previous: tuple | None, steps: int, measured: float) -> None:
         """Warm the model's chambers on the commands for ``settle_s`` (the pressure path is the
-        commands' alone: by then its start no longer shows), then start it at the measured angle
-        and velocity."""
+        commands' alone: by then its start no longer shows), then start it at the measured angle,
+        moving at the measured angle's slope over the warm-up. Not at the loop's velocity: its
+        noise (1-6 deg/s at rest on the simulator) is larger than the Stribeck velocity vs, and
+        [2-45]'s falling branch makes a joint under a torque between Fc and the map's peak creep
+        or slide by where it starts: a model started sliding beside an arm that creeps leaves it
+        by degrees a second."""
         if previous is None:
             return
         warm = self._warming
         if warm is None:
             warm = self._warming = JointModel(self.params, self.dt, self.neutral_deg, self.stops,
                                               initial_deg=measured, initial_pset=previous[1:])
-            self._warm_since = previous[0]
+            self._warm_since, self._warm_samples = previous[0], []
         for _ in range(steps):
             warm.step(previous[1], previous[2])
-        if t - self._warm_since >= self.settle_s:
-            warm.th, warm.w = min(max(measured, self.stops[0]), self.stops[1]), velocity
+        self._warm_samples.append((t, measured))
+        if t - self._warm_since >= self.settle_s and len(self._warm_samples) >= 3:
+            ts, angles = np.array(self._warm_samples).T
+            slope = float(np.polyfit(ts - ts[-1], angles, 1)[0])
+            warm.th, warm.w = min(max(measured, self.stops[0]), self.stops[1]), slope
             self.model, self._warming, self._anchored_t = warm, None, t
             self._count = 0
             self._snapshots.append((0, copy.deepcopy(warm)))
@@ -332,9 +340,8 @@ class ModelWatch:
             self.t = columns["t"][-1]
         out = {}
         for name, w in self.joints.items():
-            out[name] = [w.feed(t, h, r, p, v) for t, h, r, p, v in zip(
-                columns["t"], columns[f"{name}.p_head_cmd"], columns[f"{name}.p_rod_cmd"],
-                columns[f"{name}.position"], columns[f"{name}.velocity"])]
+            out[name] = [w.feed(t, h, r, p) for t, h, r, p in zip(
+                columns["t"], columns[f"{name}.p_head_cmd"], columns[f"{name}.p_rod_cmd"], columns[f"{name}.position"])]
         return out
 
     def judge(self) -> tuple[dict, list[Verdict]]:

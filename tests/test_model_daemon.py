@@ -2,7 +2,9 @@
 starts reading 2 deg off on the simulated rig is a ``model`` event naming the joint and the
 cause, a journal line, and the status field ``model``; the ``model`` topic carries each joint's
 residual and its window's statistics, and the daemon's recordings keep it; the model's process
-is one of the status field ``helpers``."""
+is one of the status field ``helpers``, and one killed is restarted with a ``model`` event."""
+import os
+import signal
 import time
 from pathlib import Path
 
@@ -51,6 +53,10 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
             assert abs(status["model"]["joints"]["middle"]["size"] - 2.0) < 0.2
             assert status["model"]["joints"]["bottom"]["drift"] is False
             assert status["helpers"]["model"]["running"]
+            os.kill(status["helpers"]["model"]["pid"], signal.SIGKILL)  # the model process dies
+            restarted = next_event(sub, "model", action="restarted", limit_s=30.0)
+            assert "model process exited" in restarted["cause"]
+            journal_line(log, "WARNING", "model", restarted)
             client.record_stop(name="drift")
             sub.close()
     finally:

@@ -3,6 +3,7 @@ replayed on the rig's model with its recorded controller and parameters, comes o
 noise (Fit stated); on a rig file whose model differs it shows where the two part; a recording
 without what a replay needs is refused with what is missing."""
 import json
+import shutil
 import subprocess
 import sys
 
@@ -13,6 +14,7 @@ from daemon.recordings.reading import Run, open_run
 from daemon.replay.run import Refused, missing, parted, replay
 from daemon.testing.drift import drifted_rig, swing
 from hal import config
+from tests import doc_blocks, doc_runs
 
 pytestmark = pytest.mark.slow(seconds=60)
 
@@ -22,6 +24,13 @@ def recorded(tmp_path_factory):
     path = tmp_path_factory.mktemp("replay") / "swing.mcap"
     swing(drifted_rig(), 12.0, record=path)
     return path
+
+
+def damped_rig() -> str:
+    """The built-in rig whose bottom joint's model has three times the damping D."""
+    rig = config.load()
+    return rig.source.replace('name = "bottom"\n', 'name = "bottom"\nmodel = "bottom-damped"\n', 1) + \
+        f'\n[models.bottom-damped]\nbased_on = "bottom"\nD = {3.0 * rig.joint_models["bottom"].D}\n'
 
 
 def pneumactl(*args: str) -> subprocess.CompletedProcess:
@@ -43,10 +52,7 @@ def test_a_recorded_run_replayed_on_its_rigs_model_comes_out_within_the_noise(re
 
 
 def test_a_replay_on_a_rig_file_whose_model_differs_shows_where_they_part(recorded, tmp_path):
-    rig = config.load()
-    damped = 3.0 * rig.joint_models["bottom"].D
-    text = rig.source.replace('name = "bottom"\n', 'name = "bottom"\nmodel = "bottom-damped"\n', 1) + \
-        f'\n[models.bottom-damped]\nbased_on = "bottom"\nD = {damped}\n'
+    text = damped_rig()
     (tmp_path / "damped.toml").write_text(text)
     result = replay(open_run(recorded), text)
     bottom, middle = result["joints"]["bottom"], result["joints"]["middle"]
@@ -55,6 +61,19 @@ def test_a_replay_on_a_rig_file_whose_model_differs_shows_where_they_part(record
     assert middle["fit_percent"] > 90.0, middle
     done = pneumactl(str(recorded), "--config", str(tmp_path / "damped.toml"), "--out", str(tmp_path / "out"))
     assert done.returncode == 0 and "bottom: Fit" in done.stdout and "parted at" in done.stdout, done.stderr
+
+
+def test_the_documents_replay_lines_run_on_a_recording_and_a_rig_file_whose_model_differs(recorded, tmp_path):
+    (tmp_path / "recordings").mkdir()
+    shutil.copy(recorded, tmp_path / "recordings" / "swing.mcap")
+    (tmp_path / "damped.toml").write_text(damped_rig())
+    lines = doc_blocks.commands("docs/model.md", "Replaying a run")
+    assert len(lines) == 2
+    own, damped = (doc_runs.run(line, tmp_path, timeout=600) for line in lines)
+    for done in (own, damped):
+        assert done.returncode == 0 and "bottom: Fit" in done.stdout, (done.command.text, done.stderr)
+    assert "never parted" in own.stdout.splitlines()[0] and "parted at" in damped.stdout.splitlines()[0]
+    assert (tmp_path / "swing-damped" / "replay-bottom.png").exists()
 
 
 def test_a_recording_without_what_a_replay_needs_is_refused_with_what_is_missing(recorded):
