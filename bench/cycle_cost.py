@@ -60,8 +60,9 @@ def main() -> None:
                 loop.supervisor.check(loop.snapshot.angles, loop.velocities, (), 0.0)),
             "  control: reference + PID": lambda: loop._control(clock.t),
             "  write: pressures, clamps, drivers, DAC": loop._write_command,
-            "  telemetry row": lambda: loop.telemetry.record(loop),
-            "  command poll (nothing pending)": lambda: server.poll(loop),
+            "  cycle record (the layout's spans)": lambda: loop._record(loop.snapshot),
+            "  telemetry row (the record packed)": lambda: loop.telemetry.record(loop),
+            "  command poll (nothing pending)": lambda: server.poll(loop.cycle),
         }
         cycle_state = JointState(0.0, loop.angles, loop.velocities), Reference(*loop.reference)
         parts["    of which PID step"] = lambda: loop.controller.step(*cycle_state)

@@ -234,9 +234,10 @@ class Reader(threading.Thread):
                 self.lost += m["seq"] - last - 1
             last = m["seq"]
             self.messages += 1
-            if self.keep:
-                for c, sp in zip(m["cycle"], m["setpoint_rad"]):
-                    self.setpoints[c] = sp[0]
+            if self.keep:  # the first joint's set-point (the cycle record's first <joint>.setpoint field)
+                first = next(name for name in m if name.endswith(".setpoint"))
+                for c, sp in zip(m["cycle"], m[first]):
+                    self.setpoints[c] = sp
         self.sock.close(linger=0)
 
 

@@ -1,16 +1,19 @@
 """The cycle record's layout is built from the interfaces a rig declares: every rig's fields
 are named once, group by group in slices the loop writes, and read back from ``describe``."""
 import math
+import re
+from pathlib import Path
 
 import pytest
 
 from daemon.wire.cycle_layout import MODES, CycleLayout
 from hal import config
 from hal.declare import declare
-from hal.interfaces import ROTARY, CommandInterface, JointInterfaces, RigInterfaces, StateInterface
+from hal.interfaces import LINEAR, ROTARY, CommandInterface, JointInterfaces, RigInterfaces, StateInterface
 
 
 def layout_of(name: str) -> CycleLayout:
+    """A built-in rig's layout (its outputs in every built-in transport's order)."""
     rig = config.load(name)
     return CycleLayout.of(declare(rig, [c for j in rig.joints for _, c in j.output_channels()]))
 
@@ -55,3 +58,48 @@ def test_a_joint_named_as_a_record_field_is_refused(bad):
                             (CommandInterface(bad, "v_mv", "V", -4, 6),), ("head", "rod"))
     with pytest.raises(ValueError, match="may not"):
         CycleLayout.of(RigInterfaces((joint,), (StateInterface("", "force", "N"),), ("ao0",)))
+
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
+
+
+def documented_fields() -> list[tuple[str, re.Pattern, set[str] | None, str]]:
+    """docs/protocol.md's cycle-record table: (pattern, its regex, units (None: any), group)."""
+    text = DOC.read_text()
+    table = text[text.index("\n", text.index("<!-- cycle-record:begin")) + 1:text.index("<!-- cycle-record:end -->")]
+    rows = []
+    for line in table.strip().splitlines()[2:]:
+        pattern, unit, group = (c.strip().strip("`") for c in line.strip().strip("|").split("|")[:3])
+        regex = re.compile("^" + re.sub(r"<\w+>", "[^.]+", re.escape(pattern).replace(r"\<", "<").replace(r"\>", ">"))
+                           + "$")
+        rows.append((pattern, regex, None if unit == "any" else {u.strip() for u in unit.split(",")}, group))
+    return rows
+
+
+def rig_with_inputs() -> RigInterfaces:
+    """A joint with a further input of its own and a rig-level one (no built-in rig has both)."""
+    joint = JointInterfaces("slide", LINEAR, "cylinder", ("head", "rod"),
+                            (StateInterface("slide", "position", "m"), StateInterface("slide", "velocity", "m/s"),
+                             StateInterface("slide", "p_head", "Pa"), StateInterface("slide", "temperature", "K")),
+                            (CommandInterface("slide", "v_mv", "V", -4, 6),), ("head", "rod"))
+    return RigInterfaces((joint,), (StateInterface("", "supply_pressure", "Pa"), StateInterface("", "humidity", "%")),
+                         ("ao0", "ao1"))
+
+
+def test_the_protocol_documents_cycle_record_table_names_every_field_of_every_rig():
+    """Each field of each built-in rig's layout (and of a rig with further inputs) matches one
+    row of the table (a literal name first, then the patterns with the fewest placeholders, in
+    the table's order), with that row's group and one of its units; every row is some rig's."""
+    rows = sorted(documented_fields(), key=lambda r: r[0].count("<"))
+    used = set()
+    layouts = [layout_of(name) for name in ("sim", "sim-3joint", "sim-muscle", "sim-axis")]
+    layouts.append(CycleLayout.of(rig_with_inputs()))
+    for layout in layouts:
+        for f in layout.fields:
+            row = next((r for r in rows if r[0] == f.name), None) or next((r for r in rows if r[1].match(f.name)), None)
+            assert row is not None, f"{f.name}: not in docs/protocol.md's cycle-record table"
+            pattern, _, units, group = row
+            assert f.group == group, (f.name, pattern, f.group, group)
+            assert units is None or f.unit in units, (f.name, pattern, f.unit, units)
+            used.add(pattern)
+    assert used == {r[0] for r in rows}, {r[0] for r in rows} - used

@@ -114,7 +114,8 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
                 c.renew_lease()
             status = c.status()
             assert status["state"] == "enabled"
-            assert abs(status["joints"]["bottom"]["angle_deg"] - 130.0) < 5.0
+            bottom = status["joints"]["bottom"]
+            assert bottom["unit"] == "deg" and abs(bottom["position"] - 130.0) < 5.0
             c.release_lease()
 
         ctl = [BIN / "pneumactl", *sum(([f"--{k}", v] for k, v in eps.items()), [])]
@@ -136,7 +137,7 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         out = subprocess.run([*ctl, "export", str(rec), str(csv)], capture_output=True, text=True, env=env_with(), timeout=30)
         assert out.returncode == 0, out.stderr
         lines = csv.read_text().splitlines()
-        assert lines[0].startswith("cycle,t,bottom.angle_rad,middle.angle_rad") and len(lines) > 500
+        assert lines[0].startswith("cycle [-],t [s],bottom.position [rad],middle.position [rad]") and len(lines) > 500
         out = subprocess.run([*ctl, "controller", "set", "Kp=-3"], capture_output=True, text=True, env=env_with(), timeout=30)
         assert out.returncode == 1 and "outside" in out.stderr
 

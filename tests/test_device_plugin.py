@@ -2,6 +2,7 @@
 wheel pip installs), found through the entry-point group ``pneumad.devices`` as the built-in kinds
 are: declared by the rig that names it, read on the simulator, accepted by ``pneumad --check``;
 and a plugin that fails to import refused at ``--check`` with its own error."""
+import json
 import os
 import subprocess
 import sys
@@ -77,3 +78,47 @@ def test_the_built_in_transports_are_entry_points_too():
     with pytest.raises(ConfigError, match=r"transport\.backend: unknown backend 'warp' \(installed: can, modbus, "
                                           r"serial, sim; a backend of your own is a package with an entry point in the group 'pneumad\.transports'"):
         load_backend("warp")
+
+
+@pytest.mark.slow(seconds=5)
+def test_a_plugins_further_input_reaches_every_reader_of_the_cycle_record(tmp_path, monkeypatch):
+    """The plugin's thermocouple, declared by the rig file and nothing else: a field of the cycle
+    layout, so it is in describe, every state message, status, a recording's samples, its
+    numpy columns and CSV, and the Foxglove channels, with no code that names it."""
+    from daemon.recordings import mcap_log, reading
+    from daemon.recordings.channels import SENSORS, Frames, json_schemas
+    from daemon.testing.loop import dealer, make_loop, ok
+
+    monkeypatch.syspath_prepend(str(device_plugin.install(tmp_path)))
+    loop, captured, srv = make_loop(device_plugin.rig_text(AXIS), server=True, controller="hold")
+    try:
+        sock = dealer(srv)
+        describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
+        run_seconds(loop, 0.2)
+        status = ok(loop, sock, "status")
+    finally:
+        srv.close()
+    oil = 338.15  # [K]: the simulator reads the middle of its range
+    field = next(f for f in describe["cycle_layout"] if f["name"] == "oil_temperature")
+    assert (field["unit"], field["group"], field["owner"]) == ("K", "measured", "")
+    state = captured.of("state")[-1]
+    assert state["layout"] == describe["cycle_layout_id"] and state["oil_temperature"][-1] == pytest.approx(oil, abs=0.2)
+    assert status["rig"]["oil_temperature"] == pytest.approx(oil, abs=0.2)
+    assert status["joints"]["axis"]["unit"] == "mm"  # a linear joint in its own unit
+    path = tmp_path / "oil.mcap"
+    with open(path, "wb") as f:
+        recording = mcap_log.McapRecording(f, describe, controller)
+        for topic, message in captured.messages:
+            recording.write(topic, message)
+        recording.finish()
+    run = reading.open_run(path)
+    assert run.layout.id == describe["cycle_layout_id"]
+    assert run.samples[-1]["oil_temperature"] == pytest.approx(oil, abs=0.2)
+    assert reading.load(path)["oil_temperature"][-1] == pytest.approx(oil, abs=0.2)
+    reading.export_csv(path, tmp_path / "oil.csv")
+    header, *rows = (tmp_path / "oil.csv").read_text().splitlines()
+    column = header.split(",").index("oil_temperature [K]")
+    assert float(rows[-1].split(",")[column]) == pytest.approx(oil, abs=0.2)
+    assert "oil_temperature" in json_schemas(describe)[SENSORS]["properties"]
+    frames = [data for topic, _, data in Frames(describe).state(state, rows=[0]) if topic == SENSORS]
+    assert json.loads(frames[0])["oil_temperature"] == pytest.approx(oil, abs=0.2)

@@ -243,7 +243,7 @@ def test_a_daemon_tracks_a_move_through_the_firmware_as_in_process(device_bridge
     subscription = client.subscribe((b"state",))
     try:
         time.sleep(0.2)  # holding, as the in-process move holds 200 cycles
-        start = [j["setpoint_deg"] for j in client.status()["joints"].values()]
+        start = [j["setpoint"] for j in client.status()["joints"].values()]  # [deg]
         moved = client.set(angles_deg=[a + d for a, d in zip(start, MOVE_DEG)], duration_s=MOVE_S)
         end_cycle = moved["cycle"] + int((MOVE_S + 1.0) * 1000)
         worst, times, cycle = [0.0, 0.0], [], 0
@@ -251,7 +251,7 @@ def test_a_daemon_tracks_a_move_through_the_firmware_as_in_process(device_bridge
             got = subscription.receive(timeout=WAIT_S)
             assert got is not None, "no state message"
             rows = got[1]
-            for cycle, t, errors in zip(rows["cycle"], rows["t"], rows["error_rad"]):
+            for cycle, t, *errors in zip(rows["cycle"], rows["t"], rows["bottom.error"], rows["middle.error"]):
                 if moved["cycle"] <= cycle < end_cycle:
                     worst = [max(w, abs(math.degrees(e))) for w, e in zip(worst, errors)]
                     times.append(t)

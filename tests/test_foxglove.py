@@ -21,7 +21,17 @@ from daemon.client import plots
 from daemon.client.client import Client
 from daemon.loop.port import foxglove_address
 from daemon.recordings import layout
-from daemon.recordings.channels import JOINT_STATES, LOG, LOOP, PRESSURES, TRACKING, Frames, json_schemas, ns
+from daemon.recordings.channels import (
+    COMMANDED_PRESSURES,
+    JOINT_STATES,
+    LOG,
+    LOOP,
+    MEASURED_PRESSURES,
+    TRACKING,
+    Frames,
+    json_schemas,
+    ns,
+)
 from daemon.testing.foxglove_client import FoxgloveClient, protobuf_class
 from daemon.testing.loop import dealer, make_loop, ok
 from hal.errors import ConfigError
@@ -102,7 +112,7 @@ def test_joint_states_at_loop_rate_and_events_as_log(fox):
     assert any("to=enabled" in text for text in logs), logs
     tracking = {t: m for topic, t, m in others if topic == TRACKING}
     at, js = next((t, m) for t, m in reversed(received) if t in tracking)
-    assert tracking[at]["joints"]["middle"]["angle_deg"] == pytest.approx(math.degrees(js.joints[1].position))
+    assert tracking[at]["joints"]["middle"]["position_deg"] == pytest.approx(math.degrees(js.joints[1].position))
 
 
 def test_layout_names_only_advertised_channels_and_fields(fox):
@@ -267,9 +277,11 @@ def test_foxglove_listens_on_loopback_unless_insecure():
         foxglove_address("8765", False)
 
 
-def test_each_panel_says_what_its_channel_holds_the_pressures_are_commands():
-    """The pressures channel holds the chamber pressure commands the loop wrote (not a sensor's
-    reading): its panel and its schema say so, and the loop panel's work line is the cycle's total."""
+def test_each_panel_says_what_its_channel_holds_commanded_and_measured_pressures_apart():
+    """The commanded pressures channel holds the chamber pressure commands the loop wrote (not
+    a sensor's reading): its panel and its schema say so. On a rig with chamber transmitters
+    (the muscle rig) the measured pressures have a channel and panels of their own. The loop
+    panel's work line is the cycle's total."""
     loop, captured, srv = make_loop(server=True)
     try:
         describe = ok(loop, dealer(srv), "describe")
@@ -278,20 +290,44 @@ def test_each_panel_says_what_its_channel_holds_the_pressures_are_commands():
     finally:
         srv.close()
     state = captured.of("state")[-1]
-    head, rod = state["p_head_pa"][-1], state["p_rod_pa"][-1]
-    assert loop.io.volts_for(head, rod) == pytest.approx(state["out_volts"][-1])  # the commands the regulators were sent
+    head, rod = [state[f"{j}.p_head_cmd"][-1] for j in ("bottom", "middle")], [state[f"{j}.p_rod_cmd"][-1]
+                                                                               for j in ("bottom", "middle")]
+    written = [state[f"out.{ch.name}"][-1] for ch in loop.io.transport.outputs]
+    assert loop.io.volts_for(head, rod) == pytest.approx(written)  # the commands the regulators were sent
     frames = {topic: json.loads(data) for topic, _, data in Frames(describe).state(state, rows=[len(state["cycle"]) - 1])
-              if topic == PRESSURES}
-    assert [frames[PRESSURES]["joints"][j]["p_head_kpa"] * 1e3 for j in ("bottom", "middle")] == pytest.approx(head)
-    schema_title = json_schemas(describe)[PRESSURES]["title"]
-    assert "commands" in schema_title and "measured" not in schema_title.replace("not measured", "")
+              if topic != JOINT_STATES}
+    assert [frames[COMMANDED_PRESSURES]["joints"][j]["p_head_cmd_kpa"] * 1e3 for j in ("bottom", "middle")] == \
+        pytest.approx(head)
+    assert MEASURED_PRESSURES not in frames and MEASURED_PRESSURES not in json_schemas(describe)  # no transmitter
+    schema_title = json_schemas(describe)[COMMANDED_PRESSURES]["title"]
+    assert "COMMANDED" in schema_title and "measured" not in schema_title.replace("not measured", "")
     panels = list(plot_panels(json.loads(layout.build(describe).to_json())))
-    pressure_panels = [p for p in panels if any(s["value"].startswith(PRESSURES) for s in p["config"]["paths"])]
+    pressure_panels = [p for p in panels if any(s["value"].startswith("/pneumad/") and "pressures" in s["value"]
+                                                for s in p["config"]["paths"])]
     assert len(pressure_panels) == 2
     for panel in pressure_panels:
-        assert "pressure commands" in panel["title"] and "measured" not in panel["title"], panel["title"]
+        assert "pressures commanded" in panel["title"] and "measured" not in panel["title"], panel["title"]
     work = [s for p in panels for s in p["config"]["paths"] if s["value"] == f"{LOOP}.compute_us.p99"]
     assert work and "read to commands" in work[0]["label"]  # the channel's compute_us is the stats' total
+
+    from importlib import resources
+    loop, captured, srv = make_loop(resources.files("hal").joinpath("sim_muscle.toml").read_text(), server=True,
+                                    controller="muscle_eq")
+    try:
+        describe = ok(loop, dealer(srv), "describe")
+        loop.enable()
+        loop.run(300)
+    finally:
+        srv.close()
+    state = captured.of("state")[-1]
+    frames = {topic: json.loads(data) for topic, _, data in Frames(describe).state(state, rows=[len(state["cycle"]) - 1])
+              if topic != JOINT_STATES}
+    measured, commanded = frames[MEASURED_PRESSURES]["joints"]["elbow"], frames[COMMANDED_PRESSURES]["joints"]["elbow"]
+    assert set(measured) == {"p_a_kpa", "p_b_kpa"} and set(commanded) == {"p_a_cmd_kpa", "p_b_cmd_kpa"}
+    assert measured["p_a_kpa"] * 1e3 == pytest.approx(state["elbow.p_a"][-1])
+    assert commanded["p_a_cmd_kpa"] * 1e3 == pytest.approx(state["elbow.p_a_cmd"][-1])
+    titles = [p["title"] for p in plot_panels(json.loads(layout.build(describe).to_json()))]
+    assert "elbow: chamber pressures measured" in titles and any("pressures commanded" in t for t in titles)
 
 
 def plot_panels(value):

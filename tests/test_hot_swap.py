@@ -51,7 +51,7 @@ def assert_bumpless(loop, captured, cycle):
     of cycle + 1 holds the new controller's first output: within 1 % of the command range of
     the last output of the old one."""
     loop.run(20)  # flush the telemetry batch
-    u = {c: row for m in captured.of("state") for c, row in zip(m["cycle"], m["u_volts"])}
+    u = dict(captured.series(captured.fields("command")))
     span = [hi - lo for lo, hi in zip(loop.context.u_min, loop.context.u_max)]
     before, after = u[cycle], u[cycle + 1]
     assert all(abs(a - b) <= 0.01 * s for a, b, s in zip(after, before, span)), (before, after)
@@ -119,8 +119,9 @@ def test_a_shadow_run_publishes_what_it_would_command_and_commits_bumplessly(mov
     loop.run(20)  # flush the telemetry batch that holds the status's cycle
     # The rows of exactly the cycles the status covers (the virtual-clock loop runs on while a
     # reply travels in real time, so a count taken before the request would cover fewer).
-    rows = [(u, s) for m in captured.of("state") for c, u, s in zip(m["cycle"], m["u_volts"], m["shadow_u_volts"])
-            if s is not None and c <= status["cycle"]]
+    commands, shadow = captured.fields("command"), captured.fields("shadow")
+    rows = [(v[:len(commands)], v[len(commands):]) for c, v in captured.series(commands + shadow)
+            if not math.isnan(v[-1]) and c <= status["cycle"]]
     assert len(rows) > 1500 and loop.controller.name == "pid"
     assert status["shadow"]["controller"] == "smc_dob" and status["shadow"]["cycles"] == len(rows)
     for j in range(loop.n):  # the run's comparison is that of the published outputs

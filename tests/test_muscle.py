@@ -190,13 +190,13 @@ def test_telemetry_and_recordings_carry_the_muscle_commands_by_name():
     loop = make_loop("muscle_eq", rig="sim-muscle")
     captured = Captured()
     captured.follow(loop)
-    loop.telemetry = Telemetry(captured)
+    loop.telemetry = Telemetry(captured, loop.layout)
     loop.set_trajectory(JointMove(list(loop.reference[0]), [30 * DEG], 0.5), "move")
     loop.run(1500)
     columns = captured.of("state")[-1]
-    assert len(columns["u_volts"][-1]) == 3 and len(columns["p_head_pa"][-1]) == 1
-    assert columns["p_head_pa"][-1][0] == pytest.approx(columns["u_volts"][-1][0], rel=0.05)  # muscle a's command
-    describe = {"joints": [{"name": "elbow"}], "command_interfaces": [c.describe() for c in loop.actuation.commands]}
-    sample = next(mcap_log.state_samples(columns, ["elbow"], ["ao0", "ao1", "ao2"], mcap_log.command_fields(describe)))
-    assert math.isnan(sample["joints"]["elbow"]["u_volts"])  # no V_MV on a muscle joint
-    assert set(sample["commands"]) == {"elbow.pressure_a", "elbow.pressure_b", "elbow.brake"}
+    assert [n for n in columns if n.startswith("elbow.u.")] == ["elbow.u.pressure_a", "elbow.u.pressure_b",
+                                                                 "elbow.u.brake"]  # no V_MV on a muscle joint
+    assert columns["elbow.p_a_cmd"][-1] == pytest.approx(columns["elbow.u.pressure_a"][-1], rel=0.05)  # a's command
+    assert columns["elbow.p_a"][-1] != columns["elbow.p_a_cmd"][-1]  # measured: the muscle's own, lagging
+    sample = next(mcap_log.state_samples(loop.layout, columns))
+    assert set(sample) == set(loop.layout.names) and sample["elbow.u.brake"] == columns["elbow.u.brake"][0]

@@ -66,10 +66,10 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
                         status = client.status()
                         elbow = status["joints"]["elbow"]
                         assert status["state"] == "enabled", (line, elbow, status["cause"])
-                        if abs(elbow["angle_deg"] - target) < 0.05 * 45 or time.monotonic() > deadline:
+                        if abs(elbow["position"] - target) < 0.05 * 45 or time.monotonic() > deadline:
                             break
                         time.sleep(0.1)
-                    assert abs(elbow["angle_deg"] - target) < 0.05 * 45, (line, elbow)
+                    assert elbow["unit"] == "deg" and abs(elbow["position"] - target) < 0.05 * 45, (line, elbow)
                     assert elbow["stiffness_nm_deg"] == pytest.approx(float(line.split("--stiffness")[1].split()[0]))
             # a stiffness the muscles cannot give is refused with the range they can
             client.acquire_lease()

@@ -40,7 +40,7 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
             client.keep_lease()
             client.enable()
             joints = client.status()["joints"]
-            target = [joints["bottom"]["angle_deg"], joints["middle"]["angle_deg"] + 1.0]
+            target = [joints["bottom"]["position"], joints["middle"]["position"] + 1.0]  # [deg]
             client.set(target, duration_s=1.0)
             # Rows until the 1 s move has ended and 1000 state rows are in (2 s on a quiet machine;
             # a busy one's loop skips cycles, so the rows are waited for, up to a bound for a hang).

@@ -171,7 +171,7 @@ def test_set_point_takes_effect_at_the_next_cycle(daemon):
     cycle = loop.cycle  # the reply came at the end of this cycle
     loop.run(2)
     loop.telemetry.flush()
-    rows = {c: s for m in captured.of("state") for c, s in zip(m["cycle"], m["setpoint_rad"])}
+    rows = dict(captured.series(captured.fields("reference", "setpoint")))
     assert [math.degrees(a) for a in rows[cycle + 1]] == pytest.approx(target)
 
 

@@ -201,9 +201,9 @@ def test_the_readme_tour_runs_as_written(tour):
             # the notebook lines, on the recording the tour made
             snippet = doc_blocks.snippet("README.md", "A short tour", match=r"recordings\.load\(").text
             shown = re.findall(r'data\["([^"]+)"\]', snippet)  # every key its comment shows is in the recording
-            assert "middle.angle_rad" in shown
+            assert "middle.position" in shown
             check = f"\nmissing = [k for k in {shown!r} if k not in data]\nassert not missing, missing" \
-                    "\nassert len(data['middle.angle_rad']) > 1000"
+                    "\nassert len(data['middle.position']) > 1000"
             done = subprocess.run([sys.executable, "-c", snippet + check], cwd=work, capture_output=True, text=True,
                                   timeout=60)
             assert done.returncode == 0, (snippet, done.stderr)

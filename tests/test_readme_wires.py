@@ -37,5 +37,5 @@ def test_the_readme_wire_lines_run_as_written(wire, tmp_path):
         assert done.returncode == 0, (line, done.stderr, client.status()["cause"])
 
     status = run_pair(peer, daemon_line.text, values, tmp_path, hold_s=10.0, move=move)  # the move among the 10 s
-    assert abs(status["joints"]["bottom"]["angle_deg"] - 130.0) < 1.0
+    assert abs(status["joints"]["bottom"]["position"] - 130.0) < 1.0  # [deg]: the joint's unit
     assert status["transport"]["reads"] > 1000 and status["transport"]["errors"] == 0, status["transport"]

@@ -163,8 +163,9 @@ def test_a_chirp_on_one_joint_moves_that_joint_and_holds_the_other(armed):
     ok(loop, sock, "excite", {"signal": "chirp", "joint": "bottom", "amplitude_deg": 1.0, "f0_hz": 0.1,
                               "f1_hz": 0.5, "duration_s": 20.0}, lease)
     run_seconds(loop, 20.0)
-    rows = [(q, r) for m in captured.of("state") for c, q, r in zip(m["cycle"], m["angle_rad"], m["setpoint_rad"])
-            if c > start_cycle]
+    n = loop.n
+    rows = [(v[:n], v[n:]) for c, v in captured.series(captured.fields("measured", "position")
+                                                       + captured.fields("reference", "setpoint")) if c > start_cycle]
     bottom = [math.degrees(q[0] - here[0]) for q, _ in rows]
     assert max(bottom) > 0.7 and min(bottom) < -0.7  # the loop follows the slow part of the sweep
     assert max(abs(math.degrees(r[1] - here[1])) for _, r in rows) == 0.0
@@ -250,8 +251,8 @@ def test_a_path_starts_once_the_arm_has_settled_on_its_start_so_its_first_sample
     assert events["end"]["cut"] == ""
     settled = events.get("settled")  # when the path's clock started; straight after the approach before
     start = settled["cycle"] if settled else events["start"]["cycle"] + 1 + round(result["approach_s"] / loop.period)
-    rows = [(c, [abs(math.degrees(x)) for x in e]) for m in captured.of("state")
-            for c, e in zip(m["cycle"], m["error_rad"]) if start <= c <= events["end"]["cycle"]]
+    rows = [(c, [abs(math.degrees(x)) for x in e]) for c, e in captured.series(captured.fields("reference", "error"))
+            if start <= c <= events["end"]["cycle"]]
     first, worst = rows[0][1], [max(e[j] for _, e in rows) for j in range(loop.n)]
     early = [max(e[j] for c, e in rows if c < start + 500) for j in range(loop.n)]  # the path's first 0.5 s
     assert all(f <= 0.3 for f in first), (first, worst)

@@ -32,6 +32,7 @@ import logging
 import os
 import secrets
 import time
+from collections.abc import Callable
 
 from controllers import registry
 from controllers.base import ParamError
@@ -70,8 +71,11 @@ class Commands:
         self.loop = loop
         self.security = security or {"mode": "local", "warning": None}
         self.client = ANONYMOUS  # who sent the request being handled
-        self.lease = Lease(loop)
-        self.timing = TimingVerdicts(loop, loop.view, loop.events)  # the messenger's verdicts on the loop's timing
+        self.lease = Lease(loop.handles, loop.hold, loop.disable)
+        # the port's health fields of status (telemetry, helpers), where a port serves the loop
+        self.port_health: Callable[[], dict] | None = None
+        self.events = loop.handles.events  # the loop's event log: who asked signs what a request causes
+        self.timing = TimingVerdicts(loop, loop.view, self.events)  # the messenger's verdicts on the loop's timing
         self.requests = 0
         self.errors = 0
         # Which daemon answers (ping, status): a client on a shared machine can tell its own.
@@ -85,7 +89,7 @@ class Commands:
         for refused in self.refused_controllers:  # at start-up, before the loop cycles: logged once, and an event
             log.warning("controller %s refused: %s (requests for it are refused; controller.list and status say so)",
                         refused["name"], refused["error"])
-            loop.events.add({"kind": "plugin", "name": refused["name"], "cause": refused["error"]})
+            self.events.add({"kind": "plugin", "name": refused["name"], "cause": refused["error"]})
         self.described = self._build_describe()  # what describe answers, packed once: it is large and never changes
         self._describe_packed = P.Packed.of(self.described)
         self._plan_context = planner.PlanContext.of(self.view.rig, self.view.context)
@@ -101,7 +105,7 @@ class Commands:
         off the loop comes back as a Deferred: see :meth:`complete`."""
         self.requests += 1
         self.client = client
-        with self.loop.events.signed(str(client)):
+        with self.events.signed(str(client)):
             return self._handle_request(request, control)
 
     def _handle_request(self, request: dict, control: bool) -> bytes | Deferred:
@@ -125,7 +129,7 @@ class Commands:
     def complete(self, deferred: Deferred) -> bytes:
         """The reply to a deferred command whose work is done: its result applied now, at
         this cycle boundary, or the error that stopped it."""
-        with self.loop.events.signed(str(deferred.client)):
+        with self.events.signed(str(deferred.client)):
             return self._complete(deferred)
 
     def _complete(self, deferred: Deferred) -> bytes:
@@ -208,6 +212,8 @@ class Commands:
         fields["controllers_refused"] = self.refused_controllers
         fields["timing"] = self.timing.status
         fields["daemon"] = self.daemon
+        if self.port_health is not None:
+            fields.update(self.port_health())
         return fields
 
     def describe(self, args):

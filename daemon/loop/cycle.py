@@ -29,6 +29,7 @@ from daemon.loop.record import RecordSpans
 from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
+from daemon.loop.handles import LoopHandles, LoopQueries
 from daemon.loop.view import LoopView
 from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
 from hal import sensors
@@ -36,7 +37,7 @@ from hal.errors import CommandError, TransportError
 from hal.rig import RigIO, Snapshot
 
 
-class ControlLoop(LoopControls):
+class ControlLoop(LoopControls, LoopQueries):
     def __init__(self, io: RigIO, clock, parts: LoopParts, layout: CycleLayout, telemetry=None, server=None,
                  contact_sensor=None, stats: LoopStats | None = None):
         """The loop over ``io`` on ``clock``, from ``parts`` built beforehand (:mod:`daemon.assembly`),
@@ -98,10 +99,17 @@ class ControlLoop(LoopControls):
         # the cycle record: written at the end of each cycle (_record), read by telemetry and status
         self.layout = layout
         self.record = layout.record()
+        self._mode_of, self._mode_index = None, 0.0  # the state whose index the record holds, and the index
+        self._shadow_written = True  # a candidate's commands are in the record (NaN to be written over them)
         self._spans = RecordSpans.of(layout, self.n, [f"{c.joint}.{c.name}" for c in self.actuation.commands],
                                      [i for i, d in enumerate(io.head) if d is not None], len(sensors.measured(self.rig)),
                                      len(io.transport.outputs))
-        self.view = LoopView(self)  # what status and describe read
+        self.handles = LoopHandles(
+            self.rig, self.context, self.controller_plugins, self.period, self.actuation.commands, io.transport, clock,
+            self.supervisor, self.events, self.stats, self.feed_forward, tuple(io.joint_outputs), contact_sensor, layout,
+            self.record, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
+            self._faults, self._stiffness)
+        self.view = LoopView(self.handles)  # what status and describe read
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> None:
@@ -226,7 +234,7 @@ class ControlLoop(LoopControls):
                 self.telemetry.stats(window)
         t4 = clock.now()
         if self.server is not None:
-            self.server.poll(self)
+            self.server.poll(self.cycle)
         if self.heartbeat is not None and wake >= self._heartbeat_due:
             self._heartbeat_due += self.heartbeat_interval
             self.heartbeat(self)
@@ -236,25 +244,35 @@ class ControlLoop(LoopControls):
         """This cycle's record, group by group (:class:`daemon.loop.record.RecordSpans`): NaN
         for the commands outside ``enabled`` (the safe state is written, no command is in force),
         for the sensors when this cycle's read failed, and for the shadow without a candidate."""
-        r, s, setpoint = self.record, self._spans, self.reference[0]
+        r, angles, setpoint = self.record, self.angles, self.reference[0]
+        (position, velocity, at_setpoint, error, command, first, second, pressure_joints, sensors, outputs, shadow,
+         mode, no_commands, no_sensors) = self._spans
+        state = self.supervisor.state
         r[0] = self.cycle
         r[1] = snap.t if snap is not None else self.clock.now()
-        r[s.position] = self.angles
-        r[s.velocity] = self.velocities
-        r[s.setpoint] = setpoint
-        r[s.error] = map(sub, setpoint, self.angles)
-        r[s.command] = self.u if self.supervisor.enabled else s.no_commands
-        if s.pressure_joints is None:
-            r[s.commanded_first] = self.p_head
-            r[s.commanded_second] = self.p_rod
+        r[position] = angles
+        r[velocity] = self.velocities
+        r[at_setpoint] = setpoint
+        r[error] = map(sub, setpoint, angles)
+        r[command] = self.u if state is State.ENABLED else no_commands
+        if pressure_joints is None:
+            r[first] = self.p_head
+            r[second] = self.p_rod
         else:
-            r[s.commanded_first] = [self.p_head[i] for i in s.pressure_joints]
-            r[s.commanded_second] = [self.p_rod[i] for i in s.pressure_joints]
-        r[s.sensors] = snap.measured if snap is not None else s.no_sensors
-        r[s.outputs] = self.io.last_volts
-        shadow = self.shadow_run.u if self.shadow_run is not None else None
-        r[s.shadow] = shadow if shadow is not None else s.no_commands
-        r[s.mode] = MODE_INDEX[self.supervisor.state]
+            r[first] = [self.p_head[i] for i in pressure_joints]
+            r[second] = [self.p_rod[i] for i in pressure_joints]
+        r[sensors] = snap.measured if snap is not None else no_sensors
+        r[outputs] = self.io.last_volts
+        run = self.shadow_run
+        if run is not None and run.u is not None:
+            r[shadow] = run.u
+            self._shadow_written = True
+        elif self._shadow_written:  # NaN stays written until a candidate runs again
+            r[shadow] = no_commands
+            self._shadow_written = False
+        if state is not self._mode_of:  # (an Enum's hash is a Python call: looked up once a change)
+            self._mode_of, self._mode_index = state, MODE_INDEX[state]
+        r[mode] = self._mode_index
 
     def _update_measurement(self, snap: Snapshot) -> None:
         """Keep the last valid angle per joint (one bad sample is not yet a fault) and a

@@ -32,9 +32,12 @@ HOLD_S = 5.0  # a lease held over across a messenger restart: at most this long 
 
 
 class Lease:
-    def __init__(self, loop):
-        self.loop = loop
-        self.safety = loop.rig.safety
+    def __init__(self, handles, hold: Callable[[], None], disable: Callable[[], None]):
+        """On the loop's ``handles`` (:mod:`daemon.loop.handles`: its clock, supervisor, events,
+        the reference's time left), with its named controls ``hold`` and ``disable``."""
+        self._clock, self._supervisor, self._events = handles.clock, handles.supervisor, handles.events
+        self._reference, self._hold, self._disable = handles.reference, hold, disable
+        self.safety = handles.rig.safety
         self.token: str | None = None
         self.holder = ANONYMOUS
         self.expires = 0.0
@@ -57,7 +60,7 @@ class Lease:
             raise CommandFailed(P.FORBIDDEN, f"key {client} is an observer: it may read, watch and e-stop, never "
                                              f"take the lease", {"reason": "role", "role": OBSERVER})
         if self.token is not None:
-            now = self.loop.clock.now()
+            now = self._clock.now()
             who = f"key {self.holder.name!r}" if self.holder.name else "another client"
             if self.renewals:
                 keeping = (f"and keeps renewing it (last {now - self.renewed_at:.1f} s ago, "
@@ -68,13 +71,13 @@ class Lease:
             raise CommandFailed(P.LEASE_HELD, f"{who} holds the lease {keeping}",
                                 {"reason": "held", "holder": self.holder.name})
         self.token, self.holder, self.ttl_active = secrets.token_hex(16), client, ttl
-        self.expires = self.loop.clock.now() + ttl
+        self.expires = self._clock.now() + ttl
         self.renewals, self.held_until = 0, 0.0
         self._tell("acquire", f"for {ttl:g} s at a time")
         return {"lease": self.token, "ttl_s": ttl}
 
     def renew(self) -> dict:
-        self.renewed_at = self.loop.clock.now()
+        self.renewed_at = self._clock.now()
         self.renewals += 1
         self.expires = self.renewed_at + self.ttl_active
         return {"ttl_s": self.ttl_active}
@@ -85,7 +88,7 @@ class Lease:
         commands each hand the lease back, and their user is told once)."""
         self.token, self.unleased_since = None, None
         self._tell("release", "handed back")
-        supervisor = self.loop.supervisor
+        supervisor = self._supervisor
         if not supervisor.enabled:
             return {}
         first, self._told_enable = self._told_enable != supervisor.enables, supervisor.enables
@@ -107,18 +110,18 @@ class Lease:
             return {"ended": False, "cause": ""}
         self.token = None
         cause = f"key {key!r} was revoked while it held the lease: the lease ended"
-        if self.loop.supervisor.enabled:
-            stopped = "the running reference was stopped and " if self.loop.reference_remaining() > 0.0 else ""
-            self.loop.hold()
+        if self._supervisor.enabled:
+            stopped = "the running reference was stopped and " if self._reference()[1] > 0.0 else ""
+            self._hold()
             action = self.safety.unleased_action
             if action == "disable":
-                self.unleased_since = self.loop.clock.now()
+                self.unleased_since = self._clock.now()
                 policy = f"disabled after {self.safety.unleased_grace_s:g} s unless a client takes the lease"
             else:
                 policy = "held until a client takes the lease"
             cause += (f"; {stopped}the arm holds where it is with no lease holder "
                       f"(unleased_action = \"{action}\": {policy})")
-        self.loop.events.add({"kind": "lease_revoked", "key": key, "cause": cause})
+        self._events.add({"kind": "lease_revoked", "key": key, "cause": cause})
         return {"ended": True, "cause": cause}
 
     def check(self, token, client: Identity) -> None:
@@ -141,9 +144,9 @@ class Lease:
     def tick(self) -> None:
         """Once a cycle: a lapsed lease trips an enabled arm; an unleased one that has held
         for the grace time gets the rig file's action."""
-        supervisor = self.loop.supervisor
+        supervisor = self._supervisor
         if self.token is not None:
-            now = self.loop.clock.now()
+            now = self._clock.now()
             if now > self.expires and now > self.held_until and not self._held_over(now):
                 self.token = None
                 self._tell("expire", f"not renewed within {self.ttl_active:g} s")
@@ -154,7 +157,7 @@ class Lease:
 
     def _tell(self, action: str, cause: str) -> None:
         """The ``lease`` event: ``action`` (acquire, release, expire) by its holder."""
-        self.loop.events.add({"kind": "lease", "action": action, "holder": str(self.holder), "cause": cause})
+        self._events.add({"kind": "lease", "action": action, "holder": str(self.holder), "cause": cause})
 
     def _held_over(self, now: float) -> bool:
         """The lease ran out while the messenger, which carries its renewals, is down or
@@ -169,21 +172,21 @@ class Lease:
             self.held_until = max(self.held_until, min(now + self.ttl_active, self.expires + HOLD_S))
 
     def _unleased(self) -> None:
-        if self.safety.unleased_action == "hold" or self.loop.reference_remaining() > 0.0:
+        if self.safety.unleased_action == "hold" or self._reference()[1] > 0.0:
             self.unleased_since = None
             return
-        now = self.loop.clock.now()
+        now = self._clock.now()
         if self.unleased_since is None:
             self.unleased_since = now
         elif now - self.unleased_since > self.safety.unleased_grace_s:
             self.unleased_since = None
-            self.loop.events.add(
+            self._events.add(
                 {"kind": "unleased", "cause": f"the arm held {self.safety.unleased_grace_s:g} s with no client holding "
                                               f"the lease: disabled (rig file [safety] unleased_action)"})
-            self.loop.disable()
+            self._disable()
 
     def disable_in(self) -> float | None:
         """Seconds until an unleased, holding arm is disabled (None if that is not under way)."""
-        if self.unleased_since is None or self.token is not None or not self.loop.supervisor.enabled:
+        if self.unleased_since is None or self.token is not None or not self._supervisor.enabled:
             return None
-        return max(self.safety.unleased_grace_s - (self.loop.clock.now() - self.unleased_since), 0.0)
+        return max(self.safety.unleased_grace_s - (self._clock.now() - self.unleased_since), 0.0)

@@ -117,15 +117,20 @@ class ZmqServer:
         self._replied = False
 
     def attach(self, loop, preparer=None) -> None:
-        self.commands = Commands(loop, preparer, self.security)
-        self.commands.lease.carrier_down = self._messenger_down
-        loop.server = self
-        if loop.stats.banks is not self.stats_banks:
+        """Serve ``loop``: its handlers on its named controls and handles (:mod:`daemon.loop.handles`)."""
+        handles = loop.handles
+        if handles.stats.banks is not self.stats_banks:
             raise ValueError("the loop counts its timing elsewhere: build it with this port's stats_banks")
-        if loop.layout.id != self.layout.id:
-            raise ValueError(f"the loop records on a layout other than its messenger's ({', '.join(loop.layout.names)}; "
+        if handles.layout.id != self.layout.id:
+            raise ValueError(f"the loop records on a layout other than its messenger's ({', '.join(handles.layout.names)}; "
                              f"the messenger's: {', '.join(self.layout.names)}): a transport whose outputs changed "
                              f"when it was opened")
+        self._handles = handles
+        self.commands = Commands(loop, preparer, self.security)
+        self.commands.lease.carrier_down = self._messenger_down
+        self.commands.port_health = lambda: {"telemetry": self.telemetry_health(), "helpers": self.helpers_health(),
+                                             "model": self.model_status()}
+        loop.server = self
         write_metadata(self._rings_dir, self.commands.described, self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
@@ -161,56 +166,59 @@ class ZmqServer:
             health["model"] = self.model.health()
         if self.commands is not None:
             health["planner"] = self.commands.preparer.health()
-            if self.commands.loop.contact_sensor is not None:
-                health["contact"] = self.commands.loop.contact_sensor.health()
-            worker = self.commands.loop.io.transport.worker_health()
+            if self._handles.contact_sensor is not None:
+                health["contact"] = self._handles.contact_sensor.health()
+            worker = self._handles.transport.worker_health()
             if worker is not None:
                 health["exchange"] = worker
         return health
 
-    def poll(self, loop) -> None:
-        """Once a cycle, at its end: the lease clock, then the control requests, then a few
-        commands; every 0.1 s the messenger process, the planner's worker and a transport's
-        exchange worker, every second the other helpers. The heartbeat tells the messenger the loop is cycling."""
-        until = loop.clock.now() + self.command_budget_s
-        self.heartbeat.beat(loop.cycle)
+    def poll(self, cycle: int) -> None:
+        """Once a cycle (``cycle``: the loop's count), at its end: the lease clock, then the
+        control requests, then a few commands; every 0.1 s the messenger process, the planner's
+        worker and a transport's exchange worker, every second the other helpers. The heartbeat
+        tells the messenger the loop is cycling."""
+        clock = self._handles.clock
+        until = clock.now() + self.command_budget_s
+        self.heartbeat.beat(cycle)
         self.commands.tick()
         if self._waiting:
             self._complete()
-        served = self._serve(self.rings["control"], True, MAX_CONTROL_PER_CYCLE, loop.clock, until, 0)
-        self._serve(self.rings["command"], False, self.max_per_cycle, loop.clock, until, served)
+        served = self._serve(self.rings["control"], True, MAX_CONTROL_PER_CYCLE, clock, until, 0)
+        self._serve(self.rings["command"], False, self.max_per_cycle, clock, until, served)
         if self._replied:
             self._replied = False
             self._ring_doorbell()
         self._until_check -= 1
         if self._until_check <= 0:
             self._until_check = MESSENGER_CHECK_CYCLES
-            self._look_after_helpers(loop)
+            self._look_after_helpers()
 
-    def _look_after_helpers(self, loop) -> None:
+    def _look_after_helpers(self) -> None:
         """A helper that died is restarted (by its own handle, never waiting): the messenger, the
         planner's worker and an off-loop transport's exchange worker at every look, the recorder
         and the contact sensor's process at every HELPER_CHECK_EVERY-th; each restart is an
         event of the helper's kind, which the messenger logs as it publishes it."""
+        events, contact = self._handles.events, self._handles.contact_sensor
         self._check_messenger()
         notice = self.commands.preparer.check()
         if notice is not None:
-            loop.events.add({"kind": "planner", "cause": notice})
-        notice = loop.io.transport.check_worker()  # (at once: while it is dead, nothing writes to the rig)
+            events.add({"kind": "planner", "cause": notice})
+        notice = self._handles.transport.check_worker()  # (at once: while it is dead, nothing writes to the rig)
         if notice is not None:
-            loop.events.add({"kind": "exchange", "cause": notice})
+            events.add({"kind": "exchange", "cause": notice})
         self._helper_round = (self._helper_round + 1) % HELPER_CHECK_EVERY
         if self._helper_round:
             return
         notice = self.recorder.check() if self.recorder is not None else None
         if notice is not None:
-            loop.events.add({"kind": "recorder", "cause": notice})
-        notice = loop.contact_sensor.check() if loop.contact_sensor is not None else None
+            events.add({"kind": "recorder", "cause": notice})
+        notice = contact.check() if contact is not None else None
         if notice is not None:
-            loop.events.add({"kind": "contact", "cause": notice})
+            events.add({"kind": "contact", "cause": notice})
         notice = self.model.check() if self.model is not None else None
         if notice is not None:
-            loop.events.add({"kind": "model", "action": "restarted", "cause": notice})
+            events.add({"kind": "model", "action": "restarted", "cause": notice})
 
     def _check_messenger(self) -> None:
         """The messenger's look: a restart started, or finished (the lease's holder then has its
@@ -219,9 +227,9 @@ class ZmqServer:
         notice = self.messenger.check()
         self._messenger_alive = not self.messenger.down
         if was_down and not self.messenger.down:
-            self.commands.lease.carried_again(self.commands.loop.clock.now())
+            self.commands.lease.carried_again(self._handles.clock.now())
         if notice is not None:
-            self.commands.loop.events.add({"kind": "messenger", "cause": notice})
+            self._handles.events.add({"kind": "messenger", "cause": notice})
 
     def _messenger_down(self) -> bool:
         """For the lease, whose time ran out: is the messenger that carries its renewals down
@@ -247,7 +255,7 @@ class ZmqServer:
                 entry = ring.get()
             except RingError as exc:  # only a bug or a stranger in the daemon's memory: stop the arm
                 ring.discard()
-                self.commands.loop.supervisor.trip(f"{exc}; the requests queued in it were dropped")
+                self.commands.loop.trip(f"{exc}; the requests queued in it were dropped")
                 return served
             if entry is None:
                 return served

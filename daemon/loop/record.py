@@ -6,14 +6,14 @@ the actuation does not have) is refused here, before anything runs."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from daemon.wire.cycle_layout import CycleLayout
 
 
-@dataclass(frozen=True)
-class RecordSpans:
-    """The record's slices, in the loop's terms (each a ``slice`` of the record)."""
+class RecordSpans(NamedTuple):
+    """The record's slices, in the loop's terms (each a ``slice`` of the record); a tuple, so a
+    cycle takes them all with one unpacking."""
 
     position: slice  # the joints' positions [rad or m], in joint order (the loop's ``angles``)
     velocity: slice

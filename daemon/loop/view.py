@@ -1,148 +1,168 @@
-"""A read-only view of the loop, what status, describe and the replies read: the loop's state
-interface. It reads the very fields the cycle keeps and telemetry sends, when asked, so no
-cycle pays for a copy."""
+"""A read-only view of the loop, what status, describe and the replies read: built on the loop's
+handles (:class:`daemon.loop.handles.LoopHandles`), never on its attributes. ``status``'s numbers
+come from the latest cycle record through its layout (:mod:`daemon.wire.cycle_layout`), read when
+asked, so no cycle pays for a copy; a field a rig declares reaches ``status`` with no code for it.
+"""
 from __future__ import annotations
 
 import math
 
+from daemon.loop.handles import LoopHandles
 from daemon.service import realtime
+
+TRACKED = ("position", "setpoint", "error", "velocity")  # in the joint's display unit (deg, mm; per s)
 
 
 class LoopView:
-    def __init__(self, loop):
-        self._loop = loop
-        self._commands_of: list[list[tuple[str, int]]] | None = None  # per joint: (command, its index in u)
-        self._outputs_of: list[list[tuple[str, int]]] = []  # per joint: (output channel, its index in the sweep)
+    def __init__(self, handles: LoopHandles):
+        self._h = handles
+        self._joints = self._joint_fields()
+        layout = handles.layout
+        self._rig_sensors = [(f.name, f.index) for f in layout.of_group("measured") if not f.owner]
 
     # -- what the loop runs on (fixed once it is built) -----------------------------------
     @property
     def rig(self):
-        return self._loop.rig
+        return self._h.rig
 
     @property
     def context(self):
         """The controllers' build context (controllers.base)."""
-        return self._loop.context
+        return self._h.context
 
     @property
     def controller_plugins(self) -> dict[str, str]:
-        return self._loop.controller_plugins
+        return self._h.controller_plugins
 
     @property
     def period(self) -> float:
-        return self._loop.period
+        return self._h.period
 
     @property
     def layout(self):
         """The cycle record's layout (daemon.wire.cycle_layout)."""
-        return self._loop.layout
+        return self._h.layout
 
     @property
     def command_interfaces(self):
-        return self._loop.actuation.commands
+        return self._h.command_interfaces
 
     @property
     def transport(self):
-        return self._loop.io.transport
+        return self._h.transport
 
     # -- its state now --------------------------------------------------------------------
     def now(self) -> float:
-        return self._loop.clock.now()
+        return self._h.clock.now()
 
     @property
     def cycle(self) -> int:
-        return self._loop.cycle
+        return self._h.cycle()
 
     @property
     def state(self):
-        return self._loop.supervisor.state
+        return self._h.supervisor.state
 
     @property
     def enabled(self) -> bool:
-        return self._loop.supervisor.enabled
+        return self._h.supervisor.enabled
 
     @property
     def controller(self):
         """The active controller (read its name and parameters; change it through the controls)."""
-        return self._loop.controller
+        return self._h.controller()
 
     @property
     def shadowing(self) -> bool:
-        return self._loop.shadow_run is not None
+        return self._h.shadow() is not None
 
     def reference_origin(self) -> tuple[int, list[float]]:
         """What a plan starts from: the reference generation and the set-point in force [rad]."""
-        return self._loop.trajectory_generation, list(self._loop.reference[0])
+        return self._h.origin()
 
     def reference_running(self) -> tuple[str, float]:
         """The reference's name and how long it runs on [s] (0 once ended, or for a hold)."""
-        return self._loop.trajectory_name, self._loop.reference_remaining()
+        return self._h.reference()
 
     def recovery(self) -> dict | None:
         """Joints enabled outside their limits on their way back, as enabled
         (:meth:`daemon.loop.recovery.Recovery.describe`), or None."""
-        recovery = self._loop.supervisor.recovery
+        recovery = self._h.supervisor.recovery
         return None if recovery is None else recovery.summary
 
     def load(self) -> dict | None:
         """The known load fed forward and its feed-forward per joint [V], or None."""
-        ff = self._loop.feed_forward
+        ff = self._h.feed_forward
         if ff.load is None:
             return None
-        return {**ff.load.describe(), "feedforward_volts": dict(zip(self._loop.io.joint_names, ff.volts))}
+        return {**ff.load.describe(), "feedforward_volts": dict(zip(self._h.layout.owners(), ff.volts))}
 
     def status(self) -> dict:
         """The loop's fields of ``status`` (the lease's, the client's and the daemon's are the
-        handler's)."""
-        loop = self._loop
-        enabled, snap = loop.supervisor.enabled, loop.snapshot
+        handler's); ``cycle``, ``t``, ``joints`` and ``rig`` are the latest cycle record's."""
+        h = self._h
+        record = list(h.record)  # one cycle's numbers, whatever a later one writes
+        sup, shadow = h.supervisor, h.shadow()
+        name, remaining = h.reference()
+        enabled = sup.enabled
         return {
-            "state": loop.supervisor.state.value,
-            "cause": loop.supervisor.cause,
-            "cycle": loop.cycle,
-            "t": loop.clock.now(),
-            "controller": loop.controller.name,
-            "shadow": loop.shadow_run.summary() if loop.shadow_run is not None else None,
-            "reference": loop.trajectory_name if enabled else None,
-            "reference_remaining_s": loop.reference_remaining() if enabled else 0.0,
-            "joints": {name: self._joint(i) for i, name in enumerate(loop.io.joint_names)},
-            "force_n": None if loop.force != loop.force else loop.force,
-            "faults": list(snap.faults) if snap is not None else [],
-            "trips": loop.supervisor.trips,
-            "overruns_total": loop.stats.overruns_total,
+            "state": sup.state.value,
+            "cause": sup.cause,
+            "cycle": int(record[0]),
+            "t": record[1],
+            "controller": h.controller().name,
+            "shadow": shadow.summary() if shadow is not None else None,
+            "reference": name if enabled else None,
+            "reference_remaining_s": remaining if enabled else 0.0,
+            "joints": {joint: self._joint(record, *fields, enabled) for joint, *fields in self._joints},
+            "rig": {name: _number(record[k]) for name, k in self._rig_sensors},
+            "faults": list(h.faults()),
+            "trips": sup.trips,
+            "overruns_total": h.stats.overruns_total,
             "scheduling": realtime.describe(),  # the loop thread's, as the system granted it
             "load": self.load(),
-            "transport": vars(loop.io.transport.health()),
-            "telemetry": loop.server.telemetry_health() if loop.server is not None else None,
-            "helpers": loop.server.helpers_health() if loop.server is not None else None,
-            "model": loop.server.model_status() if loop.server is not None else None,
+            "transport": vars(h.transport.health()),
+            "telemetry": None,  # the port's, where one serves the loop (daemon.loop.port)
+            "helpers": None,
+            "model": None,  # the port's too: the model beside the arm (daemon.model.process)
         }
 
-    def _joint(self, i: int) -> dict:
-        """One joint in ``status``: angle, set-point, speed, and its commands in force (V_MV as
-        ``u_volts``; a muscle pair's pressures [Pa] and brake [N m], its stiffness set-point
-        and measured pressures); ``output``: ``controller``, or ``safe state`` outside
-        ``enabled``, where the safe state is written and no command is in force (null); and
-        ``written_volts``, the joint's output channels as last written [V]."""
-        loop = self._loop
-        if self._commands_of is None:  # the command interfaces and channels are fixed once the loop is built
-            self._commands_of = [[(c.name, k) for k, c in enumerate(loop.actuation.commands) if c.joint == joint]
-                                 for joint in loop.io.joint_names]
-            names = [ch.name for ch in loop.io.transport.outputs]
-            self._outputs_of = [[(ch, names.index(ch)) for ch in channels] for channels in loop.io.joint_outputs]
-        safe = not loop.supervisor.enabled
-        written = loop.io.last_volts
-        out = {"angle_deg": math.degrees(loop.angles[i]), "setpoint_deg": math.degrees(loop.reference[0][i]),
-               "velocity_deg_s": math.degrees(loop.velocities[i]), "output": "safe state" if safe else "controller",
-               "written_volts": {ch: written[k] for ch, k in self._outputs_of[i]}}
-        u = loop.u
-        commands = {name: None if safe else u[k] for name, k in self._commands_of[i]}
-        if "v_mv" in commands:
-            out["u_volts"] = commands["v_mv"]
-        else:
-            k = loop.stiffness[i]
-            out["commands"] = commands
-            out["stiffness_nm_deg"] = None if k != k else math.radians(k)
-            pressures = loop.pressures[2 * i:2 * i + 2]
-            out["pressures_pa"] = [None if p != p else p for p in pressures]
+    def _joint_fields(self) -> list[tuple]:
+        """Per joint, once: (name, its display unit and scale, where each of its fields sits in
+        the record, grouped as ``status`` gives them, whether it takes a stiffness set-point)."""
+        layout, out = self._h.layout, []
+        for i, joint in enumerate(layout.owners()):
+            unit, scale = layout[f"{joint}.position"].display
+            fields = layout.of_joint(joint)
+            tracked = [(f.quantity, f.index) for f in fields if f.quantity in TRACKED]
+            commands = [(f.quantity[2:], f.index) for f in fields if f.group == "command"]
+            commanded = [(f.quantity, f.index) for f in fields if f.group == "commanded"]
+            measured = [(f.quantity, f.index) for f in fields if f.group == "measured" and f.quantity not in TRACKED]
+            written = [(ch, layout[f"out.{ch}"].index) for ch in self._h.joint_outputs[i]]
+            stiff = self._h.rig.joints[i].muscles is not None
+            out.append((joint, i, unit, scale, tracked, commands, commanded, measured, written, stiff))
         return out
+
+    def _joint(self, r: list, i: int, unit: str, scale: float, tracked, commands, commanded, measured, written,
+               stiff: bool, enabled: bool) -> dict:
+        """One joint in ``status``: position, set-point, error and velocity in the unit a person
+        reads the joint in (``unit``: deg on a rotary joint, mm on a linear one; velocity per
+        second); ``output``: ``controller``, or ``safe state`` outside ``enabled``, where the safe
+        state is written and no command is in force (each command null); its commands, commanded
+        chamber pressures and measured values [SI] by name; ``written_volts``: its output channels
+        as last written [V]; a muscle pair's stiffness set-point [N m/deg] (null: the controller's)."""
+        out = {"unit": unit, **{q: r[k] * scale for q, k in tracked},
+               "output": "controller" if enabled else "safe state",
+               "commands": {c: _number(r[k]) for c, k in commands},
+               "commanded": {q: _number(r[k]) for q, k in commanded},
+               "measured": {q: _number(r[k]) for q, k in measured},
+               "written_volts": {ch: r[k] for ch, k in written}}
+        if stiff:
+            k = self._h.stiffness()[i]
+            out["stiffness_nm_deg"] = None if k != k else math.radians(k)
+        return out
+
+
+def _number(x: float) -> float | None:
+    """A record's number as ``status`` gives it: null for NaN (nothing written, or implausible)."""
+    return None if x != x else x

@@ -24,8 +24,9 @@ for that rig:
   written instead of the controller's output), ``/pneumad/commanded_pressures`` (each chamber's
   pressure command after the clamps [kPa], ``p_<chamber>_cmd_kpa``), and where the rig has
   them, ``/pneumad/measured_pressures`` (each chamber transmitter's reading [kPa],
-  ``p_<chamber>_kpa``) and ``/pneumad/sensors`` (every other sensor, each field by its name in
-  its SI unit: ``force``, ``supply_pressure``, a joint's further input); ``/pneumad/tip`` (forward
+  ``p_<chamber>_kpa``) and ``/pneumad/sensors`` (every other sensor in its SI unit: the rig's by
+  name, ``force``, ``supply_pressure``, a further input; a joint's further inputs under
+  ``joints.<name>``); ``/pneumad/tip`` (forward
   kinematics of the first two joints [mm], measured and set-point, on a rig with link lengths);
   and one per message: ``/pneumad/controller`` (the internals, each signal's unit from the
   controller that published it), ``/pneumad/loop`` (timing), ``/pneumad/contact_estimate``,
@@ -92,8 +93,10 @@ class ChannelFields:
         self.measured = {j: [(f.name, f"{f.quantity}_kpa") for f in layout.of_joint(j, "measured")
                              if f.quantity.startswith("p_") and f.unit == "Pa"] for j in self.joints}
         chambers = {name for pairs in self.measured.values() for name, _ in pairs}
-        self.sensors = [f.name for f in layout.of_group("measured")
-                        if f.quantity not in ("position", "velocity") and f.name not in chambers]
+        others = [f for f in layout.of_group("measured") if f.quantity not in ("position", "velocity")
+                  and f.name not in chambers]
+        self.sensors = [f.name for f in others if not f.owner]  # the rig's, by name
+        self.inputs = {j: [(f.name, f.quantity) for f in others if f.owner == j] for j in self.joints}  # a joint's
         self.outputs = [(f.name, f.quantity[4:]) for f in layout.of_group("output")]
 
     def effort(self, joint: str) -> tuple[str, str] | None:
@@ -128,10 +131,13 @@ def json_schemas(describe: dict) -> dict[str, dict]:
     if any(fields.measured.values()):
         schemas[MEASURED_PRESSURES] = _obj({**stamp, "joints": per_joint(lambda j: [k for _, k in fields.measured[j]])},
                                            "chamber pressures MEASURED by their transmitters [kPa]")
-    if fields.sensors:
-        schemas[SENSORS] = _obj({**stamp, **{n: _NUMBER for n in fields.sensors}},
-                                "every other sensor, by its field name, in SI units: "
-                                + ", ".join(f"{n} [{layout[n].unit}]" for n in fields.sensors))
+    if fields.sensors or any(fields.inputs.values()):
+        named = fields.sensors + [name for pairs in fields.inputs.values() for name, _ in pairs]
+        schemas[SENSORS] = _obj({**stamp, **{n: _NUMBER for n in fields.sensors},
+                                 "joints": _obj({j: _numbers(*(q for _, q in pairs))
+                                                 for j, pairs in fields.inputs.items() if pairs})},
+                                "every other sensor in its SI unit, the rig's by name, a joint's under joints: "
+                                + ", ".join(f"{n} [{layout[n].unit}]" for n in named))
     schemas.update({
         TIP: _obj({**stamp, **_numbers("x_mm", "y_mm", "setpoint_x_mm", "setpoint_y_mm")["properties"]},
                   "tip position by forward kinematics of the first two joints [mm]"),
@@ -228,7 +234,7 @@ class Frames:
                            (TIP, self._tip_position)]
         if any(fields.measured.values()):
             self._per_cycle.append((MEASURED_PRESSURES, self._measured))
-        if fields.sensors:
+        if fields.sensors or any(fields.inputs.values()):
             self._per_cycle.append((SENSORS, self._sensors))
 
     def state(self, m: dict, wanted=None, rows=None) -> list[tuple[str, int, bytes]]:
@@ -274,7 +280,9 @@ class Frames:
             j: {key: m[name][i] / 1e3 for name, key in pairs} for j, pairs in self.fields.measured.items()}})
 
     def _sensors(self, m: dict, i: int) -> bytes:
-        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], **{n: m[n][i] for n in self.fields.sensors}})
+        return json_bytes({"t": m["t"][i], "cycle": m["cycle"][i], **{n: m[n][i] for n in self.fields.sensors},
+                           "joints": {j: {q: m[name][i] for name, q in pairs}
+                                      for j, pairs in self.fields.inputs.items() if pairs}})
 
     def _tip_position(self, m: dict, i: int) -> bytes | None:
         if self._links is None:

@@ -89,10 +89,12 @@ def build(describe: dict) -> fl.Layout:
     fields = ChannelFields(layout_of(describe))
     joints = fields.joints
     tabs = [_joint_tab(fields, j) for j in joints]
-    if fields.sensors:
+    named = [(n, f"{SENSORS}.{n}") for n in fields.sensors] + [
+        (name, f"{SENSORS}.joints.{j}.{q}") for j, pairs in fields.inputs.items() for name, q in pairs]
+    if named:
         layout = fields.layout
-        panels = [_plot(f"{n} [{layout[n].unit}]", [(f"{SENSORS}.{n}", n, "solid")], f"{n} [{layout[n].unit}]")
-                  for n in fields.sensors]
+        panels = [_plot(f"{n} [{layout[n].unit}]", [(path, n, "solid")], f"{n} [{layout[n].unit}]")
+                  for n, path in named]
         tabs.append(fl.TabItem(title="sensors", content=_with_events(
             fl.SplitContainer(direction="column", items=[fl.SplitItem(content=p) for p in panels]))))
     arm = describe.get("arm", {}).get("link_lengths_mm", [])

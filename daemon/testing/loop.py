@@ -65,6 +65,18 @@ class Captured:
         self._messages, self._decoded = [], 0
         return found
 
+    def fields(self, group: str, quantity: str | None = None) -> list[str]:
+        """The names of the layout's fields of ``group`` (one ``quantity`` of it), in record
+        order: ``fields("measured", "position")`` is each joint's position, in joint order."""
+        return [f.name for f in self.layout.of_group(group) if quantity is None or f.quantity == quantity]
+
+    def series(self, names: list[str]):
+        """(cycle, [the named fields' values]) for each cycle of the state stream."""
+        for m in self.of("state"):
+            columns = [m[name] for name in names]
+            for k, cycle in enumerate(m["cycle"]):
+                yield cycle, [column[k] for column in columns]
+
 
 def virtual_loop(rig: config.RigConfig, controller: str = "pid", publish=None,
                  plugins: dict[str, str] | None = None, stats_banks=None) -> ControlLoop:
@@ -162,10 +174,8 @@ def run_seconds(loop: ControlLoop, seconds: float) -> None:
 
 def tracking(captured: Captured, after_cycle: int = 0) -> tuple[list[float], list[float]]:
     """Max |error| per joint [deg] and RMS per joint [deg] over the state stream."""
-    joints = captured.layout.owners()
-    errors = [[m[f"{j}.error"][k] for j in joints] for m in captured.of("state") for k, c in enumerate(m["cycle"])
-              if c > after_cycle]
-    n = len(joints)
+    errors = [e for c, e in captured.series(captured.fields("reference", "error")) if c > after_cycle]
+    n = len(errors[0])
     worst = [max(abs(math.degrees(e[j])) for e in errors) for j in range(n)]
     rms = [math.sqrt(sum(math.degrees(e[j]) ** 2 for e in errors) / len(errors)) for j in range(n)]
     return worst, rms

@@ -249,7 +249,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             sockets=BOTH),
     Command("status", "loop", "the daemon's state now", (
         "state", "cause", "cycle", "t", "controller", "shadow", "reference", "reference_remaining_s", "joints",
-        "force_n", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
+        "rig", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
         "overruns_total", "scheduling", "load", "transport", "telemetry", "helpers", "controllers_refused", "daemon",
         "timing", "model"),
             sockets=BOTH),

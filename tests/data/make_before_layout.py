@@ -1,12 +1,21 @@
-"""Made with main at 8baebb9 (before the cycle layout): legacy recordings for the reader's test."""
-import io, sys, time
-import msgpack
-from daemon.testing.loop import make_loop, Captured
-from daemon.recordings.mcap_log import McapRecording
-from controllers.trajectory import JointMove
+"""How tests/data's recordings from before the cycle layout were made (test_recordings reads
+them): on the version before it, commit 8baebb9, e.g. ``git worktree add /tmp/old 8baebb9 &&
+PYTHONPATH=/tmp/old python tests/data/make_before_layout.py``. A short move on the muscle rig
+recorded as MCAP (nested samples) and on the built-in rig as an earlier ``.pnrec``."""
 import math
+from pathlib import Path
+
+import msgpack
+
+from controllers.trajectory import JointMove
+from daemon.recordings.mcap_log import McapRecording
+from daemon.testing.loop import make_loop
+
+HERE = Path(__file__).resolve().parent
+
 
 def run(rig_name, path_mcap=None, path_pnrec=None, cycles=300, controller="pid"):
+    """A 2 deg move of every joint in 0.2 s, enabled ``cycles`` cycles, then 20 idle ones."""
     from hal import config
     rig = config.load(rig_name)
     loop, cap, srv = make_loop(rig.source, server=True, controller=controller)
@@ -33,5 +42,6 @@ def run(rig_name, path_mcap=None, path_pnrec=None, cycles=300, controller="pid")
                     f.write(msgpack.packb([topic, m]))
     srv.close()
 
-run("sim-muscle", path_mcap="/tmp/core_legacy/muscle-before-layout.mcap", controller="muscle_eq")
-run("sim", path_pnrec="/tmp/core_legacy/sim-before-layout.pnrec", cycles=200)
+if __name__ == "__main__":
+    run("sim-muscle", path_mcap=HERE / "muscle-before-layout.mcap", controller="muscle_eq")
+    run("sim", path_pnrec=HERE / "sim-before-layout.pnrec", cycles=200)
