@@ -133,9 +133,11 @@ def main(argv=None) -> int:
         for name in DRIFTS:
             d = drift_run(name)
             drifts.append(d)
-            print(f"drift {name}: flagged {d['flagged_after_s']:.1f} s after it started; named "
-                  f"{'; '.join(f'{a} at {t:.1f} s: {lk or 'unclear'} (best {b}, R2 {e:.3f}, size {s:.3g})' for t, a, lk, b, e, s in d['named'])}"
-                  f"{'; other joints flagged: ' + str(d['others']) if d['others'] else ''}", flush=True)
+            named = "; ".join(f"{a} at {t:.1f} s: {lk or 'unclear'} (best {b}, R2 {e:.3f}, size {s:.3g})"
+                              for t, a, lk, b, e, s in d["named"])
+            others = f"; other joints flagged: {d['others']}" if d["others"] else ""
+            print(f"drift {name}: flagged {d['flagged_after_s']:.1f} s after it started; named {named}{others}",
+                  flush=True)
     if args.figures:
         for path in figures(Path(args.figures), nominal, drifts):
             print(f"wrote {path}")

@@ -45,7 +45,7 @@ from hal.interfaces import ROTARY
 EPS = 0.05  # the fraction each candidate's sensitivity is simulated at [-]
 EXPLAINED = 0.8  # R^2 a candidate must reach to be named [-]
 MARGIN = 0.01  # ... and by how much it must beat the runner-up [-]
-MAX_STEPS = 1000  # a gap between two cycles longer than this many model steps starts the model again
+MAX_STEPS = 10_000  # a gap between two cycles longer than this many model steps (10 s) starts the model again
 SNAPSHOT_S = 0.5  # the model's state is kept this often, to replay a candidate from the onset [s]
 NAME_AGAIN_S = 10.0  # the cause is named again this long after the drift's event, on more of it [s]
 ONSET_FRACTION = 0.25  # the residual's onset: where |r| last was below this fraction of the band

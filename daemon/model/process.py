@@ -28,7 +28,7 @@ from hal.process import Child, Helper, HelperFailed, SharedMemory
 from hal.seqlock import try_read, write_locked
 
 MODEL_FEED, MODEL_OUT = "model-feed", "model-out"  # ipc socket names in the rings' directory (the messenger binds)
-FEED_HWM = 2000  # state messages the feed may queue (about 20 s of telemetry)
+FEED_HWM = 6000  # state messages the feed may queue (about 60 s of telemetry: a model process starved that long)
 CAUSES = ("", "offset", "leak_head", "leak_rod", "gain", "friction")  # a status's cause, by index (controllers.drift)
 NUMBERS = ("anchored", "rms_deg", "mean_deg", "drift", "since_t", "cause", "size")  # a joint's status numbers
 
