@@ -43,7 +43,7 @@ def plot(result: dict, out: Path, title: str) -> list[Path]:
                 name = result["commands"][i].split(".", 1)[1]
                 ax.plot(t, result["recorded_u"][:, i], lw=1, label=f"{name} recorded")
                 ax.plot(t, result["simulated_u"][:, i], lw=1, label=f"{name} on the model")
-            ax.set_ylabel("command")
+            ax.set_ylabel(f"command [{', '.join(sorted({result['command_units'][i] for i in mine}))}]")
             ax.legend(loc="best", fontsize=8)
         axes[-1].set_xlabel("time from the enable [s]")
         fig.tight_layout()
@@ -56,5 +56,6 @@ def plot(result: dict, out: Path, title: str) -> list[Path]:
 
 def summary(result: dict) -> dict:
     """What the replay says in numbers (report.json)."""
-    keep = {k: v for k, v in result.items() if not isinstance(v, np.ndarray) and k not in ("units", "commands")}
+    keep = {k: v for k, v in result.items()
+            if not isinstance(v, np.ndarray) and k not in ("units", "commands", "command_units")}
     return keep
