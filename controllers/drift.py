@@ -9,10 +9,10 @@ for a while is drift, and the shape of the residual since it left zero names the
 fed (and again after a gap in the cycles); after the dead time and five regulator lags
 (T_dly + 5 T_ep) their start no longer shows (e^-5), and the model starts from the measured
 angle, moving at its slope over those last moments (not at the loop's velocity estimate: its
-noise is larger than the Stribeck velocity, :meth:`JointWatch._anchor`). From then on it runs free on the commands: it is never corrected
-by the measurement, so a drift is not absorbed (an observer would learn a potentiometer's
-offset as the state). The joint model is stable (spring K, damping D), so a model error does
-not grow without bound.
+noise is larger than the Stribeck velocity, :meth:`JointWatch._anchor`). From then on it runs
+free on the commands: it is never corrected by the measurement, so a drift is not absorbed (an
+observer would learn a potentiometer's offset as the state). The joint model is stable (spring
+K, damping D), so a model error does not grow without bound.
 
 **Naming the cause** (:func:`name_cause`). A small drift of parameter q changes the
 prediction by q times its sensitivity s_q(t) = d(predicted)/dq along the run: a
@@ -78,7 +78,7 @@ class JointWatch:
         self.neutral_deg = jc.neutral_deg
         margin = 10.0  # the simulator's end stops beyond the software limits (sim_backend.options) [deg]
         self.stops = (jc.min_angle_deg - margin, jc.max_angle_deg + margin)
-        self.settle_s = self.params.T_dly + 5.0 * self.params.T_ep  # commands still this long: chambers at their set [s]
+        self.settle_s = self.params.T_dly + 5.0 * self.params.T_ep  # the chambers' warm-up: their start gone [s]
         self.model: JointModel | None = None  # anchored: predicting
         self._warming: JointModel | None = None  # its chambers following the commands, not yet anchored
         self._warm_since = 0.0
@@ -307,7 +307,8 @@ def name_cause(watch: JointWatch) -> dict:
     low, high = CAUSES[best][2]
     runner_up = fits[ranked[1]][0] if len(ranked) > 1 else -math.inf
     likely = best if explained >= EXPLAINED and low < size < high and explained - runner_up >= MARGIN else None
-    return {"likely": likely, "best": best, "runner_up": ranked[1] if len(ranked) > 1 else None, "explained": explained, "size": size, "onset_t": float(h["t"][onset]),
+    return {"likely": likely, "best": best, "runner_up": ranked[1] if len(ranked) > 1 else None,
+            "explained": explained, "size": size, "onset_t": float(h["t"][onset]),
             "fits": {n: {"explained": f[0], "size": f[1]} for n, f in fits.items()}}
 
 

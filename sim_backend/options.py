@@ -36,7 +36,8 @@ class SimJointOptions:
     def __post_init__(self):
         require(self.end_stop_margin_deg >= 0, "end_stop_margin_deg", "must be >= 0")
         require(self.fault_at_s >= 0, "fault_at_s", "must be >= 0")
-        require(self.leak in ("", "head", "rod"), "leak", f'must be "head" or "rod" (or "" for none), got {self.leak!r}')
+        require(self.leak in ("", "head", "rod"), "leak",
+                f'must be "head" or "rod" (or "" for none), got {self.leak!r}')
         require(0 < self.leak_fraction < 1, "leak_fraction", "must be within (0, 1)")
         require(0 < self.friction_scale <= 100, "friction_scale", "must be within (0, 100]")
         require(abs(self.sensor_offset_deg) <= 90, "sensor_offset_deg", "must be within +-90 deg")

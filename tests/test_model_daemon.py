@@ -17,7 +17,9 @@ from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.test_journal import journal_line, next_event
 
 pytestmark = pytest.mark.slow(seconds=70)
-ONSET_S = 40.0  # [s] of the plant's clock (from the transport's opening): well after the model has started (its process starts after the transport opens: 5-20 s on a loaded machine)
+# [s] of the plant's clock (from the transport's opening): well after the model has started (its
+# process starts after the transport opens: 5-20 s on a loaded machine)
+ONSET_S = 40.0
 
 
 def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field_and_recorded(tmp_path):

@@ -171,7 +171,8 @@ def replay(run: Run, rig_text: str | None = None, part: float | None = None) -> 
         loop.io.transport.close()
     out = {"controller": name, "params": params, "duration_s": float(t[-1]), "tripped": tripped, "joints": {},
            "t": t, "measured": measured, "simulated": simulated, "setpoints": setpoints,
-           "commands": commands, "command_units": [layout[c].unit for c in commands], "recorded_u": recorded_u, "simulated_u": sim_u, "units": units}
+           "commands": commands, "command_units": [layout[c].unit for c in commands], "recorded_u": recorded_u,
+           "simulated_u": sim_u, "units": units}
     for k, j in enumerate(joints):
         unit, scale = units[j]
         y, y_hat = measured[:, k] * scale, simulated[:, k] * scale

@@ -27,8 +27,8 @@ def drifted_rig(drift: str = "", joint: str = "bottom", at_s: float = 8.0, base:
     """The built-in rig's text (or ``base``) with ``drift`` (TOML lines) on ``joint`` from ``at_s``."""
     text = base if base is not None else config.load().source
     if drift:
-        text = text.replace("\n[arm]\n", f"\n[transport.options.joints.{joint}]\nfault_at_s = {at_s}\n{drift}\n\n[arm]\n",
-                            1)
+        table = f"\n[transport.options.joints.{joint}]\nfault_at_s = {at_s}\n{drift}\n"
+        text = text.replace("\n[arm]\n", table + "\n[arm]\n", 1)
     return text
 
 
