@@ -14,6 +14,7 @@ from daemon.client.client import Client
 from daemon.recordings.reading import open_run
 from daemon.testing.drift import drifted_rig
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
+from tests.schemas import schema
 from tests.test_journal import journal_line, next_event
 
 pytestmark = pytest.mark.slow(seconds=70)
@@ -41,15 +42,18 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
                 model = got[1] if got is not None and got[0] == "model" else model
                 assert time.monotonic() < deadline, "no full model window"
             assert set(model["joints"]) == {"bottom", "middle"}
+            schema("telemetry", "model").validate(model)
             assert all(j["rms_deg"] < model["band_deg"] and not j["flagged"] for j in model["joints"].values()), model
             assert all(len(j["residual_deg"]) > 0 for j in model["joints"].values())
             assert client.status()["model"]["joints"]["middle"]["drift"] is False
             event = next_event(sub, "model", action="drift", limit_s=60.0)
             assert event["joint"] == "middle" and event["likely"] == "offset", event
+            schema("telemetry", "event").validate(event)
             assert "potentiometer offset" in event["cause"]
             line = journal_line(log, "WARNING", "model", event)
             assert "drift middle" in line and "potentiometer offset" in line
             status = client.status()
+            schema("results", "status").validate(status)
             assert status["model"]["joints"]["middle"]["drift"] is True
             assert status["model"]["joints"]["middle"]["cause"] == "offset"
             assert abs(status["model"]["joints"]["middle"]["size"] - 2.0) < 0.2
