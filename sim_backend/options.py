@@ -30,7 +30,8 @@ class SimJointOptions:
     leak: str = ""  # "head" or "rod": that chamber leaks ...
     leak_fraction: float = 0.1  # ... and holds this fraction less than its set pressure [-]
     friction_scale: float = 1.0  # Fs and Fc of [2-45] times this [-]
-    sensor_offset_deg: float = 0.0  # the potentiometer reads this much above the angle [deg]
+    sensor_offset_deg: float = 0.0  # the potentiometer reads this much above the angle [deg] ...
+    offset_ramp_s: float = 1.0  # ... reached over this long (a step reads as a jump the speed limit trips on) [s]
     regulator_gain: float = 1.0  # both regulators' output pressure times this [-]
 
     def __post_init__(self):
@@ -41,6 +42,7 @@ class SimJointOptions:
         require(0 < self.leak_fraction < 1, "leak_fraction", "must be within (0, 1)")
         require(0 < self.friction_scale <= 100, "friction_scale", "must be within (0, 100]")
         require(abs(self.sensor_offset_deg) <= 90, "sensor_offset_deg", "must be within +-90 deg")
+        require(self.offset_ramp_s >= 0, "offset_ramp_s", "must be >= 0")
         require(0 < self.regulator_gain <= 2, "regulator_gain", "must be within (0, 2]")
 
     @property

@@ -84,7 +84,9 @@ class SimArm:
         """What joint ``joint``'s potentiometer reads [rad]: its angle, plus a drifted offset."""
         drift = self._drifts[joint]
         if drift is not None and self._drifting[joint]:
-            return math.radians(self.joints[joint].th + drift.sensor_offset_deg)
+            ramp = drift.offset_ramp_s
+            share = min((self.t - drift.fault_at_s) / ramp, 1.0) if ramp > 0 else 1.0
+            return math.radians(self.joints[joint].th + share * drift.sensor_offset_deg)
         return math.radians(self.joints[joint].th)
 
     def chamber_gauge(self, joint: int, second: bool) -> float:

@@ -54,7 +54,7 @@ def test_each_drift_is_flagged_within_its_time_and_its_cause_named(drift):
 
 
 def test_the_size_of_an_offset_is_measured():
-    text = drifted_rig("sensor_offset_deg = -1.5", at_s=3.0)
+    text = drifted_rig("sensor_offset_deg = -1.5\noffset_ramp_s = 0.1", at_s=3.0)
     watched = watch(text, swing(text, 8.0))
     (t, drift), = [(t, v) for t, v in watched.verdicts if v.action == "drift"]
     assert drift.details["likely"] == "offset" and math.isclose(drift.details["size"], -1.5, abs_tol=0.05)

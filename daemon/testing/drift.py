@@ -16,7 +16,7 @@ from hal import config
 REST = (141.8, -90.0)  # where the built-in rig's joints rest at the bias pressures [deg]
 SWING = ((135.0, -95.0), (148.0, -85.0), REST)  # the waypoints the arm goes through in turn, 2 s apart
 DRIFTS = {  # the four the tests inject, on the bottom joint
-    "offset": "sensor_offset_deg = 2.0",
+    "offset": "sensor_offset_deg = 2.0\noffset_ramp_s = 0.1",  # 20 deg/s for 0.1 s: under the speed limit
     "leak_head": 'leak = "head"\nleak_fraction = 0.1',
     "friction": "friction_scale = 2.0",
     "gain": "regulator_gain = 0.8",
