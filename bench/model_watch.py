@@ -81,7 +81,7 @@ def figures(out: Path, nominal: list[dict], drifts: list[dict]) -> list[Path]:
         ax.set_xlabel("residual RMS over a 2 s window [deg]")
         ax.set_ylabel("windows (10 a second)")
         total = sum(len(r["rms"][next(iter(r["rms"]))]) for r in nominal) / 10.0
-        ax.set_title(f"nominal runs with noise: {len(nominal)} runs, {total / 60:.0f} min judged, "
+        ax.set_title(f"nominal runs with noise: {len(nominal)} runs, {total / 60:.1f} min judged, "
                      f"{sum(len(r['flags']) for r in nominal)} flags")
         ax.set_xlim(0, band * 1.1)
         ax.legend(fontsize=8)
