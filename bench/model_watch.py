@@ -98,7 +98,8 @@ def figures(out: Path, nominal: list[dict], drifts: list[dict]) -> list[Path]:
             if math.isfinite(d["flagged_t"]):
                 ax.axvline(d["flagged_t"], color="C3", ls="--", label=f"flagged after {d['flagged_after_s']:.1f} s")
             last = d["named"][-1] if d["named"] else None
-            ax.set_title(f"{DRIFTS[d['name']].splitlines()[0]}: named {last[2] if last else 'none'}", fontsize=9)
+            said = (last[2] or f"unclear (best {last[3]})") if last else "none"
+            ax.set_title(f"{DRIFTS[d['name']].splitlines()[0]}: named {said} 10 s after its flag", fontsize=9)
             ax.set_ylabel("residual [deg]")
             ax.legend(fontsize=7, loc="upper left")
         np.atleast_1d(axes)[-1].set_xlabel("time [s] (the bottom joint; the arm swings through waypoints 2 s apart)")
