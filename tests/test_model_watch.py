@@ -59,7 +59,8 @@ def test_the_size_of_an_offset_is_measured():
     text = drifted_rig("sensor_offset_deg = -1.5\noffset_ramp_s = 0.1", at_s=3.0)
     watched = watch(text, swing(text, 8.0))
     (t, drift), = [(t, v) for t, v in watched.verdicts if v.action == "drift"]
-    assert drift.details["likely"] == "offset" and math.isclose(drift.details["size"], -1.5, abs_tol=0.15)  # within 10 % at the flag (its ramp in the fit)
+    # within 10 % at the flag: its ramp is in the fit
+    assert drift.details["likely"] == "offset" and math.isclose(drift.details["size"], -1.5, abs_tol=0.15)
 
 
 @pytest.mark.parametrize("line, message", [
