@@ -12,7 +12,7 @@ import pytest
 
 from daemon.client.client import Client
 from daemon.recordings.reading import open_run
-from daemon.testing.drift import drifted_rig
+from daemon.testing.drift import DRIFTS, drifted_rig
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 from tests.test_journal import journal_line, next_event
@@ -25,7 +25,7 @@ ONSET_S = 40.0
 
 def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field_and_recorded(tmp_path):
     rig = tmp_path / "rig.toml"
-    rig.write_text(drifted_rig("sensor_offset_deg = 2.0", joint="middle", at_s=ONSET_S, base=tolerant_rig_text()))
+    rig.write_text(drifted_rig(DRIFTS["offset"], joint="middle", at_s=ONSET_S, base=tolerant_rig_text()))
     log = tmp_path / "daemon.log"
     with open(log, "w") as stderr:
         daemon, eps = real_daemon(tmp_path, "--config", str(rig), "--log-level", "INFO", stderr=stderr)
