@@ -152,25 +152,33 @@ def serve(child: Child, rings_dir: str, rig: RigConfig, joints: list[str], share
             residuals[name] = []
         message.update(seq=seq, first_cycle=first_cycle)
         first_cycle = None
+        for v in verdicts:
+            if v.action == "drift":
+                since[v.joint] = watch.t
+        # the status first: a client told of a drift by its event finds it in the status too
+        write_locked(shared.seq, shared.values, _status_row(watch, message, joints, since))
         _send(out, b"model", msgpack.packb(message))
         for v in verdicts:
-            since[v.joint] = watch.t
             event = {"kind": "model", "action": v.action, "joint": v.joint, "cause": v.cause, "t_model": watch.t}
             if v.details:
                 event.update(likely=v.details.get("likely"), best=v.details.get("best"), size=v.details.get("size"),
                              explained=v.details.get("explained"), onset_t=v.details.get("onset_t"))
             _send(out, b"event", msgpack.packb(event))
-        row = []
-        for name in joints:
-            stats, w = message["joints"][name], watch.joints[name]
-            cause = (w.cause or {}).get("likely") if w.flagged else None
-            row += [float(stats["anchored"]), stats["rms_deg"], stats["mean_deg"], float(w.flagged),
-                    since.get(name, math.nan), float(CAUSES.index(cause)) if cause else 0.0,
-                    (w.cause or {}).get("size", math.nan) if cause else math.nan]
-        write_locked(shared.seq, shared.values, row)
     feed.close()
     out.close()
     ctx.term()
+
+
+def _status_row(watch, message: dict, joints: list[str], since: dict[str, float]) -> list[float]:
+    """The status numbers (``NUMBERS``) of each joint, in ``joints``' order."""
+    row = []
+    for name in joints:
+        stats, w = message["joints"][name], watch.joints[name]
+        cause = (w.cause or {}).get("likely") if w.flagged else None
+        row += [float(stats["anchored"]), stats["rms_deg"], stats["mean_deg"], float(w.flagged),
+                since.get(name, math.nan), float(CAUSES.index(cause)) if cause else 0.0,
+                (w.cause or {}).get("size", math.nan) if cause else math.nan]
+    return row
 
 
 def _send(sock, topic: bytes, body: bytes) -> None:
