@@ -353,6 +353,7 @@ class ModelWatch:
             stats = w.statistics()
             message["joints"][name] = stats
             verdict = w.judge(self.t, stats) if stats["anchored"] and math.isfinite(stats["rms_deg"]) else None
+            stats["flagged"] = w.flagged  # as judged now: the message of a drift's event says so
             if verdict is not None:
                 verdicts.append(verdict)
         return message, verdicts
