@@ -56,7 +56,7 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
             schema("results", "status").validate(status)
             assert status["model"]["joints"]["middle"]["drift"] is True
             assert status["model"]["joints"]["middle"]["cause"] == "offset"
-            assert abs(status["model"]["joints"]["middle"]["size"] - 2.0) < 0.2
+            assert abs(status["model"]["joints"]["middle"]["size"] - 2.0) < 0.3  # at the flag: its ramp in the fit
             assert status["model"]["joints"]["bottom"]["drift"] is False
             assert status["helpers"]["model"]["running"]
             os.kill(status["helpers"]["model"]["pid"], signal.SIGKILL)  # the model process dies
