@@ -103,3 +103,23 @@ def test_the_protocol_documents_cycle_record_table_names_every_field_of_every_ri
             assert units is None or f.unit in units, (f.name, pattern, f.unit, units)
             used.add(pattern)
     assert used == {r[0] for r in rows}, {r[0] for r in rows} - used
+
+
+def test_the_loop_refuses_a_layout_it_cannot_write_in_record_order():
+    """The loop writes its record group by group (daemon/loop/record.py): a layout whose groups
+    are out of that order, or of another size than the loop's lists, is refused before it runs."""
+    from dataclasses import replace
+
+    from daemon.loop.record import RecordSpans
+    layout = layout_of("sim")
+    args = (["bottom", "middle"], ["bottom.v_mv", "middle.v_mv"], [0, 1], ["force"], ["ao0", "ao1", "ao2", "ao3"])
+    spans = RecordSpans.of(layout, *args)
+    assert spans.pressure_joints is None and (spans.mode, spans.position) == (layout.width - 1, slice(2, 4))
+    shuffled = [*layout.fields[:2], layout.fields[3], layout.fields[2], *layout.fields[4:]]  # middle before bottom
+    moved = [*layout.fields[:2], *layout.fields[4:6], *layout.fields[2:4], *layout.fields[6:]]  # velocity first
+    with pytest.raises(ValueError, match=r"holds \['middle', 'bottom'\], the loop writes \['bottom', 'middle'\]"):
+        RecordSpans.of(CycleLayout([replace(f, index=i) for i, f in enumerate(shuffled)]), *args)
+    with pytest.raises(ValueError, match="not in the order"):
+        RecordSpans.of(CycleLayout([replace(f, index=i) for i, f in enumerate(moved)]), *args)
+    with pytest.raises(ValueError, match="the snapshot measures"):
+        RecordSpans.of(layout, *args[:3], ["force", "supply_pressure"], args[4])

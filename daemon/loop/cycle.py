@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
-from operator import sub
+import types
 
 from controllers.base import (
     Controller,
@@ -25,7 +25,7 @@ from controllers.trajectory import Trajectory
 from daemon.loop.controls import LoopControls
 from daemon.loop.open_loop import OpenLoopRun
 from daemon.loop.parts import LoopParts
-from daemon.loop.record import RecordSpans
+from daemon.loop.record import RecordSpans, writer
 from daemon.loop.safety import State
 from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
@@ -80,7 +80,6 @@ class ControlLoop(LoopControls, LoopQueries):
         self.pressures: tuple[float, ...] = ()  # measured chamber pairs [Pa] (joints with sensors)
         self.angles = [0.0] * self.n  # last valid angles [rad]
         self.velocities = [0.0] * self.n  # filtered [rad/s]
-        self.force = math.nan
         self.snapshot: Snapshot | None = None
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
@@ -96,18 +95,20 @@ class ControlLoop(LoopControls, LoopQueries):
         self.heartbeat = None  # called every heartbeat_interval with the loop (e.g. the systemd watchdog)
         self.heartbeat_interval = 1.0
         self._heartbeat_due = 0.0
-        # the cycle record: written at the end of each cycle (_record), read by telemetry and status
+        # the cycle record: made at the end of each cycle (_record), read by telemetry and status
         self.layout = layout
         self.record = layout.record()
         self._mode_of, self._mode_index = None, 0.0  # the state whose index the record holds, and the index
-        self._shadow_written = True  # a candidate's commands are in the record (NaN to be written over them)
-        self._spans = RecordSpans.of(layout, self.n, [f"{c.joint}.{c.name}" for c in self.actuation.commands],
-                                     [i for i, d in enumerate(io.head) if d is not None], len(sensors.measured(self.rig)),
-                                     len(io.transport.outputs))
+        self._spans = RecordSpans.of(layout, list(io.joint_names), [f"{c.joint}.{c.name}" for c in self.actuation.commands],
+                                     [i for i, d in enumerate(io.head) if d is not None],
+                                     [f"{p.owner}.{p.name}" if p.owner else p.name for p in sensors.measured(self.rig)],
+                                     [ch.name for ch in io.transport.outputs])
+        # this cycle's record, at the end of each cycle: _record(snap), made for these spans
+        self._record = types.MethodType(writer(self._spans, self.n, MODE_INDEX, State.ENABLED), self)
         self.handles = LoopHandles(
             self.rig, self.context, self.controller_plugins, self.period, self.actuation.commands, io.transport, clock,
             self.supervisor, self.events, self.stats, self.feed_forward, tuple(io.joint_outputs), contact_sensor, layout,
-            self.record, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
+            self._latest, self._cycles, self._active, self._shadowing, self._reference_now, self._origin,
             self._faults, self._stiffness)
         self.view = LoopView(self.handles)  # what status and describe read
 
@@ -124,6 +125,7 @@ class ControlLoop(LoopControls, LoopQueries):
             self.supervisor.trip(f"transport: {exc}")
         self.hold()
         self.supervisor.started()
+        self._record(self.snapshot)  # what status reads before the first cycle
         self._deadline = self.clock.now() + self.period
         self._stats_due = self._deadline + self.stats_period
         self._heartbeat_due = self._deadline
@@ -240,40 +242,6 @@ class ControlLoop(LoopControls, LoopQueries):
             self.heartbeat(self)
         self.stats.record_cycle(t0, t1, t2, t3, t4, clock.now())
 
-    def _record(self, snap: Snapshot | None) -> None:
-        """This cycle's record, group by group (:class:`daemon.loop.record.RecordSpans`): NaN
-        for the commands outside ``enabled`` (the safe state is written, no command is in force),
-        for the sensors when this cycle's read failed, and for the shadow without a candidate."""
-        r, angles, setpoint = self.record, self.angles, self.reference[0]
-        (position, velocity, at_setpoint, error, command, first, second, pressure_joints, sensors, outputs, shadow,
-         mode, no_commands, no_sensors) = self._spans
-        state = self.supervisor.state
-        r[0] = self.cycle
-        r[1] = snap.t if snap is not None else self.clock.now()
-        r[position] = angles
-        r[velocity] = self.velocities
-        r[at_setpoint] = setpoint
-        r[error] = map(sub, setpoint, angles)
-        r[command] = self.u if state is State.ENABLED else no_commands
-        if pressure_joints is None:
-            r[first] = self.p_head
-            r[second] = self.p_rod
-        else:
-            r[first] = [self.p_head[i] for i in pressure_joints]
-            r[second] = [self.p_rod[i] for i in pressure_joints]
-        r[sensors] = snap.measured if snap is not None else no_sensors
-        r[outputs] = self.io.last_volts
-        run = self.shadow_run
-        if run is not None and run.u is not None:
-            r[shadow] = run.u
-            self._shadow_written = True
-        elif self._shadow_written:  # NaN stays written until a candidate runs again
-            r[shadow] = no_commands
-            self._shadow_written = False
-        if state is not self._mode_of:  # (an Enum's hash is a Python call: looked up once a change)
-            self._mode_of, self._mode_index = state, MODE_INDEX[state]
-        r[mode] = self._mode_index
-
     def _update_measurement(self, snap: Snapshot) -> None:
         """Keep the last valid angle per joint (one bad sample is not yet a fault) and a
         low-pass filtered velocity [rad/s]. The angle is differenced over the time between
@@ -288,7 +256,6 @@ class ControlLoop(LoopControls, LoopQueries):
                     raw = (q - self.angles[i]) * inv_dt
                     self.velocities[i] += a * (raw - self.velocities[i])
                     self.angles[i] = q
-        self.force = snap.force
         self.pressures = snap.pressures
 
     def _input_age(self, sample_t: float) -> float:

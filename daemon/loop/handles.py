@@ -1,6 +1,6 @@
 """What the loop's readers are given (status and describe through :class:`daemon.loop.view.LoopView`,
 the lease, the command port, the timing verdicts): the loop's parts that never change once it is
-built, its cycle record (one list, rewritten in place each cycle) with its layout, and named
+built, its latest cycle record with its layout, and named
 queries for the little that changes otherwise. No reader walks the loop's attributes; what a
 handler changes, it changes through the loop's named controls (:mod:`daemon.loop.controls`)."""
 from __future__ import annotations
@@ -17,6 +17,9 @@ class LoopQueries:
 
     def _cycles(self) -> int:
         return self.cycle
+
+    def _latest(self) -> list[float]:
+        return self.record
 
     def _active(self):
         return self.controller
@@ -53,7 +56,7 @@ class LoopHandles:
     joint_outputs: tuple  # per joint, its output channels' names (head, rod[, brake]; a valve)
     contact_sensor: object | None  # daemon.contact.process.ContactSensor, or None
     layout: CycleLayout
-    record: list[float]  # the latest cycle's record (the loop's own list: read, never kept)
+    record: Callable[[], list[float]]  # the latest cycle's record (never changed once made)
     cycle: Callable[[], int]  # cycles run so far
     controller: Callable[[], object]  # the active controller (its name, parameters, internals)
     shadow: Callable[[], object | None]  # the shadow run (daemon.loop.shadow.ShadowRun), or None

@@ -51,7 +51,9 @@ class Telemetry:
         self.layout = layout
         self.seq = {b"state": 0, b"event": 0, b"internals": 0, b"contact": 0}  # stats: numbered by its window
         self._row = layout.row
+        self._pack, self._size = layout.row.pack_into, layout.row.size
         self._rows = 0
+        self._at = HEADER.size  # where the next row goes
         self._buf = bytearray(HEADER.size + batch * self._row.size)
         self._view = memoryview(self._buf)
         self._internals_of = None  # the controller whose internals buffer is ready (_internals_for)
@@ -64,7 +66,8 @@ class Telemetry:
     def record(self, loop) -> None:
         """Pack this cycle's record (``loop.record``, on the layout) into the batch; send the
         batch when it is full."""
-        self._row.pack_into(self._buf, HEADER.size + self._rows * self._row.size, *loop.record)
+        self._pack(self._buf, self._at, *loop.record)
+        self._at += self._size
         self._rows += 1
         if self._rows >= self.batch:
             self.flush()
@@ -132,7 +135,7 @@ class Telemetry:
         self.seq[b"state"] += 1
         HEADER.pack_into(self._buf, 0, self.seq[b"state"], self.layout.id, self._rows)
         size = HEADER.size + self._rows * self._row.size
-        self._rows = 0
+        self._rows, self._at = 0, HEADER.size
         self._send(b"state", self._view[:size])
 
     def event(self, loop, event: dict) -> None:

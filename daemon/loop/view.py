@@ -1,7 +1,7 @@
 """A read-only view of the loop, what status, describe and the replies read: built on the loop's
 handles (:class:`daemon.loop.handles.LoopHandles`), never on its attributes. ``status``'s numbers
 come from the latest cycle record through its layout (:mod:`daemon.wire.cycle_layout`), read when
-asked, so no cycle pays for a copy; a field a rig declares reaches ``status`` with no code for it.
+asked; a field a rig declares reaches ``status`` with no code for it.
 """
 from __future__ import annotations
 
@@ -101,7 +101,7 @@ class LoopView:
         """The loop's fields of ``status`` (the lease's, the client's and the daemon's are the
         handler's); ``cycle``, ``t``, ``joints`` and ``rig`` are the latest cycle record's."""
         h = self._h
-        record = list(h.record)  # one cycle's numbers, whatever a later one writes
+        record = h.record()  # one cycle's numbers (a later cycle makes a new list)
         sup, shadow = h.supervisor, h.shadow()
         name, remaining = h.reference()
         enabled = sup.enabled
