@@ -24,8 +24,8 @@ and fitted to the residual by least squares (one number each: the fault's size);
 that explains most of the residual (R^2 at least ``EXPLAINED``, ``MARGIN`` more than the
 runner-up's, its size plausible) is named, else the cause is "unclear" and the two best are
 said. Over the first seconds of a drift the candidates' shapes are alike (a slow departure):
-a gain change and grown friction explained 96 % and 95 % of the same residual on the
-simulator (docs/model.md), so the naming is a hint, the flag is the finding.
+on the simulator a regulator gain of 0.8 was named grown friction at its flag (R^2 0.99) and a
+gain change 10 s on (docs/model.md), so the naming is a hint, the flag is the finding.
 """
 from __future__ import annotations
 
