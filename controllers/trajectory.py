@@ -78,6 +78,33 @@ class Hold(Trajectory):
         return Profile.at_rest(np.zeros(1), np.array([self.angles], dtype=float))
 
 
+class Recorded(Trajectory):
+    """A reference as a run recorded it: set-points [rad] at times [s] from its start, linear
+    between them; velocities and accelerations by central differences of the samples (what a
+    controller with feed-forward sees of it). Replays a recording's reference
+    (``pneumactl replay``, docs/model.md)."""
+
+    scalable = False
+
+    def __init__(self, t: Sequence[float], q: np.ndarray):
+        self.t = np.asarray(t, dtype=float) - float(t[0])
+        self.q = np.asarray(q, dtype=float)
+        if len(self.t) < 2 or self.q.shape[0] != len(self.t) or not np.all(np.diff(self.t) > 0):
+            raise ValueError("a recorded reference needs two or more samples at rising times")
+        self.w = np.gradient(self.q, self.t, axis=0)
+        self.a = np.gradient(self.w, self.t, axis=0)
+        self.duration = float(self.t[-1])
+
+    def sample(self, t: float) -> Sample:
+        t = min(max(t, 0.0), self.duration)
+        k = min(int(np.searchsorted(self.t, t, side="right")) - 1, len(self.t) - 2)
+        f = (t - self.t[k]) / (self.t[k + 1] - self.t[k])
+        return [float(x) for x in self.q[k] + f * (self.q[k + 1] - self.q[k])], self.w[k].tolist(), self.a[k].tolist()
+
+    def profile(self, points: int = 0) -> Profile:
+        return Profile(self.t, self.q, self.w, self.a)
+
+
 class JointMove(Trajectory):
     """From q0 to q1 [rad] over ``duration`` with cubic scaling (a step when duration is 0)."""
 

@@ -199,7 +199,7 @@ def messenger(args, rig: config.RigConfig) -> Iterator[ZmqServer]:
     server = ZmqServer(args.command, args.control, args.telemetry, keys=args.keys, insecure=args.insecure,
                        recording=recording, plotjuggler=args.plotjuggler,
                        foxglove=args.foxglove, loop_stall_s=stall_watch_s(rig), timing=rig.timing,
-                       layout=cycle_layout(rig))
+                       layout=cycle_layout(rig), model=rig)
     try:
         yield server
     finally:

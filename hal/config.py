@@ -151,6 +151,31 @@ class FlightRecorderConfig:
 
 
 @dataclass(frozen=True)
+class ModelWatchConfig:
+    """The rig's model beside the arm (docs/model.md): each cylinder joint's identified model
+    is run on the commands the loop wrote, and the residual (measured minus predicted position)
+    judged. Its RMS over the last ``window_s`` above ``band_deg`` for ``hold_s`` is drift: a
+    ``model`` event naming the joint and the likely cause. ``band_deg`` is the rig's own: what
+    its model's error is on the arm (the simulator's is its noise, about 0.05 deg)."""
+
+    enabled: bool = True  # run the model beside the loop (a process of its own)
+    band_deg: float = 1.0  # the residual's RMS over window_s beyond this is drift [deg]
+    window_s: float = 2.0  # the residual's statistics are over this window [s]
+    hold_s: float = 0.5  # outside the band this long before the event [s]
+    recover_s: float = 10.0  # back inside the band this long after a drift before the event saying so [s]
+    history_s: float = 30.0  # commands and residuals kept to name a cause from [s]
+    publish_hz: float = 10.0  # the ``model`` topic's rate [Hz]
+
+    def __post_init__(self):
+        require(self.band_deg > 0, "band_deg", "must be > 0")
+        require(0.1 <= self.window_s <= 60.0, "window_s", "must be within 0.1-60 s")
+        require(0.0 <= self.hold_s <= 60.0, "hold_s", "must be within 0-60 s")
+        require(0.0 <= self.recover_s <= 3600.0, "recover_s", "must be within 0-3600 s")
+        require(self.window_s <= self.history_s <= 600.0, "history_s", "must be within window_s-600 s")
+        require(0.1 <= self.publish_hz <= 100.0, "publish_hz", "must be within 0.1-100 Hz")
+
+
+@dataclass(frozen=True)
 class TransportConfig:
     """Which backend moves the raw values; ``options`` are validated by that backend."""
 
@@ -180,6 +205,7 @@ class RigConfig:
     safety: SafetyConfig = SafetyConfig()
     timing: TimingConfig = TimingConfig()  # when the loop's timing is degraded, and what then
     flight_recorder: FlightRecorderConfig = FlightRecorderConfig()  # the last seconds, written on each trip
+    model_watch: ModelWatchConfig = ModelWatchConfig()  # the rig's model beside the arm (docs/model.md)
     force_sensor: Any = None  # the tip force sensor's table (device default "asfs")
     supply_pressure: Any = None  # a transmitter on the supply line (device default "pressure_transmitter")
     inputs: tuple[Any, ...] = ()  # [[inputs]]: further analog inputs of the rig

@@ -45,6 +45,8 @@ class SimAxisRig:
     def position(self, joint: int) -> float:
         return self.joints[joint].position_m
 
+    sensed_position = position  # what its sensor reads: the position (no drift modelled here)
+
     def chamber_gauge(self, joint: int, second: bool) -> float:
         """The head (or rod: ``second``) chamber's gauge pressure [Pa]."""
         m = self.joints[joint]

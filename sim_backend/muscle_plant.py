@@ -179,6 +179,8 @@ class SimMuscleRig:
         """The joint's angle [rad]."""
         return self.joint.theta
 
+    sensed_position = position  # what its sensor reads: the position (no drift modelled here)
+
     def chamber_gauge(self, joint: int, side: int) -> float:
         return self.joint.gauge(side)
 

@@ -23,9 +23,33 @@ class SimJointOptions:
     # (e.g. {T_dly = 0.04}), a linear joint's [joints.linear_axis] (e.g. {load_mass_kg = 3.0})
     overrides: dict[str, float] = field(default_factory=dict)
     initial_position_mm: float | None = None  # a linear joint's; default: mid-way between its limits
+    # Drift of a cylinder joint from its model, from ``fault_at_s`` of the plant's clock on
+    # (docs/simulator.md "Drift"): a chamber that leaks, friction that grew, a potentiometer
+    # that reads off, a regulator that gives less than it is asked.
+    fault_at_s: float = 0.0  # [s] of the plant's clock (its steps) when the drift below starts
+    leak: str = ""  # "head" or "rod": that chamber leaks ...
+    leak_fraction: float = 0.1  # ... and holds this fraction less than its set pressure [-]
+    friction_scale: float = 1.0  # Fs and Fc of [2-45] times this [-]
+    sensor_offset_deg: float = 0.0  # the potentiometer reads this much above the angle [deg] ...
+    offset_ramp_s: float = 1.0  # ... reached over this long (a step reads as a jump the speed limit trips on) [s]
+    regulator_gain: float = 1.0  # both regulators' output pressure times this [-]
 
     def __post_init__(self):
         require(self.end_stop_margin_deg >= 0, "end_stop_margin_deg", "must be >= 0")
+        require(self.fault_at_s >= 0, "fault_at_s", "must be >= 0")
+        require(self.leak in ("", "head", "rod"), "leak",
+                f'must be "head" or "rod" (or "" for none), got {self.leak!r}')
+        require(0 < self.leak_fraction < 1, "leak_fraction", "must be within (0, 1)")
+        require(0 < self.friction_scale <= 100, "friction_scale", "must be within (0, 100]")
+        require(abs(self.sensor_offset_deg) <= 90, "sensor_offset_deg", "must be within +-90 deg")
+        require(self.offset_ramp_s >= 0, "offset_ramp_s", "must be >= 0")
+        require(0 < self.regulator_gain <= 2, "regulator_gain", "must be within (0, 2]")
+
+    @property
+    def drifts(self) -> bool:
+        """Whether any drift is asked for."""
+        return bool(self.leak) or self.friction_scale != 1.0 or self.sensor_offset_deg != 0.0 \
+            or self.regulator_gain != 1.0
 
 
 @dataclass(frozen=True)

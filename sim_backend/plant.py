@@ -18,7 +18,7 @@ from hal.identified import (
     P_SET_MIN,
     SUPPLY_HEADROOM,
 )
-from sim_backend.joint_model import JointModel
+from hal.joint_model import JointModel
 from sim_backend.options import SimJointOptions, SimOptions
 
 
@@ -41,6 +41,7 @@ class SimArm:
         if unknown:
             raise ConfigError(f"transport.options.joints.{unknown[0]}: no joint of that name in the rig")
         self.joints: list[JointModel] = []
+        self._drifts: list[SimJointOptions | None] = []  # each joint's drift (docs/simulator.md "Drift")
         for jc in rig.joints:
             jo = options.joints.get(jc.name, SimJointOptions())
             model = jo.model or jc.model_name
@@ -61,6 +62,9 @@ class SimArm:
             initial = jo.initial_angle_deg
             joint.th = min(max(initial if initial is not None else joint.equilibrium_deg(*bias), stops[0]), stops[1])
             self.joints.append(joint)
+            self._drifts.append(jo if jo.drifts else None)
+        self.t = 0.0  # the plant's clock: its steps [s]
+        self._drifting = [False] * len(self.joints)  # each joint's drift has started
         self.disturbance_nm = [0.0] * len(self.joints)  # external torque per joint [N m]
         wall = options.wall
         norm = math.hypot(*wall.normal)
@@ -74,6 +78,15 @@ class SimArm:
 
     def position(self, joint: int) -> float:
         """Joint ``joint``'s angle [rad]."""
+        return math.radians(self.joints[joint].th)
+
+    def sensed_position(self, joint: int) -> float:
+        """What joint ``joint``'s potentiometer reads [rad]: its angle, plus a drifted offset."""
+        drift = self._drifts[joint]
+        if drift is not None and self._drifting[joint]:
+            ramp = drift.offset_ramp_s
+            share = min((self.t - drift.fault_at_s) / ramp, 1.0) if ramp > 0 else 1.0
+            return math.radians(self.joints[joint].th + share * drift.sensor_offset_deg)
         return math.radians(self.joints[joint].th)
 
     def chamber_gauge(self, joint: int, second: bool) -> float:
@@ -93,9 +106,26 @@ class SimArm:
         mass, com, gravity = self._payload
         load = kinematics.payload_torques(self.angles_rad(), self.lengths, mass, com, gravity) if mass else self._no_load
         for i, joint in enumerate(self.joints):
-            joint.step(regulator_output(volts[2 * i], supply), regulator_output(volts[2 * i + 1], supply),
-                       self.disturbance_nm[i] + self._contact_torque[i] + load[i])
+            head, rod = regulator_output(volts[2 * i], supply), regulator_output(volts[2 * i + 1], supply)
+            drift = self._drifts[i]
+            if drift is not None and self.t >= drift.fault_at_s:
+                head, rod = self._drifted(i, drift, head, rod)
+            joint.step(head, rod, self.disturbance_nm[i] + self._contact_torque[i] + load[i])
+        self.t += self.options.step_s
         self._update_contact()
+
+    def _drifted(self, i: int, drift: SimJointOptions, head: float, rod: float) -> tuple[float, float]:
+        """Joint ``i``'s chamber set pressures [Pa] as its drifted regulators and a leaking
+        chamber give them; its friction scaled once, at the drift's start."""
+        if not self._drifting[i]:
+            self._drifting[i] = True
+            self.joints[i].scale_friction(drift.friction_scale)
+        head, rod = head * drift.regulator_gain, rod * drift.regulator_gain
+        if drift.leak == "head":  # the regulator's flow cannot make up the leak: the chamber settles below its set
+            head *= 1.0 - drift.leak_fraction
+        elif drift.leak == "rod":
+            rod *= 1.0 - drift.leak_fraction
+        return head, rod
 
     def _update_contact(self) -> None:
         """Penalty contact with the wall: F = k * penetration along the normal [N]; joint

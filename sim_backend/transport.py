@@ -296,7 +296,7 @@ class SimTransport(Transport):
         out = []
         for idx, ((what, i, offset, slope), adc) in enumerate(zip(self._sensing, self._adc)):
             if what == "position":
-                v = offset + slope * arm.position(i)
+                v = offset + slope * arm.sensed_position(i)
             elif what == "first" or what == "second":
                 v = offset + slope * arm.chamber_gauge(i, what == "second")
             elif what == "force":

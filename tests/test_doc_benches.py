@@ -16,14 +16,14 @@ from tests.doc_blocks import ROOT
 
 BENCH_LINES = r"^(chrt -f \d+ )?python -m bench\.(?!osl_peer)|pneumad latency "
 DOCUMENTS = ["docs/benchmarks.md", "docs/controllers.md", "docs/estimation.md", "docs/identification.md",
-             "docs/muscle-rig.md", "systemd/README.md"]
+             "docs/model.md", "docs/muscle-rig.md", "systemd/README.md"]
 # a line's wall time on a 2-core machine [s] (half what two 2-core runs beside other work took),
 # by what it runs: tests/conftest.py starts the longest first
 SECONDS = {"sim_cost": 10, "loop_latency": 15, "cycle_cost": 6, "latency": 4, "controller_cost": 2,
            "switch_load": 30, "transport_cost": 40, "transport_hil": 20, "command_stall": 25, "fuzz": 20,
            "soak": 15, "contact_force": 20, "contact_loop": 15, "compare_controllers": 20, "thesis_corners": 7,
            "robustness": 90, "payload": 2, "identification": 60, "muscle_steps": 20, "axis_control": 20,
-           "evaluation_cost": 30}
+           "evaluation_cost": 30, "model_watch": 30}
 
 
 def chrt(match) -> str:

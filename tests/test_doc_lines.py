@@ -140,7 +140,8 @@ def data_blocks(kind: str):
                 yield pytest.param(block, id=f"{doc}:{block.line}")
 
 
-RIG_TABLES = {"transport", "contact_sensor", "safety", "timing", "flight_recorder", "limits", "arm", "force_sensor", "models", "rig"}
+RIG_TABLES = {"transport", "contact_sensor", "safety", "timing", "flight_recorder", "limits", "arm", "force_sensor",
+              "models", "rig", "model_watch"}
 
 
 @pytest.mark.parametrize("block", list(data_blocks("toml")))

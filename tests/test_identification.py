@@ -21,7 +21,7 @@ from hal import config
 from hal.actuation import RigActuation
 from hal.errors import ConfigError
 from hal.identified import IDENTIFIED, K_EP, P_OFFSET
-from sim_backend.joint_model import JointModel
+from hal.joint_model import JointModel
 
 DT = 0.001
 NOISE_DEG = 0.033  # the built-in rig's 0.5 mV of ADC noise, read as an angle

@@ -12,7 +12,7 @@ import pytest
 from scipy import signal
 
 from hal.identified import IDENTIFIED, K_EP, P_OFFSET
-from sim_backend.joint_model import JointModel
+from hal.joint_model import JointModel
 from daemon.testing.simrig import make_rig
 
 H = 0.001

@@ -12,7 +12,7 @@ as deviations from the operating point where the experiment started at rest:
 inside the friction band, so its value is unknown and fitted). The pressure path is linear,
 so it is filtered at the recording's rate (1 ms) for every member at once; the mechanics are
 stepped at a coarser ``step`` [s] (exact zero-order hold of the 2x2 linear part, the same
-friction step as the simulator in :mod:`sim_backend.joint_model`: by default [2-45]'s smooth
+friction step as the simulator in :mod:`hal.joint_model`: by default [2-45]'s smooth
 sign, linearly implicit; ``friction_model="karnopp"``: Karnopp's stick rule), member by member
 in a loop compiled by numba.
 """
@@ -75,7 +75,7 @@ def mechanics(params: np.ndarray, torque: np.ndarray, step: float, alpha: float,
 
 def _step_members(coefficients, torque, alpha, beta, smooth, out):  # pragma: no cover (runs compiled)
     """The mechanics' time loop for every member: exact zero-order hold of the linear part and
-    the friction held over the step, as :mod:`sim_backend.joint_model` steps one joint:
+    the friction held over the step, as :mod:`hal.joint_model` steps one joint:
     ``smooth``, [2-45]'s smooth sign at the step's end velocity (one Newton step of backward
     Euler from the present one, as ``stribeck_step``); else Karnopp's stick rule. Plain loops
     over floats, for numba to compile: a member's step is a dozen arithmetic operations,

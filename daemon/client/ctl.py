@@ -213,6 +213,12 @@ def parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", help="PNG figures of recordings; several files overlay their runs, each from its path's start")
     pl.add_argument("files", nargs="+")
     pl.add_argument("--out", default=".", help="directory for the PNGs (default: here)")
+    rp = sub.add_parser("replay", help="a recorded run again on the rig's model: measured against simulated (docs/model.md)")
+    rp.add_argument("file", help="the recording (MCAP)")
+    rp.add_argument("--config", default=None, help="replay on this rig file's model (default: the recording's own)")
+    rp.add_argument("--out", default=None, help="directory for the PNGs and report.json (default: FILE-replay)")
+    rp.add_argument("--part", type=float, default=None,
+                    help="the difference beyond which measured and simulated have parted [deg or mm] (default 1)")
     k = sub.add_parser("keys", help="new: make your own key pair; reload: have the daemon read its allow-list again")
     k.add_argument("action", choices=["new", "reload"])
     k.add_argument("name", nargs="?", help="new: your key's name (e.g. your login)")
@@ -252,6 +258,16 @@ def export_or_plot(args) -> int:
     return 3 if cut else 0
 
 
+def replay(args) -> int:
+    """``pneumactl replay``: the daemon's loop on the rig's model, in a process of its own
+    (``python -m daemon.replay``: the client never imports the loop's side). Its exit status:
+    0 replayed, 1 refused (what the recording lacks, said), 2 the file cannot be read."""
+    import subprocess
+
+    options = [f"--{k}={v}" for k in ("config", "out", "part") if (v := getattr(args, k)) is not None]
+    return subprocess.call([sys.executable, "-m", "daemon.replay", args.file, *options])
+
+
 def key_values(items) -> dict:
     out = {}
     for item in items:
@@ -287,6 +303,8 @@ def _main(argv=None) -> int:
         return identify(None, args)
     if args.what in ("export", "plot"):
         return export_or_plot(args)
+    if args.what == "replay":
+        return replay(args)
     if args.what == "doctor":
         return doctor.run(args)
     try:

@@ -32,12 +32,13 @@ from daemon.loop.commands import Commands
 from daemon.wire import routed
 from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
 from daemon.planner.process import Deferred
+from daemon.model.process import ModelProcess, wanted
 from daemon.recorder.process import RecorderProcess, write_metadata
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
-from hal.config import FlightRecorderConfig, TimingConfig
+from hal.config import FlightRecorderConfig, RigConfig, TimingConfig
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8
@@ -63,7 +64,7 @@ class ZmqServer:
                  keys: str | None = None, insecure: bool = False, recording: dict | None = None,
                  plotjuggler: str | None = None, foxglove: str | None = None,
                  command_budget_s: float = COMMAND_BUDGET_S, timing: TimingConfig | None = None,
-                 layout: CycleLayout | None = None):
+                 layout: CycleLayout | None = None, model: RigConfig | None = None):
         """``command_budget_s``: the time the command stage may spend on requests in a cycle
         (on the loop's clock: a virtual one never spends it). ``recording``: where and how the daemon records (``directory``, ``max_mb``,
         ``min_free_mb``, and ``flight``: the rig file's ``[flight_recorder]``, default its defaults), in a recorder
@@ -72,11 +73,15 @@ class ZmqServer:
         ``foxglove``: HOST:PORT of the live Foxglove stream (:mod:`daemon.messenger.foxglove_stream`);
         ``timing``: the rig file's ``[timing]``, by which the messenger judges the loop's timing;
         ``layout``: the cycle record's (:func:`daemon.assembly.cycle_layout`), by which the
-        messenger reads the state batches: the loop attached must have the same."""
+        messenger reads the state batches: the loop attached must have the same; ``model``: the
+        rig whose model runs beside the arm (:mod:`daemon.model.process`, started at
+        :meth:`attach` when its ``[model_watch]`` is enabled and it has a joint to watch)."""
         self.max_per_cycle = max_per_cycle
         self.command_budget_s = command_budget_s
         self.recording = recording
         self.recorder: RecorderProcess | None = None
+        self._model_rig, self._model_joints = model, (wanted(model) if model is not None else [])
+        self.model: ModelProcess | None = None
         self.security = security((command, control, telemetry), keys, insecure)
         if plotjuggler and not is_local(plotjuggler) and not insecure:
             raise ConfigError(f"--plotjuggler {plotjuggler}: PlotJuggler cannot use keys, so its endpoint must be "
@@ -97,7 +102,8 @@ class ZmqServer:
         self.messenger = Messenger(self._rings_dir, self._doorbell_read, command, control, telemetry, loop_stall_s,
                                    keys, recorder=recording is not None, plotjuggler=plotjuggler,
                                    foxglove=fox, timing=timing, layout=layout.describe(),
-                                   flight=(recording.get("flight") or FlightRecorderConfig()) if recording else None)
+                                   flight=(recording.get("flight") or FlightRecorderConfig()) if recording else None,
+                                   model=bool(self._model_joints))
         try:
             self.endpoints = self.messenger.start()
         except Exception:
@@ -124,13 +130,22 @@ class ZmqServer:
         self._handles = handles
         self.commands = Commands(loop, preparer, self.security)
         self.commands.lease.carrier_down = self._messenger_down
-        self.commands.port_health = lambda: {"telemetry": self.telemetry_health(), "helpers": self.helpers_health()}
+        self.commands.port_health = lambda: {"telemetry": self.telemetry_health(), "helpers": self.helpers_health(),
+                                             "model": self.model_status()}
         loop.server = self
         write_metadata(self._rings_dir, self.commands.described, self.commands.controller_get({}))
         if self.recording is not None:
             self.recorder = RecorderProcess(self._rings_dir, self.recording["directory"], self.recording["max_mb"],
                                             self.recording["min_free_mb"], self.recording.get("flight"))
             self.recorder.start()
+        if self._model_joints:
+            self.model = ModelProcess(self._rings_dir, self._model_rig, self._model_joints)
+            self.model.start()
+
+    def model_status(self) -> dict | None:
+        """The status field ``model`` (:meth:`daemon.model.process.ModelProcess.status`); None
+        when no model runs beside the arm."""
+        return self.model.status() if self.model is not None else None
 
     def publish(self, topic: bytes, body: bytes | bytearray | memoryview) -> None:
         """Queue a telemetry message for the messenger (dropped and counted if the ring is full)."""
@@ -149,6 +164,8 @@ class ZmqServer:
         health = {"messenger": self.messenger.health()}
         if self.recorder is not None:
             health["recorder"] = self.recorder.health()
+        if self.model is not None:
+            health["model"] = self.model.health()
         if self.commands is not None:
             health["planner"] = self.commands.preparer.health()
             if self._handles.contact_sensor is not None:
@@ -201,6 +218,9 @@ class ZmqServer:
         notice = contact.check() if contact is not None else None
         if notice is not None:
             events.add({"kind": "contact", "cause": notice})
+        notice = self.model.check() if self.model is not None else None
+        if notice is not None:
+            events.add({"kind": "model", "action": "restarted", "cause": notice})
 
     def _check_messenger(self) -> None:
         """The messenger's look: a restart started, or finished (the lease's holder then has its
@@ -274,6 +294,8 @@ class ZmqServer:
         self.messenger.join()
         if self.recorder is not None:
             self.recorder.join()  # the messenger's END reached it: it finishes its files
+        if self.model is not None:
+            self.model.join()  # (the END reached it too)
         self._release_rings()
 
     def _release_rings(self) -> None:

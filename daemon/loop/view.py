@@ -143,6 +143,7 @@ class LoopView:
             "transport": vars(h.transport.health()),
             "telemetry": None,  # the port's, where one serves the loop (daemon.loop.port)
             "helpers": None,
+            "model": None,  # the port's too: the model beside the arm (daemon.model.process)
         }
 
     def _joint_fields(self) -> list[tuple]:

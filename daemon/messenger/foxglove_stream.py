@@ -39,6 +39,7 @@ from daemon.recordings.channels import (
     CONTACT,
     CONTROLLER,
     LOOP,
+    MODEL,
     Frames,
     json_schemas,
     protobuf_schemas,
@@ -153,4 +154,4 @@ class FoxgloveStream:
         self.server.stop()
 
 
-_CHANNEL_OF = {"internals": CONTROLLER, "stats": LOOP, "contact": CONTACT}  # telemetry topic -> its one channel
+_CHANNEL_OF = {"internals": CONTROLLER, "stats": LOOP, "contact": CONTACT, "model": MODEL}  # telemetry topic -> its one channel

@@ -22,12 +22,12 @@ from collections import Counter
 
 BURST = 20  # lines written at once before the rate limit holds lines back
 RATE_PER_S = 5.0  # lines a second after a burst
-HELPER_DEATHS = ("messenger", "recorder", "planner", "contact", "exchange")  # a process beside the loop restarted
+HELPER_DEATHS = ("messenger", "recorder", "planner", "contact", "exchange")  # (and the model's: a model event)  # a process beside the loop restarted
 # Logged where they happen instead (start-up, shutdown: never in a cycle), or said by another
 # event's line: a state change to fault or estop is its trip's or e-stop's line.
 SAID_ELSEWHERE = ("plugin", "shutdown")
 ERRORS = ("trip", *HELPER_DEATHS)
-WARNINGS = ("estop", "unleased", "lease_revoked", "loop_stalled", "tracking")
+WARNINGS = ("estop", "unleased", "lease_revoked", "loop_stalled", "tracking", "model")  # model: the arm left its model
 _SUBJECTS = ("name", "controller", "joint", "holder", "key")  # what an action is about, the first one present
 
 

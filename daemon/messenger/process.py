@@ -82,8 +82,9 @@ class Messenger:
                  stall_s: float = STALL_S, keys: str | None = None, recorder: bool = False,
                  plotjuggler: str | None = None, foxglove: tuple[str, int] | None = None,
                  timing: TimingConfig | None = None, layout: list[dict] | None = None,
-                 flight: FlightRecorderConfig | None = None):
+                 flight: FlightRecorderConfig | None = None, model: bool = False):
         self.rings_dir = rings_dir
+        self.model = model  # hand the state messages to the model process and publish what it says
         self.layout = layout  # the cycle record's fields (CycleLayout.describe): how a state batch reads
         self.flight = flight  # the rig file's [flight_recorder] (with a recorder): trips name their flight files
         self.timing = timing  # the rig file's [timing]: the messenger judges the loop's timing by it
@@ -121,7 +122,7 @@ class Messenger:
 
     def _args(self, endpoints: dict[str, str]) -> tuple:
         return (self.rings_dir, self.doorbell, self.stall_s, self.keys, self.recorder, self.plotjuggler, endpoints,
-                self.foxglove, self.timing, self.layout, self.flight)
+                self.foxglove, self.timing, self.layout, self.flight, self.model)
 
     def check(self) -> str | None:
         """Called from the loop (every ``daemon.loop.port.MESSENGER_CHECK_CYCLES``), never
@@ -170,7 +171,7 @@ class Messenger:
 def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str | None, recorder: bool,
           plotjuggler: str | None, endpoints: dict[str, str], foxglove: tuple[str, int] | None = None,
           timing: TimingConfig | None = None, layout: list[dict] | None = None,
-          flight: FlightRecorderConfig | None = None) -> int:
+          flight: FlightRecorderConfig | None = None, model: bool = False) -> int:
     """The messenger process's main: its imports (where a spare waits: Child.standby), then
     bind the sockets, say ready with their endpoints, relay until the loop's END or the
     parent's end."""
@@ -178,6 +179,7 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     from daemon.messenger.recorder_link import (
         Recorder,  # the process's own work: the daemon's side never needs them
     )
+    from daemon.messenger.model_link import ModelLink
     from daemon.messenger.relay import Relay
     from daemon.wire.cycle_layout import CycleLayout
     from daemon.wire.loop_stats import StatsBanks
@@ -196,6 +198,7 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     sockets = {}
     feed = None
     link = None
+    model_link = None
     try:
         for name in ("command", "control", "telemetry"):
             sockets[name] = open_socket(ctx, name, endpoints[name], guard)
@@ -205,8 +208,11 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
         if recorder:
             name = "recorder"
             link = Recorder(ctx, rings_dir)
+        if model:
+            name = "model"
+            model_link = ModelLink(ctx, rings_dir)
     except zmq.ZMQError as exc:
-        where = {"plotjuggler": plotjuggler, "recorder": "(its feed)"}.get(name) or endpoints[name]
+        where = {"plotjuggler": plotjuggler, "recorder": "(its feed)", "model": "(its feed)"}.get(name) or endpoints[name]
         raise HelperFailed(f"cannot bind the {name} endpoint {where}: {exc}") from None
     stream = None
     if foxglove:
@@ -219,8 +225,8 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})
     Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, cycle_layout, stall_s, guard,
-          link, feed, stream, timing=timing, flight=flight).run(child.parent_alive)
-    for helper in (link, feed, stream):
+          link, feed, stream, timing=timing, flight=flight, model=model_link).run(child.parent_alive)
+    for helper in (link, feed, stream, model_link):
         if helper is not None:
             helper.close()
     sockets["telemetry"].setsockopt(zmq.LINGER, CLOSE_LINGER_MS)

@@ -24,6 +24,7 @@ from daemon.messenger.guard import Guard
 from daemon.wire import routed
 from daemon.wire.keys import ANONYMOUS, OPERATOR, Identity
 from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
+from daemon.messenger.model_link import ModelLink
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.messenger.revocation import Revocations
 from daemon.messenger.journal import Journal
@@ -50,11 +51,13 @@ class Relay:
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
                  stats: StatsBanks, layout: CycleLayout, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
                  plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None,
-                 timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None):
+                 timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None,
+                 model: ModelLink | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.stats = stats  # the loop's timing histograms, summarised here once a window
         self.layout = layout  # the cycle record's: how a state batch reads
         self.recorder = recorder
+        self.model = model  # the model process's feed and what it sends back (daemon.messenger.model_link)
         self.plotjuggler = plotjuggler
         self.foxglove = foxglove  # the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.stall_s = stall_s
@@ -76,6 +79,8 @@ class Relay:
         self.poller.register(doorbell, zmq.POLLIN)
         if recorder is not None:
             self.poller.register(recorder.control, zmq.POLLIN)
+        if model is not None:
+            self.poller.register(model.out, zmq.POLLIN)
         self._served = {"keys.reload": self._answer_reload}  # the commands this process answers itself
         catalog.check_handlers(("messenger",), self._served)
 
@@ -90,6 +95,8 @@ class Relay:
                     self._take_requests(name)
             if self.recorder is not None and self.recorder.control in ready:
                 self.recorder.take_answers(self._event)
+            if self.model is not None and self.model.out in ready:
+                self.model.take(self._publish_model, lambda event: self._event(event, "model"))
             if self.doorbell in ready:
                 os.read(self.doorbell, 4096)  # the rings say what there is; the bytes only woke us
             self._send_replies()
@@ -252,8 +259,8 @@ class Relay:
         self._send(sock, envelope, reply)
 
     def _event(self, event: dict, source: str = "messenger") -> None:
-        """Publish an event of this process's own (or the recorder's), numbered in the loop's
-        event sequence."""
+        """Publish an event of this process's own (or the recorder's, or the model process's),
+        numbered in the loop's event sequence."""
         self._injected += 1
         self._event_seq += 1
         event = {"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq, "source": source}
@@ -284,6 +291,8 @@ class Relay:
             if tag == END:
                 if self.recorder is not None:
                     self.recorder.feed(b"", b"")  # the recorder finishes its files
+                if self.model is not None:
+                    self.model.feed(b"")
                 return False
             if tag >= len(TOPICS):
                 self._bad(tag, "unknown topic")
@@ -306,11 +315,21 @@ class Relay:
             pub.send_multipart((topic, payload))  # PUB drops at a subscriber's high-water mark
             if self.recorder is not None:
                 self.recorder.feed(topic, payload)
+            if self.model is not None and columns is not None:
+                self.model.feed(payload)
             if self.plotjuggler is not None:
                 self._plot(topic, columns, body)
             if self.foxglove is not None:
                 self._stream(topic, columns, body)
         return True
+
+    def _publish_model(self, topic: bytes, payload: bytes) -> None:
+        """The model process's ``model`` message, published as the loop's topics are."""
+        self.sockets["telemetry"].send_multipart((topic, payload))
+        if self.recorder is not None:
+            self.recorder.feed(topic, payload)
+        if self.foxglove is not None:
+            self.foxglove.take("model", msgpack.unpackb(payload, raw=False))
 
     def _stream(self, topic: bytes, columns: dict | None, body: bytes) -> None:
         """The live Foxglove stream's share (:mod:`daemon.messenger.foxglove_stream`)."""

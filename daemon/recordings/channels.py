@@ -4,7 +4,7 @@
 one layout (docs/foxglove-layout.json) serves live and recorded data.
 
 From the telemetry as subscribers see it (``state`` columns, ``internals``, ``stats``,
-``event``, ``contact``), :class:`Frames` makes (topic, log time [ns], encoded message):
+``event``, ``contact``, ``model``), :class:`Frames` makes (topic, log time [ns], encoded message):
 
 Every per-cycle channel is made from the cycle record's fields (:mod:`daemon.wire.cycle_layout`,
 the describe's ``cycle_layout``), so a field a rig declares reaches its channel with no code
@@ -29,7 +29,8 @@ for that rig:
   ``joints.<name>``); ``/pneumad/tip`` (forward
   kinematics of the first two joints [mm], measured and set-point, on a rig with link lengths);
   and one per message: ``/pneumad/controller`` (the internals, each signal's unit from the
-  controller that published it), ``/pneumad/loop`` (timing), ``/pneumad/contact_estimate``.
+  controller that published it), ``/pneumad/loop`` (timing), ``/pneumad/contact_estimate``,
+  ``/pneumad/model_residual`` (the model beside the arm: each joint's residual statistics, docs/model.md).
 - ``/log`` (``foxglove.Log``) and ``/events`` (``foxglove.Event``) for the daemon's events:
   trips, switches, references starting and ending (an ending's event spans the reference).
 
@@ -52,9 +53,11 @@ COMMANDED_PRESSURES, MEASURED_PRESSURES = "/pneumad/commanded_pressures", "/pneu
 SENSORS = "/pneumad/sensors"
 TRACKED = ("position", "setpoint", "error", "velocity")  # a joint's tracking channel's quantities
 CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/contact_estimate"
+MODEL = "/pneumad/model_residual"  # the model beside the arm: each joint's residual statistics (docs/model.md)
+MODEL_FIGURES = ("rms_deg", "mean_deg", "max_abs_deg", "residual_deg")  # per joint; residual_deg: the latest
 SAFE_STATE = "safe state"
 ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warnings below
-WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder", "recover")
+WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder", "recover", "model")
 _PROTOBUF = {JOINT_STATES: JointStates, LOG: Log, EVENTS: Event}
 
 _NUMBER = {"type": ["number", "null"]}  # null: not finite, or not measured (json_bytes)
@@ -145,6 +148,11 @@ def json_schemas(describe: dict) -> dict[str, dict]:
                     "latency_us": figures, "compute_us": figures}, "loop timing over a stats window [us]"),
         CONTACT: _obj({"t": _TIME, "frame": {"type": "integer"}, "age_s": _NUMBER,
                        "contact": {"type": ["object", "null"]}}, "the array sensor's contact estimate"),
+        MODEL: _obj({"t": _TIME, "band_deg": _NUMBER,
+                     "joints": _obj({j: _obj({**_numbers(*MODEL_FIGURES)["properties"], "drift": {"type": "boolean"}})
+                                     for j in fields.joints})},
+                    "the model beside the arm: each joint's residual (measured - predicted) over the last window "
+                    "[deg], the latest residual, the band, whether the joint has drifted out of it"),
     })
     return schemas
 
@@ -316,6 +324,16 @@ class Frames:
         t = m.get("t", m.get("frame_t", 0.0))
         return [(CONTACT, ns(t), json_bytes({**m, "t": t}))]
 
+    def model(self, m: dict) -> list[tuple[str, int, bytes]]:
+        """The ``model`` topic's statistics (its per-cycle residuals: the recording's ``/pneumad/model``)."""
+        t = m.get("t", 0.0)
+        joints = {}
+        for name, j in (m.get("joints") or {}).items():
+            latest = [r for r in j.get("residual_deg") or () if r is not None]
+            joints[name] = {**{k: j.get(k) for k in MODEL_FIGURES[:3]}, "residual_deg": latest[-1] if latest else None,
+                            "drift": bool(j.get("flagged"))}
+        return [(MODEL, ns(t), json_bytes({"t": t, "band_deg": m.get("band_deg"), "joints": joints}))]
+
     def event(self, m: dict) -> list[tuple[str, int, bytes]]:
         """A Log line and an Event: instantaneous, but a reference's end spans from its start."""
         t, kind = m.get("t", 0.0), m.get("kind", "?")
@@ -345,5 +363,5 @@ class Frames:
 
     def of(self, topic: str, message: dict) -> list[tuple[str, int, bytes]]:
         """The channel messages of one telemetry message (``topic``: state, internals, ...)."""
-        made = getattr(self, topic, None) if topic in ("state", "internals", "stats", "contact", "event") else None
+        made = getattr(self, topic, None) if topic in ("state", "internals", "stats", "contact", "event", "model") else None
         return made(message) if made is not None else []

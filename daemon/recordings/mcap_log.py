@@ -1,7 +1,7 @@
 """Recordings as MCAP, the container Foxglove, PlotJuggler and the ROS 2 bag tools open.
 
 One channel per telemetry topic (``/pneumad/state``, ``/pneumad/stats``, ``/pneumad/event``,
-``/pneumad/internals``, ``/pneumad/contact``), each message JSON-encoded against a JSON Schema (encoding
+``/pneumad/internals``, ``/pneumad/contact``, ``/pneumad/model``), each message JSON-encoded against a JSON Schema (encoding
 ``jsonschema``, which both viewers read natively). ``state`` is written one message per
 loop cycle, not per batch: its log time is the sample's time on the daemon's monotonic
 clock [ns] and its sequence number the cycle, and it is the cycle's record, flat, one key per
@@ -48,7 +48,7 @@ from daemon.wire.cycle_layout import MODES, CycleLayout
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
-TOPICS = ("state", "stats", "event", "internals", "contact", "gap")
+TOPICS = ("state", "stats", "event", "internals", "contact", "model", "gap")
 NAN = float("nan")
 
 
@@ -75,6 +75,10 @@ OTHER_SCHEMAS = {
     "contact": {"title": "the array pressure sensor's latest contact estimate (docs/protocol.md)", "type": "object",
                 "properties": {"frame": {"type": "integer"}, "frame_t": {"type": "number"}, "age_s": {"type": ["number", "null"]},
                                "contact": {"type": ["object", "null"]}}},
+    "model": {"title": "the model beside the arm: each joint's residual [deg] since the last message and its window's "
+                       "statistics (docs/model.md)", "type": "object",
+              "properties": {"t": {"type": "number"}, "first_cycle": {"type": ["integer", "null"]},
+                             "band_deg": {"type": "number"}, "joints": {"type": "object"}}},
     "gap": {"title": "telemetry lost between two messages of a topic", "type": "object",
             "properties": {"topic": {"type": "string"}, "missing": {"type": "integer"}, "after_seq": {"type": ["integer", "null"]}}},
 }

@@ -58,6 +58,13 @@ class Captured:
     def of(self, topic: str) -> list[dict]:
         return [m for t, m in self.messages if t == topic]
 
+    def drain(self, topic: str) -> list[dict]:
+        """The messages of ``topic`` so far, every message kept so far forgotten (a long run read
+        a part at a time)."""
+        found = self.of(topic)
+        self._messages, self._decoded = [], 0
+        return found
+
     def fields(self, group: str, quantity: str | None = None) -> list[str]:
         """The names of the layout's fields of ``group`` (one ``quantity`` of it), in record
         order: ``fields("measured", "position")`` is each joint's position, in joint order."""

@@ -253,7 +253,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
         "state", "cause", "cycle", "t", "controller", "shadow", "reference", "reference_remaining_s", "joints",
         "rig", "faults", "lease_held", "lease_holder", "unleased_disable_in_s", "client", "security", "trips",
         "overruns_total", "scheduling", "load", "transport", "telemetry", "helpers", "controllers_refused", "daemon",
-        "timing"),
+        "timing", "model"),
             sockets=BOTH),
     Command("describe", "loop", "the rig, its limits and what the daemon serves", (
         "version", "protocol", "rig", "period_s", "joints", "command_interfaces", "cycle_layout", "cycle_layout_id",

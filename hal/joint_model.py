@@ -1,4 +1,5 @@
-"""One pneumatic-cylinder joint, simulated exactly at a fixed step (rig-facts §1).
+"""One pneumatic-cylinder joint, simulated exactly at a fixed step (rig-facts §1): the simulator's
+plant (sim_backend) and the model that runs beside the arm (controllers.drift) step this one class.
 
 Model [2-30..2-39, 2-45], in the model's own units (deg; see :mod:`hal.identified`):
 
@@ -124,6 +125,11 @@ class JointModel:
     def friction_constants(p: JointParams) -> tuple[float, float, float, float, float]:
         """(Fc, Fs - Fc, vs, alpha, beta) of [2-45], as :func:`stribeck_step` takes them."""
         return p.Fc, p.Fs - p.Fc, p.vs, p.alpha, p.beta
+
+    def scale_friction(self, scale: float) -> None:
+        """Fs and Fc of [2-45] times ``scale`` from now on (a drift the simulator injects)."""
+        self.params = self.params.replace({"Fs": self.params.Fs * scale, "Fc": self.params.Fc * scale})
+        self._friction = self.friction_constants(self.params)
 
     def pneumatic_torque(self, p_head: float, p_rod: float) -> float:
         """K_mdl L (A_H P_H - A_L P_L) [N m]."""
