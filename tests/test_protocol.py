@@ -211,9 +211,9 @@ def test_disable_leaves_a_latched_fault_or_estop_as_it_is_and_the_document_says_
 
 
 def test_the_sockets_table_lists_every_telemetry_topic():
-    from daemon.messenger.shared import TOPICS
+    from daemon.messenger.shared import HELPER_TOPICS, TOPICS
 
-    topics = {t.decode() for t in TOPICS if t}
+    topics = {t.decode() for t in TOPICS + HELPER_TOPICS if t}
     text = DOC.read_text()
     row = next(line for line in text.splitlines() if line.startswith("| telemetry | PUB |"))
     assert set(re.findall(r"`([a-z]+)`", row.split("|")[4])) == topics

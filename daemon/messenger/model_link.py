@@ -8,6 +8,7 @@ from __future__ import annotations
 import msgpack
 import zmq
 
+from daemon.messenger.shared import HELPER_TOPICS
 from daemon.model.process import FEED_HWM, MODEL_FEED, MODEL_OUT, endpoint
 
 
@@ -39,7 +40,7 @@ class ModelLink:
                 return
             except ValueError:
                 continue
-            if topic == b"model":
+            if topic in HELPER_TOPICS:
                 publish(topic, body)
             elif topic == b"event":
                 try:
