@@ -49,13 +49,13 @@ def check_rig(rig: RigConfig) -> None:
     T_dly), so its joints must be rotary cylinder joints with models and a simulated transport."""
     odd = [j.name for j in rig.joints if (j.kind, j.actuation) != (ROTARY, CYLINDER)]
     if odd:
-        raise ConfigError(f"evaluate: joint(s) {', '.join(odd)} are not rotary cylinder joints; the evaluation's "
+        raise ConfigError(f"joint(s) {', '.join(odd)} are not rotary cylinder joints; the evaluation's "
                           "paths and plant variations are the planar cylinder arm's (rig-facts §1)")
     missing = [j.name for j in rig.joints if rig.joint_params(j) is None]
     if missing:
-        raise ConfigError(f"evaluate: joint(s) {', '.join(missing)} have no identified model to simulate")
+        raise ConfigError(f"joint(s) {', '.join(missing)} have no identified model to simulate")
     if rig.transport.backend != "sim":
-        raise ConfigError(f"evaluate: runs on the rig's model (transport 'sim'); this rig names "
+        raise ConfigError(f"runs on the rig's model (transport 'sim'); this rig names "
                           f"{rig.transport.backend!r}: give a copy with [transport] backend = \"sim\"")
 
 
