@@ -3,7 +3,7 @@ step compiled with numba: the same model and the same discretisation, for evalua
 millions of steps (``pneumactl evaluate``: docs/controllers.md, docs/benchmarks.md).
 
 The Python plant stays the reference: this one takes every coefficient from the Python joints
-built on the same rig and options (:class:`sim_backend.joint_model.JointModel`: exact ZOH rows,
+built on the same rig and options (:class:`hal.joint_model.JointModel`: exact ZOH rows,
 the dead-time split, the chamber lag) and only the per-step arithmetic runs compiled, the same
 operations in the same order ([2-36..2-39], [2-45] through :func:`stribeck_step`'s Newton step),
 so the two give equal trajectories to float rounding (tests/test_compiled_plant.py).
@@ -31,7 +31,7 @@ _WIDTH = 29
 
 @numba.njit(cache=True)
 def _stribeck(fc, drop, vs, alpha, beta, w, w_lin, g):
-    """:func:`sim_backend.joint_model.stribeck_step`, compiled (the same operations)."""
+    """:func:`hal.joint_model.stribeck_step`, compiled (the same operations)."""
     if w_lin == 0.0:
         return 0.0
     x = abs(w) / vs

@@ -10,7 +10,9 @@ import time
 
 import pytest
 
+from daemon.client import plot_marks, plots, progress, watch
 from daemon.client.client import Client, RemoteError
+from daemon.recordings import reading
 from daemon.messenger.timing import judge
 from hal.config import TimingConfig
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
@@ -92,9 +94,11 @@ def test_under_warn_a_5_ms_controller_step_is_an_event_naming_it_a_status_field_
             events = Events(client)
             client.acquire_lease()
             client.keep_lease()
+            started = client.record_start("meanwhile")  # the daemon's own recording, across the span
             client.enable()
             degraded = events.next("timing")
             check_degraded_by_the_slow_step(degraded, "warn", "warn")
+            assert "DEGRADED (step)" in watch._timing(client.status()["timing"]).plain
             status = client.status()
             schema("results", "status").validate(status)
             timing = status["timing"]
@@ -107,7 +111,20 @@ def test_under_warn_a_5_ms_controller_step_is_an_event_naming_it_a_status_field_
             assert recovered["action"] == "none" and recovered["controller"] is None
             assert "back within the rig file's [timing] limits" in recovered["cause"]
             assert client.status()["timing"]["degraded"] is False and client.status()["state"] == "enabled"
+            assert "within the rig file's limits" in watch._timing(client.status()["timing"]).plain
+            client.record_stop(started["name"])
+            path = progress.recording_file(client, started["name"])
             events.close()
+        # the recording holds the span: its figures hatch it, and the plot says so in words
+        run = reading.open_run(path)
+        t = run.column("t")
+        (a, b, cause), = plot_marks.degraded_spans(run.messages["event"], float(t[0]), 0.0, float(t[-1] - t[0]))
+        assert a == pytest.approx(degraded["since_t"] - t[0]) and b == pytest.approx(min(recovered["t"], t[-1]) - t[0])
+        assert "controller slow_step's step took" in cause
+        (note,) = plots.hole_notes("meanwhile.mcap", run)
+        assert note.startswith(f"meanwhile.mcap: the loop's timing was degraded in {b - a:.1f} s")
+        for figure in plots.plot_runs([path], str(tmp_path / "plots"), [run]):
+            assert os.path.getsize(figure) > 10_000
     finally:
         daemon.terminate()
         daemon.wait(10)

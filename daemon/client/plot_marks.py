@@ -1,5 +1,6 @@
 """What ``pneumactl plot``'s figures mark so that nothing misleads (:mod:`daemon.client.plots`):
-holes in the data (cycles a slow client lost) as gaps and shaded spans, runs a figure cannot
+holes in the data (cycles a slow client lost) as gaps and shaded spans, spans where the loop's
+timing was degraded (its ``timing`` events) hatched, runs a figure cannot
 tell apart merged and named together, where a path begins after its approach, the tip path's
 start and direction, and a cut recording's notice."""
 from __future__ import annotations
@@ -10,6 +11,7 @@ import numpy as np
 
 BOUNDARY = dict(color="0.35", ls=":", lw=1.2)  # the approach/path boundary
 HOLE = dict(alpha=0.18, lw=0)  # a span with no data
+DEGRADED = dict(facecolor="none", edgecolor="tab:red", hatch="///", alpha=0.35, lw=0)  # the loop's timing degraded
 CUT = dict(color="firebrick", fontsize=8.5, ha="center", va="bottom")  # the note on a cut recording's figures
 
 
@@ -43,6 +45,46 @@ def shade_holes(ax, runs, colours) -> None:
         for k, (a, b, _) in enumerate(found):
             name = f"no data ({hole_words(found)})" if len(runs) == 1 else f"{run.label}: no data ({hole_words(found)})"
             ax.axvspan(a, b, color="0.45" if len(runs) == 1 else colour, **HOLE, label=name if k == 0 else None)
+
+
+def degraded_spans(events: list[dict], t0: float, first: float, last: float) -> list[tuple[float, float, str]]:
+    """Where the loop's timing was degraded in a run (docs/protocol.md, "The loop's timing"), as
+    (from, to [s from ``t0``], cause), erring wide: a ``timing`` event that says degraded opens a
+    span at the start of the window it judged (``since_t``), and one that says it is back within
+    the limits closes it at its own time (``t``: the loop may have recovered anywhere in the
+    window it judged); a span the run begins or ends inside runs from its ``first`` or to its
+    ``last`` sample [s from ``t0``]."""
+    spans, opened = [], None
+    for e in events:
+        if e.get("kind") != "timing":
+            continue
+        if e.get("degraded"):
+            opened = opened or (max(float(e.get("since_t", e["t"])) - t0, first), e.get("cause", ""))
+        else:
+            start, cause = opened or (first, "degraded when the recording began")
+            spans.append((start, min(max(float(e["t"]) - t0, start), last), cause))
+            opened = None
+    if opened is not None:
+        spans.append((opened[0], last, opened[1]))
+    return spans
+
+
+def degraded_sentence(name: str, spans: list[tuple[float, float, str]]) -> list[str]:
+    """What the figures of a run with degraded timing show, in words (none without)."""
+    if not spans:
+        return []
+    each = ", ".join(f"{b - a:.1f} s at {a:.1f} s" for a, b, _ in spans[:10]) + (" ..." if len(spans) > 10 else "")
+    return [f"{name}: the loop's timing was degraded in {sum(b - a for a, b, _ in spans):.1f} s ({each}; "
+            f"{spans[0][2]}): hatched; what it ran there was not at the loop's rate"]
+
+
+def shade_degraded(ax, runs) -> None:
+    """Each run's degraded spans hatched, one legend entry ("loop timing degraded")."""
+    k = 0
+    for run in runs:
+        for a, b, _ in run.degraded:
+            ax.axvspan(a, b, **DEGRADED, label="loop timing degraded" if k == 0 else None)
+            k += 1
 
 
 def merge_identical(labels: list[str], arrays: list, within: float = 0.0) -> list[tuple[str, int]]:

@@ -34,8 +34,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from daemon.client import fields  # noqa: E402
-from daemon.client.plot_marks import (BOUNDARY, hole_sentence, hole_words, holes_of, merge_identical,  # noqa: E402
-                                      path_starts, say_cut, shade_holes, start_and_direction)
+from daemon.client.plot_marks import (BOUNDARY, degraded_sentence, degraded_spans, hole_sentence,  # noqa: E402
+                                      hole_words, holes_of, merge_identical, path_starts, say_cut, shade_degraded,
+                                      shade_holes, start_and_direction)
 from daemon.recordings import reading as recording  # noqa: E402
 from daemon.recordings.channels import signal_units  # noqa: E402
 
@@ -59,6 +60,8 @@ class Drawn:
         self.starts = [float(t[0]) + s - self.t0 for s in starts]
         self.aligned = align and bool(starts)
         self.holes = holes_of(self.time, self.cycles)
+        self.degraded = degraded_spans(run.messages.get("event", []), self.t0, float(self.time[0]),
+                                       float(self.time[-1]))
         self.enabled = np.array([s["mode"] == "enabled" for s in run.samples], dtype=bool)
 
     def column(self, name: str) -> np.ndarray:
@@ -86,9 +89,11 @@ def _label(path: Path, run: recording.Run) -> str:
 
 
 def hole_notes(name: str, run: recording.Run) -> list[str]:
-    """What the figures of a run with holes show, in words (none without holes)."""
+    """What the figures of a run with holes or degraded timing show, in words (none without)."""
     t = np.asarray(run.column("t"), dtype=float)
-    return hole_sentence(name, holes_of(t - t[0], np.asarray(run.column("cycle"), dtype=np.int64)))
+    return (hole_sentence(name, holes_of(t - t[0], np.asarray(run.column("cycle"), dtype=np.int64)))
+            + degraded_sentence(name, degraded_spans(run.messages.get("event", []), float(t[0]), 0.0,
+                                                     float(t[-1] - t[0]))))
 
 
 def _distinct(runs: list[Drawn]) -> list[Drawn]:
@@ -117,6 +122,7 @@ def _rows_figure(runs: list[Drawn], rows: list[tuple[str, str, object]], title: 
         for colour, run in zip(colours, runs):
             draw(ax, what, run, colour)
         shade_holes(ax, runs, colours)
+        shade_degraded(ax, runs)
         for k, t in enumerate(sorted({t for run in runs for t in run.starts})):
             ax.axvline(t, **BOUNDARY, label="approach ends, path begins" if k == 0 else None)
         ax.set_title(name)

@@ -212,13 +212,27 @@ class View:
             health = Text(f"loop: wake-up p99 {st['latency_us']['p99']:.0f} us, compute p99 "
                           f"{st['compute_us']['total']['p99']:.0f} us, overruns {st['overruns']} in the last "
                           f"{st['cycles']} cycles ({st['overruns_total']} in all); telemetry lost here {self.lost}")
+        timing = _timing(s.get("timing"))
         faults = Text("faults: " + (", ".join(s.get("faults") or []) or "none"),
                       style="red" if s.get("faults") else "dim")
         recording = Text("recording: " + (", ".join(f"{name} ({who})" for name, who in self.recordings.items())
                                           or "none"), style="bold magenta" if self.recordings else "dim")
         events = Text("\n".join(self.events) or "no events yet", style="dim")
-        return Panel(Group(head, table, *further, *([rig] if rig.plain else []), written, health, faults, recording, Text("events:", style="bold"), events),
+        return Panel(Group(head, table, *further, *([rig] if rig.plain else []), written, health, timing, faults, recording, Text("events:", style="bold"), events),
                      title="pneumad", subtitle="Ctrl-C to leave")
+
+
+def _timing(verdict: dict | None) -> Text:
+    """The messenger's last verdict on the loop's timing (``status.timing``): degraded in red with
+    its cause (runs meanwhile are not valid at the loop's rate), else the rate it achieved."""
+    if not verdict or verdict.get("judged_t") is None:
+        return Text("timing: not judged yet", style="dim")
+    if verdict.get("degraded"):
+        return Text(f"timing: DEGRADED ({', '.join(verdict.get('reasons') or [])}): {verdict.get('cause', '')}",
+                    style="bold red")
+    return Text(f"timing: within the rig file's limits ({verdict['rate_hz']:.0f} Hz of {verdict['expected_hz']:.0f}, "
+                f"{verdict['overruns']} of {verdict['deadlines']} deadlines missed over {verdict['window_s']:.0f} s)",
+                style="dim")
 
 
 def _holder(status: dict) -> str:
