@@ -92,7 +92,7 @@ def test_every_command_gets_its_documented_reply_and_never_stalls_the_loop(daemo
 
 def test_the_telemetry_published_meanwhile_matches_its_schema(daemon):
     _, _, sub = daemon
-    seen = {"state": 0, "stats": 0, "event": 0, "internals": 0}
+    seen = {"state": 0, "stats": 0, "event": 0, "internals": 0, "model": 0}  # model: the model process's
     validators = {topic: schema("telemetry", topic) for topic in seen}
     # everything the cases' run left queued: read until a state sample from after now (its `t`
     # is on this machine's monotonic clock), however long a starved reader takes to get there

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from daemon import recordings
+from daemon.planner.process import Preparer
 from daemon.recordings.reading import open_run
 from daemon.client.client import Client
 from daemon.testing.loop import dealer, make_loop, ok, run_seconds, tracking
@@ -52,7 +53,8 @@ def test_the_example_follows_the_translation_within_what_the_guide_says(monkeypa
     (bottom) and 0.8 deg (middle) along the thesis's translation in 15 s, PID's 0.43 and 1.13;
     it took over from PID at rest without a jump."""
     monkeypatch.syspath_prepend(str(controller_plugin.SOURCE))
-    loop, captured, srv = make_loop(server=True, plugins=PLUGIN)
+    worker = Preparer(time_limit_s=120.0)  # spawned with the example on its path (the session's was not)
+    loop, captured, srv = make_loop(server=True, plugins=PLUGIN, preparer=worker)
     try:
         sock = dealer(srv)
         lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
@@ -68,6 +70,7 @@ def test_the_example_follows_the_translation_within_what_the_guide_says(monkeypa
         worst, _ = tracking(captured, settled)  # the path and 2 s after, as docs/controllers.md measures
     finally:
         srv.close()
+        worker.close()
     assert worst[0] < 0.4 and worst[1] < 0.9, worst
 
 

@@ -87,11 +87,14 @@ def virtual_loop(rig: config.RigConfig, controller: str = "pid", publish=None,
 
 
 def make_loop(rig_text: str | None = None, server: bool = False, controller: str = "pid", loop_stall_s: float = 60.0,
-              plugins: dict[str, str] | None = None) -> tuple[ControlLoop, Captured, ZmqServer | None]:
+              plugins: dict[str, str] | None = None,
+              preparer: Preparer | None = None) -> tuple[ControlLoop, Captured, ZmqServer | None]:
     """The loop on a virtual clock, started, its telemetry captured, and (``server``) served
-    on private ports with the session's planner worker. It cycles only while a test runs
-    it, so the messenger's stall watch (``loop_stall_s``) is set long: a test that thinks
-    for a second between two requests has not stalled a real-time loop."""
+    on private ports with ``preparer`` (default: the session's planner worker, spawned with the
+    ``sys.path`` of the first test that asked: a plugin a test put on its path needs a worker
+    of its own). It cycles only while a test runs it, so the messenger's stall watch
+    (``loop_stall_s``) is set long: a test that thinks for a second between two requests has
+    not stalled a real-time loop."""
     rig = config.parse(rig_text) if rig_text else config.load()
     srv = ZmqServer(PRIVATE, PRIVATE, PRIVATE, loop_stall_s=loop_stall_s,
                     layout=assembly.cycle_layout(rig)) if server else None
@@ -99,7 +102,7 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
     loop = virtual_loop(rig, controller, send, plugins, srv.stats_banks if srv is not None else None)
     if srv is not None:
-        srv.attach(loop, shared_preparer())
+        srv.attach(loop, preparer or shared_preparer())
     captured.follow(loop, beside_messenger=srv is not None)
     loop.start()
     return loop, captured, srv
