@@ -193,6 +193,15 @@ def latency(seconds: float, no_rt: bool, priority: int) -> Finding:
                                              "real-time scheduling and an isolated CPU, or a PREEMPT_RT kernel")
 
 
+def _is_pneumad(command: str) -> bool:
+    """Whether a command line is pneumad's: its program (``pneumad``, ``python -m daemon.main``) or
+    its messenger process; not any program whose path happens to hold the word (a checkout in
+    ``/tmp/pneumad-ci`` runs its tests from there)."""
+    words = command.split()
+    return any(os.path.basename(w) == "pneumad" or w == "daemon.main" or w.startswith("daemon.messenger")
+               for w in words[:6])
+
+
 def endpoint(name: str, address: str, ping: dict | None) -> Finding:
     """Who holds ``address``: the daemon that answers, another program (pneumad cannot bind it),
     or nobody."""
@@ -212,7 +221,7 @@ def endpoint(name: str, address: str, ping: dict | None) -> Finding:
                                   for h in held):
         return Finding(check, "ok", f"held by pneumad pid {daemon['pid']} ({owners}), which answers ping "
                                     f"(version {ping['version']})")
-    if any("pneumad" in h.command or "daemon.messenger" in h.command or h.pid is None for h in held):
+    if any(h.pid is None or _is_pneumad(h.command) for h in held):
         return Finding(check, "warn", f"held by {owners}, a pneumad that does not answer ping",
                        "`pneumactl status`; a stalled or a keyed daemon (--key) does not answer; its log says why")
     return Finding(check, "fail", f"held by {owners}, not pneumad: pneumad cannot bind it",
