@@ -5,12 +5,10 @@ document's ``pip install`` line to install into a directory the test puts on a d
 (``PYTHONPATH``), never into the checkout or the suite's environment."""
 from __future__ import annotations
 
-import base64
-import hashlib
 import tomllib
-import zipfile
 from pathlib import Path
 
+from tests import wheels
 from tests.doc_blocks import ROOT
 
 SOURCE = ROOT / "examples" / "controller_plugin"
@@ -27,17 +25,5 @@ def wheel(directory: Path, source: Path = SOURCE) -> Path:
                      for group, entries in meta["entry-points"].items())
     files[f"{dist}/METADATA"] = (f"Metadata-Version: 2.1\nName: {meta['name']}\nVersion: {version}\n"
                                  f"Summary: {meta['description']}\n")
-    files[f"{dist}/WHEEL"] = "Wheel-Version: 1.0\nGenerator: tests/controller_plugin.py\nRoot-Is-Purelib: true\n" \
-                             "Tag: py3-none-any\n"
     files[f"{dist}/entry_points.txt"] = groups
-    record = [f"{path},sha256={_digest(text)},{len(text.encode())}" for path, text in files.items()]
-    files[f"{dist}/RECORD"] = "\n".join([*record, f"{dist}/RECORD,,"]) + "\n"
-    path = Path(directory) / f"{name}-{version}-py3-none-any.whl"
-    with zipfile.ZipFile(path, "w") as zf:
-        for file, text in files.items():
-            zf.writestr(file, text)
-    return path
-
-
-def _digest(text: str) -> str:
-    return base64.urlsafe_b64encode(hashlib.sha256(text.encode()).digest()).rstrip(b"=").decode()
+    return wheels.write(directory, name, version, files, "tests/controller_plugin.py")

@@ -11,12 +11,11 @@ it lacks), as a half-installed plugin does.
 """
 from __future__ import annotations
 
-import base64
-import hashlib
 import subprocess
 import sys
-import zipfile
 from pathlib import Path
+
+from tests import wheels
 
 NAME, VERSION = "lab_sensors", "0.1.0"
 KIND = "ad8495"
@@ -74,17 +73,9 @@ def wheel(directory: Path, broken: bool = False, module: str = MODULE) -> Path:
         f"{NAME}/__init__.py": BROKEN if broken else module,
         f"{dist}/METADATA": f"Metadata-Version: 2.1\nName: {NAME.replace('_', '-')}\nVersion: {VERSION}\n"
                             f"Summary: a lab's own sensor kinds for pneumad\n",
-        f"{dist}/WHEEL": "Wheel-Version: 1.0\nGenerator: tests/device_plugin.py\nRoot-Is-Purelib: true\n"
-                         "Tag: py3-none-any\n",
         f"{dist}/entry_points.txt": f"[pneumad.devices]\n{KIND} = {NAME}:AD8495\n",
     }
-    record = [f"{path},sha256={_digest(text)},{len(text.encode())}" for path, text in files.items()]
-    files[f"{dist}/RECORD"] = "\n".join([*record, f"{dist}/RECORD,,"]) + "\n"
-    path = Path(directory) / f"{NAME}-{VERSION}-py3-none-any.whl"
-    with zipfile.ZipFile(path, "w") as zf:
-        for name, text in files.items():
-            zf.writestr(name, text)
-    return path
+    return wheels.write(directory, NAME, VERSION, files, "tests/device_plugin.py")
 
 
 def install(directory: Path, broken: bool = False, module: str = MODULE) -> Path:
@@ -102,5 +93,3 @@ def rig_text(base: str) -> str:
     return base + f'\n[[inputs]]\nname = "oil_temperature"\ndevice = "{KIND}"\nchannel = "ai5"\n'
 
 
-def _digest(text: str) -> str:
-    return base64.urlsafe_b64encode(hashlib.sha256(text.encode()).digest()).rstrip(b"=").decode()
