@@ -32,9 +32,14 @@ def hole_sentence(name: str, found: list[tuple[float, float, int]]) -> list[str]
     """What the figures of a run with holes show, in words (none without holes)."""
     if not found:
         return []
-    each = ", ".join(f"{b - a:.2f} s at {a:.2f} s" for a, b, _ in found[:10]) + (" ..." if len(found) > 10 else "")
-    return [f"{name}: no data in {hole_words(found)} in all ({each}; {sum(n for *_, n in found)} cycles missing): "
+    return [f"{name}: no data in {hole_words(found)} in all ({_each(found, 2)}; {sum(n for *_, n in found)} cycles missing): "
             f"drawn as gaps, shaded"]
+
+
+def _each(spans: list[tuple], digits: int) -> str:
+    """Spans (from, to [s], ...) in words, the first ten: "0.50 s at 3.20 s, ..."."""
+    return (", ".join(f"{b - a:.{digits}f} s at {a:.{digits}f} s" for a, b, *_ in spans[:10])
+            + (" ..." if len(spans) > 10 else ""))
 
 
 def shade_holes(ax, runs, colours) -> None:
@@ -73,8 +78,7 @@ def degraded_sentence(name: str, spans: list[tuple[float, float, str]]) -> list[
     """What the figures of a run with degraded timing show, in words (none without)."""
     if not spans:
         return []
-    each = ", ".join(f"{b - a:.1f} s at {a:.1f} s" for a, b, _ in spans[:10]) + (" ..." if len(spans) > 10 else "")
-    return [f"{name}: the loop's timing was degraded in {sum(b - a for a, b, _ in spans):.1f} s ({each}; "
+    return [f"{name}: the loop's timing was degraded in {sum(b - a for a, b, _ in spans):.1f} s ({_each(spans, 1)}; "
             f"{spans[0][2]}): hatched; what it ran there was not at the loop's rate"]
 
 
