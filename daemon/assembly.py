@@ -106,7 +106,7 @@ def loop_parts(rig: config.RigConfig, period: float = 0.001, controller: str | N
         raise ConfigError(f"--controller: {exc}") from None
     safety = rig.safety
     fallback = None
-    if safety.tracking_action == "fallback":
+    if safety.tracking_action == "fallback" or rig.timing.policy == "hold":  # the tracking rule's, the timing policy's
         try:
             fallback = registry.build(safety.fallback_controller, context, plugins=plugins)
         except (LookupError, ValueError) as exc:

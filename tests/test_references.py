@@ -198,10 +198,12 @@ def test_a_prbs_starts_and_a_chirp_beyond_the_rig_is_refused_with_the_remedy(arm
         assert reply["error"]["code"] == P.BAD_ARGS and text in reply["error"]["message"], reply
 
 
-@pytest.mark.parametrize("overtake", ["abort", "estop", "disable"])
+@pytest.mark.parametrize("overtake", ["abort", "estop", "disable", "lease.release"])
 def test_a_plan_overtaken_while_it_is_prepared_is_discarded_not_started(armed, overtake):
     """Planning runs beside the loop; an abort, e-stop or disable sent meanwhile is served at
-    once, and the plan that finishes after it is refused, never started."""
+    once, and the plan that finishes after it is refused, never started. So is one whose
+    client handed its lease back meanwhile (a routine interrupted by Ctrl-C while its move was
+    planned): the move is no longer anyone's to start."""
     loop, _, sock, lease = armed
     control = dealer(loop.server, "control")
     rows = [[130.0 + 5.0 * math.sin(i), -75.0] for i in range(1000)]
@@ -213,7 +215,7 @@ def test_a_plan_overtaken_while_it_is_prepared_is_discarded_not_started(armed, o
         sock.poll(1)
     assert loop.server._waiting, "the plan was not handed to the worker"
     args = {"who": "test"} if overtake == "estop" else {}
-    control.send(P.encode_request("stop", overtake, args, lease))
+    (sock if overtake == "lease.release" else control).send(P.encode_request("stop", overtake, args, lease))
     replies = {}
     deadline = time.monotonic() + 120  # the plan's end is waited for: a busy machine plans slowly
     while len(replies) < 2 and time.monotonic() < deadline:

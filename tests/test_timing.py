@@ -13,6 +13,7 @@ import pytest
 from daemon.client import plot_marks, plots, progress, watch
 from daemon.client.client import Client, RemoteError
 from daemon.recordings import reading
+from daemon.wire.arguments import CommandFailed
 from daemon.messenger.timing import judge
 from hal.config import TimingConfig
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
@@ -134,10 +135,13 @@ def test_under_warn_a_5_ms_controller_step_is_an_event_naming_it_a_status_field_
 
 
 @pytest.mark.slow(seconds=60)
-def test_under_hold_a_5_ms_controller_step_stops_the_running_reference_and_motion_is_refused(tmp_path):
-    """A move runs under PID; the slow controller is switched in beneath it: the verdict stops
-    the move and holds the arm where it is, and a new move is refused while it lasts."""
-    with open(tmp_path / "daemon.log", "w") as stderr:
+def test_under_hold_a_5_ms_controller_step_is_replaced_by_the_fallback_and_the_running_reference_stopped(tmp_path):
+    """A move runs under PID; the slow controller is switched in beneath it: the verdict puts
+    the rig file's fallback controller (pid) in its place, stops the move and holds the arm
+    where it is, with the journal line saying who was replaced and why; once the loop is back
+    within its limits, motion is taken again."""
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
         daemon, eps = real_daemon(tmp_path, "--config", step_only(tmp_path, "hold"), "--controller-plugin", SLOW_STEP,
                                   stderr=stderr)
     try:
@@ -150,19 +154,45 @@ def test_under_hold_a_5_ms_controller_step_stops_the_running_reference_and_motio
             client.set(angles_deg=[130.0, -75.0], duration_s=120.0)
             client.switch_controller("slow_step")
             degraded = events.next("timing")
-            check_degraded_by_the_slow_step(degraded, "hold", "hold")
+            check_degraded_by_the_slow_step(degraded, "hold", "fallback")
+            assert degraded["fallback"] == "pid"
+            replaced = events.next("controller", to="pid")
+            assert replaced["from"] == "slow_step" and replaced["cause"].startswith("fallback: slow_step: its step took ")
+            assert replaced["cause"].endswith("(median), over its budget of 500 us")
             cut = events.next("reference", action="end")
             assert cut["cut"] == "replaced by hold"
             status = client.status()
             assert status["state"] == "enabled" and status["reference_remaining_s"] == 0.0
-            with pytest.raises(RemoteError) as refused:
-                client.set(angles_deg=[131.0, -75.0], duration_s=5.0)
-            assert refused.value.code == "bad_state" and refused.value.data["reason"] == "timing"
-            assert "policy = \"hold\"" in refused.value.message
+            assert status["controller"] == "pid" and status["timing"]["fallback"] in ("pid", None)
+            back = events.next("timing", degraded=False)  # the fallback's step is within the budget
+            assert back["action"] == "none" and back["fallback"] is None
+            client.set(angles_deg=[131.0, -75.0], duration_s=2.0)  # motion is taken again
             events.close()
     finally:
         daemon.terminate()
         daemon.wait(10)
+    logged(log, ("pneumad messenger", "slow_step", "pid", "over its budget of 500 us"))
+
+
+def test_under_hold_motion_is_refused_while_the_timing_is_degraded():
+    """The policy hold refuses motion while a verdict says degraded (the rate, the missed
+    deadlines or a step over budget), saying which rule holds it."""
+    from daemon.loop.timing import TimingVerdicts
+    from daemon.testing.loop import make_loop
+    loop, _, _ = make_loop(rig_text=tolerant_rig_text() + '\n[timing]\npolicy = "hold"\n')
+    verdicts = TimingVerdicts(loop, loop.view, loop.events)
+    verdicts.check_motion()  # nothing judged yet: taken
+    verdicts.take({"degraded": True, "reasons": ["rate"], "rate_hz": 500.0, "expected_hz": 1000.0, "overruns": 2500,
+                   "deadlines": 5000, "control_us": 30.0, "step_budget_us": 500.0, "window_s": 5.0, "t": 10.0,
+                   "since_t": 5.0})
+    with pytest.raises(CommandFailed) as refused:
+        verdicts.check_motion()
+    assert refused.value.data == {"reason": "timing"} and 'policy = "hold"' in str(refused.value)
+    assert loop.controller.name == "pid"  # a rate verdict replaces no controller
+    verdicts.take({"degraded": False, "reasons": [], "rate_hz": 1000.0, "expected_hz": 1000.0, "overruns": 0,
+                   "deadlines": 5000, "control_us": 30.0, "step_budget_us": 500.0, "window_s": 5.0, "t": 15.0,
+                   "since_t": 10.0})
+    verdicts.check_motion()
 
 
 @pytest.mark.slow(seconds=60)

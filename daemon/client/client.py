@@ -64,9 +64,11 @@ class Interrupted(Exception):
 
 def abort_started(client: "Client", what: str) -> str:
     """Abort the reference a client routine started (it holds the lease) and say so: the
-    sentence an :class:`Interrupted` routine ends with."""
+    sentence an :class:`Interrupted` routine ends with. Sent on the command socket, behind the
+    routine's own requests: a move it asked for that is still being planned when Ctrl-C comes
+    is overtaken by the abort, never started after it (the control socket could pass it)."""
     try:
-        client.abort()
+        client.call("abort")
     except (RemoteError, TimeoutError) as exc:
         return f"{what} could not be aborted ({exc}): `pneumactl abort` stops it"
     return f"{what} was aborted: the arm holds where it is, enabled"

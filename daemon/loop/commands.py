@@ -301,7 +301,9 @@ class Commands(ControllerCommands):
     def motion(self, request: dict) -> Deferred:
         """Plan a motion command beside the loop (:mod:`daemon.planner.commands`) from the set-point in
         force now; the loop installs it at the cycle boundary after the plan is done, unless the
-        reference or the state changed meanwhile (:meth:`~daemon.loop.cycle.ControlLoop.install`)."""
+        reference, the state or the lease changed meanwhile (:meth:`~daemon.loop.cycle.ControlLoop.install`):
+        a routine interrupted while its move was planned hands its lease back, and its move
+        must not start after that."""
         self.loop.require_enabled()
         self.timing.check_motion()
         name, remaining = self.view.reference_running()
@@ -310,8 +312,13 @@ class Commands(ControllerCommands):
                                              f"more: abort it first, or send this once it ends",
                                 {"reason": "reference_running", "remaining_s": remaining})
         generation, setpoint = self.view.reference_origin()
+        lease = self.lease.token  # the lease the request came under (None: unleased)
 
         def finish(plan: planner.Plan) -> dict:
+            if self.lease.token != lease:  # handed back, lost or taken by another since: not theirs to start
+                raise CommandFailed(P.BAD_STATE, "the lease this was asked under ended while it was planned (released, "
+                                                 "lost or taken by another client): nothing was started",
+                                    {"reason": "overtaken"})
             self.loop.install(plan)
             return {**plan.reply, "cycle": self.view.cycle, **({"recording": plan.record} if plan.record else {})}
 

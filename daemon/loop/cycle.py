@@ -320,11 +320,22 @@ class ControlLoop(LoopControls, LoopQueries):
         self.events.add({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
                          "params": hold.get_params()})
 
+    def fall_back(self, cause: str) -> str:
+        """Put the rig file's fallback controller in the active one's place (``hold``, which
+        repeats the output in force, where the fallback is the one replaced or none is built) and
+        hold the arm where it is: the ``[timing] policy = "hold"`` for a controller whose step is
+        over its budget. The name of the controller now active."""
+        slow, spare = self.controller.name, self._fallback
+        new = copy.deepcopy(spare) if spare is not None and spare.name != slow else Hold(self.context)
+        self.switch(new, f"fallback: {slow}: {cause}")
+        self.hold()
+        return new.name
+
     def controller_lost(self, cause: str) -> None:
         """The tracking rule fired: the fallback controller takes over and holds the arm where
         it is, or (no fallback configured, or the fallback itself lost the joint) a trip."""
         lost, spare = self.controller.name, self._fallback
-        if spare is not None and lost != spare.name:
+        if self.rig.safety.tracking_action == "fallback" and spare is not None and lost != spare.name:
             self.events.add({"kind": "tracking", "controller": lost, "cause": cause,
                              "action": "fallback", "to": spare.name})
             self.switch(copy.deepcopy(spare), f"fallback: {lost}: {cause}")

@@ -21,7 +21,8 @@ class LoopParts:
     context: ControllerContext  # what every controller is built on (its dt is the loop's period [s])
     supervisor: Supervisor
     controller: Controller  # active at start
-    fallback: Controller | None  # safety.tracking_action = "fallback": copied in when tracking is lost
+    fallback: Controller | None  # copied in when tracking is lost (safety.tracking_action = "fallback") or a
+    # step is over its budget ([timing] policy = "hold"); built beforehand: a fallback never builds in a cycle
     tracking: TrackingGuard
     feed_forward: LoadFeedForward  # a known payload's V_MV, none at first
     controller_plugins: dict[str, str]  # name -> module:Class, from the daemon's configuration

@@ -4,7 +4,8 @@ window as the internal command ``timing.verdict``; here, at a cycle boundary, it
 ``status`` (the field ``timing``), the active controller is named when its step is over budget,
 a ``timing`` event is raised when the verdict changes (degraded, or back within the limits),
 and the rig file's ``[timing] policy`` is applied while it is degraded: ``warn`` nothing more,
-``hold`` a running reference stopped and the arm held where it is (motion commands refused
+``hold`` a controller over its step budget replaced by the rig file's fallback controller (or
+``hold``), a running reference stopped and the arm held where it is (motion commands refused
 meanwhile), ``trip`` an enabled arm tripped. Constant work, once a window.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ class TimingVerdicts:
         self.status = {"degraded": False, "since": None, "cause": "", "reasons": [], "rate_hz": None,
                        "expected_hz": None, "overruns": None, "deadlines": None, "control_us": None,
                        "step_budget_us": None, "controller": None, "window_s": self.settings.window_s,
-                       "judged_t": None, "policy": self.settings.policy}
+                       "judged_t": None, "policy": self.settings.policy, "fallback": None}
 
     def take(self, verdict: dict) -> dict:
         """A verdict (``timing.verdict``'s arguments): kept, told when it changes, acted on."""
@@ -36,6 +37,7 @@ class TimingVerdicts:
         if changed:
             status["cause"] = self._cause(verdict, status)
             status["since"] = verdict.get("t")
+            status["fallback"] = None
         action = self._act(status["cause"]) if degraded else "none"
         if changed:
             self.events.add({"kind": "timing", "degraded": degraded, "cause": status["cause"], "action": action,
@@ -43,7 +45,7 @@ class TimingVerdicts:
                              "since_t": verdict.get("since_t"),
                              **{key: status[key] for key in ("reasons", "rate_hz", "expected_hz", "overruns",
                                                              "deadlines", "control_us", "step_budget_us",
-                                                             "controller")}})
+                                                             "controller", "fallback")}})
         return {"degraded": degraded, "action": action}
 
     def _act(self, cause: str) -> str:
@@ -52,9 +54,16 @@ class TimingVerdicts:
         if policy == "trip" and self.view.enabled:
             self.controls.trip(f"timing degraded: {cause}")
             return "trip"
-        if policy == "hold" and self.view.enabled and self.view.reference_running()[1] > 0.0:
-            self.controls.hold()
-            return "hold"
+        if policy == "hold" and self.view.enabled:
+            slow = self.status["controller"]
+            if slow is not None and slow == self.view.controller.name:  # still the active one: replaced
+                took, budget = self.status["control_us"] or 0.0, self.status["step_budget_us"] or 0.0
+                self.status["fallback"] = self.controls.fall_back(f"its step took {took:.0f} us (median), over its "
+                                                                  f"budget of {budget:.0f} us")
+                return "fallback"
+            if self.view.reference_running()[1] > 0.0:
+                self.controls.hold()
+                return "hold"
         return "warn" if policy == "warn" else "none"
 
     def check_motion(self) -> None:
