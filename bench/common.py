@@ -123,3 +123,26 @@ def child_process(parent: int, marker: str) -> int | None:
         if ppid == parent and marker.encode() in cmdline:
             return pid
     return None
+
+
+class Trips:
+    """The trips a bench's daemon met while loaded, told instead of ending the bench: a
+    stall trip on a loaded machine is one of the bench's results. ``again(client)`` after a
+    command was refused because the arm was not enabled: the cause noted from ``status``, then
+    reset and enable, so the load goes on."""
+
+    def __init__(self):
+        self.causes: list[str] = []
+
+    def again(self, client: Client) -> None:
+        status = client.status()
+        self.causes.append(f"{status['cause'] or status['state']} [cycle {status['cycle']}]")
+        client.reset()
+        client.enable()
+
+    def line(self) -> str:
+        if not self.causes:
+            return "none"
+        return f"{len(self.causes)}, the figures include them: " + "; ".join(self.causes[:5]) + (
+            f"; ... {len(self.causes) - 5} more" if len(self.causes) > 5 else "")
+
