@@ -203,3 +203,44 @@ def test_a_lease_acquire_the_revoked_key_sent_before_the_reload_is_ended_after_i
         status = bea.status()
         assert status["lease_held"] is False, status  # ... and the one behind it ended it
     sock.close()
+
+
+def test_a_key_made_an_observer_while_it_holds_the_lease_loses_it_at_once(lab, tmp_path):
+    """dan takes the lease, enables and starts a long path; his key stays on the allow-list
+    but as an observer (revoked and allowed again with the role, then one reload): his lease ends at
+    once, as a removed key's, where it would otherwise lapse at its time to live (his renewals
+    forbidden to an observer) and trip the enabled arm; the path stops, the arm holds, bea
+    takes the lease at once, and dan, still connected, is an observer."""
+    _, eps, files = lab
+    dan_file = allow(files, "dan", tmp_path)
+    reload_as_documented(eps, files)
+    public, _ = keys.read_key_pair(dan_file, need_secret=False)
+    with client(eps, files["bea"]) as bea, client(eps, dan_file) as dan:
+        sub = bea.subscribe((b"event", b"state"))
+        assert sub.receive(30.0) is not None
+        dan.acquire_lease(TTL_S)
+        dan.enable()
+        dan.path("circle", duration_s=600.0)
+        keys.revoke(files["dir"], "dan")
+        keys.allow(files["dir"], "dan", keys.OBSERVER, public)
+        changes = reload_as_documented(eps, files)
+        assert changes["changed"] == ["dan"] and changes["removed"] == [] and "dan" in changes["allowed"]
+        status = bea.status()
+        assert status["lease_held"] is False and status["state"] == "enabled" and status["reference"] == "hold"
+        bea.acquire_lease()
+        assert dan.status()["client"] == {"name": "dan", "role": "observer"}
+        with pytest.raises(RemoteError) as refused:
+            dan.acquire_lease()
+        assert refused.value.code == P.FORBIDDEN
+        try:
+            seen = events_until(sub, "lease_revoked")
+            ended = seen[-1]
+            assert ended["key"] == "dan" and "another key or role" in ended["cause"] and "unleased" in ended["cause"]
+            assert [e["changed"] for e in seen if e["kind"] == "keys"][-1] == ["dan"]
+            for event in seen:
+                schema("telemetry", "event").validate(event)
+            assert "'dan'" in logged(files["log"], ("lease", "'dan'", "another key or role"))
+        finally:
+            sub.close()
+            bea.disable()
+            bea.release_lease()

@@ -194,8 +194,8 @@ class Commands(ControllerCommands):
         return self.lease.release()
 
     def lease_revoke(self, args):
-        """The messenger's word that a key left the allow-list (internal, at a reload)."""
-        return self.lease.revoke(args["key"])
+        """The messenger's word that a key left the allow-list or changed (internal, at a reload)."""
+        return self.lease.revoke(args["key"], args.get("why", "removed"))
 
     def timing_verdict(self, args):
         """The messenger's verdict on the loop's timing (internal, every stats window)."""

@@ -110,16 +110,19 @@ class Lease:
         return {"unleased": {"action": self.safety.unleased_action, "grace_s": self.safety.unleased_grace_s,
                              "note": note, "first": first}}
 
-    def revoke(self, key: str) -> dict:
-        """End the lease now if key ``key`` holds it: the key has left the allow-list (the
-        messenger's ``lease.revoke`` at a reload). Its holder was in charge of what the arm
+    def revoke(self, key: str, why: str = "removed") -> dict:
+        """End the lease now if key ``key`` holds it: the key has left the allow-list, or its
+        name now has another key or role (``why``: ``removed``, ``changed``; the messenger's
+        ``lease.revoke`` at a reload). Its holder was in charge of what the arm
         does, so that stops too: an enabled arm holds where it is (as ``abort``) and the
         unleased policy runs from now (a ``"disable"`` grace time starts). One string
         comparison when the key holds no lease."""
         if self.token is None or self.holder.name != key:
             return {"ended": False, "cause": ""}
         self.token = None
-        cause = f"key {key!r} was revoked while it held the lease: the lease ended"
+        cause = (f"key {key!r} was revoked while it held the lease: the lease ended" if why == "removed" else
+                 f"key {key!r} was given another key or role while it held the lease: the lease ended (take it "
+                 f"again with the new key, as an operator)")
         if self._supervisor.enabled:
             stopped = "the running reference was stopped and " if self._reference()[1] > 0.0 else ""
             self._hold()

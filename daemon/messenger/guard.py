@@ -58,12 +58,12 @@ class Guard:
     def reload(self, who: str) -> dict:
         """Read the allow-list again (``who`` asked); what changed (names), as a reply and a
         log line say it."""
-        added, removed = self.allowed.reload()
+        added, removed, changed = self.allowed.reload()
         self._say_problems()
-        log.info("keys reloaded by %s: %d allowed (added %s, removed %s)", who, len(self.allowed.clients),
-                 sorted(added) or "none", sorted(removed) or "none")
+        log.info("keys reloaded by %s: %d allowed (added %s, removed %s, changed %s)", who, len(self.allowed.clients),
+                 sorted(added) or "none", sorted(removed) or "none", sorted(changed) or "none")
         return {"allowed": sorted(c.name for c in self.allowed.clients.values()), "added": sorted(added),
-                "removed": sorted(removed), "problems": self.allowed.problems}
+                "removed": sorted(removed), "changed": sorted(changed), "problems": self.allowed.problems}
 
     def _say_problems(self) -> None:
         for problem in self.allowed.problems:

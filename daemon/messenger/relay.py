@@ -199,7 +199,7 @@ class Relay:
 
     def _reload_keys(self, who: Identity) -> dict:
         """Read the allow-list again, as ``who`` asked (its ``keys`` event names them); if a
-        key was removed, the loop ends a lease it holds, and the telemetry socket is bound
+        key was removed or changed (another key or role for the name), the loop ends a lease it holds, and the telemetry socket is bound
         again once the loop has said so, so that its subscribers must be admitted again (a
         revoked one is not)."""
         if self.guard is None:
@@ -207,9 +207,11 @@ class Relay:
         changes = self.guard.reload(who.name)
         self._event({"kind": "keys", "cycle": self._cycle, "who": who.name,
                      "cause": f"keys reloaded by {who.name}: added {changes['added'] or 'none'}, "
-                              f"removed {changes['removed'] or 'none'}", **changes})
-        if changes["removed"]:
-            self.revocations.revoke(changes["removed"], who, time.monotonic())
+                              f"removed {changes['removed'] or 'none'}, changed {changes['changed'] or 'none'}",
+                     **changes})
+        ended = {**{key: "removed" for key in changes["removed"]}, **{key: "changed" for key in changes["changed"]}}
+        if ended:
+            self.revocations.revoke(ended, who, time.monotonic())
         return changes
 
     def _rebind_telemetry(self) -> None:

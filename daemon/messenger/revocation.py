@@ -31,14 +31,16 @@ class Revocations:
         self._rebind_by: float | None = None  # a re-bind pending: done at the latest then
         self._rebind_cycle: int | None = None  # ... or once the loop's heartbeat has passed this
 
-    def revoke(self, removed: list[str], who: Identity, now: float) -> None:
-        """Tell the loop that each key in ``removed`` left the allow-list (signed by ``who``,
-        who reloaded), and hold the telemetry socket's re-bind until it has answered. Each goes
+    def revoke(self, ended: dict[str, str], who: Identity, now: float) -> None:
+        """Tell the loop that each key in ``ended`` left the allow-list or changed (its name ->
+        ``removed`` or ``changed``: another key or role; signed by ``who``, who reloaded), and
+        hold the telemetry socket's re-bind until it has answered. Each goes
         on the control ring, ahead of any backlog of commands; and again on the command ring,
         behind the key's own requests taken before this reload: a ``lease.acquire`` of the key's
         waiting there is granted after the first and ended by the second."""
-        for key in removed:
-            request = protocol.decode_request(protocol.encode_request(f"revoke-{key}", "lease.revoke", {"key": key}))
+        for key, why in ended.items():
+            request = protocol.decode_request(protocol.encode_request(f"revoke-{key}", "lease.revoke",
+                                                                      {"key": key, "why": why}))
             entry = routed.pack(who, request)
             for ring in ("control", "command"):
                 token = next(self._tokens)

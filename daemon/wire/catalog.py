@@ -377,14 +377,17 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
             ("name", "from_t", "to_t", "seconds"), (_recording_name("the file's name without .mcap"),),
             role=OPERATOR, errors=(P.BAD_STATE,)),
     Command("keys.reload", "messenger", "read the keys' allow-list again", (
-        "allowed", "added", "removed", "problems"), role=OPERATOR, errors=(P.BAD_STATE,)),
+        "allowed", "added", "removed", "changed", "problems"), role=OPERATOR, errors=(P.BAD_STATE,)),
 )}
 
 # Commands the daemon's own processes send each other through the loop's rings, never a client:
 # no socket serves them (:func:`find` does not know them), and describe and the documents do not list them.
 INTERNAL: dict[str, Command] = {c.name: c for c in (
-    Command("lease.revoke", "loop", "a key left the allow-list (the messenger, at a reload): its lease ends now",
-            ("ended", "cause"), (Arg("key", "string", "the removed key's name", required=True),), sockets=()),
+    Command("lease.revoke", "loop", "a key left the allow-list or changed (the messenger, at a reload): its lease "
+            "ends now", ("ended", "cause"), (
+                Arg("key", "string", "the key's name", required=True),
+                Arg("why", "string", "removed (off the allow-list) or changed (another key or role for the name)",
+                    default="removed", choices=("removed", "changed"))), sockets=()),
     Command("timing.verdict", "loop", "the messenger's verdict on the loop's timing over the rig file's [timing] "
             "window (every stats window): kept for status, a timing event when it changes, the policy applied",
             ("degraded", "action"), (

@@ -223,9 +223,11 @@ class AllowList:
         self.problems: list[str] = []
         self.reload()
 
-    def reload(self) -> tuple[set[str], set[str]]:
-        """Read the directory again; the names (added, removed). A file that cannot be read is
-        left out and said in ``problems``."""
+    def reload(self) -> tuple[set[str], set[str], set[str]]:
+        """Read the directory again; the names (added, removed, changed: still allowed, with
+        another key or role, so that a connection made with the old key, or a lease taken in
+        the old role, holds no more). A file that cannot be read is left out and said in
+        ``problems``."""
         clients, problems = {}, []
         folder = os.path.join(self.directory, CLIENTS)
         for entry in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
@@ -240,11 +242,12 @@ class AllowList:
                 problems.append(str(exc))
                 continue
             clients[public] = identity
-        before = {c.name for c in self.clients.values()}
-        after = {c.name for c in clients.values()}
+        before = {c.name: (public, c.role) for public, c in self.clients.items()}
+        after = {c.name: (public, c.role) for public, c in clients.items()}
         self.clients, self.problems = clients, problems
         self._by_name = {c.name: c for c in clients.values()}
-        return after - before, before - after
+        return (after.keys() - before.keys(), before.keys() - after.keys(),
+                {name for name in before.keys() & after.keys() if before[name] != after[name]})
 
     def callback(self, domain: str, key: bytes) -> bool:
         return key in self.clients
