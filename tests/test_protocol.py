@@ -211,7 +211,8 @@ def test_disable_leaves_a_latched_fault_or_estop_as_it_is_and_the_document_says_
 
 
 def test_the_sockets_table_lists_every_telemetry_topic():
-    from daemon.messenger.shared import HELPER_TOPICS, TOPICS
+    from daemon.messenger.shared import TOPICS
+    from daemon.wire.helper_links import HELPER_TOPICS
 
     topics = {t.decode() for t in TOPICS + HELPER_TOPICS if t}
     text = DOC.read_text()

@@ -15,7 +15,6 @@ from daemon.messenger.guard import Guard
 from daemon.wire import protocol
 
 TOPICS = (b"", b"state", b"stats", b"event", b"internals", b"contact")  # telemetry ring tags; 0 ends the stream
-HELPER_TOPICS = (b"model",)  # published by the messenger from a helper process beside it (daemon/model), not the loop
 END = 0
 TELEMETRY_HWM = 1000  # messages queued per subscriber before ZeroMQ drops (100 ms of state batches)
 ROUTER_HWM = 1000
