@@ -20,6 +20,7 @@ import zmq
 
 from daemon.wire import catalog, protocol
 from daemon.wire.arguments import CommandFailed
+from daemon.wire.command_spec import Command, check_args, lenient_args
 from daemon.messenger.guard import Guard
 from daemon.wire import routed
 from daemon.wire.keys import ANONYMOUS, OPERATOR, Identity
@@ -165,22 +166,22 @@ class Relay:
                 self.owed[token] = (sock, envelope, time.monotonic(), request["id"])
 
     @staticmethod
-    def _admit(socket: str, request: dict, identity) -> tuple[catalog.Command, dict]:
+    def _admit(socket: str, request: dict, identity) -> tuple[Command, dict]:
         """The request's catalog entry and the request to pass on, checked in the documented
         order after its envelope: the command (on this socket), its arguments, the key's role; a
         refusal raises CommandFailed (or ProtocolError for arguments that cannot be read). An
         e-stop, never refused for its arguments, is passed on with only what the loop reads of
-        them (:func:`~daemon.wire.catalog.lenient_args`): a few bytes, whatever was sent."""
+        them (:func:`~daemon.wire.command_spec.lenient_args`): a few bytes, whatever was sent."""
         command = catalog.find(request["cmd"], socket)
         args = protocol.decode_args(request)
-        catalog.check_args(command, args)
+        check_args(command, args)
         if command.role == OPERATOR and identity.role != OPERATOR:
             raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
                                                     f"may send {command.name}",
                                 {"reason": "role", "role": identity.role})
         if not command.strict:
             request = protocol.decode_request(protocol.encode_request(
-                request["id"], command.name, catalog.lenient_args(command, args), request["lease"]))
+                request["id"], command.name, lenient_args(command, args), request["lease"]))
         return command, request
 
     # -- keys ------------------------------------------------------------------------------
