@@ -36,7 +36,7 @@ from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks, summarise
 from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.telemetry_rows import internals_message, state_message
-from hal.config import FlightRecorderConfig, TimingConfig
+from hal.rig_sections import FlightRecorderConfig, TimingConfig
 
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time

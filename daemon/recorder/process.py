@@ -33,7 +33,7 @@ import os
 import signal
 import time
 
-from hal.config import FlightRecorderConfig
+from hal.rig_sections import FlightRecorderConfig
 from hal.process import Child, Helper, HelperFailed
 from daemon.wire.helper_links import (EVENT, MARK, MESSENGER_ID, RECORDER_CONTROL, RECORDER_FEED, RECORDER_FEED_HWM,
                                       REPLY, endpoint)
