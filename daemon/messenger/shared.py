@@ -8,11 +8,13 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+import sys
 
 import zmq
 
 from daemon.messenger.guard import Guard
 from daemon.wire import protocol
+from daemon.wire.ring import Ring, RingError
 
 TOPICS = (b"", b"state", b"stats", b"event", b"internals", b"contact")  # telemetry ring tags; 0 ends the stream
 END = 0
@@ -70,3 +72,14 @@ def open_socket(ctx: zmq.Context, name: str, endpoint: str, guard: Guard | None)
         sock.close()
         raise
     return sock
+
+
+def ring_entry(ring: Ring) -> tuple[int, bytes] | None:
+    """The next entry; a ring that cannot be read is emptied (said loudly), not a crash
+    that the next messenger would repeat."""
+    try:
+        return ring.get()
+    except RingError as exc:
+        ring.discard()
+        print(f"pneumad messenger: {exc}; emptied it", file=sys.stderr, flush=True)
+        return None
