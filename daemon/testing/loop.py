@@ -171,6 +171,13 @@ def ok(loop, sock, cmd, args=None, lease=None):
     return reply["result"]
 
 
+def leased(loop: ControlLoop, sock: zmq.Socket) -> str:
+    """The lease for 60 s, not the rig's 2 s: a deferred command's reply is waited for while the
+    loop cycles about in real time, and beside CPU hogs the planner (then at nice 19) took over 2 s to
+    derive a controller's parameters (the lease expired between two requests: no_lease)."""
+    return ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+
+
 def run_seconds(loop: ControlLoop, seconds: float) -> None:
     loop.run(int(round(seconds / loop.period)))
 
