@@ -13,17 +13,15 @@ import zmq
 from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.loop.safety import State
-from daemon.testing.loop import call, dealer, exchange, leased, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, exchange, leased, ok, run_seconds, served_loop
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
 
 @pytest.fixture
 def daemon():
-    loop, captured, srv = make_loop(server=True)
-    loop.run(100)
-    yield loop, captured, srv
-    srv.close()
+    with served_loop() as served:
+        yield served
 
 
 @pytest.fixture(scope="module")
@@ -32,10 +30,8 @@ def served():
     only read, and which hand back what they took (a lease, an enabled arm): a server's
     start spared each. They run one after the other, so the messenger never sees this loop
     stand still (it answers for a loop that has not cycled for ``loop_stall_s``)."""
-    loop, captured, srv = make_loop(server=True)
-    loop.run(100)
-    yield loop, captured, srv
-    srv.close()
+    with served_loop() as served:
+        yield served
 
 
 def test_ping_status_describe(served):
@@ -82,6 +78,31 @@ def test_bad_messages_get_clear_errors(served, payload, code):
     assert reply["error"]["code"] == code and reply["error"]["message"]
     assert loop.cycle > cycle and loop.state is State.IDLE
     assert ok(loop, sock, "ping")["pong"]  # and it still serves
+
+
+@pytest.mark.parametrize("args, code, words", [
+    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite number"),
+    ({"angles_deg": [120.0]}, P.BAD_ARGS, "list of 2"),
+    ({"angles_deg": [120.0, -80.0], "xy_mm": [1, 2]}, P.BAD_ARGS, "exactly one"),
+    ({"angles_deg": [180.0, -80.0]}, P.REFUSED, "outside its limits"),
+    ({"angles_deg": [float("nan"), -80.0]}, P.BAD_ARGS, "finite"),
+    ({"xy_mm": [500.0, 0.0]}, P.REFUSED, "out of reach"),
+    ({"angles_deg": [120.0, -80.0], "duration_s": -1}, P.BAD_ARGS, "duration_s"),
+    ({"angles_deg": [120.0, -80.0], "speed": 3}, P.BAD_ARGS, "unknown argument 'speed'"),
+])
+def test_bad_set_points_are_refused_with_reasons(served, args, code, words):
+    loop, _, srv = served
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    try:
+        ok(loop, sock, "enable", lease=lease)
+        reference = list(loop.reference[0])
+        reply = call(loop, sock, "set", args, lease)
+        assert not reply["ok"] and reply["error"]["code"] == code and words in reply["error"]["message"]
+        assert loop.reference[0] == reference and loop.state is State.ENABLED
+    finally:  # handed back as found
+        ok(loop, sock, "disable", lease=lease)
+        ok(loop, sock, "lease.release", lease=lease)
 
 
 def test_control_socket_serves_only_safety_commands(served):

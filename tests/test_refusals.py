@@ -1,56 +1,20 @@
 """What the daemon refuses, and the data each refusal carries, over real ZeroMQ sockets with the
 loop on a virtual clock: the documented order of checks (docs/protocol.md, "The order of
 checks"), the catalog's refusals in every state, the rig's and the planner's with their numbers,
-and an e-stop never refused."""
+and an e-stop never refused (a bad set-point on a shared loop: tests/test_protocol.py)."""
 import math
 
 import pytest
 
 from daemon.loop.safety import State
-from daemon.testing.loop import call, dealer, leased, make_loop, ok
+from daemon.testing.loop import call, dealer, leased, ok, served_loop
 from daemon.wire import protocol as P
 
 
 @pytest.fixture
 def daemon():
-    loop, captured, srv = make_loop(server=True)
-    loop.run(100)
-    yield loop, captured, srv
-    srv.close()
-
-
-@pytest.fixture(scope="module")
-def served():
-    """One loop and server for the tests whose requests are refused: a server's start spared each."""
-    loop, captured, srv = make_loop(server=True)
-    loop.run(100)
-    yield loop, captured, srv
-    srv.close()
-
-
-@pytest.mark.parametrize("args, code, words", [
-    ({"angles_deg": ["a", 1]}, P.BAD_ARGS, "finite number"),
-    ({"angles_deg": [120.0]}, P.BAD_ARGS, "list of 2"),
-    ({"angles_deg": [120.0, -80.0], "xy_mm": [1, 2]}, P.BAD_ARGS, "exactly one"),
-    ({"angles_deg": [180.0, -80.0]}, P.REFUSED, "outside its limits"),
-    ({"angles_deg": [float("nan"), -80.0]}, P.BAD_ARGS, "finite"),
-    ({"xy_mm": [500.0, 0.0]}, P.REFUSED, "out of reach"),
-    ({"angles_deg": [120.0, -80.0], "duration_s": -1}, P.BAD_ARGS, "duration_s"),
-    ({"angles_deg": [120.0, -80.0], "speed": 3}, P.BAD_ARGS, "unknown argument 'speed'"),
-])
-def test_bad_set_points_are_refused_with_reasons(served, args, code, words):
-    loop, _, srv = served
-    sock = dealer(srv)
-    lease = leased(loop, sock)
-    try:
-        ok(loop, sock, "enable", lease=lease)
-        reference = list(loop.reference[0])
-        reply = call(loop, sock, "set", args, lease)
-        assert not reply["ok"] and reply["error"]["code"] == code and words in reply["error"]["message"]
-        assert loop.reference[0] == reference and loop.state is State.ENABLED
-    finally:  # handed back as found
-        ok(loop, sock, "disable", lease=lease)
-        ok(loop, sock, "lease.release", lease=lease)
+    with served_loop() as served:
+        yield served
 
 
 def test_an_infeasible_path_is_refused_with_the_numbers_and_the_shortest_duration(daemon):

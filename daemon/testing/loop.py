@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
+from typing import Iterator
 
 import msgpack
 import zmq
@@ -106,6 +108,17 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     captured.follow(loop, beside_messenger=srv is not None)
     loop.start()
     return loop, captured, srv
+
+
+@contextmanager
+def served_loop() -> Iterator[tuple[ControlLoop, Captured, ZmqServer]]:
+    """A served :func:`make_loop` run 100 cycles: (loop, captured, server), the server closed after."""
+    loop, captured, srv = make_loop(server=True)
+    loop.run(100)
+    try:
+        yield loop, captured, srv
+    finally:
+        srv.close()
 
 
 _preparer: list[Preparer] = []
