@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hal.config import ModelWatchConfig, RigConfig
+from hal.config import RigConfig
+from hal.rig_sections import ModelWatchConfig
 from hal.joint_model import JointModel
 from hal.joints import CYLINDER
 from hal.interfaces import ROTARY

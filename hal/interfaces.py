@@ -5,7 +5,7 @@ per rig, the sensors no joint owns.
 Everything that follows the rig (the cycle record's layout, telemetry, recordings, status,
 ``describe``, plots, the Bluesky signals) is built from a :class:`RigInterfaces`, never from a
 list of fields written by hand. SI units inside (rad or m, Pa, N, V at the hardware edge);
-each interface also says how a person reads it (``display``: deg for rad, mm for m).
+each interface also says how a person reads it (``display``: deg for rad, mm for m, kPa for Pa).
 
 - a **rotary** joint's position is in rad (shown in deg); a **linear** joint's in m (shown in mm);
 - a joint's state interfaces: ``position``, ``velocity`` (the loop's filtered difference), each
@@ -26,8 +26,10 @@ import math
 from dataclasses import dataclass
 
 ROTARY, LINEAR = "rotary", "linear"
+# SI unit -> (the unit a person reads, its scale): what watch, status, plots, PlotJuggler and the Bluesky
+# signals show; the wire, recordings and CSV exports keep SI. Pressures in kPa, as the lab's gauges read.
 DISPLAY = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi),
-           "m": ("mm", 1000.0), "m/s": ("mm/s", 1000.0)}  # SI unit -> (the unit a person reads, its scale)
+           "m": ("mm", 1000.0), "m/s": ("mm/s", 1000.0), "Pa": ("kPa", 1e-3)}
 POSITION_UNIT = {ROTARY: "rad", LINEAR: "m"}
 
 
@@ -45,7 +47,7 @@ class StateInterface:
 
     @property
     def display(self) -> tuple[str, float]:
-        """(unit, scale) a person reads it in: deg for rad, mm for m, else the SI unit itself."""
+        """(unit, scale) a person reads it in: deg for rad, mm for m, kPa for Pa, else the SI unit itself."""
         return DISPLAY.get(self.unit, (self.unit, 1.0))
 
     def describe(self) -> dict:

@@ -16,8 +16,9 @@ import pytest
 
 from daemon.loop.safety import State
 from daemon.testing.loop import call, dealer, make_loop, ok
-from daemon.wire import catalog
+from daemon.wire import catalog, catalog_docs
 from daemon.wire import protocol as P
+from daemon.wire.command_spec import Arg, Command
 from tests.schemas import schema
 
 # What the schema cannot say, refused bad_args after the state: (command, argument) -> why
@@ -60,7 +61,7 @@ def bases(loop) -> dict[str, list[dict]]:
     }
 
 
-def values(arg: catalog.Arg, base_value) -> list:
+def values(arg: Arg, base_value) -> list:
     """Values at and just past ``arg``'s bounds, of the wrong type, and for a list its
     elements' (put first in a copy of the base's list)."""
     kind = arg.kind
@@ -95,7 +96,7 @@ def values(arg: catalog.Arg, base_value) -> list:
     return out
 
 
-def cases(command: catalog.Command, base: dict):
+def cases(command: Command, base: dict):
     """(args, what was changed) for ``base`` and every perturbation of it."""
     yield dict(base), "as it is"
     yield {**base, "nonesuch": 1}, "an unknown argument"
@@ -112,7 +113,7 @@ def cases(command: catalog.Command, base: dict):
             yield {k: v for k, v in base.items() if k != arg.name}, f"no {arg.name}"
 
 
-def _variant_refuses(command: catalog.Command, args: dict, name: str) -> bool:
+def _variant_refuses(command: Command, args: dict, name: str) -> bool:
     for v in command.variants:
         shared = {n for w in command.variants if w.on == v.on for n in w.takes}
         if v.value == args.get(v.on, command.arg(v.on).default) and name in shared and name not in v.takes:
@@ -120,7 +121,7 @@ def _variant_refuses(command: catalog.Command, args: dict, name: str) -> bool:
     return False
 
 
-def _keep_lengths(command: catalog.Command, args: dict, changed: str) -> dict:
+def _keep_lengths(command: Command, args: dict, changed: str) -> dict:
     """A list whose length goes with the one ``changed`` (durations_s with the waypoints) made
     to fit it: the bound of the changed one is what is tried."""
     for name, of, offset in command.lengths:
@@ -130,7 +131,7 @@ def _keep_lengths(command: catalog.Command, args: dict, changed: str) -> dict:
     return args
 
 
-def _lengths_differ(command: catalog.Command, args: dict) -> bool:
+def _lengths_differ(command: Command, args: dict) -> bool:
     for name, of, offset in command.lengths:
         given = next((o for o in of if o in args), None)
         if given and isinstance(args.get(name), list) and isinstance(args[given], list) and \
@@ -180,8 +181,8 @@ def exchange_every_case(loop, sock, state: str, lease: str, put_back) -> tuple[l
     disagreements, sent = [], 0
     for name, command in catalog.COMMANDS.items():
         if not command.strict:  # an e-stop: its schema constrains nothing, and it is never refused for its arguments
-            assert catalog.args_schema()["$defs"][name]["additionalProperties"] is True
-            assert all("type" not in p for p in catalog.args_schema()["$defs"][name]["properties"].values())
+            assert catalog_docs.args_schema()["$defs"][name]["additionalProperties"] is True
+            assert all("type" not in p for p in catalog_docs.args_schema()["$defs"][name]["properties"].values())
             continue
         validator = schema("args", name)
         for base in bases(loop).get(name, [{}]):

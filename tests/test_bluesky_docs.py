@@ -220,6 +220,6 @@ def test_the_documents_queue_runs_plans_on_both_rigs_into_tiled(lab):
         assert np.asarray(run["primary"][f"{device}-joints-0-position"].read()).shape == (2,)  # before and after
     muscle = tiled[history[1]["result"]["run_uids"][0]]["primary"]
     pressures = np.array([np.asarray(muscle[f"muscle-joints-0-p_{m}"].read()) for m in ("a", "b")]).T
-    # the muscle pair's measured pressures [Pa], before and after: after the step both muscles hold
+    # the muscle pair's measured pressures [kPa], before and after: after the step both muscles hold
     # pressure (before it, the arm may just have been enabled, its valves still filling)
     assert pressures.shape == (2, 2) and np.all(np.isfinite(pressures)) and np.all(pressures[1] > 0), pressures

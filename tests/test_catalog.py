@@ -10,9 +10,10 @@ import pytest
 
 from daemon.client import ctl
 from daemon.loop.commands import Commands
-from daemon.wire import catalog
+from daemon.wire import catalog, catalog_docs
 from daemon.wire import protocol as P
 from daemon.wire.arguments import CommandFailed
+from daemon.wire.command_spec import check_args
 from tests.schemas import schema
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,12 +22,12 @@ DOCS = ROOT / "docs"
 
 def test_the_args_schema_and_the_protocol_documents_summary_are_generated_from_the_catalog():
     """Regenerated and compared: a command changed in the catalog and not in the documents fails."""
-    assert json.loads((DOCS / "schemas" / "args.schema.json").read_text()) == catalog.args_schema(), \
-        "regenerate docs/schemas/args.schema.json from daemon.wire.catalog.args_schema()"
+    assert json.loads((DOCS / "schemas" / "args.schema.json").read_text()) == catalog_docs.args_schema(), \
+        "regenerate docs/schemas/args.schema.json from daemon.wire.catalog_docs.args_schema()"
     text = (DOCS / "protocol.md").read_text()
     begin = text.index("\n", text.index("<!-- catalog:begin")) + 1
-    assert text[begin:text.index("<!-- catalog:end -->")].strip() == catalog.summary_table(), \
-        "regenerate docs/protocol.md's catalog summary from daemon.wire.catalog.summary_table()"
+    assert text[begin:text.index("<!-- catalog:end -->")].strip() == catalog_docs.summary_table(), \
+        "regenerate docs/protocol.md's catalog summary from daemon.wire.catalog_docs.summary_table()"
 
 
 def test_the_protocol_documents_tables_and_the_results_schema_follow_the_catalog():
@@ -69,7 +70,7 @@ def test_start_up_fails_when_a_handler_and_the_catalog_disagree():
 
 def refusal(command: str, args: dict) -> CommandFailed:
     with pytest.raises(CommandFailed) as caught:
-        catalog.check_args(catalog.COMMANDS[command], args)
+        check_args(catalog.COMMANDS[command], args)
     assert caught.value.code == P.BAD_ARGS
     schema("error-data").validate(caught.value.data)
     return caught.value
@@ -79,7 +80,7 @@ def refusal(command: str, args: dict) -> CommandFailed:
 def test_an_unknown_argument_is_refused_naming_it_for_every_command_but_estop(name):
     command = catalog.COMMANDS[name]
     if not command.strict:
-        catalog.check_args(command, {"speed": 3, "who": {"not": "a string"}})
+        check_args(command, {"speed": 3, "who": {"not": "a string"}})
         return
     assert refusal(name, {"speed": 3}).data == {"argument": "speed"}
 

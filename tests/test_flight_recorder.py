@@ -22,7 +22,7 @@ from daemon.recordings import mcap_log
 from daemon.testing.loop import dealer, make_loop, ok
 from daemon.testing.ports import free_tcp_port
 from daemon.wire.flight import FlightNames, Window
-from hal.config import FlightRecorderConfig
+from hal.rig_sections import FlightRecorderConfig
 from tests.daemons import TOLERANT_STALL, real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.test_journal import journal_line, next_event
 from tests.wirehelpers import start_peer, stop_peer

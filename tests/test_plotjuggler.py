@@ -67,8 +67,8 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
     steps = [b["t"] - a["t"] for a, b in zip(state, state[1:])]
     assert min(steps) > 0 and sorted(steps)[len(steps) // 2] == pytest.approx(1e-3, rel=0.2)
     moving = state[-1]["middle"]
-    assert set(moving) == {"position_deg", "setpoint_deg", "error_deg", "velocity_deg_s", "u.v_mv_V", "p_head_cmd_Pa",
-                           "p_rod_cmd_Pa"}  # the layout's fields (no shadow run: its NaN left out)
+    assert set(moving) == {"position_deg", "setpoint_deg", "error_deg", "velocity_deg_s", "u.v_mv_V", "p_head_cmd_kPa",
+                           "p_rod_cmd_kPa"}  # the layout's fields (no shadow run: its NaN left out)
     assert moving["error_deg"] == pytest.approx(moving["setpoint_deg"] - moving["position_deg"])
     assert min(abs(r["middle"]["setpoint_deg"] - target[1]) for r in state) < 0.01  # it saw the move end
     internals = [s for s, r in zip(series, rows) if "internals" in r]

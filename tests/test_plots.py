@@ -60,6 +60,21 @@ def test_each_internal_signals_unit_is_its_own_controllers():
     assert [ax.get_ylabel() for ax in fig.axes] == ["p [V]", "i [V]"]  # not muscle_pid's i [Pa]
 
 
+def test_pressures_are_drawn_in_kpa_as_the_labs_gauges_read():
+    """The run commands 4e5 and 3e5 Pa: drawn as 400 and 300 on axes labelled kPa; a controller's
+    internal signal declared in Pa is drawn in kPa too."""
+    fig = plots.figures([("a", run())])["pressures"]
+    assert {ax.get_ylabel() for ax in fig.axes} == {"pressure [kPa]"}
+    drawn = {line.get_label().split(" ", 1)[1]: line.get_ydata() for line in fig.axes[0].get_lines()}
+    assert set(drawn["commanded p_head"]) == {400.0} and set(drawn["commanded p_rod"]) == {300.0}
+    muscle = run()
+    muscle.describe = {**DESCRIBE, "controllers": [{"name": "pid", "internals": [{"name": "p", "unit": "V"},
+                                                                                {"name": "i", "unit": "Pa"}]}]}
+    fig = plots.figures([("a", muscle)])["internals"]
+    assert [ax.get_ylabel() for ax in fig.axes] == ["p [V]", "i [kPa]"]
+    assert list(fig.axes[1].get_lines()[0].get_ydata()[:2]) == pytest.approx([0.3e-3, 0.3e-3])
+
+
 def test_identical_runs_are_drawn_once_and_named_together():
     made = plots.figures([("a (pid)", run()), ("b (lti)", run()), ("c (smc)", run(gain=0.9))])
     ax = made["errors"].axes[0]

@@ -13,17 +13,15 @@ import zmq
 from daemon.wire import catalog
 from daemon.wire import protocol as P
 from daemon.loop.safety import State
-from daemon.testing.loop import call, dealer, exchange, make_loop, ok, run_seconds
+from daemon.testing.loop import call, dealer, exchange, leased, ok, run_seconds, served_loop
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
 
 @pytest.fixture
 def daemon():
-    loop, captured, srv = make_loop(server=True)
-    loop.run(100)
-    yield loop, captured, srv
-    srv.close()
+    with served_loop() as served:
+        yield served
 
 
 @pytest.fixture(scope="module")
@@ -32,17 +30,8 @@ def served():
     only read, and which hand back what they took (a lease, an enabled arm): a server's
     start spared each. They run one after the other, so the messenger never sees this loop
     stand still (it answers for a loop that has not cycled for ``loop_stall_s``)."""
-    loop, captured, srv = make_loop(server=True)
-    loop.run(100)
-    yield loop, captured, srv
-    srv.close()
-
-
-def leased(loop, sock):
-    """The lease for 60 s, not the rig's 2 s: a deferred command's reply is waited for while the
-    loop cycles about in real time, and beside CPU hogs the planner (then at nice 19) took over 2 s to
-    derive a controller's parameters (the lease expired between two requests: no_lease)."""
-    return ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+    with served_loop() as served:
+        yield served
 
 
 def test_ping_status_describe(served):
@@ -211,7 +200,8 @@ def test_disable_leaves_a_latched_fault_or_estop_as_it_is_and_the_document_says_
 
 
 def test_the_sockets_table_lists_every_telemetry_topic():
-    from daemon.messenger.shared import HELPER_TOPICS, TOPICS
+    from daemon.messenger.shared import TOPICS
+    from daemon.wire.helper_links import HELPER_TOPICS
 
     topics = {t.decode() for t in TOPICS + HELPER_TOPICS if t}
     text = DOC.read_text()
@@ -344,25 +334,6 @@ def test_slow_subscriber_never_stalls_the_loop_and_healthy_ones_see_no_gaps(daem
     healthy.close(linger=0)
 
 
-def test_an_infeasible_path_is_refused_with_the_numbers_and_the_shortest_duration(daemon):
-    loop, _, srv = daemon
-    sock = dealer(srv)
-    lease = leased(loop, sock)
-    ok(loop, sock, "enable", lease=lease)
-    reply = call(loop, sock, "path", {"name": "circle", "duration_s": 5.0, "approach_s": 30.0}, lease)
-    assert reply["error"]["code"] == P.REFUSED
-    message = reply["error"]["message"]
-    assert "joint " in message and "needs V_MV" in message and "deg/s" in message
-    shortest = reply["error"]["data"]["shortest_s"]
-    assert f"shortest feasible duration is {shortest:.1f} s" in message and 5.0 < shortest <= 20.0  # the thesis's 20 s runs
-    assert loop.trajectory_name == "hold"  # nothing started
-    started = ok(loop, sock, "path", {"name": "circle", "duration_s": shortest, "approach_s": 30.0}, lease)
-    assert started["duration_s"] == shortest
-    ok(loop, sock, "abort")
-    slow = call(loop, sock, "set", {"angles_deg": [100.0, -60.0], "duration_s": 0.5}, lease)
-    assert slow["error"]["code"] == P.REFUSED and "shortest feasible duration" in slow["error"]["message"]
-
-
 def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_codes():
     """docs/protocol.md, its schemas and the daemon agree on the names a client branches on."""
     import json
@@ -384,71 +355,6 @@ def test_the_protocol_document_lists_exactly_the_daemons_commands_and_error_code
     assert set(results["$defs"]) == everything
 
 
-def test_an_estop_is_never_refused_for_its_arguments(daemon):
-    """Whatever a panicking client puts beside it, an e-stop stops the arm."""
-    loop, _, srv = daemon
-    sock = dealer(srv)
-    lease = leased(loop, sock)
-    ok(loop, sock, "enable", lease=lease)
-    result = ok(loop, dealer(srv, "control"), "estop", {"who": {"not": "a string"}, "speed": float("nan")})
-    assert result["state"] == "estop" and loop.state is State.ESTOP
-    assert loop.supervisor.cause.startswith("e-stop from {")
-
-
-def test_the_order_of_checks_is_the_documented_one(daemon):
-    """Envelope, command, arguments (the catalog's), role, lease, state, then what needs the
-    rig: catalog-refused arguments are bad_args in every state; rig-refused ones wait for
-    the state (docs/protocol.md, "The order of checks")."""
-    loop, _, srv = daemon
-    sock = dealer(srv)
-    bad = {"angles_deg": [120.0, -80.0], "speed": 3}
-    idle = call(loop, sock, "set", bad)  # no lease, idle: the arguments are checked first
-    assert idle["error"]["code"] == P.BAD_ARGS and idle["error"]["data"] == {"argument": "speed"}
-    assert call(loop, sock, "set", {"angles_deg": [120.0, -80.0]})["error"]["code"] == P.NO_LEASE
-    lease = leased(loop, sock)
-    assert call(loop, sock, "set", bad, lease)["error"]["code"] == P.BAD_ARGS
-    three = {"angles_deg": [120.0, -80.0, 3.0]}  # one angle per joint: the rig's to say, after the state
-    assert call(loop, sock, "set", three, lease)["error"]["data"] == {"reason": "state", "state": "idle"}
-    ok(loop, sock, "enable", lease=lease)
-    refused = call(loop, sock, "set", three, lease)["error"]
-    assert refused["code"] == P.BAD_ARGS and refused["data"] == {"argument": "angles_deg", "expected_items": 2}
-
-
-CATALOG_REFUSED = [  # each argument the catalog refuses, and the data its refusal carries
-    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, -80.0]], "durations_s": [0.001]},
-     {"argument": "durations_s", "index": [0], "low": 0.01, "high": 3600.0}),
-    ("steps", {"angles_deg": [[120.0, -80.0]], "hold_s": [0.0001]},
-     {"argument": "hold_s", "index": [0], "low": 0.001, "high": 3600.0}),
-    ("excite", {"side": "input", "signal": "steps", "joint": "middle", "amplitude_v": 0.5, "levels": [2]},
-     {"argument": "levels", "index": [0], "low": -1.0, "high": 1.0}),
-    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, "x"]], "durations_s": [1.0]},
-     {"argument": "angles_deg", "index": [1, 1], "expected": "number"}),
-    ("waypoints", {"angles_deg": [[120.0, -80.0], [121.0, -80.0], [122.0, -80.0]], "durations_s": [1.0]},
-     {"argument": "durations_s", "expected_items": 2}),
-    ("excite", {"signal": "steps", "joint": "middle", "amplitude_deg": 1.0, "levels": [0.5]},
-     {"argument": "signal", "allowed": ["chirp", "prbs", "multisine"]}),
-    ("excite", {"signal": "chirp", "joint": "middle", "amplitude_deg": 1.0, "order": 8}, {"argument": "order"}),
-    ("set", {"duration_s": 1.0}, {"argument": "angles_deg"}),  # none of angles_deg, angles_rad, xy_mm
-    ("load.set", {"mass_kg": 0}, {"argument": "mass_kg", "low": 0.0, "high": 1000.0}),
-]
-
-
-def test_a_list_element_out_of_its_catalog_bounds_is_bad_args_in_every_state(daemon):
-    """What the catalog refuses (a list's element out of its bounds or not a number, lengths
-    that do not go together, a variant's arguments) is bad_args in every state, idle and
-    enabled alike: the messenger checks it before the loop checks the state."""
-    loop, _, srv = daemon
-    sock = dealer(srv)
-    lease = leased(loop, sock)
-    for state in ("idle", "enabled"):
-        if state == "enabled":
-            ok(loop, sock, "enable", lease=lease)
-        for cmd, args, data in CATALOG_REFUSED:
-            error = call(loop, sock, cmd, args, lease)["error"]
-            assert (error["code"], error["data"]) == (P.BAD_ARGS, data), (state, cmd, args, error)
-            assert loop.state.value == state
-
-
 def test_estop_events_and_their_state_event_say_who_sent_it(daemon):
     loop, captured, srv = daemon
     ok(loop, dealer(srv, "control"), "estop", {"who": "the test"})
@@ -456,45 +362,6 @@ def test_estop_events_and_their_state_event_say_who_sent_it(daemon):
     events = [e for e in captured.of("event") if e["kind"] == "estop" or e.get("to") == "estop"]
     assert [e["kind"] for e in events] == ["estop", "state"]
     assert all(e["who"] == "anonymous" for e in events), events
-
-
-def test_refusals_carry_data_naming_the_argument(daemon):
-    """bad_args always has data: a controller's parameter with its joint and bounds, a
-    missing design, an unknown controller, an element of a list; an authority refusal says
-    which duration its shortest_s is for; an excite's limits refusal gives the angle."""
-    loop, _, srv = daemon
-    sock = dealer(srv)
-    lease = leased(loop, sock)
-    ok(loop, sock, "enable", lease=lease)
-    spec = ok(loop, sock, "controller.get")["spec"][0]
-    high = call(loop, sock, "controller.set", {"params": {spec["name"]: spec["high"] * 2 + 1}}, lease)["error"]
-    assert high["code"] == P.BAD_ARGS
-    assert high["data"] == {"argument": "params", "parameter": spec["name"], "joint": "bottom", "low": spec["low"],
-                            "high": spec["high"], "unit": spec["unit"]}
-    design = call(loop, sock, "controller.switch", {"name": "lti"}, lease)["error"]
-    assert design["code"] == P.BAD_ARGS and design["data"] == {"argument": "options", "option": "design"}
-    refused = call(loop, sock, "controller.switch", {"name": "lti", "options": {"design": {"joints": {}}}}, lease)
-    assert refused["error"]["data"] == {"argument": "options", "option": "design"}, refused
-    unknown = call(loop, sock, "controller.switch", {"name": "nonesuch"}, lease)["error"]
-    assert unknown["data"]["argument"] == "name" and "pid" in unknown["data"]["allowed"]
-    steps = call(loop, sock, "steps", {"angles_deg": [[120.0, -80.0], [121.0, -80.0]], "hold_s": [1.0, 0.0]},
-                 lease)["error"]
-    assert steps["data"] == {"argument": "hold_s", "index": [1], "low": 0.001, "high": 3600.0}
-    approach = call(loop, sock, "path", {"name": "translation", "approach_s": 0.01}, lease)["error"]
-    assert approach["code"] == P.REFUSED and approach["data"]["shortest_for"] == "approach_s"
-    assert approach["data"]["shortest_s"] > 0.01
-    path = call(loop, sock, "path", {"name": "circle", "duration_s": 1.0, "approach_s": 30.0}, lease)["error"]
-    assert path["data"]["shortest_for"] == "duration_s" and path["data"]["shortest_s"] > 1.0
-    multisine = {"signal": "multisine", "joint": "middle", "amplitude_deg": 0.5, "period_s": 20.0, "f0_hz": 0.04}
-    below = call(loop, sock, "excite", multisine, lease)["error"]  # f0_hz under one cycle per period
-    assert below["code"] == P.BAD_ARGS and below["data"] == {"argument": "f0_hz", "low": 0.05, "high": 100.0} and "1 / 20 s" in below["message"]
-    bottom = loop.reference[0][0]  # at 141.8 deg: 45 deg up leaves its 85..175 deg
-    swing = call(loop, sock, "excite", {"signal": "chirp", "joint": "bottom", "amplitude_deg": 45.0}, lease)["error"]
-    assert swing["code"] == P.REFUSED and swing["data"]["reason"] == "limits"
-    lo, hi = swing["data"]["limits_deg"]
-    assert swing["data"]["angle_deg"] in (pytest.approx(math.degrees(bottom) - 45.0),
-                                          pytest.approx(math.degrees(bottom) + 45.0))
-    assert not lo <= swing["data"]["angle_deg"] <= hi
 
 
 def test_a_reply_packed_once_is_the_reply_packed_per_request():

@@ -1,7 +1,8 @@
 """The daemon's own recordings (daemon/recorder/process.py, daemon/recorder/archive.py), against a real daemon:
 a recorded path loses nothing while a client is stalled, record.start/stop/list answer as
 documented, and a write error, a full disk or a killed recorder end a recording with an event,
-the file readable, the loop untouched."""
+the file readable, the loop untouched. (The archive alone, in this process:
+tests/test_recorder_archive.py.)"""
 import json
 import os
 import re
@@ -15,12 +16,9 @@ import zmq
 from mcap.reader import make_reader
 
 from bench.common import child_process
-from daemon.recorder import process as recorder_process
-from daemon.recorder.archive import LEFT_CAUSE, Archive
+from daemon.recorder.archive import LEFT_CAUSE
 from daemon.recordings import mcap_log, reading as recording
 from daemon.client.client import Client, RemoteError
-from daemon.testing.loop import dealer, make_loop, ok
-from daemon.wire import protocol as P
 from tests.daemons import real_daemon, wait_for_own_daemon
 from tests.schemas import schema
 
@@ -283,53 +281,6 @@ def test_a_stopped_recording_holds_what_was_published_before_the_stop_also_from_
         assert said + 0.01 >= published - recorded > 0.0, (stopped["cause"], recorded, published)
 
 
-def test_a_recorder_that_cannot_catch_up_before_a_stop_says_how_far_behind_it_ends_the_file(tmp_path, monkeypatch):
-    """Past its catch-up (1 s; here none), a stop ends the file where the recorder got to, and
-    its cause says about how far behind the daemon that is: nothing cut short in silence. A
-    real feed (ZeroMQ PUSH to PULL) holding a short run's telemetry, stamped seconds before now,
-    and no mark of the stop in it."""
-    loop, captured, srv = make_loop(server=True)
-    sock = dealer(srv)
-    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
-    loop.run(300)
-    srv.close()
-    rings = tmp_path / "rings"
-    rings.mkdir()
-    (rings / "describe.json").write_text(json.dumps(describe))
-    (rings / "controller.json").write_text(json.dumps(controller))
-    events = []
-    archive = Archive(str(rings), str(tmp_path / "recordings"), 1e9, 0.0, events.append)
-    lag = time.monotonic() - 5.0  # [s] the run's virtual clock placed 5 s in the daemon's past
-    states = []
-    for topic, message in captured.messages:
-        if topic == "state":
-            states.append(msgpack.packb({**message, "t": [t + lag for t in message["t"]]}))
-    ctx = zmq.Context.instance()
-    feed, messenger = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
-    for s in (feed, messenger):
-        s.setsockopt(zmq.LINGER, 0)
-    feed.bind(f"ipc://{tmp_path}/feed")
-    messenger.connect(f"ipc://{tmp_path}/feed")
-    try:
-        archive.message("state", states[0])
-        archive.start("late", "alice")
-        for body in states[1:]:
-            messenger.send_multipart([b"state", body])
-        assert feed.poll(5000)
-        monkeypatch.setattr(recorder_process, "CATCH_UP_S", 0.0)
-        archive.behind_s = recorder_process._catch_up(feed, archive, [], b"the stop's mark, never reached")
-        reply = msgpack.unpackb(archive.request(P.encode_request(1, "record.stop", {"name": "late"}), "alice"))
-        after = time.monotonic() - lag  # [s] the most it can be behind, however long this took
-    finally:
-        feed.close()
-        messenger.close()
-    stopped = reply["result"]
-    assert stopped["cause"].startswith("record.stop from alice; the recorder had not caught up"), stopped["cause"]
-    behind = float(stopped["cause"].split("the file ends about ")[1].split(" s before")[0])
-    assert 4.9 < behind <= after + 0.01, stopped["cause"]
-    assert events[-1]["cause"] == stopped["cause"]  # the record event says it too
-
-
 def test_a_killed_recorder_leaves_a_file_every_reader_opens_and_another_is_started(daemon):
     """SIGKILL leaves the file without its footer; the recorder started after it finishes the file
     up to its last complete chunk (a ``record`` event, ``repaired``), so the `mcap` package's
@@ -386,40 +337,6 @@ def test_a_timed_recording_holds_its_seconds_of_the_daemons_time_when_the_record
     samples = mcap_log.read(finished(client, started["name"])).messages["state"]
     t = [s["t"] for s in samples]
     assert t[-1] - t[0] >= 1.0 and all(b > a for a, b in zip(t, t[1:])), (t[0], t[-1])
-
-
-def test_a_recorder_finishes_only_the_files_no_live_recorder_is_writing(tmp_path, caplog):
-    """Two daemons' recorders on one directory: one starting (a daemon started beside another)
-    leaves the other's recording in progress alone (its lock), and finishes it once its writer
-    is gone without finishing it (the file closed as a killed process's is): an event and a
-    line in the daemon's log."""
-    loop, captured, srv = make_loop(server=True)
-    sock = dealer(srv)
-    describe, controller = ok(loop, sock, "describe"), ok(loop, sock, "controller.get")
-    loop.run(2000)
-    srv.close()
-    rings = tmp_path / "rings"
-    rings.mkdir()
-    (rings / "describe.json").write_text(json.dumps(describe))
-    (rings / "controller.json").write_text(json.dumps(controller))
-    said_a, said_b = [], []
-    a = Archive(str(rings), str(tmp_path / "recordings"), 1e9, 0.0, said_a.append)
-    b = Archive(str(rings), str(tmp_path / "recordings"), 1e9, 0.0, said_b.append)
-    writing = a.start("writing", "alice")
-    for topic, message in captured.messages:
-        a.message(topic, msgpack.packb(message))
-    size = os.path.getsize(writing.path)
-    b.finish_left_files()
-    assert said_b == [] and os.path.getsize(writing.path) == size  # a's, still being written: untouched
-    writing.file.close()  # a's recorder gone, the file not finished (no footer)
-    b.finish_left_files()
-    assert [(e["action"], e["name"]) for e in said_b] == [("repaired", "writing")] and said_b[0]["messages"] > 1000
-    assert f"recording {writing.path} repaired: {LEFT_CAUSE}" in caplog.text
-    assert not (tmp_path / "recordings" / ".writing.mcap.writing").exists()
-    with open(writing.path, "rb") as f:
-        assert sum(1 for _ in make_reader(f).iter_messages(topics=["/pneumad/state"])) > 1000
-    b.finish_left_files()
-    assert len(said_b) == 1  # once
 
 
 def test_a_recording_made_across_a_messenger_restart_keeps_its_time_order(daemon):

@@ -12,7 +12,7 @@ import subprocess
 import time
 
 from daemon.client.client import Client
-from hal import config
+from hal import config, rig_sections
 from hal.devices import kinds, sensor_kind
 from hal.directional_valve import DirectionalValveConfig
 from hal.joints import JointConfig, LinkConfig
@@ -46,9 +46,10 @@ def test_the_check_lines_print_what_the_document_shows(tmp_path):
 
 def test_every_key_a_rig_file_takes_is_named_in_the_document():
     text = (ROOT / DOC).read_text()
-    tables = [config.RigInfo, config.TransportConfig, config.ArmConfig, config.LimitsConfig, config.SafetyConfig,
-              config.TimingConfig, config.FlightRecorderConfig, config.RigConfig, JointConfig, LinkConfig, RegulatorConfig, ValveConfig, BrakeConfig,
-              DirectionalValveConfig, *(sensor_kind(name).Config for name in kinds())]
+    tables = [rig_sections.RigInfo, rig_sections.TransportConfig, rig_sections.ArmConfig, rig_sections.LimitsConfig,
+              rig_sections.SafetyConfig, rig_sections.TimingConfig, rig_sections.FlightRecorderConfig, config.RigConfig,
+              JointConfig, LinkConfig, RegulatorConfig, ValveConfig, BrakeConfig, DirectionalValveConfig,
+              *(sensor_kind(name).Config for name in kinds())]
     def named(key: str) -> bool:  # as a key (`channel`) or a table (`[joints.head]`, `[[inputs]]`)
         return re.search(rf"`\[{{0,2}}(?:[\w.]+\.)?{re.escape(key)}\]{{0,2}}`", text) is not None
 

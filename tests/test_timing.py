@@ -15,7 +15,7 @@ from daemon.client.client import Client, RemoteError
 from daemon.recordings import reading
 from daemon.wire.arguments import CommandFailed
 from daemon.messenger.timing import judge
-from hal.config import TimingConfig
+from hal.rig_sections import TimingConfig
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 

@@ -49,6 +49,7 @@ def test_the_live_view_shows_the_arm_as_telemetry_and_status_have_it():
     for name in ("bottom", "middle"):
         assert name in text and f"v_mv {last[f'{name}.u.v_mv'][-1]:.2f} V" in text
         assert f"{math.degrees(last[f'{name}.position'][-1]):.2f} deg" in text
+        assert f"p_head_cmd {last[f'{name}.p_head_cmd'][-1] / 1e3:.2f} kPa" in text  # pressures as gauges read them
     assert "loop: wake-up p99" in text and "faults: none" in text
     assert "idle -> enabled (enabled)" in text  # the events
     assert "recording: none" in text

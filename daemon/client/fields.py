@@ -1,7 +1,7 @@
 """The cycle record's fields as a person reads them: the readers (``watch``, plots, the Bluesky
 signals) take names, units and values from the layout (:mod:`daemon.wire.cycle_layout`), never
-from a list of their own. A field is shown in its display unit (deg for rad, mm for m, else its
-SI unit: ``Field.display``), labelled with that unit; commanded and measured values keep the
+from a list of their own. A field is shown in its display unit (deg for rad, mm for m, kPa for Pa,
+else its SI unit: ``Field.display``), labelled with that unit; commanded and measured values keep the
 layout's distinct names (``p_head_cmd`` against ``p_head``)."""
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def unit(field: Field) -> str:
 
 
 def label(field: Field, with_owner: bool = True) -> str:
-    """``"bottom position [deg]"``, ``"axis commanded p_head [Pa]"``: a legend entry or an axis label."""
+    """``"bottom position [deg]"``, ``"axis commanded p_head [kPa]"``: a legend entry or an axis label."""
     return f"{name(field, with_owner)} [{unit(field)}]"
 
 

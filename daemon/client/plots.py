@@ -6,7 +6,8 @@ in the same figures, one colour per run (a controller comparison).
 
 Every series, its name and its unit come from the recording's cycle record layout (``Run.layout``):
 a rig with other joints or sensors is drawn as it is, with no code of its own. Values are shown
-in each field's display unit (a rotary joint in deg, a linear one in mm, else the SI unit) and
+in each field's display unit (a rotary joint in deg, a linear one in mm, pressures in kPa, else the
+SI unit) and
 every axis says its unit; time is from each run's first sample, or, overlaying runs of paths,
 from each run's path start (the path's own t = 0; the approach before it at negative times), so
 runs that started their paths at different times line up. The tip path is the forward
@@ -16,7 +17,8 @@ kinematics of the first two joints (rotary) [2-7] with the recording's own link 
 Nothing misleads (:mod:`daemon.client.plot_marks`): a command is drawn only where it was
 written (not where the safe state was), between its limits drawn as lines; a path's
 approach/path boundary is marked (its ``reference`` event ``settled``); the tip path shows its
-start and direction; each internal signal's unit is the one its own controller declares; runs
+start and direction; each internal signal's unit is the one its own controller declares (shown
+in its display unit where every run's controller declares the same); runs
 whose results are identical are drawn once, named together in the legend ("pid = lti
 (identical)"), never one line hidden under another; a hole in the data (cycles missing:
 telemetry a slow client lost) breaks the lines and is shaded, "no data" in the legend with how
@@ -39,6 +41,7 @@ from daemon.client.plot_marks import (BOUNDARY, degraded_sentence, degraded_span
                                       shade_holes, start_and_direction)
 from daemon.recordings import reading as recording  # noqa: E402
 from daemon.recordings.channels import signal_units  # noqa: E402
+from hal.interfaces import DISPLAY  # noqa: E402
 
 LIMIT = dict(color="0.5", ls="--", lw=1.0)  # a command's limits
 
@@ -153,7 +156,7 @@ def _errors(ax, joint, run: Drawn, colour):
         ax.plot(run.t, run.broken(run.shown(f"{joint}.error")), color=colour, lw=1.2, label=run.label)
 
 
-QUANTITY = {"Pa": "pressure", "V": "voltage", "N": "force", "N m": "torque", "K": "temperature", "deg": "angle",
+QUANTITY = {"kPa": "pressure", "V": "voltage", "N": "force", "N m": "torque", "K": "temperature", "deg": "angle",
             "mm": "length"}  # what a value in a unit is, for an axis that draws several fields
 
 
@@ -252,11 +255,13 @@ def _internals(label: str, run: recording.Run) -> plt.Figure | None:
     lost = np.flatnonzero(np.diff(seq) > 1) + 1  # messages lost between these: the lines stop there
     t = np.insert(np.array([m["t"] for m in messages], dtype=float) - drawn.t0, lost, np.nan)
     for ax, name in zip(axes[:, 0], names):
+        declared = sorted(units.get(name, {"-"}))
+        unit, scale = DISPLAY.get(declared[0], (declared[0], 1.0)) if len(declared) == 1 else (" | ".join(declared), 1.0)
         for j, joint in enumerate(run.layout.owners()):
             values = [m["signals"][name][j] if name in m["signals"] else np.nan for m in messages]
-            ax.plot(t, np.insert(np.array(values, dtype=float), lost, np.nan), lw=1.1, label=joint)
+            ax.plot(t, np.insert(np.array(values, dtype=float) * scale, lost, np.nan), lw=1.1, label=joint)
         shade_holes(ax, [drawn], ["0.45"])
-        ax.set_ylabel(f"{name} [{' | '.join(sorted(units.get(name, {'-'})))}]")
+        ax.set_ylabel(f"{name} [{unit}]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")
     axes[-1, 0].set_xlabel("time [s]")

@@ -38,7 +38,8 @@ from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEM
 from daemon.wire.cycle_layout import CycleLayout
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.ring import Ring, RingError
-from hal.config import FlightRecorderConfig, RigConfig, TimingConfig
+from hal.config import RigConfig
+from hal.rig_sections import FlightRecorderConfig, TimingConfig
 from hal.errors import ConfigError
 
 MAX_CONTROL_PER_CYCLE = 8

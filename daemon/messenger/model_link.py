@@ -1,21 +1,21 @@
-"""The messenger's side of the model process (:mod:`daemon.model.process`): every ``state``
-message handed on as it is published (a PUSH that drops when the model process is behind or
-restarting: it starts its models again at the gap), and what it sends back published: the
-``model`` topic (to subscribers, the recorder and the Foxglove stream) and its events.
-Both sockets are bound here, so a restarted model process connects to the same ones."""
+"""The messenger's side of the model process (:mod:`daemon.model.process`, met through
+:mod:`daemon.wire.helper_links`): every ``state`` message handed on as it is published (a PUSH
+that drops when the model process is behind or restarting: it starts its models again at the
+gap), and what it sends back published: the ``model`` topic (to subscribers, the recorder and
+the Foxglove stream) and its events. Both sockets are bound here, so a restarted model
+process connects to the same ones."""
 from __future__ import annotations
 
 import msgpack
 import zmq
 
-from daemon.messenger.shared import HELPER_TOPICS
-from daemon.model.process import FEED_HWM, MODEL_FEED, MODEL_OUT, endpoint
+from daemon.wire.helper_links import EVENT, HELPER_TOPICS, MODEL_FEED, MODEL_FEED_HWM, MODEL_OUT, endpoint
 
 
 class ModelLink:
     def __init__(self, ctx: zmq.Context, rings_dir: str):
         self.feed_socket = ctx.socket(zmq.PUSH)
-        self.feed_socket.setsockopt(zmq.SNDHWM, FEED_HWM)
+        self.feed_socket.setsockopt(zmq.SNDHWM, MODEL_FEED_HWM)
         self.out = ctx.socket(zmq.PULL)
         for sock in (self.feed_socket, self.out):
             sock.setsockopt(zmq.LINGER, 0)
@@ -42,7 +42,7 @@ class ModelLink:
                 continue
             if topic in HELPER_TOPICS:
                 publish(topic, body)
-            elif topic == b"event":
+            elif topic == EVENT:
                 try:
                     publish_event(msgpack.unpackb(body, raw=False))
                 except ValueError:

@@ -58,7 +58,7 @@ from daemon.messenger.shared import (
 )
 from daemon.wire.keys import KeyFileError
 from daemon.wire.ring import Ring
-from hal.config import FlightRecorderConfig, TimingConfig
+from hal.rig_sections import FlightRecorderConfig, TimingConfig
 from hal.process import Child, Helper, HelperFailed
 
 __all__ = ["END", "STALL_S", "TOPICS", "Heartbeat", "Messenger", "MessengerError", "create_rings"]  # the loop's side

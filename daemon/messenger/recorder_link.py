@@ -1,4 +1,5 @@
-"""The messenger's side of the recorder (:mod:`daemon.recorder.process`): every telemetry message
+"""The messenger's side of the recorder (:mod:`daemon.recorder.process`, met through
+:mod:`daemon.wire.helper_links`): every telemetry message
 handed on as it leaves the loop's ring, ``record.*`` requests passed over (each after a mark on
 the feed, up to which the recorder takes in the telemetry before it answers) and their answers
 passed back, and the recorder's events published.
@@ -23,7 +24,8 @@ import zmq
 
 from daemon.messenger.shared import CLOSE_LINGER_MS
 from daemon.wire import protocol
-from daemon.recorder.process import CONTROL, FEED, FEED_HWM, MARK, MESSENGER_ID, endpoint
+from daemon.wire.helper_links import (EVENT, MARK, MESSENGER_ID, RECORDER_CONTROL, RECORDER_FEED, RECORDER_FEED_HWM,
+                                      REPLY, endpoint)
 
 ANSWER_TIMEOUT_S = 5.0
 _TOKEN = struct.Struct("<Q")
@@ -32,13 +34,13 @@ _TOKEN = struct.Struct("<Q")
 class Recorder:
     def __init__(self, ctx: zmq.Context, rings_dir: str):
         self.feed_socket = ctx.socket(zmq.PUSH)
-        self.feed_socket.setsockopt(zmq.SNDHWM, FEED_HWM)
+        self.feed_socket.setsockopt(zmq.SNDHWM, RECORDER_FEED_HWM)
         self.control = ctx.socket(zmq.DEALER)
         self.control.setsockopt(zmq.ROUTING_ID, MESSENGER_ID)
         for sock in (self.feed_socket, self.control):
             sock.setsockopt(zmq.LINGER, 0)
-        self.feed_socket.bind(endpoint(rings_dir, FEED))  # (a killed messenger's socket file is replaced)
-        self.control.connect(endpoint(rings_dir, CONTROL))
+        self.feed_socket.bind(endpoint(rings_dir, RECORDER_FEED))  # (a killed messenger's socket file is replaced)
+        self.control.connect(endpoint(rings_dir, RECORDER_CONTROL))
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
         self.dropped = 0
 
@@ -67,11 +69,11 @@ class Recorder:
                 frames = self.control.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
                 return
-            if frames[0] == b"reply" and len(frames) == 3:
+            if frames[0] == REPLY and len(frames) == 3:
                 owed = self.owed.pop(_TOKEN.unpack(frames[1])[0], None)
                 if owed is not None:
                     send_reply(owed[0], owed[1], frames[2])
-            elif frames[0] == b"event" and len(frames) == 2:
+            elif frames[0] == EVENT and len(frames) == 2:
                 try:
                     publish_event(json.loads(frames[1]), "recorder")
                 except ValueError:

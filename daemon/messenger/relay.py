@@ -1,6 +1,6 @@
 """The messenger process's work (:mod:`daemon.messenger.process`): requests from the ROUTER sockets
-into the loop's rings, each with who sent it; replies and telemetry from the loop's rings
-onto the sockets; the loop's heartbeat watched, and answered for while it is stalled; the
+into the loop's rings, each with who sent it; replies from the loop's rings onto the sockets,
+and its telemetry published (:mod:`daemon.messenger.publisher`); the loop's heartbeat watched, and answered for while it is stalled; the
 keys' allow-list reloaded (SIGHUP, ``keys.reload``), and the loop told of each key it lost
 (:mod:`daemon.messenger.revocation`); every event published written to the daemon's log (this
 process's stderr, the daemon's journal: :mod:`daemon.messenger.journal`), so the loop never logs
@@ -9,33 +9,30 @@ from its cycle; the loop's timing judged from its stats windows, and the verdict
 from __future__ import annotations
 
 import os
-import struct
-import sys
 import time
-
 from typing import TYPE_CHECKING
 
-import msgpack
 import zmq
 
 from daemon.wire import catalog, protocol
 from daemon.wire.arguments import CommandFailed
+from daemon.wire.command_spec import Command, check_args, lenient_args
 from daemon.messenger.guard import Guard
 from daemon.wire import routed
 from daemon.wire.keys import ANONYMOUS, OPERATOR, Identity
-from daemon.messenger.shared import END, IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, TOPICS, Heartbeat, open_socket, reloads
+from daemon.messenger.shared import IDLE_POLL_MS, OWED_LIMIT_S, STALL_S, Heartbeat, open_socket, reloads, ring_entry
 from daemon.messenger.model_link import ModelLink
 from daemon.messenger.recorder_link import Recorder, send_reply
 from daemon.messenger.revocation import Revocations
 from daemon.messenger.journal import Journal
+from daemon.messenger.publisher import Publisher
 from daemon.messenger.timing import TimingJudge
 from daemon.wire.flight import FlightNames
-from daemon.wire.ring import Ring, RingError
+from daemon.wire.ring import Ring
 from daemon.messenger.plotjuggler import PlotJugglerFeed
-from daemon.wire.loop_stats import StatsBanks, summarise
+from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.cycle_layout import CycleLayout
-from daemon.wire.telemetry_rows import internals_message, state_message
-from hal.config import FlightRecorderConfig, TimingConfig
+from hal.rig_sections import FlightRecorderConfig, TimingConfig
 
 
 if TYPE_CHECKING:  # imported where the stream is asked for (daemon.messenger.process): the SDK costs start-up time
@@ -45,8 +42,8 @@ SIGNALLED = Identity("SIGHUP", OPERATOR)  # who reloads the keys on a signal (sy
 
 
 class Relay:
-    """Moves requests from the ROUTER sockets into the loop's rings, and replies and
-    telemetry from the loop's rings onto the sockets."""
+    """Moves requests from the ROUTER sockets into the loop's rings, and replies from the loop's
+    rings onto the sockets; its :class:`Publisher` passes the telemetry on in between."""
 
     def __init__(self, sockets: dict[str, zmq.Socket], rings: dict[str, Ring], doorbell: int, heartbeat: Heartbeat,
                  stats: StatsBanks, layout: CycleLayout, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
@@ -54,25 +51,22 @@ class Relay:
                  timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None,
                  model: ModelLink | None = None):
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
-        self.stats = stats  # the loop's timing histograms, summarised here once a window
-        self.layout = layout  # the cycle record's: how a state batch reads
         self.recorder = recorder
         self.model = model  # the model process's feed and what it sends back (daemon.messenger.model_link)
-        self.plotjuggler = plotjuggler
         self.foxglove = foxglove  # the live Foxglove stream (daemon.messenger.foxglove_stream)
         self.stall_s = stall_s
         self.guard = guard
         self.owed: dict[int, tuple[zmq.Socket, list, float, object]] = {}  # token -> (socket, envelope, when, id)
         self._cycle, self._cycle_seen = heartbeat.read(), time.monotonic()  # the loop's count and when it moved
         self.stalled_since: float | None = None
-        self._event_seq = 0  # the last event seq sent
-        self._injected = 0  # events of this process's own so far: loop events are renumbered after them
         self._tokens = iter(range(1, 1 << 62))
         self.revocations = Revocations(rings, heartbeat, self._tokens)  # keys a reload removed, told to the loop
         self.journal = Journal()  # every event published, a line of the daemon's log
         self.timing = TimingJudge(timing or TimingConfig(), rings, self._tokens)  # the rig file's [timing]
         # a trip's flight file, named as its event goes out (daemon.wire.flight); only where the recorder writes it
-        self.flights = FlightNames(flight.after_s) if flight is not None and recorder is not None else None
+        flights = FlightNames(flight.after_s) if flight is not None and recorder is not None else None
+        self.publisher = Publisher(sockets, rings["telemetry"], layout, stats, self.timing.take, self.journal, flights,
+                                   recorder, model, plotjuggler, foxglove)
         self.poller = zmq.Poller()
         for name in ("control", "command"):
             self.poller.register(sockets[name], zmq.POLLIN)
@@ -96,12 +90,12 @@ class Relay:
             if self.recorder is not None and self.recorder.control in ready:
                 self.recorder.take_answers(self._event)
             if self.model is not None and self.model.out in ready:
-                self.model.take(self._publish_model, lambda event: self._event(event, "model"))
+                self.model.take(self.publisher.model_message, lambda event: self._event(event, "model"))
             if self.doorbell in ready:
                 os.read(self.doorbell, 4096)  # the rings say what there is; the bytes only woke us
             self._send_replies()
             rebind = self.revocations.rebind_due(time.monotonic())  # before the drain: the loop's say is in the ring
-            if not self._publish():
+            if not self.publisher.drain():
                 self._send_replies()  # the loop's last answers, then stop
                 return
             if rebind:
@@ -165,22 +159,22 @@ class Relay:
                 self.owed[token] = (sock, envelope, time.monotonic(), request["id"])
 
     @staticmethod
-    def _admit(socket: str, request: dict, identity) -> tuple[catalog.Command, dict]:
+    def _admit(socket: str, request: dict, identity) -> tuple[Command, dict]:
         """The request's catalog entry and the request to pass on, checked in the documented
         order after its envelope: the command (on this socket), its arguments, the key's role; a
         refusal raises CommandFailed (or ProtocolError for arguments that cannot be read). An
         e-stop, never refused for its arguments, is passed on with only what the loop reads of
-        them (:func:`~daemon.wire.catalog.lenient_args`): a few bytes, whatever was sent."""
+        them (:func:`~daemon.wire.command_spec.lenient_args`): a few bytes, whatever was sent."""
         command = catalog.find(request["cmd"], socket)
         args = protocol.decode_args(request)
-        catalog.check_args(command, args)
+        check_args(command, args)
         if command.role == OPERATOR and identity.role != OPERATOR:
             raise CommandFailed(protocol.FORBIDDEN, f"key {identity.name!r} is an {identity.role}: only an operator "
                                                     f"may send {command.name}",
                                 {"reason": "role", "role": identity.role})
         if not command.strict:
             request = protocol.decode_request(protocol.encode_request(
-                request["id"], command.name, catalog.lenient_args(command, args), request["lease"]))
+                request["id"], command.name, lenient_args(command, args), request["lease"]))
         return command, request
 
     # -- keys ------------------------------------------------------------------------------
@@ -261,23 +255,12 @@ class Relay:
         self._send(sock, envelope, reply)
 
     def _event(self, event: dict, source: str = "messenger") -> None:
-        """Publish an event of this process's own (or the recorder's, or the model process's),
-        numbered in the loop's event sequence."""
-        self._injected += 1
-        self._event_seq += 1
-        event = {"t": time.monotonic(), "cycle": self._cycle, **event, "seq": self._event_seq, "source": source}
-        self._name_flight(event)
-        self.journal.write(event)
-        body = msgpack.packb(event)
-        self.sockets["telemetry"].send_multipart((b"event", body))
-        if self.recorder is not None:
-            self.recorder.feed(b"event", body)
-        if self.foxglove is not None:
-            self.foxglove.take("event", msgpack.unpackb(body, raw=False))
+        """Publish an event of this process's own (or the recorder's, or the model process's)."""
+        self.publisher.event(event, source, self._cycle)
 
     def _send_replies(self) -> None:
         ring = self.rings["replies"]
-        while (entry := self._get(ring)) is not None:
+        while (entry := ring_entry(ring)) is not None:
             token, reply = entry
             owed = self.owed.pop(token, None)
             if owed is not None:
@@ -285,115 +268,6 @@ class Relay:
             elif not self.revocations.answer(token, reply):
                 self.timing.answer(token, reply)
 
-    def _publish(self) -> bool:
-        """Pass the telemetry on; False at the END of the stream."""
-        ring, pub = self.rings["telemetry"], self.sockets["telemetry"]
-        while (entry := self._get(ring)) is not None:
-            tag, body = entry
-            if tag == END:
-                if self.recorder is not None:
-                    self.recorder.feed(b"", b"")  # the recorder finishes its files
-                if self.model is not None:
-                    self.model.feed(b"")
-                return False
-            if tag >= len(TOPICS):
-                self._bad(tag, "unknown topic")
-                continue
-            topic = TOPICS[tag]
-            if topic == b"event":
-                body = self._renumber(body)
-            try:
-                columns = state_message(self.layout, body) if topic == b"state" else None
-                if topic == b"stats":
-                    summary = summarise(self.stats, body)
-                    body = msgpack.packb(summary)
-                    self.timing.take(summary)
-                elif topic == b"internals":
-                    body = msgpack.packb(internals_message(body))
-            except (struct.error, IndexError, ValueError) as exc:
-                self._bad(tag, str(exc))
-                continue
-            payload = msgpack.packb(columns) if columns is not None else body
-            pub.send_multipart((topic, payload))  # PUB drops at a subscriber's high-water mark
-            if self.recorder is not None:
-                self.recorder.feed(topic, payload)
-            if self.model is not None and columns is not None:
-                self.model.feed(payload)
-            if self.plotjuggler is not None:
-                self._plot(topic, columns, body)
-            if self.foxglove is not None:
-                self._stream(topic, columns, body)
-        return True
-
-    def _publish_model(self, topic: bytes, payload: bytes) -> None:
-        """The model process's ``model`` message, published as the loop's topics are."""
-        self.sockets["telemetry"].send_multipart((topic, payload))
-        if self.recorder is not None:
-            self.recorder.feed(topic, payload)
-        if self.foxglove is not None:
-            self.foxglove.take("model", msgpack.unpackb(payload, raw=False))
-
-    def _stream(self, topic: bytes, columns: dict | None, body: bytes) -> None:
-        """The live Foxglove stream's share (:mod:`daemon.messenger.foxglove_stream`)."""
-        if columns is not None:
-            self.foxglove.take("state", columns)
-            return
-        try:
-            message = msgpack.unpackb(body, raw=False)
-        except Exception as exc:  # only the loop writes these: a bug, said loudly, never fatal
-            print(f"pneumad messenger: cannot read a {topic.decode()} message for Foxglove: {exc}", file=sys.stderr,
-                  flush=True)
-            return
-        self.foxglove.take(topic.decode(), message)
-
-    def _plot(self, topic: bytes, columns: dict | None, body: bytes) -> None:
-        """The rows PlotJuggler plots (:mod:`daemon.messenger.plotjuggler`)."""
-        if columns is not None:
-            self.plotjuggler.state(columns)
-        elif topic in (b"internals", b"stats"):
-            try:
-                message = msgpack.unpackb(body, raw=False)
-                (self.plotjuggler.internals if topic == b"internals" else self.plotjuggler.stats)(message)
-            except Exception as exc:  # only the loop writes these: a bug, said loudly, never fatal
-                print(f"pneumad messenger: no PlotJuggler row for a {topic.decode()} message: {exc}", file=sys.stderr,
-                      flush=True)
-
-    def _renumber(self, body: bytes) -> bytes:
-        """A loop event, its seq moved past the messenger's own events (events are rare), and
-        written to the journal."""
-        try:
-            event = msgpack.unpackb(body, raw=False)
-        except Exception:
-            return body
-        named = self._name_flight(event)
-        self.journal.write(event)
-        event["seq"] += self._injected
-        self._event_seq = event["seq"]
-        return msgpack.packb(event) if self._injected or named else body
-
-    def _name_flight(self, event: dict) -> bool:
-        """A trip's, an e-stop's or a stall's event gets the ``flight`` field: the file the recorder
-        writes its last seconds to (its journal line names it too). Whether it did."""
-        name = self.flights.name_for(event) if self.flights is not None else None
-        if name is not None:
-            event["flight"] = name
-        return name is not None
-
-    @staticmethod
-    def _get(ring: Ring) -> tuple[int, bytes] | None:
-        """The next entry; a ring that cannot be read is emptied (said loudly), not a crash
-        that the next messenger would repeat."""
-        try:
-            return ring.get()
-        except RingError as exc:
-            ring.discard()
-            print(f"pneumad messenger: {exc}; emptied it", file=sys.stderr, flush=True)
-            return None
-
-    @staticmethod
-    def _bad(tag: int, why: str) -> None:
-        """Only the loop writes the telemetry ring: a bad entry is a bug, said loudly, and skipped."""
-        print(f"pneumad messenger: dropped a telemetry entry (tag {tag}): {why}", file=sys.stderr, flush=True)
 
 
 def _rebind(ctx: zmq.Context, endpoint: str, guard: Guard) -> zmq.Socket:

@@ -8,14 +8,15 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+import sys
 
 import zmq
 
 from daemon.messenger.guard import Guard
 from daemon.wire import protocol
+from daemon.wire.ring import Ring, RingError
 
 TOPICS = (b"", b"state", b"stats", b"event", b"internals", b"contact")  # telemetry ring tags; 0 ends the stream
-HELPER_TOPICS = (b"model",)  # published by the messenger from a helper process beside it (daemon/model), not the loop
 END = 0
 TELEMETRY_HWM = 1000  # messages queued per subscriber before ZeroMQ drops (100 ms of state batches)
 ROUTER_HWM = 1000
@@ -71,3 +72,14 @@ def open_socket(ctx: zmq.Context, name: str, endpoint: str, guard: Guard | None)
         sock.close()
         raise
     return sock
+
+
+def ring_entry(ring: Ring) -> tuple[int, bytes] | None:
+    """The next entry; a ring that cannot be read is emptied (said loudly), not a crash
+    that the next messenger would repeat."""
+    try:
+        return ring.get()
+    except RingError as exc:
+        ring.discard()
+        print(f"pneumad messenger: {exc}; emptied it", file=sys.stderr, flush=True)
+        return None

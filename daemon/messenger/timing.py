@@ -2,7 +2,7 @@
 (:mod:`daemon.wire.loop_stats`): over the rig file's sliding ``[timing] window_s``, the rate
 the loop achieved and the deadlines it missed (overruns), and the control stage's median time
 in the last window (the controller's step, chiefly), against the rig file's limits
-(:class:`hal.config.TimingConfig`).
+(:class:`hal.rig_sections.TimingConfig`).
 
 Each window's verdict goes to the loop as the catalog's internal command ``timing.verdict``
 (as ``lease.revoke`` does), on the control ring: the loop keeps it for ``status``, names the
@@ -21,7 +21,7 @@ import msgpack
 from daemon.wire import protocol, routed
 from daemon.wire.keys import OPERATOR, Identity
 from daemon.wire.ring import Ring
-from hal.config import TimingConfig
+from hal.rig_sections import TimingConfig
 
 JUDGE = Identity("messenger", OPERATOR)  # who the verdict's events name: the messenger judged
 ANSWER_LIMIT_S = 60.0  # a verdict the loop has not answered for this long is forgotten [s]

@@ -26,15 +26,10 @@ import signal
 from hal.config import RigConfig
 from hal.process import Child, Helper, HelperFailed, SharedMemory
 from hal.seqlock import try_read, write_locked
+from daemon.wire.helper_links import EVENT, MODEL_FEED, MODEL_FEED_HWM, MODEL_OUT, MODEL_TOPIC, endpoint
 
-MODEL_FEED, MODEL_OUT = "model-feed", "model-out"  # ipc socket names in the rings' directory (the messenger binds)
-FEED_HWM = 6000  # state messages the feed may queue (about 60 s of telemetry: a model process starved that long)
 CAUSES = ("", "offset", "leak_head", "leak_rod", "gain", "friction")  # a status's cause, by index (controllers.drift)
 NUMBERS = ("anchored", "rms_deg", "mean_deg", "drift", "since_t", "cause", "size")  # a joint's status numbers
-
-
-def endpoint(rings_dir: str, name: str) -> str:
-    return f"ipc://{rings_dir}/{name}"
 
 
 def wanted(rig: RigConfig) -> list[str]:
@@ -117,7 +112,7 @@ def serve(child: Child, rings_dir: str, rig: RigConfig, joints: list[str], share
     watch = ModelWatch(rig)
     ctx = zmq.Context()
     feed = ctx.socket(zmq.PULL)
-    feed.setsockopt(zmq.RCVHWM, FEED_HWM)
+    feed.setsockopt(zmq.RCVHWM, MODEL_FEED_HWM)
     out = ctx.socket(zmq.PUSH)
     out.setsockopt(zmq.SNDHWM, 1000)
     for sock in (feed, out):
@@ -157,13 +152,13 @@ def serve(child: Child, rings_dir: str, rig: RigConfig, joints: list[str], share
                 since[v.joint] = watch.t
         # the status first: a client told of a drift by its event finds it in the status too
         write_locked(shared.seq, shared.values, _status_row(watch, message, joints, since))
-        _send(out, b"model", msgpack.packb(message))
+        _send(out, MODEL_TOPIC, msgpack.packb(message))
         for v in verdicts:
             event = {"kind": "model", "action": v.action, "joint": v.joint, "cause": v.cause, "t_model": watch.t}
             if v.details:
                 event.update(likely=v.details.get("likely"), best=v.details.get("best"), size=v.details.get("size"),
                              explained=v.details.get("explained"), onset_t=v.details.get("onset_t"))
-            _send(out, b"event", msgpack.packb(event))
+            _send(out, EVENT, msgpack.packb(event))
     feed.close()
     out.close()
     ctx.term()

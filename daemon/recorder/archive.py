@@ -40,7 +40,7 @@ from daemon.wire.flight import PREFIX as FLIGHT_PREFIX
 from daemon.recordings.mcap_log import McapRecording, TelemetryEncoder
 from daemon.recordings.mcap_repair import repair
 from daemon.recorder.flight import FlightRecorder
-from hal.config import FlightRecorderConfig
+from hal.rig_sections import FlightRecorderConfig
 
 TAIL_S = 3.0  # a reference's recording runs on this long after its end: the settling (a step's response)
 MAX_ACTIVE = 4

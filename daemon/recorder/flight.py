@@ -29,7 +29,7 @@ import msgpack
 from daemon.recordings.mcap_log import McapRecording
 from daemon.recordings.mcap_repair import repair
 from daemon.wire.flight import Window
-from hal.config import FlightRecorderConfig
+from hal.rig_sections import FlightRecorderConfig
 
 KEEP_MARGIN_S = 1.0  # [s] held beyond seconds + after_s: the feed's batches and a file's end
 MEMORY_CAP_BYTES = 64 * 1024 * 1024  # the held messages' bytes at most, whatever the rig

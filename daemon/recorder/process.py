@@ -33,22 +33,15 @@ import os
 import signal
 import time
 
-from hal.config import FlightRecorderConfig
+from hal.rig_sections import FlightRecorderConfig
 from hal.process import Child, Helper, HelperFailed
+from daemon.wire.helper_links import (EVENT, MARK, MESSENGER_ID, RECORDER_CONTROL, RECORDER_FEED, RECORDER_FEED_HWM,
+                                      REPLY, endpoint)
 
-FEED = "recorder-feed"  # ipc socket names in the rings' directory
-CONTROL = "recorder-control"
-MESSENGER_ID = b"messenger"  # the messenger's routing id on the control socket
-FEED_HWM = 200_000  # messages the feed may queue (about 10 minutes of telemetry)
 BATCH_S = 0.02  # [s] of writing at most between two looks at the requests: a reply waits no longer
 FEED_EVERY_MS = 50  # the feed is read this often, not at every message: 20 wake-ups a second, not ~110
 CATCH_UP_S = 1.0  # [s] of taking in the feed at most before requests are answered (the client waits 2 s)
-MARK = b"mark"  # a feed message the messenger sends just before a request: [MARK, the request's token]
 EVENTS_HELD = 100  # events kept while no messenger is connected (a recorder just started, a messenger restarting)
-
-
-def endpoint(rings_dir: str, name: str) -> str:
-    return f"ipc://{os.path.join(rings_dir, name)}"
 
 
 class RecorderProcess:
@@ -113,13 +106,13 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a file-size limit is a write error, not death
     ctx = zmq.Context()
     feed, control = ctx.socket(zmq.PULL), ctx.socket(zmq.ROUTER)
-    feed.setsockopt(zmq.RCVHWM, FEED_HWM)
+    feed.setsockopt(zmq.RCVHWM, RECORDER_FEED_HWM)
     control.setsockopt(zmq.ROUTER_HANDOVER, 1)  # a restarted messenger takes its id over
     control.setsockopt(zmq.ROUTER_MANDATORY, 1)  # a send with no messenger connected fails (held, not lost)
     for sock in (feed, control):
         sock.setsockopt(zmq.LINGER, 0)
-    feed.connect(endpoint(rings_dir, FEED))  # the messenger's: one queue, in order, across its restarts
-    control.bind(endpoint(rings_dir, CONTROL))
+    feed.connect(endpoint(rings_dir, RECORDER_FEED))  # the messenger's: one queue, in order, across its restarts
+    control.bind(endpoint(rings_dir, RECORDER_CONTROL))
     held: list[list[bytes]] = []  # events no messenger has taken yet
     archive = Archive(rings_dir, directory, max_mb * 1e6, min_free_mb * 1e6,
                       lambda event: _send_event(control, held, json.dumps(event).encode()), flight)
@@ -147,7 +140,7 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
             archive.behind_s = _catch_up(feed, archive, stop, requests[-1][1]) if requests else None
             behind = archive.behind_s is not None
             for _, token, who, body in requests:
-                _send(control, [b"reply", token, archive.request(body, who.decode(errors="replace"))])
+                _send(control, [REPLY, token, archive.request(body, who.decode(errors="replace"))])
         archive.tick(time.monotonic())
         writing = archive.flight.work(archive.feed_t, BATCH_S)  # a flight file, a slice at a time
         behind = behind or writing
@@ -215,7 +208,7 @@ def _send(control, frames: list[bytes]) -> bool:
 
 def _send_event(control, held: list[list[bytes]], event: bytes) -> None:
     """An event to the messenger, after those held before it; held itself if none is connected."""
-    held.append([b"event", event])
+    held.append([EVENT, event])
     _send_held(control, held)
 
 

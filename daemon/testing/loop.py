@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
+from typing import Iterator
 
 import msgpack
 import zmq
@@ -108,6 +110,17 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     return loop, captured, srv
 
 
+@contextmanager
+def served_loop() -> Iterator[tuple[ControlLoop, Captured, ZmqServer]]:
+    """A served :func:`make_loop` run 100 cycles: (loop, captured, server), the server closed after."""
+    loop, captured, srv = make_loop(server=True)
+    loop.run(100)
+    try:
+        yield loop, captured, srv
+    finally:
+        srv.close()
+
+
 _preparer: list[Preparer] = []
 
 
@@ -169,6 +182,13 @@ def ok(loop, sock, cmd, args=None, lease=None):
     reply = call(loop, sock, cmd, args, lease)
     assert reply["ok"], reply
     return reply["result"]
+
+
+def leased(loop: ControlLoop, sock: zmq.Socket) -> str:
+    """The lease for 60 s, not the rig's 2 s: a deferred command's reply is waited for while the
+    loop cycles about in real time, and beside CPU hogs the planner (then at nice 19) took over 2 s to
+    derive a controller's parameters (the lease expired between two requests: no_lease)."""
+    return ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
 
 
 def run_seconds(loop: ControlLoop, seconds: float) -> None:

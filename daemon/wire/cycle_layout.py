@@ -52,7 +52,7 @@ class Field:
 
     @property
     def display(self) -> tuple[str, float]:
-        """(unit, scale) a person reads it in: deg for rad, mm for m, else the SI unit."""
+        """(unit, scale) a person reads it in: deg for rad, mm for m, kPa for Pa, else the SI unit."""
         return DISPLAY.get(self.unit, (self.unit, 1.0))
 
     def describe(self) -> dict:
