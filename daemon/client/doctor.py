@@ -21,7 +21,7 @@ import subprocess
 import sys
 from dataclasses import asdict, dataclass
 
-from daemon.client import sockets
+from daemon.wire import endpoint_holders as sockets
 from daemon.client.client import Client, KeyRefused, RemoteError
 from daemon.service import host
 from daemon.wire.keys import KeyFileError

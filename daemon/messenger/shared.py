@@ -14,6 +14,7 @@ import zmq
 
 from daemon.messenger.guard import Guard
 from daemon.wire import protocol
+from daemon.wire.endpoint_holders import held_by
 from daemon.wire.ring import Ring, RingError
 
 TOPICS = (b"", b"state", b"stats", b"event", b"internals", b"contact")  # telemetry ring tags; 0 ends the stream
@@ -55,7 +56,12 @@ class Heartbeat:
 
 
 def open_socket(ctx: zmq.Context, name: str, endpoint: str, guard: Guard | None) -> zmq.Socket:
-    """One of the daemon's sockets, bound (ZMQError if it cannot be)."""
+    """One of the daemon's sockets, bound (ZMQError if it cannot be: EADDRINUSE, naming who
+    holds it, for an endpoint another program listens on, an ``ipc://`` one included)."""
+    holder = held_by(endpoint) if endpoint.startswith("ipc://") else ""
+    if holder:
+        raise zmq.ZMQError(zmq.EADDRINUSE, f"in use by {holder}: another daemon? stop it, or give this one other "
+                                           f"endpoints")
     sock = ctx.socket(zmq.PUB if name == "telemetry" else zmq.ROUTER)
     sock.setsockopt(zmq.LINGER, 0)
     if name == "telemetry":
@@ -68,8 +74,11 @@ def open_socket(ctx: zmq.Context, name: str, endpoint: str, guard: Guard | None)
         guard.secure(sock)
     try:
         sock.bind(endpoint)
-    except zmq.ZMQError:
+    except zmq.ZMQError as exc:
         sock.close()
+        holder = held_by(endpoint) if exc.errno == zmq.EADDRINUSE else ""
+        if holder:
+            raise zmq.ZMQError(zmq.EADDRINUSE, f"in use by {holder}") from None
         raise
     return sock
 

@@ -1,7 +1,8 @@
 """Who holds an endpoint on this machine, as ``ss -lp`` would say: the listening TCP or Unix
 socket behind a ZeroMQ ``tcp://`` or ``ipc://`` endpoint, read from /proc/net, and the
 process whose descriptors hold it (only those this user may see: all of them as root).
-For ``pneumactl doctor``."""
+For ``pneumactl doctor``, and for the messenger, which refuses an endpoint another program
+listens on (:func:`held_by`)."""
 from __future__ import annotations
 
 import os
@@ -83,3 +84,13 @@ def _rows(path: str) -> list[list[str]]:
             return [line.split() for line in f.readlines()[1:]]
     except OSError:
         return []
+
+
+def held_by(endpoint: str, proc: str = "/proc") -> str:
+    """Who listens on ``endpoint`` now, in words ("": nobody). ZeroMQ binds an ``ipc://``
+    endpoint by unlinking its socket file first, so a second daemon given a running one's
+    endpoints would take them over without a word, the first's loop left unreachable; the
+    kernel refuses a ``tcp://`` port itself, and this names who holds it."""
+    found = holders(listening_inodes(endpoint, proc), proc)
+    return ", ".join(map(str, found))
+
