@@ -293,7 +293,8 @@ class Controller(ABC):
 
     @classmethod
     def describe(cls) -> dict:
-        return {"name": cls.name, "doc": (cls.__doc__ or "").strip().splitlines()[0],
+        lines = (cls.__dict__.get("__doc__") or "").strip().splitlines()  # its own: a base's would mislead
+        return {"name": cls.name, "doc": lines[0] if lines else "",
                 "params": [p.describe() for p in cls.params], "options": [o.describe() for o in cls.options],
                 "internals": [s.describe() for s in cls.internals]}
 

@@ -73,10 +73,15 @@ class Directories:
         return {name: s.target(name) for name, s in self.sources.items()}
 
     def file_of(self, name: str) -> str | None:
-        """The file controller (or refused file stem) ``name`` comes from; None: not from here."""
+        """The file controller (or refused file stem) ``name`` comes from, or a file of that stem
+        put in a directory since (``NAME.py``: a new plugin, loaded by its first reload); None:
+        not from here."""
         if name in self.sources:
             return self.sources[name].path
-        return next((r["file"] for r in self.refused if r["name"] == name), None)
+        refused = next((r["file"] for r in self.refused if r["name"] == name), None)
+        if refused is not None or not name.isidentifier() or name.startswith("_"):  # never a path: a plain stem
+            return refused
+        return next((str(Path(d) / f"{name}.py") for d in self.dirs if (Path(d) / f"{name}.py").is_file()), None)
 
     def replace(self, path: str, new: Source) -> None:
         """``new`` is the version of ``path`` from now on: its controllers replace the file's."""

@@ -199,3 +199,23 @@ def test_the_rig_files_controller_dirs_are_read_relative_to_it(tmp_path, capsys)
     rig.write_text(text.replace("[rig]\n", '[rig]\ncontroller_dirs = ["lab"]\n'))
     assert main(["--check", "--config", str(rig), "--controller", "lab_pd"]) == 0
     assert "controller lab_pd" in capsys.readouterr().out
+
+
+@pytest.mark.slow(seconds=5)
+def test_a_file_put_in_the_directory_after_the_start_loads_at_its_first_reload_by_its_name(daemon):
+    """A new plugin file dropped in beside the others, its class without a docstring: reloaded by
+    the file's name (no path in the request), listed with an empty doc, not refused, and built."""
+    client, path, *_ = daemon
+    new = path.parent / "lab_new.py"
+    new.write_text(VERSION_1.replace('"lab_pd"', '"lab_new"').replace('    """Lab PD, version 1."""\n\n', ""))
+    loaded = client.reload_controller("lab_new")
+    assert loaded["controllers"] == ["lab_new"] and loaded["file"] == str(new) and loaded["previous_sha256"] is None
+    entry = listed(client, "lab_new")
+    assert entry["doc"] == "" and "error" not in entry and entry["source"]["file"] == str(new)
+    assert "lab_new" not in [r["name"] for r in client.status()["controllers_refused"]]
+    client.acquire_lease(60.0)
+    client.enable()
+    assert client.switch_controller("lab_new")["active"] == "lab_new"
+    with pytest.raises(RemoteError, match="is not from a controller directory"):
+        client.reload_controller("lab_absent")  # no such file: still refused
+
