@@ -76,6 +76,7 @@ def main(argv=None) -> int:
         controllers = cases.BUILTINS + [c for c in args.controllers if c not in cases.BUILTINS]
     if not controllers:
         parser().error("name a controller, or --all")
+    pool.one_blas_thread()  # the checks below build every controller and a loop, as the workers do
     try:
         params = dict(config.parse_option(p, "--param") for p in args.param)
         rig = config.load(args.config)
