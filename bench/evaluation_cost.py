@@ -17,7 +17,7 @@ import time
 
 from bench.common import header
 from controllers.base import ControllerContext
-from evaluation import cases, runner
+from evaluation import cases, pool, runner
 from hal import config
 from hal.actuation import RigActuation
 
@@ -58,6 +58,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-loop", action="store_true", help="the fast engine only")
     args = parser.parse_args(argv)
     header("pneumactl evaluate: CPU per simulated cycle, one translation case")
+    pool.one_blas_thread()  # as in the evaluation's workers
     rig = config.load()
     context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
     per_case, cycles = grid_cycles(rig, context)

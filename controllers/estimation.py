@@ -65,10 +65,12 @@ class DelayedStateEstimator:
             self._phi.append(tuple(tuple(float(v) for v in row) for row in phi))
             self._gamma.append(tuple(float(v) for v in gamma.ravel()))
             self._gain.append(tuple(float(v) for v in (p @ c.T / (c @ p @ c.T + noise ** 2)).ravel()))
+        self._coef = [(*(v for row in p for v in row), *g) for p, g in zip(self._phi, self._gamma)]
         self._buf = [[0.0] * (d + 1) for d in self.delay]  # outputs sent, a ring per joint
         self._k = 0
         self.x = [[0.0] * 4 for _ in range(self.n)]  # [th, th', th'', d] per joint, of the delayed plant
         self.dx = [[0.0] * 3 for _ in range(self.n)]  # Smith prediction
+        self._rows = self._per_joint()
 
     def reset(self, angles: Sequence[float], last_output: Sequence[float]) -> None:
         """At rest at the measured angles with the output in force for the last T_dly."""
@@ -77,6 +79,7 @@ class DelayedStateEstimator:
             self.dx[j] = [0.0, 0.0, 0.0]
             self._buf[j] = [float(u)] * (self.delay[j] + 1)
         self._k = 0
+        self._rows = self._per_joint()
 
     def estimate(self, angles: Sequence[float]) -> list[list[float]]:
         """Correct with this cycle's angles; the predicted [th, th', th''] per joint."""
@@ -97,23 +100,27 @@ class DelayedStateEstimator:
     def advance(self, u: Sequence[float]) -> None:
         """Time update with the outputs sent this cycle [V]."""
         k = self._k
-        for j in range(self.n):
-            buf = self._buf[j]
+        for j, (buf, delay, u_off, x, dx, coef) in enumerate(self._rows):
             size = len(buf)
             buf[k % size] = uj = float(u[j])
-            delayed = buf[(k - self.delay[j]) % size]
-            x, dx, p, g = self.x[j], self.dx[j], self._phi[j], self._gamma[j]
-            drive = delayed + self.u_off[j] + x[3]
+            delayed = buf[(k - delay) % size]
+            p00, p01, p02, p10, p11, p12, p20, p21, p22, g0, g1, g2 = coef
+            drive = delayed + u_off + x[3]
             x0, x1, x2 = x[0], x[1], x[2]
-            x[0] = p[0][0] * x0 + p[0][1] * x1 + p[0][2] * x2 + g[0] * drive
-            x[1] = p[1][0] * x0 + p[1][1] * x1 + p[1][2] * x2 + g[1] * drive
-            x[2] = p[2][0] * x0 + p[2][1] * x1 + p[2][2] * x2 + g[2] * drive
+            x[0] = p00 * x0 + p01 * x1 + p02 * x2 + g0 * drive
+            x[1] = p10 * x0 + p11 * x1 + p12 * x2 + g1 * drive
+            x[2] = p20 * x0 + p21 * x1 + p22 * x2 + g2 * drive
             fresh = uj - delayed
             d0, d1, d2 = dx
-            dx[0] = p[0][0] * d0 + p[0][1] * d1 + p[0][2] * d2 + g[0] * fresh
-            dx[1] = p[1][0] * d0 + p[1][1] * d1 + p[1][2] * d2 + g[1] * fresh
-            dx[2] = p[2][0] * d0 + p[2][1] * d1 + p[2][2] * d2 + g[2] * fresh
+            dx[0] = p00 * d0 + p01 * d1 + p02 * d2 + g0 * fresh
+            dx[1] = p10 * d0 + p11 * d1 + p12 * d2 + g1 * fresh
+            dx[2] = p20 * d0 + p21 * d1 + p22 * d2 + g2 * fresh
         self._k = k + 1
+
+    def _per_joint(self) -> tuple[tuple, ...]:
+        """Per joint what :meth:`advance` reads: its ring, delay, offset, states and (Phi, Gamma)
+        as twelve plain floats (the lists themselves: made again when reset replaces them)."""
+        return tuple((self._buf[j], self.delay[j], self.u_off[j], self.x[j], self.dx[j], self._coef[j]) for j in range(self.n))
 
     def replace_last(self, u: Sequence[float]) -> None:
         """The outputs of the last :meth:`advance` were not applied, ``u`` was (a shadow run):

@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from controllers.base import Controller, JointState, ParamSpec, Reference, SignalSpec, clamp
+from controllers.base import Controller, JointState, ParamSpec, Reference, SignalSpec
 from controllers.estimation import ESTIMATOR_PARAMS, DelayedStateEstimator
 
 DEG = math.pi / 180.0
@@ -134,36 +134,50 @@ class SAC(Controller):
         self._ki = [[0.0, 0.0, 0.0, 0.0, m.K / m.kt, -m.input_offset] for m in self.models]
         self._first = [float(u) for u in last_output]
 
+    def apply_params(self, prepared) -> None:
+        super().apply_params(prepared)
+        k = self.k  # what step() reads per joint, as one tuple of plain floats
+        self._joints = tuple(zip(k.am, k.s1, k.s2, k.gi_e, k.gi_x, k.gp, k.switch, k.boundary, k.decay, k.deadzone))
+
     def step(self, state: JointState, reference: Reference) -> list[float]:
-        k, ctx, dt = self.k, self.context, self.context.dt
+        k, dt = self.k, self.context.dt
         predicted = k.estimator.estimate(state.angles)
         out = []
-        for j in range(ctx.n):
-            a, r = k.am[j], reference.angles[j]
+        e_y, xf, offset, first = self._e_y, self._xf, self._offset, self._first
+        for j, (a, s1, s2, gi_e, gi_x, gp, switch, boundary, decay, deadzone) in enumerate(self._joints):
+            r = reference.angles[j]
             xm = self._xm[j]  # three first-order lags in series (exact ZOH of each stage)
-            xm[0] = a * xm[0] + (1 - a) * r
-            xm[1] = a * xm[1] + (1 - a) * xm[0]
-            xm[2] = a * xm[2] + (1 - a) * xm[1]
-            e = self._e_y[j] = xm[2] - (predicted[j][0] + self._xf[j])
-            rv = (e, xm[0], xm[1], xm[2], r, 1.0)
+            xm[0] = m0 = a * xm[0] + (1 - a) * r
+            xm[1] = m1 = a * xm[1] + (1 - a) * m0
+            xm[2] = m2 = a * xm[2] + (1 - a) * m1
+            e = e_y[j] = m2 - (predicted[j][0] + xf[j])
+            # the regressor r_v = (e, x_m1, x_m2, x_m3, u_m, 1), written out
             ki = self._ki[j]
-            leak = (k.s1[j] * e * e + k.s2[j]) * dt  # sigma-modification
-            gains = (k.gi_e[j],) + (k.gi_x[j],) * 5
-            v = k.gp[j] * e * e * e  # the proportional gain acts on e_y only: (e G_P e) e
-            v += k.switch[j] * e / (abs(e) + k.boundary[j])  # breaks stiction
-            for i in range(6):
-                v += ki[i] * rv[i]
-            if self._first is not None:  # bumpless: the offset makes this first output the one in force
-                self._offset[j] = self._first[j] - v
-            self._offset[j] *= k.decay[j]
-            v += self._offset[j]
-            u = clamp(v, self.u_lo[j], self.u_hi[j])
+            leak = (s1 * e * e + s2) * dt  # sigma-modification
+            v = gp * e * e * e  # the proportional gain acts on e_y only: (e G_P e) e
+            v += switch * e / (abs(e) + boundary)  # breaks stiction
+            v += ki[0] * e
+            v += ki[1] * m0
+            v += ki[2] * m1
+            v += ki[3] * m2
+            v += ki[4] * r
+            v += ki[5] * 1.0
+            if first is not None:  # bumpless: the offset makes this first output the one in force
+                offset[j] = first[j] - v
+            offset[j] *= decay
+            v += offset[j]
+            lo, hi = self.u_lo[j], self.u_hi[j]
+            u = lo if v < lo else hi if v > hi else v
             out.append(u)
             # dead-zone modification: no learning from noise and stiction; and none that winds the
             # output further into a limit (learning moves v by e sum(G rv^2), the sign of e)
-            learn = e if abs(e) > k.deadzone[j] and (u == v or (u > v) == (e > 0)) else 0.0
-            for i in range(6):
-                ki[i] += learn * gains[i] * rv[i] - leak * ki[i]
+            learn = e if abs(e) > deadzone and (u == v or (u > v) == (e > 0)) else 0.0
+            ki[0] += learn * gi_e * e - leak * ki[0]
+            ki[1] += learn * gi_x * m0 - leak * ki[1]
+            ki[2] += learn * gi_x * m1 - leak * ki[2]
+            ki[3] += learn * gi_x * m2 - leak * ki[3]
+            ki[4] += learn * gi_x * r - leak * ki[4]
+            ki[5] += learn * gi_x * 1.0 - leak * ki[5]
         self._first = None
         for j, uj in enumerate(out):  # the PFC's time update, fed the washed-out output
             self._u_mean[j] = k.aw[j] * self._u_mean[j] + (1 - k.aw[j]) * uj

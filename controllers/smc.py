@@ -200,7 +200,7 @@ def _integral_for(target: float, d: _Design, j: int, rest: float) -> float:
     for _ in range(80):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if part(mid) > target else (lo, mid)
-    return (0.5 * (lo + hi) - rest) / d.s[j][0]
+    return (0.5 * (lo + hi) - rest) / float(d.s[j][0])  # a plain float: a numpy scalar in z slows every step
 
 
 class SMCWithDOB(WithDisturbanceObserver):

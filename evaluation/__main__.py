@@ -43,14 +43,20 @@ def parser() -> argparse.ArgumentParser:
 
 
 def check(rig, controllers: list[str], params: dict, references: list[str] | None, engine: str,
-          plant: cases.Plant) -> None:
-    """Build each controller and each reference once here, and the fast engine when it is asked
-    for: a bad name, parameter or file, or an engine that does not apply, is refused before
-    any worker starts."""
+          plant: cases.Plant) -> str:
+    """Build each controller and each reference once here, and the fast engine when it may run:
+    a bad name, parameter or file, or an engine that does not apply, is refused before any
+    worker starts. The engine the cases will run on, in words."""
     cases.check_rig(rig)
-    if engine == "fast":
-        why = fast.refusal(runner.make_loop(runner.evaluation_rig(rig, plant, True), "hold", None, None))
-        if why:
+    why = ""
+    if engine != "loop":
+        try:
+            why = fast.refusal(runner.make_loop(runner.evaluation_rig(rig, plant, True), "hold", None, None))
+        except ConfigError as exc:  # no compiled plant for this rig
+            if engine == "fast":
+                raise
+            why = f"the compiled plant ({exc})"
+        if why and engine == "fast":
             raise ValueError(f"--engine fast needs {why} (--engine loop runs any rig the simulator has)")
     context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
     for controller in controllers:
@@ -58,6 +64,9 @@ def check(rig, controllers: list[str], params: dict, references: list[str] | Non
                        runner.construction_options(controller))
     for name in references or []:
         cases.reference(rig, context, name)
+    if engine == "loop" or why:
+        return "on the daemon's loop" + (f" (the fast engine needs {why})" if why else "")
+    return "on the fast engine"
 
 
 def main(argv=None) -> int:
@@ -67,11 +76,12 @@ def main(argv=None) -> int:
         controllers = cases.BUILTINS + [c for c in args.controllers if c not in cases.BUILTINS]
     if not controllers:
         parser().error("name a controller, or --all")
+    pool.one_blas_thread()  # the checks below build every controller and a loop, as the workers do
     try:
         params = dict(config.parse_option(p, "--param") for p in args.param)
         rig = config.load(args.config)
         plants = cases.plants(args.plants, rig)
-        check(rig, controllers, params, args.reference, args.engine, plants[0])
+        running = check(rig, controllers, params, args.reference, args.engine, plants[0])
     except (ConfigError, ParamError, LookupError, ValueError, OSError) as exc:
         print(f"pneumactl evaluate: {exc}", file=sys.stderr)
         return 2
@@ -82,7 +92,7 @@ def main(argv=None) -> int:
     table = report.summary(results, controllers)
     lines = report.failures(results)
     text = (f"{len(results)} cases ({len(controllers)} controllers, {len(plants)} plants) in {elapsed:.0f} s "
-            f"on {args.jobs} processes\n\n{table}\n")
+            f"on {args.jobs} processes, {running}\n\n{table}\n")
     if lines:
         text += f"\nTripped or not settled ({len(lines)} cases):\n" + "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)

@@ -21,6 +21,7 @@ from evaluation import kernel as K
 from hal.potentiometer import RDC506
 
 _SAMPLES: dict = {}  # (reference key, t0) -> its samples cycle by cycle: shared by a worker's cases on it
+_NOISE: dict = {}  # (generator state, count) -> its draws: the controllers compared on one plant and path share them
 WHAT = {"position": 0, "first": 1, "second": 2, "force": 3, "supply_pressure": 4, "supply": 5, "constant": 5}
 
 
@@ -124,6 +125,7 @@ class FastLoop:
         Kc[K.K_LOG] = -1  # the first row is this run's first cycle: logged from the second call on
         deadline, commands, references, samples = self.deadline, range(width), range(n), self.samples
         kept = len(samples) if samples is not None else 0
+        written, logging, last = K.K_WRITE, K.K_LOG, self.now
         for i in range(cycles):
             now = deadline
             outcome = cycle(now, J, C, O, G, Kc, noise, coef, buf, state, k, tau, U, A, L)
@@ -137,28 +139,28 @@ class FastLoop:
                 if samples is not None:
                     samples.append(ref)
             both = A.tolist()
-            angles, velocities = both[:n], both[n:]
+            q = ref[0]
             try:
-                u = step(JointState(now, angles, velocities, pressures), Reference(*ref, stiffness))
+                u = step(JointState(now, both[:n], both[n:], pressures), Reference(q, ref[1], ref[2], stiffness))
                 check_output(u, width)
             except Exception as exc:  # as the loop: a failing controller trips
                 self.cause = f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}"
                 break
             for c in commands:
                 U[c] = u[c]
-            q = ref[0]
             for j in references:
                 U[width + j] = q[j]
-            Kc[K.K_WRITE] = 1
-            if i == 0 and log is not None:
-                Kc[K.K_LOG] = 0
+            if i == 0:
+                Kc[written] = 1  # from the next call on, the kernel writes the output
+                if log is not None:
+                    Kc[logging] = 0
             deadline += period
-            self.now = now
+            last = now
         else:
             K.log_row(J, Kc, U, L)
-            self.deadline, self.reference, self.u = deadline, ref, list(u)
+            self.deadline, self.now, self.reference, self.u = deadline, last, ref, list(u)
             return True
-        self.deadline = deadline
+        self.deadline, self.now = deadline, last
         return False
 
     def _trip(self, outcome: int) -> None:
@@ -178,8 +180,20 @@ class FastLoop:
 
 def _noise(rng, count: int) -> np.ndarray:
     """The next ``count`` values ``rng.gauss(0, 1)`` would give (``rng``: a ``random.Random``):
-    its Mersenne Twister state in numpy's, whose doubles are CPython's (genrand_res53)."""
-    version, internal, pending = rng.getstate()
+    its Mersenne Twister state in numpy's, whose doubles are CPython's (genrand_res53). Kept
+    for the next case whose generator is in the same state (the set-up draws the same numbers
+    whatever the controller): read only by the kernel."""
+    key = (rng.getstate(), count)
+    if key not in _NOISE:
+        while len(_NOISE) >= 2:
+            del _NOISE[next(iter(_NOISE))]
+        _NOISE[key] = _draw(*key)
+    return _NOISE[key]
+
+
+def _draw(state, count: int) -> np.ndarray:
+    """:func:`_noise`'s draws from the generator's ``state``."""
+    version, internal, pending = state
     mt = np.random.RandomState()
     mt.set_state(("MT19937", np.array(internal[:-1], dtype=np.uint32), internal[-1], 0, 0.0))
     first = math.nan if pending is None else pending

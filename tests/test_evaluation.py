@@ -23,7 +23,7 @@ from hal.schema import build
 from sim_backend.compiled_plant import CompiledArm
 from sim_backend.options import SimOptions
 from sim_backend.plant import SimArm
-from tests import doc_blocks, doc_runs
+from tests import controller_plugin, doc_blocks, doc_runs
 from tests.doc_blocks import ROOT
 
 RIG = config.load()
@@ -112,9 +112,11 @@ def test_a_trip_ends_the_case_in_both_engines_with_the_loops_cause(plugin, cause
     assert math.isnan(fast.tip_max_mm)
 
 
-def evaluate(*args, cwd):
-    """``pneumactl evaluate`` in ``cwd``, the checkout on the path (its test plugins load by module path)."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+def evaluate(*args, cwd, path=()):
+    """``pneumactl evaluate`` in ``cwd``, the checkout on the path (its test plugins load by module
+    path), and ``path``'s directories (an installed package's) before it."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [*map(str, path), str(ROOT),
+                                                                      os.environ.get("PYTHONPATH")]))}
     return subprocess.run([sys.executable, "-m", "daemon.client.ctl", "evaluate", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=300)
 
@@ -142,6 +144,29 @@ def test_evaluate_writes_a_plugins_table_and_figures_beside_a_builtin_over_the_t
     assert mine["joint_max_deg"] != pid["joint_max_deg"]  # its parameter took effect
 
 
+@pytest.mark.slow(seconds=30)
+def test_evaluate_runs_an_installed_plugin_found_by_its_entry_point(tmp_path):
+    """The worked example package (examples/controller_plugin) pip-installed as its wheel into a
+    directory of the test's, named by its entry point alone, over the thesis's uncertainty set
+    on the steps: a row per plant, its table and figures written."""
+    site, out = tmp_path / "site", tmp_path / "out"
+    install = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
+                              "--target", str(site), str(controller_plugin.wheel(tmp_path))],
+                             capture_output=True, text=True, timeout=300)
+    assert install.returncode == 0, install.stderr
+    done = evaluate("mylab_pdff", "--plants", "thesis", "--reference", "steps", "--out", str(out), cwd=tmp_path,
+                    path=[site])
+    assert done.returncode == 0, done.stderr
+    with open(out / "cases.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["controller"] for r in rows] == ["mylab_pdff"] * 5
+    nominal, = [r for r in rows if r["plant"] == "nominal"]
+    assert nominal["tripped"] == "" and 0.0 < float(nominal["joint_max_deg"]) < 10.0, nominal
+    assert "| mylab_pdff | steps 9.0 s |" in (out / "table.md").read_text()
+    for png in ("summary.png", "steps.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 @pytest.mark.parametrize("args, says", [
     (["nosuch"], "unknown controller 'nosuch'"),
     (["pid", "--param", "Kp=-1"], "Kp"),
@@ -149,6 +174,7 @@ def test_evaluate_writes_a_plugins_table_and_figures_beside_a_builtin_over_the_t
     (["pid", "--plants", "nosuch"], "neither nominal, thesis, grid nor a file"),
     (["pid", "--reference", "nosuch"], "neither translation"),
     (["pid", "--config", "sim-muscle"], "not rotary cylinder joints"),
+    (["axis_pid", "--config", "sim-axis"], "not rotary cylinder joints"),
     ([], "name a controller, or --all"),
 ])
 def test_evaluate_refuses_bad_input_with_a_clear_error(args, says, tmp_path):
@@ -156,6 +182,22 @@ def test_evaluate_refuses_bad_input_with_a_clear_error(args, says, tmp_path):
     assert done.returncode == 2
     assert says in done.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow(seconds=20)
+def test_evaluate_says_when_it_runs_the_daemons_loop_instead_of_the_fast_engine(tmp_path):
+    """A rig the fast engine does not run (here: two plant steps a period) is evaluated on the
+    daemon's loop, and the output says so and why; asked for the fast engine, it refuses."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text((ROOT / "hal" / "sim_2joint.toml").read_text().replace("[transport.options]\n",
+                                                                           "[transport.options]\nstep_s = 0.0005\n"))
+    common = ["pid", "--config", str(rig), "--reference", "steps", "--out", str(tmp_path / "out")]
+    done = evaluate(*common, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "on the daemon's loop (the fast engine needs one plant step a period)" in done.stdout
+    assert "| pid | steps 9.0 s |" in (tmp_path / "out" / "table.md").read_text()
+    refused = evaluate(*common, "--engine", "fast", cwd=tmp_path)
+    assert refused.returncode == 2 and "--engine fast needs one plant step a period" in refused.stderr
 
 
 def test_a_plant_file_is_read_strictly(tmp_path):
