@@ -9,7 +9,8 @@ operations in the same order ([2-36..2-39], [2-45] through :func:`stribeck_step`
 so the two give equal trajectories to float rounding (tests/test_compiled_plant.py).
 
 Covered: the Stribeck friction model or none, dead time on or off, external torques per joint.
-Refused (ConfigError, the Python plant models them): Karnopp friction, a payload, the wall.
+Refused (ConfigError, the Python plant models them): Karnopp friction, a payload, the wall, the
+injected faults of docs/model.md.
 """
 from __future__ import annotations
 
@@ -112,6 +113,9 @@ class CompiledArm(SimArm):
         if options.payload.mass_kg or options.wall.enabled:
             raise ConfigError("transport.options.compiled: the compiled plant has no payload or wall "
                               "(set compiled = false)")
+        if any(drift is not None for drift in self._drifts):
+            raise ConfigError("transport.options.compiled: the compiled plant has no injected faults (a leak, "
+                              "friction_scale, sensor_offset_deg, regulator_gain: set compiled = false)")
         self._reg = np.array([K_EP, P_OFFSET, P_SET_MIN, P_SET_MAX, SUPPLY_HEADROOM])
         n = len(self.joints)
         size = max(len(j._buf_head) for j in self.joints)

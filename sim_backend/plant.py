@@ -87,7 +87,7 @@ class SimArm:
             ramp = drift.offset_ramp_s
             share = min((self.t - drift.fault_at_s) / ramp, 1.0) if ramp > 0 else 1.0
             return math.radians(self.joints[joint].th + share * drift.sensor_offset_deg)
-        return math.radians(self.joints[joint].th)
+        return self.position(joint)  # a subclass's own state (the compiled plant's arrays)
 
     def chamber_gauge(self, joint: int, second: bool) -> float:
         """The head (or rod: ``second``) chamber's pressure [Pa gauge], after the regulator's lag."""

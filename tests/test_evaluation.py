@@ -54,6 +54,36 @@ def test_the_compiled_plant_refuses_what_it_does_not_model():
         CompiledArm(RIG, build(SimOptions, {"friction_model": "karnopp", "compiled": True}, "o"))
 
 
+@pytest.mark.parametrize("rig_file", ["hal/sim_2joint.toml", "examples/rigs/one_joint.toml"])
+def test_the_daemons_loop_follows_a_step_on_the_compiled_plant_as_on_the_python_one(rig_file):
+    """The loop closed through the simulated transport (its sensors read the plant's state:
+    potentiometers, and chamber transmitters where the rig wires them) on the compiled plant
+    and on the Python one: the same step response, to float rounding. The compiled plant's
+    state is its own (arrays), so every sensor must read it, not the Python joints it was
+    built from (they stood still: a step never moved)."""
+    rig = config.load(str(ROOT / rig_file))
+    angles = {}
+    for compiled in (False, True):
+        rig_c = config.with_transport(rig, "sim", {**rig.transport.options, "compiled": compiled})
+        loop = virtual_loop(rig_c, "pid")
+        loop.start()
+        loop.enable()
+        target = [a + math.radians(5.0) for a in loop.reference[0]]
+        from controllers.trajectory import JointMove
+        loop.set_trajectory(JointMove(list(loop.reference[0]), target, 1.0), "step")
+        loop.run(3000)
+        assert loop.state.value == "enabled", loop.supervisor.cause
+        angles[compiled] = list(loop.angles)
+        assert all(abs(a - t) < math.radians(1.0) for a, t in zip(loop.angles, target)), (compiled, loop.angles, target)
+    assert angles[True] == pytest.approx(angles[False], abs=1e-9)
+
+
+def test_the_compiled_plant_refuses_the_injected_faults():
+    with pytest.raises(config.ConfigError, match="no injected faults"):
+        CompiledArm(RIG, build(SimOptions, {**RIG.transport.options, "compiled": True,
+                                            "joints": {"bottom": {"leak": "head"}}}, "o"))
+
+
 def daemon_loop_log(controller: str, plant: cases.Plant, path) -> tuple[np.ndarray, str]:
     """The case as the daemon's loop runs it (daemon/testing's virtual loop, driven here a cycle at
     a time): approach, settle, the path and its hold, each cycle's reference, angles and output."""
