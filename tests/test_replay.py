@@ -76,6 +76,43 @@ def test_the_documents_replay_lines_run_on_a_recording_and_a_rig_file_whose_mode
     assert (tmp_path / "swing-damped" / "replay-bottom.png").exists()
 
 
+def test_a_run_whose_loop_fell_behind_its_period_or_whose_telemetry_was_lost_replays_at_its_own_times(tmp_path):
+    """A loop that skipped deadlines (every third cycle two periods late: ~600 cycles a second)
+    recorded a swing; and the same recording with a second of its samples lost. Each recorded
+    cycle is replayed at its recorded time and the lost ones in between: the model comes out
+    within the noise, where one model cycle a sample ran the model ever later (Fit below 0)."""
+    path = tmp_path / "behind.mcap"
+    swing(drifted_rig(), 12.0, record=path, behind=True)
+    run = open_run(path)
+    gaps = np.diff([s["t"] for s in run.samples])
+    assert gaps.mean() > 1.5e-3  # the recorded loop did fall behind
+    lost = Run(run.describe, run.controller, [s for s in run.samples if not 5.0 < s["t"] < 6.0], run.messages,
+               layout=run.layout)
+    for case in (run, lost):
+        result = replay(case)
+        for joint in ("bottom", "middle"):
+            figures = result["joints"][joint]
+            assert figures["fit_percent"] > 95.0 and figures["parted_s"] is None, (joint, figures)
+
+
+def test_an_open_loop_experiment_and_a_cut_file_are_said(recorded, tmp_path):
+    """An open-loop input experiment's span is refused (its output was the signal, not the
+    controller's); a cut file replays as far as it goes, says so and exits 3."""
+    run = open_run(recorded)
+    t = run.samples[len(run.samples) // 2]["t"]
+    experiment = {"kind": "experiment", "action": "open_loop", "joint": "bottom", "t": t, "cycle": 0}
+    opened = Run(run.describe, run.controller, run.samples,
+                 {**run.messages, "event": [*run.messages.get("event", []), experiment]}, layout=run.layout)
+    with pytest.raises(Refused, match="joint bottom's output was an open-loop input experiment's signal"):
+        replay(opened)
+    cut = tmp_path / "cut.mcap"
+    data = recorded.read_bytes()
+    cut.write_bytes(data[:len(data) * 2 // 3])
+    done = pneumactl(str(cut), "--out", str(tmp_path / "out"))
+    assert done.returncode == 3, done.stderr
+    assert "cut.mcap is cut" in done.stderr and "bottom: Fit" in done.stdout
+
+
 def test_a_recording_without_what_a_replay_needs_is_refused_with_what_is_missing(recorded):
     run = open_run(recorded)
     bare = Run({**run.describe, "rig": {**run.describe["rig"], "source": ""}}, {"name": ""},

@@ -182,6 +182,13 @@ class ControlLoop(LoopControls, LoopQueries):
                 stats.overruns += missed
                 stats.overruns_total += missed
 
+    def run_at(self, deadline: float) -> None:
+        """One cycle woken at ``deadline`` on the loop's clock, the deadlines before it skipped as
+        an overrun skips them: a recorded cycle run again at its own time (daemon/replay), where
+        the recording's loop did not keep its period."""
+        self._deadline = max(self._deadline, deadline)
+        self.run(1)
+
     def stop(self) -> None:
         self.stop_requested = True
 

@@ -1,6 +1,6 @@
 """``python -m daemon.replay RUN.mcap [--config RIG] [--out DIR] [--part X]``: what ``pneumactl
 replay`` runs (daemon/replay/run.py). Exit status 0: replayed; 1: refused (what is missing
-said); 2: the file cannot be read."""
+said); 2: the file cannot be read; 3: replayed, from a cut file (said)."""
 from __future__ import annotations
 
 import argparse
@@ -44,6 +44,10 @@ def main(argv=None) -> int:
     if report["tripped"]:
         print(report["tripped"])
     print(f"wrote {', '.join(str(w) for w in written)} and {out / 'report.json'}")
+    notice = run.cut_notice(path.name)
+    if notice:  # replayed as far as it goes, never passed off as whole (as plot and export)
+        print(f"warning: {notice}; the replay covers what is there (exit 3)", file=sys.stderr)
+        return 3
     return 0
 
 

@@ -16,7 +16,12 @@ What it says per joint: Fit [2-49] of the simulated against the measured positio
 replayed span, ``Fit = (1 - ||y - y_hat|| / ||y - mean(y)||) * 100 %``, the RMS and largest
 difference [deg or mm], and where the two part: the first time the difference stays beyond
 ``part`` (default 1 deg, 1 mm) for ``PART_HOLD_S``. A recording without what a replay needs
-is refused with what is missing (:class:`Refused`).
+is refused with what is missing (:class:`Refused`), as is an open-loop input experiment (its
+joint's output was the signal, not the controller's).
+
+Each recorded cycle runs at its recorded time: a loop that fell behind its period (a loaded
+PC: cycles skipped, the output held meanwhile) is replayed so, the model's plant advancing over
+the same time; cycles the recording left out (telemetry it lost) run in between at the period.
 """
 from __future__ import annotations
 
@@ -60,6 +65,13 @@ def missing(run: Run) -> list[str]:
     elif not any(s.get("mode") == "enabled" for s in run.samples):
         out.append("a span with the arm enabled (the recording never has it: nothing was controlled)")
     return out
+
+
+def open_loop_in(run: Run, t0: float, t1: float) -> dict | None:
+    """The open-loop input experiment run between ``t0`` and ``t1`` [s], if any (its
+    ``experiment`` event: a joint's output was the signal, not the controller's)."""
+    return next((e for e in run.messages.get("event", []) if e.get("kind") == "experiment"
+                 and e.get("action") == "open_loop" and t0 <= e.get("t", -math.inf) <= t1), None)
 
 
 def controller_at(run: Run, t: float) -> tuple[str, dict]:
@@ -127,6 +139,12 @@ def replay(run: Run, rig_text: str | None = None, part: float | None = None) -> 
     samples = run.samples[first:stop]
     if len(samples) < 2:
         raise Refused("cannot replay this recording: its enabled span has fewer than two samples")
+    experiment = open_loop_in(run, samples[0]["t"], samples[-1]["t"])
+    if experiment is not None:
+        raise Refused(f"cannot replay this recording: joint {experiment.get('joint')}'s output was an open-loop "
+                      f"input experiment's signal from {experiment['t'] - samples[0]['t']:.1f} s, not its "
+                      f"controller's; replay runs the recorded controller (`pneumactl identify --from` fits a model "
+                      f"to it)")
     try:
         rig = config.parse(rig_text if rig_text is not None else run.describe["rig"]["source"], "<replayed rig>")
     except ConfigError as exc:
@@ -138,6 +156,7 @@ def replay(run: Run, rig_text: str | None = None, part: float | None = None) -> 
                       f"{[j.name for j in rig.joints]}")
     units = {j: layout[f"{j}.position"].display for j in joints}
     t = np.array([s["t"] for s in samples]) - samples[0]["t"]
+    cycles = np.array([s["cycle"] for s in samples], dtype=np.int64)
     measured = np.array([[s[f"{j}.position"] for j in joints] for s in samples], dtype=float)
     setpoints = np.array([[s[f"{j}.setpoint"] for j in joints] for s in samples], dtype=float)
     commands = [f.name for f in layout.of_group("command")]
@@ -156,16 +175,17 @@ def replay(run: Run, rig_text: str | None = None, part: float | None = None) -> 
                           f"cannot be built here: {exc}") from None
         loop.enable()
         loop.set_trajectory(Recorded(t, setpoints), "replay")
+        t0 = loop.trajectory_t0  # the recorded span's start on the model's clock
         simulated, sim_u, tripped = np.full_like(measured, np.nan), np.full_like(recorded_u, np.nan), ""
-        for k in range(1, len(t) + 1):
-            loop.run(1)
+        for k in range(len(t)):
+            for _ in range(int(cycles[k] - cycles[k - 1]) - 1 if k else 0):
+                loop.run(1)  # cycles the recording left out (telemetry it lost): run, at the period
+            loop.run_at(t0 + t[k])  # this one at its recorded time: a loop that fell behind its period did so here
             if loop.state.value != "enabled":
-                tripped = f"the replay left enabled at {t[k - 1]:.3f} s: {loop.supervisor.cause}"
+                tripped = f"the replay left enabled at {t[k]:.3f} s: {loop.supervisor.cause}"
                 break
-            if k < len(t):
-                simulated[k] = loop.angles
-                sim_u[k] = loop.u
-        simulated[0] = measured[0]
+            simulated[k] = loop.angles
+            sim_u[k] = loop.u
     finally:
         loop.stop()
         loop.io.transport.close()

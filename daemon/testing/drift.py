@@ -43,11 +43,13 @@ class Watched:
 
 
 def swing(rig_text: str, seconds: float, period_s: float = 2.0, record: str | Path | None = None,
-          feed: Callable[[dict], None] | None = None) -> list[dict]:
+          feed: Callable[[dict], None] | None = None, behind: bool = False) -> list[dict]:
     """The loop on ``rig_text`` enabled, swinging through SWING (a waypoint each ``period_s``)
     for ``seconds`` of its virtual clock; its state messages (and, ``record``, an MCAP recording
     of all it published there, as the daemon's recorder writes one). ``feed``: each state message
-    is handed to it a second at a time instead, and none kept (a long run)."""
+    is handed to it a second at a time instead, and none kept (a long run). ``behind``: every
+    third cycle wakes two periods late, the deadlines between skipped (a loaded PC's loop, at
+    about 600 cycles a second)."""
     loop, captured, server = make_loop(rig_text, server=True)
     try:
         sock = dealer(server)
@@ -65,7 +67,11 @@ def swing(rig_text: str, seconds: float, period_s: float = 2.0, record: str | Pa
                     feed(m)
                 ok(loop, sock, "lease.renew", lease=lease)  # the clock is virtual: the lease counts its seconds
             return []
-        run_seconds(loop, seconds - loop.clock.now())
+        if behind:
+            while loop.clock.now() < seconds:
+                loop.run_at(loop.clock.now() + loop.period * (3 if loop.cycle % 3 == 0 else 1))
+        else:
+            run_seconds(loop, seconds - loop.clock.now())
         if record is not None:
             with open(record, "wb") as f:
                 rec = McapRecording(f, describe, controller)
