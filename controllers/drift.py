@@ -75,6 +75,9 @@ class JointWatch:
     def __init__(self, name: str, rig: RigConfig, config: ModelWatchConfig, dt: float = 0.001):
         jc = next(j for j in rig.joints if j.name == name)
         self.name, self.config, self.dt = name, config, dt
+        # a gap between two cycles the loop would trip at (it stalled: the arm went on unseen, a
+        # simulated plant may have skipped steps) starts the model again from the arm
+        self.max_steps = min(MAX_STEPS, max(1, int(rig.safety.stall_after_s / dt)))
         self.params = rig.joint_params(jc)
         self.neutral_deg = jc.neutral_deg
         margin = 10.0  # the simulator's end stops beyond the software limits (sim_backend.options) [deg]
@@ -119,7 +122,7 @@ class JointWatch:
         steps, self._grid = grid - self._grid, grid
         if previous is None:
             self._t0 = t
-        elif not 0 <= steps <= MAX_STEPS:
+        elif not 0 <= steps <= self.max_steps:
             self.restart()  # the clock went back, or a gap too long to step over
             self._pending, self._t0 = (t, head_pa, rod_pa), t
             return math.nan

@@ -39,6 +39,18 @@ def test_on_the_simulator_the_model_predicts_the_arm_within_its_noise_and_raises
     assert max(rms) < config.parse(text).model_watch.band_deg / 3
 
 
+def test_a_stall_is_no_drift(nominal):
+    """The loop held off its cycles for a second (a stall: the samples jump in time, the arm as
+    it was, as a simulated plant that skipped its steps meanwhile has it): the model starts again
+    from the arm and raises no flag, where stepping it over the gap gave a false offset."""
+    text, _ = nominal
+    states = swing(text, 24.0)
+    cut = next(k for k, m in enumerate(states) if m["t"][0] >= 12.0)
+    shifted = [{**m, "t": [t + 1.0 for t in m["t"]]} for m in states[cut:]]
+    watched = watch(text, states[:cut] + shifted)
+    assert not watched.verdicts, watched.verdicts
+
+
 @pytest.mark.parametrize("drift", list(DRIFTS))
 def test_each_drift_is_flagged_within_its_time_and_its_cause_named(drift):
     text = drifted_rig(DRIFTS[drift], at_s=ONSET_S)
