@@ -68,9 +68,14 @@ def check_config(args) -> int:
                                   if params is not None else "none"))
     for line in lines[len(rig.joints):]:
         print(f"  {line}")
-    safety = rig.safety
+    safety, timing = rig.safety, rig.timing
     print(f"  safety: input stale after {safety.stale_after_s * 1e3:g} ms, a cycle woken "
           f"{safety.stall_after_s * 1e3:g} ms late trips")
+    print(f"  timing: degraded below {timing.min_rate_fraction:.0%} of the rate, {timing.max_overrun_fraction:.1%} of "
+          f"deadlines missed or a step over {timing.step_budget_fraction:.0%} of the period (over "
+          f"{timing.window_s:g} s); policy {timing.policy}")
+    for name, words in simulated_faults(transport):
+        print(f"  simulator: joint {name}: {words} (an injected fault: docs/model.md)")
     if rig.arm.link_lengths_mm:
         print(f"  arm: links {', '.join(f'{l:g}' for l in rig.arm.link_lengths_mm)} mm, gravity in its plane "
               f"({', '.join(f'{g:g}' for g in rig.arm.gravity_m_s2)}) m/s^2")
@@ -79,6 +84,13 @@ def check_config(args) -> int:
         print(f"  contact sensor: {sensor.source} pad, {sensor.rate_hz:g} frames/s, {len(sensor.dead)} dead taxel(s), "
               f"estimator memory {sensor.memory_ms:g} ms (beta {sensor.beta_memory_ms:g} ms)")
     return 0
+
+
+def simulated_faults(transport) -> list[tuple[str, str]]:
+    """The simulator's injected faults, per joint (none on another transport)."""
+    joints = getattr(getattr(transport, "options", None), "joints", None) or {}
+    return [(name, jo.drift_words()) for name, jo in joints.items() if getattr(jo, "drift_words", None)
+            and jo.drift_words()]
 
 
 def cmd_run(args) -> int:

@@ -98,8 +98,9 @@ class TimingConfig:
     ``max_overrun_fraction`` of the deadlines missed (overruns), or the control stage's median
     time in the last stats window (the controller's step, chiefly) above
     ``step_budget_fraction`` of the period. ``policy``: ``"warn"`` (an event, a log line and
-    the status field), ``"hold"`` (also: a running reference is stopped and the arm held, motion
-    commands refused while it lasts) or ``"trip"`` (also: an enabled arm trips)."""
+    the status field), ``"hold"`` (also: a controller over its step budget replaced by the
+    fallback controller, a running reference stopped and the arm held, motion commands refused
+    while it lasts) or ``"trip"`` (also: an enabled arm trips)."""
 
     window_s: float = 5.0  # the sliding window judged [s]
     min_rate_fraction: float = 0.9  # of the loop's rate (1/period)

@@ -51,6 +51,14 @@ class SimJointOptions:
         return bool(self.leak) or self.friction_scale != 1.0 or self.sensor_offset_deg != 0.0 \
             or self.regulator_gain != 1.0
 
+    def drift_words(self) -> str:
+        """The drifts asked for, in words ("" for none): what ``pneumad --check`` says."""
+        said = [f"a leak in the {self.leak} chamber ({self.leak_fraction:.0%})"] if self.leak else []
+        said += [f"friction x{self.friction_scale:g}"] if self.friction_scale != 1.0 else []
+        said += [f"a potentiometer offset of {self.sensor_offset_deg:g} deg"] if self.sensor_offset_deg else []
+        said += [f"regulator gain {self.regulator_gain:g}"] if self.regulator_gain != 1.0 else []
+        return f"{', '.join(said)} from {self.fault_at_s:g} s of the plant's clock" if said else ""
+
 
 @dataclass(frozen=True)
 class WallOptions:

@@ -92,3 +92,15 @@ def test_bad_model_watch_settings_are_refused_by_name(line, message):
 def test_bad_drifts_are_refused_by_name(line, message):
     with pytest.raises(ConfigError, match=message):
         sim_of(config.parse(drifted_rig(line)))
+
+
+def test_check_says_the_injected_faults_and_the_timing_policy(tmp_path, capsys):
+    """A rig file that injects a fault checks as what it is, not as a clean rig."""
+    from daemon.main import main
+
+    rig = tmp_path / "faulty.toml"
+    rig.write_text(drifted_rig('leak = "head"', at_s=8.0))
+    assert main(["--check", "--config", str(rig)]) == 0
+    out = capsys.readouterr().out
+    assert "simulator: joint bottom: a leak in the head chamber (10%) from 8 s of the plant's clock" in out
+    assert "; policy warn" in out
