@@ -6,7 +6,8 @@ faster than real time, on every core, before they touch the arm (docs/controller
 
 The first controller named takes the ``--param`` values (its parameters, as ``controller set``
 takes them); the others run beside it at their defaults. A controller is a built-in, an
-installed plugin (entry point ``pneumad.controllers``) or a ``module:Class`` path. Each case is
+installed plugin (entry point ``pneumad.controllers``), a controller directory's file
+(``--controller-dir``, the rig file's ``[rig] controller_dirs``) or a ``module:Class`` path. Each case is
 the daemon's own loop on a virtual clock (:mod:`evaluation.runner`).
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ import sys
 from pathlib import Path
 
 from controllers import registry
+from daemon import assembly
 from controllers.base import ControllerContext, ParamError
 from evaluation import cases, fast, pool, report, runner
 from hal import config
@@ -36,6 +38,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--plants", default="nominal", help="nominal, thesis, grid or a TOML file of [[plants]]")
     p.add_argument("--out", default="evaluation", help="directory for table.md, cases.csv and the PNGs")
     p.add_argument("--jobs", type=int, default=os.cpu_count(), help="worker processes (default: every core)")
+    p.add_argument("--controller-dir", action="append", default=[], metavar="DIR",
+                   help="a directory of controller plugin files, as the daemon's (docs/writing-controllers.md); "
+                        "the rig file's [rig] controller_dirs are read too")
     p.add_argument("--engine", choices=("auto", "fast", "loop"), default="auto",
                    help="fast: the loop's cycle compiled around the controller; loop: the daemon's loop itself "
                         "(the reference); auto: fast where it applies")
@@ -43,7 +48,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def check(rig, controllers: list[str], params: dict, references: list[str] | None, engine: str,
-          plant: cases.Plant) -> str:
+          plant: cases.Plant, plugins: dict[str, str] | None = None) -> str:
     """Build each controller and each reference once here, and the fast engine when it may run:
     a bad name, parameter or file, or an engine that does not apply, is refused before any
     worker starts. The engine the cases will run on, in words."""
@@ -61,7 +66,7 @@ def check(rig, controllers: list[str], params: dict, references: list[str] | Non
     context = ControllerContext.for_rig(rig, RigActuation(rig), 0.001)
     for controller in controllers:
         registry.build(controller, context, params if controller == controllers[0] else None,
-                       runner.construction_options(controller))
+                       runner.construction_options(controller), plugins)
     for name in references or []:
         cases.reference(rig, context, name)
     if engine == "loop" or why:
@@ -80,14 +85,18 @@ def main(argv=None) -> int:
     try:
         params = dict(config.parse_option(p, "--param") for p in args.param)
         rig = config.load(args.config)
+        plugins: dict[str, str] = {}
+        dirs = assembly.controller_dirs(args, rig, plugins)
+        for refused in dirs.refused:
+            print(f"pneumactl evaluate: controller file {refused['file']} refused: {refused['error']}", file=sys.stderr)
         plants = cases.plants(args.plants, rig)
-        running = check(rig, controllers, params, args.reference, args.engine, plants[0])
+        running = check(rig, controllers, params, args.reference, args.engine, plants[0], plugins)
     except (ConfigError, ParamError, LookupError, ValueError, OSError) as exc:
         print(f"pneumactl evaluate: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results, elapsed = pool.run(rig, controllers, params, plants, args.reference, args.engine, args.jobs)
+    results, elapsed = pool.run(rig, controllers, params, plants, args.reference, args.engine, args.jobs, dirs)
     report.write_csv(results, out / "cases.csv")
     table = report.summary(results, controllers)
     lines = report.failures(results)

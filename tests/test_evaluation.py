@@ -174,6 +174,29 @@ def test_evaluate_writes_a_plugins_table_and_figures_beside_a_builtin_over_the_t
     assert mine["joint_max_deg"] != pid["joint_max_deg"]  # its parameter took effect
 
 
+@pytest.mark.slow(seconds=20)
+def test_evaluate_runs_a_controller_directorys_plugin_by_its_name(tmp_path):
+    """A lab's file in a controller directory, as the daemon's --controller-dir takes it: named
+    by its controller's name alone (no module path, nothing on PYTHONPATH), built in every
+    worker; a file that does not import is said, the others still run."""
+    lab = tmp_path / "lab-controllers"
+    lab.mkdir()
+    (lab / "lab_pd.py").write_text('"""A lab PD."""\nfrom controllers.pid import PID\n\n\nclass LabPD(PID):\n'
+                                   '    """Lab PD."""\n\n    name = "lab_pd"\n')
+    (lab / "broken.py").write_text("import lab_missing_dependency\n")
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "daemon.client.ctl", "evaluate", "lab_pd", "--controller-dir", str(lab),
+                           "--plants", "thesis", "--reference", "steps", "--out", str(out)], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert f"controller file {lab / 'broken.py'} refused" in done.stderr
+    with open(out / "cases.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 5 and {r["controller"] for r in rows} == {"lab_pd"}
+    assert all(r["tripped"] == "" for r in rows), rows
+    assert "| lab_pd | steps 9.0 s |" in (out / "table.md").read_text()
+
+
 @pytest.mark.slow(seconds=30)
 def test_evaluate_runs_an_installed_plugin_found_by_its_entry_point(tmp_path):
     """The worked example package (examples/controller_plugin) pip-installed as its wheel into a
