@@ -86,7 +86,7 @@ def run_overlay(path: Path, joint: str, data: Experiment, split_s: float,
     held-out one at ``split_s`` [s]."""
     m = samples_per_step(step, data.dt)
     target, t = data.y[m::m], data.t[m::m]
-    fig, ax = plt.subplots(figsize=(10, 3.6))
+    fig, ax = plt.subplots(figsize=(10, 4.0))
     ax.plot(t, target, color="0.3", lw=1.0, label="measured")
     for (name, y_hat, fit), style in zip(models, ("tab:red", "tab:green")):
         ax.plot(t[:len(y_hat)], y_hat[:len(t)], color=style, lw=1.0, label=f"{name}: held-out Fit {fit:.1f} %")
@@ -96,7 +96,7 @@ def run_overlay(path: Path, joint: str, data: Experiment, split_s: float,
     ax.set_ylabel(f"{joint} angle change [deg]")
     ax.set_xlabel("time from the run's start [s]")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3)  # below: the run fills the axes
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
