@@ -119,7 +119,7 @@ def test_a_recorded_path_is_fitted_near_the_simulators_plant_within_the_stated_u
     band, source = band_of(rig, next(j for j in rig.joints if j.name == "bottom"))  # the model beside the arm's
     assert band == pytest.approx(3.0 * written["heldout_rms_deg"]) and source.startswith("identification")
     assert (tmp_path / "run-bottom.png").stat().st_size > 10_000
-    assert "held-out" in done.stderr and "apart least" in done.stderr and "unsettled" in done.stderr
+    assert "held out" in done.stderr and "apart least" in done.stderr and "unsettled" in done.stderr
 
 
 def test_a_recording_of_the_arm_held_still_is_refused_naming_the_joint_and_what_is_missing(recordings, tmp_path):
