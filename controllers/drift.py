@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hal.config import RigConfig
+from hal.config import JointConfig, RigConfig
+from hal.identified import identification
 from hal.rig_sections import ModelWatchConfig
 from hal.joint_model import JointModel
 from hal.joints import CYLINDER
@@ -50,6 +51,9 @@ MAX_STEPS = 10_000  # a gap between two cycles longer than this many model steps
 SNAPSHOT_S = 0.5  # the model's state is kept this often, to replay a candidate from the onset [s]
 NAME_AGAIN_S = 10.0  # the cause is named again this long after the drift's event, on more of it [s]
 ONSET_FRACTION = 0.25  # the residual's onset: where |r| last was below this fraction of the band
+# the band from an identification: this many times the residual RMS it found on held-out data
+# (a window's RMS on the simulator's nominal hour came to at most 1.8 times its mean, docs/model.md)
+BAND_PER_RMS = 3.0
 CAUSES = {  # candidate -> (what the event says, the size's name, its plausible range)
     "offset": ("a potentiometer offset", "offset_deg", (-90.0, 90.0)),
     "leak_head": ("a leak in the head chamber", "leak_fraction", (0.0, 1.0)),
@@ -69,6 +73,17 @@ class Verdict:
     details: dict
 
 
+def band_of(rig: RigConfig, joint: JointConfig) -> tuple[float, str]:
+    """The band [deg] a joint's residual RMS is judged against, and where it came from: BAND_PER_RMS
+    times the held-out residual RMS the identification that wrote the joint's model found
+    (its table's ``heldout_rms_deg``), else the rig file's ``[model_watch] band_deg``."""
+    rms = identification(rig.models.get(joint.model_name) or {}).get("heldout_rms_deg")
+    if rms is not None:
+        return BAND_PER_RMS * rms, (f"identification: {BAND_PER_RMS:g} x the held-out residual RMS {rms:.3g} deg "
+                                    f"of models.{joint.model_name}")
+    return rig.model_watch.band_deg, "rig file: [model_watch] band_deg"
+
+
 class JointWatch:
     """One cylinder joint's model beside the arm, its residual history and its verdict."""
 
@@ -79,6 +94,7 @@ class JointWatch:
         # simulated plant may have skipped steps) starts the model again from the arm
         self.max_steps = min(MAX_STEPS, max(1, int(rig.safety.stall_after_s / dt)))
         self.params = rig.joint_params(jc)
+        self.band_deg, self.band_from = band_of(rig, jc)
         self.neutral_deg = jc.neutral_deg
         margin = 10.0  # the simulator's end stops beyond the software limits (sim_backend.options) [deg]
         self.stops = (jc.min_angle_deg - margin, jc.max_angle_deg + margin)
@@ -209,7 +225,7 @@ class JointWatch:
         has been outside the band for ``hold_s`` (drift, its cause named) or back inside for
         ``recover_s`` after a drift (a drift that shows only while the arm moves, grown friction,
         comes back inside while it rests)."""
-        band, hold = self.config.band_deg, self.config.hold_s
+        band, hold = self.band_deg, self.config.hold_s
         if stats["window_fill"] < 1.0 and not stats["rms_deg"] > band:
             return None  # a window not yet full judges only against the band's upper side
         outside = stats["rms_deg"] > band
@@ -231,7 +247,7 @@ class JointWatch:
                 self.flagged = False
                 return Verdict(self.name, "recovered",
                                f"the residual's RMS {stats['rms_deg']:.2f} deg is back inside the band "
-                               f"{band:g} deg", {})
+                               f"{band:.3g} deg", {})
         return None
 
 
@@ -246,7 +262,7 @@ def _cause_text(watch: JointWatch, stats: dict, again: bool = False) -> str:
     if again:
         return f"named again on {watch.t_since_onset():.0f} s of the drift: {what}"
     return (f"the arm left its model: residual RMS {stats['rms_deg']:.2f} deg (mean {stats['mean_deg']:+.2f} deg) "
-            f"over {watch.config.window_s:g} s, band {watch.config.band_deg:g} deg; {what}")
+            f"over {watch.config.window_s:g} s, band {watch.band_deg:.3g} deg; {what}")
 
 
 def name_cause(watch: JointWatch) -> dict:
@@ -257,7 +273,7 @@ def name_cause(watch: JointWatch) -> dict:
     h = watch.history
     if len(r) < 10 or not watch._snapshots:
         return {"likely": None, "best": None, "explained": 0.0, "size": math.nan, "onset_t": math.nan}
-    quiet = np.flatnonzero(np.abs(r) <= ONSET_FRACTION * watch.config.band_deg)
+    quiet = np.flatnonzero(np.abs(r) <= ONSET_FRACTION * watch.band_deg)
     onset = int(quiet[-1]) + 1 if len(quiet) else 0
     onset = max(min(onset, len(r) - 5), 0)
     first = watch._count - len(r)  # samples are counted from 1 at the anchor: history[i] is sample first + i + 1
@@ -354,7 +370,7 @@ class ModelWatch:
         message, verdicts = {"t": self.t, "band_deg": self.config.band_deg, "window_s": self.config.window_s,
                              "joints": {}}, []
         for name, w in self.joints.items():
-            stats = w.statistics()
+            stats = {**w.statistics(), "band_deg": w.band_deg, "band_from": w.band_from}
             message["joints"][name] = stats
             verdict = w.judge(self.t, stats) if stats["anchored"] and math.isfinite(stats["rms_deg"]) else None
             stats["flagged"] = w.flagged  # as judged now: the message of a drift's event says so

@@ -80,6 +80,10 @@ class JointParams:
 UNITS = {"K_mdl": "-", "L": "m", "J": "N m s^2/deg", "D": "N m s/deg", "K": "N m/deg", "T_ep": "s", "T_dly": "s",
          "Fs": "N m", "Fc": "N m", "vs": "deg/s", "alpha": "-", "beta": "-", "bore": "m", "rod": "m", "stroke": "m"}
 TABLE_KEYS = ("source", "based_on")  # a model table's keys beside the parameters
+# what an identification says of its model (``pneumactl identify`` writes them): the [2-49] Fit
+# and the residual's RMS on data the fit did not see; the model beside the arm derives its band
+# from the RMS (controllers.drift.band_of)
+IDENTIFICATION_KEYS = {"heldout_fit_percent": "%", "heldout_rms_deg": "deg"}
 
 
 def parse_models(tables: dict, known: dict[str, JointParams] | None = None) -> dict[str, JointParams]:
@@ -92,13 +96,15 @@ def parse_models(tables: dict, known: dict[str, JointParams] | None = None) -> d
         where = f"models.{name}"
         if not isinstance(table, dict):
             raise ValueError(f"{where}: expected a table")
-        unknown = sorted(set(table) - set(names) - set(TABLE_KEYS))
+        unknown = sorted(set(table) - set(names) - set(TABLE_KEYS) - set(IDENTIFICATION_KEYS))
         if unknown:
-            raise ValueError(f"{where}.{unknown[0]}: unknown key (allowed: {', '.join(names + list(TABLE_KEYS))})")
+            allowed = names + list(TABLE_KEYS) + list(IDENTIFICATION_KEYS)
+            raise ValueError(f"{where}.{unknown[0]}: unknown key (allowed: {', '.join(allowed)})")
         for key in TABLE_KEYS:
             if key in table and not isinstance(table[key], str):
                 raise ValueError(f"{where}.{key}: expected a string")
-        values = {k: v for k, v in table.items() if k not in TABLE_KEYS}
+        identification(table, where)
+        values = {k: v for k, v in table.items() if k not in TABLE_KEYS and k not in IDENTIFICATION_KEYS}
         for key, v in values.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise ValueError(f"{where}.{key}: expected a number [{UNITS[key]}], got {v!r}")
@@ -116,6 +122,22 @@ def parse_models(tables: dict, known: dict[str, JointParams] | None = None) -> d
                 out[name] = JointParams(**{k: float(v) for k, v in values.items()}).replace({})
         except (KeyError, ValueError) as exc:
             raise ValueError(f"{where}: {str(exc).strip(chr(39))}") from None
+    return out
+
+
+def identification(table: dict, where: str = "models") -> dict[str, float]:
+    """A model table's IDENTIFICATION_KEYS (its own, not a ``based_on``'s: a model changed from
+    an identified one is not what was judged); ValueError for one that is not a finite number
+    (the RMS also > 0; a Fit may be negative: a model worse than the mean)."""
+    out = {}
+    for key, unit in IDENTIFICATION_KEYS.items():
+        if key in table:
+            v = table[key]
+            number = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+            if not number or (key == "heldout_rms_deg" and v <= 0):
+                kind = "a number > 0" if key == "heldout_rms_deg" else "a number"
+                raise ValueError(f"{where}.{key}: expected {kind} [{unit}], got {v!r}")
+            out[key] = float(v)
     return out
 
 

@@ -200,6 +200,8 @@ BASE = config.load().source
     ("[models.knee]\nK_mdl = 1.0\n", "models.knee: L: missing"),
     ("[models.knee]\nbased_on = 'bottom'\nDamping = 1.0\n", "models.knee.Damping: unknown key"),
     ("[models.knee]\nbased_on = 'bottom'\nD = '0.2'\n", "models.knee.D: expected a number [N m s/deg]"),
+    ("[models.knee]\nbased_on = 'bottom'\nheldout_rms_deg = 0.0\n",
+     "models.knee.heldout_rms_deg: expected a number > 0 [deg]"),
 ])
 def test_a_bad_model_table_is_a_clear_config_error(table, message):
     with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")):
@@ -274,8 +276,8 @@ def test_identify_shows_the_priors_held_out_fit_and_warns_when_the_new_model_doe
               "units": {n: "-" for n in FITTED}, "stated_std": std, "population_std": std,
               "fit_percent": [97.0, 96.0], "heldout_fit_percent": [96.2], "prior_heldout_fit_percent": 97.1,
               "generations": 10, "wall_s": 1.0, "rig_file": "rig.toml", "figures": [], "warning": worse}
-    identify._print_table(report)
+    identify.print_table(report)
     err = capsys.readouterr().err
     assert "96.2 % held out (the prior: 97.1 % held out)" in err and "warning: the identified model" in err
-    identify._print_table({**report, "heldout_fit_percent": [98.0], "warning": None})
+    identify.print_table({**report, "heldout_fit_percent": [98.0], "warning": None})
     assert "warning" not in capsys.readouterr().err

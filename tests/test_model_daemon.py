@@ -25,7 +25,11 @@ ONSET_S = 40.0
 
 def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field_and_recorded(tmp_path):
     rig = tmp_path / "rig.toml"
-    rig.write_text(drifted_rig(DRIFTS["offset"], joint="middle", at_s=ONSET_S, base=tolerant_rig_text()))
+    # the middle joint's model as an identification wrote it (the same numbers: the plant is
+    # unchanged), its band 3 x 0.1 deg from the residual RMS it found; the bottom's the rig file's
+    identified = tolerant_rig_text().replace('model = "middle-scaled"', 'model = "middle-identified"', 1) + \
+        '\n[models.middle-identified]\nbased_on = "middle-scaled"\nheldout_rms_deg = 0.1\n'
+    rig.write_text(drifted_rig(DRIFTS["offset"], joint="middle", at_s=ONSET_S, base=identified))
     log = tmp_path / "daemon.log"
     with open(log, "w") as stderr:
         daemon, eps = real_daemon(tmp_path, "--config", str(rig), "--log-level", "INFO", stderr=stderr)
@@ -46,6 +50,9 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
             assert all(j["rms_deg"] < model["band_deg"] and not j["flagged"] for j in model["joints"].values()), model
             assert all(len(j["residual_deg"]) > 0 for j in model["joints"].values())
             assert client.status()["model"]["joints"]["middle"]["drift"] is False
+            for name, band, source in (("middle", 0.3, "identification: 3 x"), ("bottom", 0.3, "rig file")):
+                for said in (model["joints"][name], client.status()["model"]["joints"][name]):
+                    assert said["band_deg"] == pytest.approx(band) and said["band_from"].startswith(source), said
             event = next_event(sub, "model", action="drift", limit_s=60.0)
             assert event["joint"] == "middle" and event["likely"] == "offset", event
             schema("telemetry", "event").validate(event)

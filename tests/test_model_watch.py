@@ -21,13 +21,14 @@ FLAGGED_WITHIN_S = {"offset": 2.0, "leak_head": 3.0, "gain": 4.0, "friction": 8.
 @pytest.fixture(scope="module")
 def nominal():
     text = drifted_rig()
-    return text, watch(text, swing(text, 40.0))
+    states = swing(text, 40.0)
+    return text, watch(text, states), states
 
 
 def test_on_the_simulator_the_model_predicts_the_arm_within_its_noise_and_raises_no_flag(nominal):
     """The model is the simulator's own plant: what is left is the potentiometers' noise
     (0.5 mV of 5 V over 333 deg: about 0.03 deg RMS)."""
-    text, watched = nominal
+    text, watched, _ = nominal
     assert not watched.verdicts
     t = np.asarray(watched.times)
     for name, r in watched.residuals.items():
@@ -43,12 +44,26 @@ def test_a_stall_is_no_drift(nominal):
     """The loop held off its cycles for a second (a stall: the samples jump in time, the arm as
     it was, as a simulated plant that skipped its steps meanwhile has it): the model starts again
     from the arm and raises no flag, where stepping it over the gap gave a false offset."""
-    text, _ = nominal
-    states = swing(text, 24.0)
+    text, _, states = nominal
     cut = next(k for k, m in enumerate(states) if m["t"][0] >= 12.0)
     shifted = [{**m, "t": [t + 1.0 for t in m["t"]]} for m in states[cut:]]
     watched = watch(text, states[:cut] + shifted)
     assert not watched.verdicts, watched.verdicts
+
+
+def test_a_model_an_identification_wrote_brings_its_band_and_says_so(nominal):
+    """The band from the held-out residual RMS the identification wrote into the model's table
+    (3 x 0.01 deg here: under the potentiometer's noise, so the nominal run leaves it), where
+    the model carries one; the rig file's elsewhere. The model topic says which, per joint."""
+    text, _, states = nominal
+    identified = text.replace('name = "bottom"\n', 'name = "bottom"\nmodel = "bottom-identified"\n', 1) + \
+        '\n[models.bottom-identified]\nbased_on = "bottom"\nheldout_rms_deg = 0.01\n'
+    watched = watch(identified, states)
+    assert {v.joint for _, v in watched.verdicts if v.action == "drift"} == {"bottom"}
+    bottom, middle = watched.messages[-1]["joints"]["bottom"], watched.messages[-1]["joints"]["middle"]
+    assert bottom["band_deg"] == pytest.approx(0.03) and bottom["band_from"].startswith("identification: 3 x")
+    assert "models.bottom-identified" in bottom["band_from"]
+    assert middle["band_deg"] == 0.3 and middle["band_from"] == "rig file: [model_watch] band_deg"
 
 
 @pytest.mark.parametrize("drift", list(DRIFTS))

@@ -77,3 +77,27 @@ def time_overlay(path: Path, joint: str, runs: list[tuple[str, Experiment]], mod
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def run_overlay(path: Path, joint: str, data: Experiment, split_s: float,
+                models: list[tuple[str, np.ndarray, float]], step: float) -> Path:
+    """A closed-loop run: the measured angle change [deg], each model's (label, angle on the
+    step grid [deg], Fit on the held-out tail [%]) and the line between the fitted part and the
+    held-out one at ``split_s`` [s]."""
+    m = samples_per_step(step, data.dt)
+    target, t = data.y[m::m], data.t[m::m]
+    fig, ax = plt.subplots(figsize=(10, 4.0))
+    ax.plot(t, target, color="0.3", lw=1.0, label="measured")
+    for (name, y_hat, fit), style in zip(models, ("tab:red", "tab:green")):
+        ax.plot(t[:len(y_hat)], y_hat[:len(t)], color=style, lw=1.0, label=f"{name}: held-out Fit {fit:.1f} %")
+    ax.axvline(split_s, color="0.5", ls="--", lw=1.0)
+    ax.text(split_s, ax.get_ylim()[1], " held out ->", va="top", fontsize=8, color="0.4")
+    ax.set_title(f"joint {joint}: the recorded run, fitted before the line, held out after it", fontsize=10)
+    ax.set_ylabel(f"{joint} angle change [deg]")
+    ax.set_xlabel("time from the run's start [s]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3)  # below: the run fills the axes
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -11,12 +11,15 @@ import dataclasses
 import tomlkit
 
 from hal import config
-from hal.identified import UNITS, JointParams
+from hal.identified import IDENTIFICATION_KEYS, UNITS, JointParams
 
 
-def with_model(source: str, joint: str, name: str, params: JointParams, provenance: str) -> str:
+def with_model(source: str, joint: str, name: str, params: JointParams, provenance: str,
+               judged: dict[str, float] | None = None) -> str:
     """``source`` (a rig file's text) with model ``name`` added (or replaced) and ``joint``
-    using it; the result is checked by parsing it as a rig (ConfigError if it will not do)."""
+    using it, and what the identification ``judged`` of it (``heldout_fit_percent``,
+    ``heldout_rms_deg``: the model beside the arm's band comes from the RMS); the result is
+    checked by parsing it as a rig (ConfigError if it will not do)."""
     doc = tomlkit.parse(source)
     joints = [j for j in doc.get("joints", []) if j.get("name") == joint]
     if not joints:
@@ -29,6 +32,9 @@ def with_model(source: str, joint: str, name: str, params: JointParams, provenan
     for f in dataclasses.fields(JointParams):
         table[f.name] = float(getattr(params, f.name))
         table[f.name].comment(f"[{UNITS[f.name]}]")
+    for key, value in (judged or {}).items():
+        table[key] = float(value)
+        table[key].comment(f"[{IDENTIFICATION_KEYS[key]}] on data the fit did not see")
     if "models" not in doc:
         doc.add(tomlkit.nl())
         doc["models"] = tomlkit.table(is_super_table=True)

@@ -29,13 +29,12 @@ from daemon.recordings import reading as recording
 from daemon.wire import protocol as P
 from daemon.wire.signals import recorded
 from daemon.client.client import Client, Interrupted, RemoteError, abort_started
+from daemon.client.fit_report import against_prior, print_table, residual_rms
 from daemon.client.routine_lease import routine_lease
 from hal import config
 from hal.identified import UNITS
 
 THESIS_BAND_HZ = (0.1, 1.0)
-HELD = {"K_mdl": "not separable from the torque scale", "J": "its pole is far above the band",
-        "vs": "below the angle's resolution"}  # at the prior's values (controllers.identification.fit)
 REST_DEG, REST_SPREAD_DEG, REST_S = 0.5, 0.2, 0.5  # at rest: within [deg] of the set-point, spread [deg], over [s]
 # the experiments' centring PI crossover [Hz] (controllers/experiment.py): at the planner's default
 # 0.03 Hz the reconstructed rig's middle joint (fast, on a weak spring) drifted out of its band (issue 32)
@@ -216,9 +215,17 @@ def _wait_for_rest(client: Client, joint: str, timeout_s: float = 30.0) -> None:
 
 def analyse(path: Path, joint: str, out: Path, population: int, generations: int, seed: int = 0) -> dict:
     """Fit the recording's experiments on ``joint`` (all but the last; the last is held out),
-    write the figures, the rig file and a report into ``out``; the report."""
+    or, a recording without any (a path, steps, waypoints, under any controller), its closed-loop
+    run (:mod:`daemon.client.refit`); write the figures, the rig file and a report into ``out``;
+    the report. A cut recording is refused: what is missing would be taken for the run's end."""
     run = recording.open_run(path)
+    if run.truncated:
+        raise SystemExit(f"{run.cut_notice(str(path))}: identification fits a whole recording "
+                         f"(record the run again)")
     found = experiments_of.experiments(run, str(path), recorded, joint)
+    if not found:
+        from daemon.client.refit import refit
+        return refit(run, Path(path), joint, out, population, generations, seed)
     aborted = [e.info["aborted"] for e in found if e.info["aborted"]]
     if aborted:
         raise SystemExit(f"{path}: an experiment was stopped: {aborted[0]}: lower the amplitude or widen the band")
@@ -238,6 +245,8 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
                        progress=_fit_progress(generations))
     # the prior judged on the same held-out data, the same way (only its start's held friction chosen)
     prior_fit = heldout_fit(prior, held_out[0], result.settings["step_s"], C_SPAN * prior.Fs)
+    judged = {"heldout_fit_percent": result.heldout_fit_percent[0],
+              "heldout_rms_deg": residual_rms(result.heldout_fit_percent[0], held_out[0], result.settings["step_s"])}
     verdict = against_prior(result.heldout_fit_percent[0], prior_fit)
     out.mkdir(parents=True, exist_ok=True)
     labels = [f"{e.info['signal']['signal']} ({'held out' if i == len(found) - 1 else 'fitted'})"
@@ -255,20 +264,21 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
                   f"{', '.join(e.info['signal']['signal'] for e in estimation)}, held-out Fit "
                   f"{result.heldout_fit_percent[0]:.1f} % on the {held_out[0].info['signal']['signal']} "
                   f"(the prior's {prior_fit:.1f} %{'' if verdict is None else ': NOT BETTER'})")
-    rig_text = rigfile.with_model(rig.source, joint, name, result.params, provenance)
+    rig_text = rigfile.with_model(rig.source, joint, name, result.params, provenance, judged)
     rig_path = out / "rig.toml"
     rig_path.write_text(rig_text)
     coherent = responses[1][1].band(*THESIS_BAND_HZ).coherence if len(responses) > 1 else []
     report = {"joint": joint, "model": name, "rig_file": str(rig_path), "recording": str(path),
               "figures": [str(bode), str(overlay)], **result.summary(),
               "prior_heldout_fit_percent": prior_fit, "beats_prior": verdict is None, "warning": verdict,
+              "judged": judged,
               "prior": {n: getattr(prior, n) for n in FITTED}, "units": {n: UNITS[n] for n in FITTED},
               "experiments": [e.info["signal"] for e in found],
               "time_base": [e.info["time_base"] for e in found],
               "coherence_thesis_band": {"min": float(min(coherent)) if len(coherent) else None,
                                         "mean": float(sum(coherent) / len(coherent)) if len(coherent) else None}}
     (out / "report.json").write_text(json.dumps(report, indent=2))
-    _print_table(report)
+    print_table(report)
     return report
 
 
@@ -280,41 +290,3 @@ def _fit_progress(generations: int):
             last[0] = time.monotonic()
             print(f"fit: generation {generation} of at most {generations}, cost {cost:.4g}", file=sys.stderr, flush=True)
     return show
-
-
-def against_prior(identified_fit: float, prior_fit: float) -> str | None:
-    """A warning when the identified model does not fit the held-out data better than the
-    prior (the rig file's model) does, else None: a new model that explains data it did not
-    see no better than the old one is no reason to replace it."""
-    if identified_fit > prior_fit:
-        return None
-    return (f"warning: the identified model fits the held-out data no better than the prior "
-            f"({identified_fit:.1f} % against {prior_fit:.1f} %): keep the prior, or run the full "
-            f"experiments (without --quick) or a larger --amplitude before using the new model")
-
-
-def _uncertainty(name: str, value: float) -> str:
-    """A fit's uncertainty figure in the terms of its search coordinate."""
-    if name in HELD:
-        return ""
-    return f"{value * 1e3:.1f} ms" if name == "T_dly" else f"{value:.3f} Fs" if name == "Fc" else f"{value * 100:.1f} %"
-
-
-def _print_table(report: dict) -> None:
-    """The parameters against the prior, with the uncertainty the fit states (1 sigma: the
-    Jacobian's, scaled for the residuals' correlation, and the final population's spread, in
-    quadrature) and that spread alone (how far apart fits the data rates alike are); then the
-    held-out Fit beside the prior's, and a warning when the new model does not beat it."""
-    print(f"{'parameter':>9} {'prior':>11} {'identified':>11} {'1 sigma':>8} {'spread':>8}  unit", file=sys.stderr)
-    for n in FITTED:
-        key = n if n != "Fc" else "Fc_ratio"
-        figures = [_uncertainty(n, report[kind].get(key, float("nan"))) for kind in ("stated_std", "population_std")]
-        print(f"{n:>9} {report['prior'][n]:11.4g} {report['params'][n]:11.4g} {figures[0]:>8} {figures[1]:>8}  "
-              f"{report['units'][n]}" + (f"  (held: {HELD[n]})" if n in HELD else ""), file=sys.stderr)
-    print(f"Fit [2-49]: {', '.join(f'{v:.1f} %' for v in report['fit_percent'])} fitted, "
-          f"{', '.join(f'{v:.1f} %' for v in report['heldout_fit_percent'])} held out "
-          f"(the prior: {report['prior_heldout_fit_percent']:.1f} % held out); "
-          f"{report['generations']} generations in {report['wall_s']:.1f} s", file=sys.stderr)
-    if report["warning"]:
-        print(report["warning"], file=sys.stderr)
-    print(f"wrote {report['rig_file']} and {', '.join(report['figures'])}", file=sys.stderr)

@@ -48,7 +48,10 @@ class ModelProcess:
     """The loop's handle on the model process (started, restarted if it dies, its verdicts read)."""
 
     def __init__(self, rings_dir: str, rig: RigConfig, joints: list[str]):
+        from controllers.drift import band_of
         self.joints, self.band_deg = joints, rig.model_watch.band_deg
+        # each joint's band and where it came from (the identification's, else the rig file's)
+        self.bands = {j.name: band_of(rig, j) for j in rig.joints if j.name in joints}
         self._shared = _shared(len(joints))
         self._proc = Helper("daemon.model.process:serve", (rings_dir, rig, joints, self._shared),
                             name="the model process", pass_fds=(self._shared.fd,), nice=10)
@@ -72,8 +75,9 @@ class ModelProcess:
 
     def status(self) -> dict:
         """The status field ``model``: per joint, whether its model runs (``anchored``), the
-        residual's RMS and mean over the window [deg], whether it has drifted out of the band,
-        since when [s, the loop's clock], and the likely cause (null: none named)."""
+        residual's RMS and mean over the window [deg], the band in force [deg] and where it came
+        from, whether it has drifted out of it, since when [s, the loop's clock], and the likely
+        cause (null: none named)."""
         found = try_read(self._shared.seq, self._shared.values, tries=200)
         values = found[1] if found is not None else [math.nan] * len(self._shared.values)
         joints = {}
@@ -82,7 +86,8 @@ class ModelProcess:
             drift = v["drift"] == 1.0
             cause = int(v["cause"]) if v["cause"] == v["cause"] else 0
             joints[name] = {"anchored": v["anchored"] == 1.0, "rms_deg": _number(v["rms_deg"]),
-                            "mean_deg": _number(v["mean_deg"]), "drift": drift,
+                            "mean_deg": _number(v["mean_deg"]), "band_deg": self.bands[name][0],
+                            "band_from": self.bands[name][1], "drift": drift,
                             "since_t": _number(v["since_t"]) if drift else None,
                             "cause": (CAUSES[cause] or None) if drift and 0 <= cause < len(CAUSES) else None,
                             "size": _number(v["size"]) if drift and cause else None}

@@ -54,7 +54,7 @@ SENSORS = "/pneumad/sensors"
 TRACKED = ("position", "setpoint", "error", "velocity")  # a joint's tracking channel's quantities
 CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/contact_estimate"
 MODEL = "/pneumad/model_residual"  # the model beside the arm: each joint's residual statistics (docs/model.md)
-MODEL_FIGURES = ("rms_deg", "mean_deg", "max_abs_deg", "residual_deg")  # per joint; residual_deg: the latest
+MODEL_FIGURES = ("rms_deg", "mean_deg", "max_abs_deg", "residual_deg", "band_deg")  # per joint; residual_deg: the latest
 SAFE_STATE = "safe state"
 ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warnings below
 WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder", "recover", "model")
@@ -152,7 +152,8 @@ def json_schemas(describe: dict) -> dict[str, dict]:
                      "joints": _obj({j: _obj({**_numbers(*MODEL_FIGURES)["properties"], "drift": {"type": "boolean"}})
                                      for j in fields.joints})},
                     "the model beside the arm: each joint's residual (measured - predicted) over the last window "
-                    "[deg], the latest residual, the band, whether the joint has drifted out of it"),
+                    "[deg], the latest residual, the band (the rig file's; each joint's in force), whether the joint has "
+                    "drifted out of it"),
     })
     return schemas
 
@@ -331,7 +332,7 @@ class Frames:
         for name, j in (m.get("joints") or {}).items():
             latest = [r for r in j.get("residual_deg") or () if r is not None]
             joints[name] = {**{k: j.get(k) for k in MODEL_FIGURES[:3]}, "residual_deg": latest[-1] if latest else None,
-                            "drift": bool(j.get("flagged"))}
+                            "band_deg": j.get("band_deg"), "drift": bool(j.get("flagged"))}
         return [(MODEL, ns(t), json_bytes({"t": t, "band_deg": m.get("band_deg"), "joints": joints}))]
 
     def event(self, m: dict) -> list[tuple[str, int, bytes]]:
