@@ -79,7 +79,7 @@ def motion(client: Client, args):
         send = lambda: client.path(args.name, args.duration, args.approach, record=record)  # noqa: E731
     elif w == "waypoints":
         try:
-            spec = read_waypoints(args.file)
+            spec = read_waypoints(args.file, client.joint_units())
         except (OSError, ValueError) as exc:
             raise SystemExit(str(exc)) from None
         send = lambda: client.waypoints(**spec, approach_s=args.approach, record=record)  # noqa: E731
@@ -140,7 +140,8 @@ def parser() -> argparse.ArgumentParser:
     pa.add_argument("--approach", type=float, default=None, help=_help("path", "approach_s"))
     wp = sub.add_parser("waypoints", help="run a path through waypoints from a CSV file")
     motion.append(wp)
-    wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
+    wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s then each joint once by name and "
+                                "unit, any order: <joint>_deg (rotary), <joint>_mm (linear)")
     wp.add_argument("--approach", type=float, default=None, help=_help("waypoints", "approach_s"))
     st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint positions "
                                              "[deg rotary, mm linear]")

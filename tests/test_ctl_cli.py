@@ -1,0 +1,76 @@
+"""pneumactl against a real daemon, as a user runs it: a waypoint file's columns go to the
+joints they name, a linear axis takes its waypoints in mm."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from daemon.client.client import Client
+from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("ctl")
+    proc, eps = real_daemon(tmp_path)
+    client = Client(**eps, timeout=5.0)
+    try:
+        wait_for_own_daemon(client, proc)
+        yield client, eps, tmp_path
+    finally:
+        client.close()
+        proc.terminate()
+        proc.wait(10)
+
+
+def pneumactl(eps, cwd, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "daemon.client.ctl", *args], cwd=cwd, env=endpoint_env(eps),
+                          capture_output=True, text=True, timeout=120)
+
+
+def enabled(client: Client, eps, cwd) -> None:
+    """The arm enabled with nothing running (a trip an earlier test caused reset)."""
+    state = client.status()["state"]
+    if state == "fault":
+        assert pneumactl(eps, cwd, "reset").returncode == 0
+    if client.status()["state"] != "enabled":
+        assert pneumactl(eps, cwd, "enable").returncode == 0
+    client.call("abort", control=True)
+
+
+def test_waypoint_columns_go_to_the_joints_they_name(daemon):
+    client, eps, tmp_path = daemon
+    assert client.joint_units() == [("bottom", "deg"), ("middle", "deg")]
+    enabled(client, eps, tmp_path)
+    (tmp_path / "swapped.csv").write_text("duration_s,middle_deg,bottom_deg\n0,-80,120\n1,-78,125\n")
+    done = pneumactl(eps, tmp_path, "waypoints", "swapped.csv", "--wait")
+    assert done.returncode == 0, done.stderr
+    joints = client.status()["joints"]
+    assert joints["bottom"]["setpoint"] == pytest.approx(125.0) and joints["middle"]["setpoint"] == pytest.approx(-78.0)
+    (tmp_path / "foo.csv").write_text("duration_s,foo_deg,bar_deg\n0,-80,120\n1,-78,125\n")
+    done = pneumactl(eps, tmp_path, "waypoints", "foo.csv")
+    assert done.returncode != 0 and "foo_deg,bar_deg not this rig's joints" in done.stderr, done.stderr
+    assert "duration_s,bottom_deg,middle_deg (any order)" in done.stderr
+
+
+def test_a_linear_axis_takes_its_waypoints_in_mm(tmp_path):
+    from tests.test_axis_control import tolerant_axis
+    proc, eps = real_daemon(tmp_path, "--config", str(tolerant_axis(tmp_path)), "--controller", "axis_pid")
+    try:
+        with Client(**eps, timeout=5.0) as client:
+            wait_for_own_daemon(client, proc)
+            assert client.joint_units() == [("axis", "mm")]
+            enabled(client, eps, tmp_path)
+            (tmp_path / "axis.csv").write_text("duration_s,axis_mm\n0,80\n1,120\n")
+            done = pneumactl(eps, tmp_path, "waypoints", "axis.csv", "--wait")
+            assert done.returncode == 0, done.stderr
+            assert json.loads(done.stdout)["points"] == 2
+            assert client.status()["joints"]["axis"]["setpoint"] == pytest.approx(120.0)
+    finally:
+        proc.terminate()
+        proc.wait(10)
