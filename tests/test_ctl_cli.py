@@ -1,10 +1,13 @@
 """pneumactl against a real daemon, as a user runs it: a waypoint file's columns go to the
-joints they name, a linear axis takes its waypoints in mm."""
+joints they name, a linear axis takes its waypoints in mm; ``--wait`` that sees the arm leave
+``enabled`` exits non-zero, so ``... --wait && next`` goes no further."""
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+import threading
+import time
 
 import pytest
 
@@ -36,7 +39,7 @@ def pneumactl(eps, cwd, *args: str) -> subprocess.CompletedProcess:
 def enabled(client: Client, eps, cwd) -> None:
     """The arm enabled with nothing running (a trip an earlier test caused reset)."""
     state = client.status()["state"]
-    if state == "fault":
+    if state in ("fault", "estop"):
         assert pneumactl(eps, cwd, "reset").returncode == 0
     if client.status()["state"] != "enabled":
         assert pneumactl(eps, cwd, "enable").returncode == 0
@@ -74,3 +77,25 @@ def test_a_linear_axis_takes_its_waypoints_in_mm(tmp_path):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_wait_exits_non_zero_when_the_arm_leaves_enabled_before_the_end(daemon):
+    client, eps, tmp_path = daemon
+    enabled(client, eps, tmp_path)
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.client.ctl", "set", "125", "-78", "--duration", "30",
+                             "--wait"], cwd=tmp_path, env=endpoint_env(eps), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(proc.stderr.readline, "")), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 60.0
+    while not any("of 30.0 s" in line for line in lines):  # following: its first progress line
+        assert proc.poll() is None and time.monotonic() < deadline, lines
+        time.sleep(0.1)
+    client.estop("test")
+    out, _ = proc.communicate(timeout=60)
+    reader.join(10)
+    assert proc.returncode == 4, (out, lines)
+    assert json.loads(out)["state"] == "estop"
+    assert "the reference did not end: the arm is estop" in lines[-1]
+    assert "4 --wait: the reference did not end" in pneumactl(eps, tmp_path, "--help").stdout

@@ -15,6 +15,11 @@ from daemon.client.client import ENDPOINT_VARIABLES, Client, Interrupted, KeyRef
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
+NOT_ENDED = 4  # exit status: --wait saw the arm leave enabled before its reference ended
+EXIT_STATUS = ("exit status: 0 done; 1 the daemon refused the request (the error said), or a file could not be "
+               "read or written; 2 no reply, or the key refused; 3 export/plot written from a cut recording; "
+               f"{NOT_ENDED} --wait: the reference did not end, the arm left enabled (a trip, an e-stop, a disable: "
+               "its cause said); 130 Ctrl-C (what runs on said)")
 ONE_SHOT_LEASE_S = 10.0  # a one-shot command's lease [s], renewed every second until it is handed back
 
 
@@ -113,7 +118,7 @@ def _help(cmd: str, arg: str) -> str:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
+    p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.", epilog=EXIT_STATUS)
     for name, default in (("command", DEFAULT_COMMAND), ("control", DEFAULT_CONTROL), ("telemetry", DEFAULT_TELEMETRY)):
         p.add_argument(f"--{name}", default=None, metavar="ENDPOINT",
                        help=f"the daemon's {name} endpoint (else {ENDPOINT_VARIABLES[name]}, else {default})")
@@ -164,7 +169,8 @@ def parser() -> argparse.ArgumentParser:
     for m in motion:
         m.add_argument("--record", action="store_true",
                        help="the daemon records it, start to end plus 3 s, in its recording directory")
-        m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended")
+        m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended (exit "
+                       f"{NOT_ENDED} if the arm left enabled first: a trip, an e-stop, a disable)")
     pay = sub.add_parser("payload", help="identify a payload at the tip by torque balance (docs/estimation.md)")
     pay.add_argument("action", choices=("identify",))
     pay.add_argument("--unloaded", action="store_true",
@@ -342,6 +348,10 @@ def _main(argv=None) -> int:
               f"--approach S to choose)", file=sys.stderr)
     if result is not None:
         print(json.dumps(result, indent=2))
+    if isinstance(result, dict) and result.get("ended") is False:  # --wait: `... --wait && next` goes no further
+        print(f"error: the reference did not end: the arm is {result['state']} ({result['cause'] or 'no cause given'}); "
+              f"exit {NOT_ENDED}", file=sys.stderr)
+        return NOT_ENDED
     return 0
 
 
