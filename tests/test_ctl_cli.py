@@ -99,3 +99,16 @@ def test_wait_exits_non_zero_when_the_arm_leaves_enabled_before_the_end(daemon):
     assert json.loads(out)["state"] == "estop"
     assert "the reference did not end: the arm is estop" in lines[-1]
     assert "4 --wait: the reference did not end" in pneumactl(eps, tmp_path, "--help").stdout
+
+
+@pytest.mark.parametrize("setting, words", [
+    ("Kp=nan", "Kp=nan: not a finite number"), ("Ti=inf", "Ti=inf: not a finite number"),
+    ("Kp=[1,NaN]", "Kp=[1,NaN]: not a finite number"), ("Kp=abc", "Kp"),
+])
+def test_a_controller_setting_that_is_not_a_finite_number_is_refused_clearly(daemon, setting, words):
+    client, eps, tmp_path = daemon
+    before = client.controller()
+    done = pneumactl(eps, tmp_path, "controller", "set", setting)
+    assert done.returncode in (1, 2) and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.startswith("error: ") and words in done.stderr, done.stderr
+    assert client.controller() == before

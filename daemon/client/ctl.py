@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -276,13 +277,37 @@ def replay(args) -> int:
 
 
 def key_values(items) -> dict:
+    """``KEY=VALUE`` arguments as parameters: a VALUE is JSON (a number, a JSON list with one
+    value per joint, true/false), else kept as text for the daemon to check against the
+    parameter's type; a non-finite number (nan, inf) is refused here, as no parameter takes one."""
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"expected KEY=VALUE, got {item!r}")
-        out[key] = json.loads(value)  # a number, or a JSON list with one value per joint
+        try:
+            parsed = json.loads(value)
+        except ValueError:
+            number = _float_or_none(value)  # nan, inf: what JSON does not spell
+            parsed = value if number is None else number
+        if not _finite(parsed):
+            raise SystemExit(f"error: {item}: not a finite number (a parameter takes finite values only)")
+        out[key] = parsed
     return out
+
+
+def _float_or_none(text: str):
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _finite(value) -> bool:
+    """False for a non-finite number, or a list holding one."""
+    if isinstance(value, list):
+        return all(_finite(v) for v in value)
+    return not isinstance(value, float) or math.isfinite(value)
 
 
 def main(argv=None) -> int:
