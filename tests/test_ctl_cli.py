@@ -112,3 +112,17 @@ def test_a_controller_setting_that_is_not_a_finite_number_is_refused_clearly(dae
     assert done.returncode in (1, 2) and "Traceback" not in done.stderr, done.stderr
     assert done.stderr.startswith("error: ") and words in done.stderr, done.stderr
     assert client.controller() == before
+
+
+def test_a_request_over_the_message_limit_is_refused_before_it_is_sent(daemon):
+    """4000 waypoints: refused at once with the limit and the catalog's 1000 points, not left
+    to the transport (which answered nothing, and the client waited out its time)."""
+    client, eps, tmp_path = daemon
+    enabled(client, eps, tmp_path)
+    rows = "".join(f"{0 if i == 0 else 0.5},{120 + (i % 10) * 0.1:.3f},-80\n" for i in range(4000))
+    (tmp_path / "wp4000.csv").write_text("duration_s,bottom_deg,middle_deg\n" + rows)
+    done = pneumactl(eps, tmp_path, "waypoints", "wp4000.csv")
+    assert done.returncode == 1 and "no reply" not in done.stderr, done.stderr
+    assert "over the daemon's limit of 65536 bytes a request: not sent" in done.stderr, done.stderr
+    assert "'positions' holds 4000 items, at most 1000" in done.stderr
+    assert client.status()["reference"] in (None, "hold")

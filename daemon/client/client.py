@@ -76,6 +76,21 @@ def abort_started(client: "Client", what: str) -> str:
     return f"{what} was aborted: the arm holds where it is, enabled"
 
 
+class RequestTooLarge(ValueError):
+    """A request over the daemon's message size, refused here before it is sent."""
+
+
+def too_large(cmd: str, args: dict, size: int) -> str:
+    """Why a request of ``size`` bytes is not sent: the limit, and each list of it that holds
+    more than the catalog's maximum."""
+    spec = catalog.COMMANDS.get(cmd)
+    most = {a.name: a.high for a in (spec.args if spec else ()) if a.kind == "list" and a.high is not None}
+    over = [f"{name!r} holds {len(value)} items, at most {most[name]:g}" for name, value in args.items()
+            if name in most and isinstance(value, list) and len(value) > most[name]]
+    return (f"{cmd!r} is {size} bytes, over the daemon's limit of {protocol.MAX_MESSAGE_BYTES} bytes a request: "
+            f"not sent" + (f" ({'; '.join(over)})" if over else ""))
+
+
 class KeyRefused(ConnectionError):
     """The daemon would not complete the CURVE handshake with this client."""
 
@@ -174,8 +189,11 @@ class Client(CommandMethods):
             # A DEALER with no live connection (its handshake refused) would block in send.
             if not sock.poll(limit * 1e3, zmq.POLLOUT):
                 self._unanswered(cmd, endpoint, limit)
+            request = protocol.encode_request(request_id, cmd, args, self.lease)
+            if len(request) > protocol.MAX_MESSAGE_BYTES:
+                raise RequestTooLarge(too_large(cmd, args or {}, len(request)))
             try:
-                sock.send(protocol.encode_request(request_id, cmd, args, self.lease), zmq.NOBLOCK)
+                sock.send(request, zmq.NOBLOCK)
             except zmq.Again:  # the connection went between the poll and the send: a refused handshake
                 self._unanswered(cmd, endpoint, limit)
             while True:

@@ -12,7 +12,8 @@ from daemon.wire import keys
 from daemon.wire.catalog import COMMANDS
 
 from daemon.client import doctor
-from daemon.client.client import ENDPOINT_VARIABLES, Client, Interrupted, KeyRefused, RemoteError, read_waypoints
+from daemon.client.client import (ENDPOINT_VARIABLES, Client, Interrupted, KeyRefused, RemoteError, RequestTooLarge,
+                                   read_waypoints)
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
 
@@ -358,6 +359,9 @@ def _main(argv=None) -> int:
     except KeyRefused as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except RequestTooLarge as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except RemoteError as exc:
         print(f"error: {exc}", file=sys.stderr)
         if exc.data:
