@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -47,7 +48,8 @@ def run(rig, controllers: list[str], params: dict, plants: list[cases.Plant], re
     named), in controller then plant order, and the wall time they took [s]."""
     work = tasks(rig, controllers, params, plants, references, engine)
     start = time.monotonic()
-    with multiprocessing.Pool(max(1, jobs or os.cpu_count())) as workers:
+    # the workers ignore Ctrl-C (sent to the whole group): the parent stops them, with one line
+    with multiprocessing.Pool(max(1, jobs or os.cpu_count()), signal.signal, (signal.SIGINT, signal.SIG_IGN)) as workers:
         results = workers.map(_work, work, chunksize=1)
     elapsed = time.monotonic() - start
     names = [p.name for p in plants]

@@ -269,12 +269,29 @@ def export_or_plot(args) -> int:
 
 def replay(args) -> int:
     """``pneumactl replay``: the daemon's loop on the rig's model, in a process of its own
-    (``python -m daemon.replay``: the client never imports the loop's side). Its exit status:
+    (``python -m daemon.replay``: the client never imports the loop's side, :func:`child`). Its exit status:
     0 replayed, 1 refused (what the recording lacks, said), 2 the file cannot be read."""
     import subprocess
 
     options = [f"--{k}={v}" for k in ("config", "out", "part") if (v := getattr(args, k)) is not None]
-    return subprocess.call([sys.executable, "-m", "daemon.replay", args.file, *options])
+    return child([sys.executable, "-m", "daemon.replay", args.file, *options])
+
+
+def child(argv: list[str]) -> int:
+    """Run a process of its own to its end: its exit status. A Ctrl-C reaches it too (the
+    terminal's process group), and it says what it stopped; one sent to this process alone is
+    passed on after a moment."""
+    import subprocess
+
+    proc = subprocess.Popen(argv)
+    while True:
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:
+            try:
+                return proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                proc.send_signal(signal.SIGINT)
 
 
 def key_values(items) -> dict:
@@ -329,8 +346,7 @@ def _main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args, _ = parser().parse_known_args(argv)
     if args.what == "evaluate":  # a process of its own (the daemon's loop on a virtual clock, a pool): never imported here
-        import subprocess
-        return subprocess.call([sys.executable, "-m", "evaluation", *argv[argv.index("evaluate") + 1:]])
+        return child([sys.executable, "-m", "evaluation", *argv[argv.index("evaluate") + 1:]])
     args = parser().parse_args(argv)
     if args.what == "identify" and args.source:
         return identify(None, args)
@@ -389,9 +405,9 @@ def identify(client: Client | None, args) -> int:
     import time
     from pathlib import Path
 
-    from daemon.client import identify as ident  # scipy and matplotlib: only when identifying
     out = Path(args.out or f"identify-{args.joint}-{time.strftime('%Y%m%d-%H%M%S')}")
     try:
+        from daemon.client import identify as ident  # scipy and matplotlib: only when identifying
         source = Path(args.source) if args.source else out / "experiments.mcap"
         if client is not None:
             out.mkdir(parents=True, exist_ok=True)
@@ -401,6 +417,12 @@ def identify(client: Client | None, args) -> int:
     except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except Interrupted as exc:  # what it stopped, said where it was stopped
+        print(exc, file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:  # before the experiments or the reading, or while the figures are written
+        print(f"interrupted: identify stopped; {out} may hold part of its files", file=sys.stderr)
+        return 130
     print(json.dumps({k: report[k] for k in ("joint", "model", "rig_file", "figures", "fit_percent",
                                              "heldout_fit_percent", "wall_s")}, indent=2))
     return 0

@@ -217,8 +217,11 @@ def _wait_for_rest(client: Client, joint: str, timeout_s: float = 30.0) -> None:
 def analyse(path: Path, joint: str, out: Path, population: int, generations: int, seed: int = 0) -> dict:
     """Fit the recording's experiments on ``joint`` (all but the last; the last is held out),
     write the figures, the rig file and a report into ``out``; the report."""
-    run = recording.open_run(path)
-    found = experiments_of.experiments(run, str(path), recorded, joint)
+    try:
+        run = recording.open_run(path)
+        found = experiments_of.experiments(run, str(path), recorded, joint)
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted: reading {path} stopped; nothing was fitted or written") from None
     aborted = [e.info["aborted"] for e in found if e.info["aborted"]]
     if aborted:
         raise SystemExit(f"{path}: an experiment was stopped: {aborted[0]}: lower the amplitude or widen the band")
@@ -234,8 +237,12 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
     estimation, held_out = found[:-1], found[-1:]
     rig = experiments_of.rig_of(run)
     prior = experiments_of.prior_of(rig, joint)
-    result = fit_joint(estimation, prior, held_out, population=population, generations=generations, seed=seed,
-                       progress=_fit_progress(generations))
+    try:
+        result = fit_joint(estimation, prior, held_out, population=population, generations=generations, seed=seed,
+                           progress=_fit_progress(generations))
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted: the fit of {joint} to {path} stopped; nothing was written "
+                          f"(`pneumactl identify {joint} --from {path}` fits it again)") from None
     # the prior judged on the same held-out data, the same way (only its start's held friction chosen)
     prior_fit = heldout_fit(prior, held_out[0], result.settings["step_s"], C_SPAN * prior.Fs)
     verdict = against_prior(result.heldout_fit_percent[0], prior_fit)
