@@ -49,7 +49,8 @@ def run(rig, controllers: list[str], params: dict, plants: list[cases.Plant], re
     work = tasks(rig, controllers, params, plants, references, engine)
     start = time.monotonic()
     # the workers ignore Ctrl-C (sent to the whole group): the parent stops them, with one line
-    with multiprocessing.Pool(max(1, jobs or os.cpu_count()), signal.signal, (signal.SIGINT, signal.SIG_IGN)) as workers:
+    ignore_ctrl_c = (signal.SIGINT, signal.SIG_IGN)
+    with multiprocessing.Pool(max(1, jobs or os.cpu_count()), signal.signal, ignore_ctrl_c) as workers:
         results = workers.map(_work, work, chunksize=1)
     elapsed = time.monotonic() - start
     names = [p.name for p in plants]

@@ -119,7 +119,9 @@ def too_large(payload: bytes) -> bytes:
         for _ in range(unpacker.read_map_header()):
             if unpacker.unpack() == "id":
                 found = unpacker.unpack()
-                request_id = found if isinstance(found, int | str) and not isinstance(found, bool) else None
+                number = isinstance(found, int) and not isinstance(found, bool)
+                short = isinstance(found, str) and len(found) <= 128
+                request_id = found if number or short else None  # the ids decode_request takes
                 break
             unpacker.skip()
     except Exception:  # not a msgpack map: the id stays unknown
