@@ -45,12 +45,13 @@ Publish = Callable[[bytes, bytes | bytearray | memoryview], None]
 def rig_of(args) -> config.RigConfig:
     """The rig ``pneumad``'s options name: ``--config`` (a file or a built-in rig), its
     transport replaced by ``--transport`` (with its ``--transport-option KEY=VALUE``) if given,
-    and ``[safety]`` values by ``--safety KEY=VALUE``."""
+    else its transport's options replaced by any ``--transport-option``, and ``[safety]`` values by ``--safety KEY=VALUE``."""
     rig = config.load(args.config)
+    options = dict(map(config.parse_option, args.transport_option))
     if args.transport:
-        rig = config.with_transport(rig, args.transport, dict(map(config.parse_option, args.transport_option)))
-    elif args.transport_option:
-        raise ConfigError("--transport-option needs --transport")
+        rig = config.with_transport(rig, args.transport, options)
+    elif options:  # the rig file's own transport, these of its options replaced
+        rig = config.with_transport(rig, rig.transport.backend, {**rig.transport.options, **options})
     if args.safety:
         rig = config.with_safety(rig, dict(config.parse_option(text, "--safety") for text in args.safety))
     return rig

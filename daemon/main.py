@@ -196,7 +196,8 @@ def parser() -> argparse.ArgumentParser:
                         help="reach the rig through this backend instead of its file's (sim, serial, modbus, can, "
                              "or module:Class)")
         sp.add_argument("--transport-option", action="append", default=[], metavar="KEY=VALUE",
-                        help="an option of that backend, repeatable: e.g. port=/tmp/pneumad-bridge")
+                        help="an option of that backend, repeatable: e.g. port=/tmp/pneumad-bridge; without "
+                             "--transport, one of the rig file's own transport replaced: e.g. compiled=true")
         sp.add_argument("--safety", action="append", default=[], metavar="KEY=VALUE",
                         help="replace a value of the rig file's [safety] for this run, repeatable, checked as the "
                              "file's own: e.g. stale_after_s=0.05 across a wire on a PC without real-time scheduling")

@@ -112,4 +112,9 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # the pool's workers ended with it (they ignore Ctrl-C)
+        print("interrupted: the evaluation stopped; its results are written only once every case has run",
+              file=sys.stderr)
+        sys.exit(130)

@@ -180,13 +180,11 @@ def _tenths(shortest: float | None, name: str) -> float:
 def waypoints_file(rig: RigConfig, path: str) -> trajectory.Trajectory:
     if not Path(path).is_file():
         raise ValueError(f"--reference {path!r}: neither {', '.join(PATHS)} nor a waypoint file")
-    args = read_waypoints(path)
+    args = read_waypoints(path, [(j.name, "deg") for j in rig.joints])  # rotary joints only: check_rig
     if "xy_mm" in args:
         return trajectory.cartesian_waypoints(rig.arm.link_lengths_m, rig.arm.elbow, len(rig.joints),
                                               args["xy_mm"], args["durations_s"])
-    points = args["angles_deg"]
-    if any(len(p) != len(rig.joints) for p in points):
-        raise ValueError(f"{path}: one angle per joint ({len(rig.joints)}) on every row")
+    points = args["positions"]
     return trajectory.joint_waypoints([[math.radians(a) for a in p] for p in points], args["durations_s"])
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -24,9 +25,12 @@ def one_blas_thread() -> None:
 
 
 def _start_worker(sources) -> None:
-    """A worker's start: one BLAS thread; the controller directories' files arrive executed
-    (:class:`controllers.directory.Source` unpickles so), for their controllers to build."""
+    """A worker's start: one BLAS thread; Ctrl-C ignored (sent to the whole process group, it
+    is the parent's to stop the workers, with one line); the controller directories' files
+    arrive executed (:class:`controllers.directory.Source` unpickles so), for their
+    controllers to build."""
     one_blas_thread()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _work(task) -> runner.Case:

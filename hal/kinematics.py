@@ -64,8 +64,8 @@ def inverse_2link(x: float, y: float, l1: float, l2: float, elbow: int = -1) -> 
     c2 = (x * x + y * y - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
     if not -1.0 <= c2 <= 1.0:
         reach = math.hypot(x, y)
-        raise ValueError(f"point ({x * 1e3:.1f}, {y * 1e3:.1f}) mm is out of reach "
-                         f"({reach * 1e3:.1f} mm from the base; reach {abs(l1 - l2) * 1e3:.1f}..{(l1 + l2) * 1e3:.1f} mm)")
+        raise ValueError(f"point ({_mm(x)}, {_mm(y)}) mm is out of reach "
+                         f"({_mm(reach)} mm from the base; reach {abs(l1 - l2) * 1e3:.1f}..{(l1 + l2) * 1e3:.1f} mm)")
     t2 = elbow * math.acos(c2)
     t1 = math.atan2(y, x) - math.atan2(l2 * math.sin(t2), l1 + l2 * math.cos(t2))
     return t1, t2
@@ -108,3 +108,8 @@ def payload_torques(angles: Sequence[float], lengths: Sequence[float], mass_kg: 
     c = (tip[0] + com_m[0] * math.cos(phi) - com_m[1] * math.sin(phi),
          tip[1] + com_m[0] * math.sin(phi) + com_m[1] * math.cos(phi))
     return [mass_kg * moment((c[0] - p[0], c[1] - p[1]), gravity) for p in points[:-1]]
+
+
+def _mm(metres: float) -> str:
+    """A distance [m] in mm for a refusal: 0.1 mm, or 3 significant digits past 1 km (a mistyped 1e308)."""
+    return f"{metres * 1e3:.1f}" if abs(metres) < 1e3 else f"{metres * 1e3:.3g}"

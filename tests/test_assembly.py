@@ -62,7 +62,7 @@ def test_check_builds_the_controller_and_opens_nothing(capsys, caplog, tmp_path)
     out = capsys.readouterr().out
     assert "transport serial, controller pid" in out and "joint bottom" in out
     assert main.main(["--check", "--controller", "no-such-controller"]) == 2
-    assert main.main(["--check", "--transport-option", "port=x"]) == 2  # an option for no --transport
+    assert main.main(["--check", "--transport-option", "port=x"]) == 2  # not an option of the rig file's transport
     # what the start would refuse, --check refuses: a backend's name, its options, a frame source
     builtin = config.load().source
     for rig_text, problem in ((builtin.replace('backend = "sim"', 'backend = "simm"', 1), "unknown backend 'simm'"),
@@ -89,3 +89,15 @@ def test_the_messenger_waits_out_the_pause_the_rig_file_allows_before_answering_
         rig = assembly.rig_of(args)
         with assembly.messenger(args, rig) as server:
             assert server.messenger.stall_s == watch_s
+
+
+def test_a_transport_option_without_transport_replaces_one_of_the_rig_files_transport(capsys):
+    """``pneumad run --transport-option compiled=true``: the rig file's own backend, that option
+    replaced (and said in --help); the rig's hash tells the run apart."""
+    args = main.parser().parse_args(["run", "--transport-option", "compiled=true"])
+    rig, plain = assembly.rig_of(args), config.load()
+    assert rig.transport.backend == plain.transport.backend == "sim"
+    assert rig.transport.options == {**plain.transport.options, "compiled": True} and rig.hash != plain.hash
+    with pytest.raises(SystemExit):
+        main.parser().parse_args(["run", "--help"])
+    assert "without --transport, one of the rig file's own transport replaced" in " ".join(capsys.readouterr().out.split())

@@ -4,6 +4,8 @@ only the following, and says what runs on and the command that stops it; a recor
 here ends with its file whole; a client-side routine (``identify``) stops what it started."""
 from __future__ import annotations
 
+import errno
+import os
 import signal
 import subprocess
 import sys
@@ -12,9 +14,10 @@ import time
 
 import pytest
 
+from bench.common import child_process
 from daemon.client.client import Client
 from daemon.recordings import mcap_log
-from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
+from tests.daemons import endpoint_env, real_daemon, running, wait_for_own_daemon
 from tests.doc_runs import restore_sigint
 
 pytestmark = pytest.mark.slow
@@ -125,6 +128,75 @@ def test_ctrl_c_during_payload_identify_aborts_its_move_and_stores_nothing(daemo
 # Ctrl-C the moment the routine's lease is taken: the script sends itself SIGINT right after the
 # daemon granted it, before the routine renews it (where a terminal's Ctrl-C just after the
 # routine said its plan lands on a loaded machine), then exits as pneumactl would.
+def test_ctrl_c_while_identify_reads_its_recording_says_what_it_stopped(daemon):
+    """``identify --from`` a recording that is still being read (a FIFO whose writer sends
+    nothing: the read is where Ctrl-C finds it, deterministically): one line, exit 130."""
+    _, eps, tmp_path = daemon
+    fifo = tmp_path / "slow.mcap"
+    os.mkfifo(fifo)
+    writer = []
+
+    def reading(_) -> bool:  # the reader has the FIFO open: it waits in its read
+        try:
+            writer.append(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        except OSError as exc:
+            assert exc.errno == errno.ENXIO, exc
+            return False
+        return True
+    try:
+        done = interrupted(eps, tmp_path, "identify", "bottom", "--from", str(fifo), "--out", str(tmp_path / "read"),
+                           when=reading)
+    finally:
+        for fd in writer:
+            os.close(fd)
+    assert one_line(done) == f"interrupted: reading {fifo} stopped; nothing was fitted or written"
+
+
+@pytest.fixture(scope="module")
+def experiments(daemon):
+    """A recording of identify's experiments on the bottom joint (--quick; the fit cut short)."""
+    client, eps, tmp_path = daemon
+    enabled_and_still(client, eps)
+    out = tmp_path / "experiments"
+    done = subprocess.run([sys.executable, "-m", "daemon.client.ctl", "identify", "bottom", "--quick", "--out",
+                           str(out), "--population", "4", "--generations", "1"], cwd=tmp_path, env=endpoint_env(eps),
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return out / "experiments.mcap"
+
+
+def test_ctrl_c_while_identify_fits_a_recording_says_what_it_stopped(daemon, experiments):
+    _, eps, tmp_path = daemon
+    out = tmp_path / "fitted"
+    done = interrupted(eps, tmp_path, "identify", "bottom", "--from", str(experiments), "--out", str(out),
+                       when=lambda printed: any(line.startswith("fit: generation") for line in printed))
+    assert one_line(done) == (f"interrupted: the fit of bottom to {experiments} stopped; nothing was written "
+                              f"(`pneumactl identify bottom --from {experiments}` fits it again)")
+    assert not (out / "rig.toml").exists()
+
+
+def test_ctrl_c_to_an_evaluations_process_group_ends_it_with_one_line_and_no_workers_left(tmp_path):
+    """A terminal's Ctrl-C reaches pneumactl, the evaluation and its pool's workers alike: the
+    workers ignore it and are ended by the evaluation, which says in one line what it stopped
+    (44 lines of the workers' tracebacks before); exit 130."""
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.client.ctl", "evaluate", "--all", "--plants", "thesis",
+                             "--jobs", "2", "--out", str(tmp_path / "evaluation")], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=restore_sigint)
+    deadline = time.monotonic() + 120.0
+    while (evaluation := child_process(proc.pid, "evaluation")) is None or child_process(evaluation, "evaluation") \
+            is None:  # until the pool's workers run
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.1)
+    worker = child_process(evaluation, "evaluation")
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert err.strip().splitlines() == ["interrupted: the evaluation stopped; its results are written only once "
+                                        "every case has run"], err
+    assert not running(worker) and not running(evaluation)
+
+
 TAKEN_THEN_CTRL_C = """
 import os, signal, sys
 from pathlib import Path

@@ -112,12 +112,24 @@ def test_control_socket_serves_only_safety_commands(served):
     assert reply["error"]["code"] == P.UNKNOWN_COMMAND and "control socket" in reply["error"]["message"]
 
 
-def test_huge_frames_are_refused_and_the_daemon_goes_on(served):
+def test_an_over_size_request_is_answered_and_a_huge_frame_dropped_and_the_daemon_goes_on(served):
+    """A request over MAX_MESSAGE_BYTES (4000 waypoints) is answered bad_message with its id and
+    the sizes, by the messenger: nothing reaches the loop. A frame over MAX_FRAME_BYTES is
+    dropped by ZeroMQ (the peer disconnected, no reply)."""
     loop, _, srv = served
     big = dealer(srv)
-    big.send(b"x" * (P.MAX_MESSAGE_BYTES + 1))
+    rows = [[120.0 + i * 1e-3, -80.0] for i in range(4000)]
+    request = P.encode_request(7, "waypoints", {"positions": rows, "durations_s": [1.0] * 3999})
+    assert P.MAX_MESSAGE_BYTES < len(request) < P.MAX_FRAME_BYTES
+    handled = srv.commands.requests
+    reply = call(loop, big, "waypoints", {"positions": rows, "durations_s": [1.0] * 3999})
+    assert reply["error"]["code"] == P.BAD_MESSAGE and isinstance(reply["id"], int)
+    assert f"over the daemon's limit of {P.MAX_MESSAGE_BYTES} bytes: nothing was done" in reply["error"]["message"]
+    assert srv.commands.requests == handled and loop.trajectory_name == "hold"
+    huge = dealer(srv)
+    huge.send(b"x" * (P.MAX_FRAME_BYTES + 1))
     loop.run(200)
-    assert not big.poll(50)  # ZeroMQ dropped the peer; no reply, no crash
+    assert not huge.poll(50)  # ZeroMQ dropped the peer; no reply, no crash
     assert ok(loop, dealer(srv), "ping")["pong"]
 
 

@@ -26,8 +26,11 @@ pytestmark = pytest.mark.slow
 
 
 def start(tmp_path, *options):
+    """A daemon whose log (its stderr) is ``tmp_path/daemon.log``."""
     tmp_path.mkdir(exist_ok=True)
-    daemon, eps = real_daemon(tmp_path, *options)
+    with open(tmp_path / "daemon.log", "w") as log:
+        daemon, eps = real_daemon(tmp_path, *options, stderr=log)
+    daemon.log = tmp_path / "daemon.log"
     client = Client(**eps, timeout=5.0)
     wait_for_own_daemon(client, daemon)
     return daemon, eps, client
@@ -302,6 +305,11 @@ def test_a_killed_recorder_leaves_a_file_every_reader_opens_and_another_is_start
         repaired = seen["record"]
         assert repaired["name"] == "cut-short" and repaired["file"] == started["file"], repaired
         assert repaired["cause"] == LEFT_CAUSE and repaired["messages"] > 100
+        logged = f"pneumad recorder WARNING: recording {started['file']} repaired: {LEFT_CAUSE}"
+        deadline = time.monotonic() + 30.0  # the log's line and the event leave the recorder together
+        while logged not in daemon.log.read_text():
+            assert time.monotonic() < deadline, daemon.log.read_text()[-2000:]
+            time.sleep(0.1)
         with open(started["file"], "rb") as f:
             default = [json.loads(m.data)["cycle"] for _, c, m in make_reader(f).iter_messages(topics=["/pneumad/state"])]
         contents = mcap_log.read(started["file"])

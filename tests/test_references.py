@@ -10,7 +10,6 @@ from scipy.signal import chirp, max_len_seq
 
 from controllers import signals, trajectory
 from daemon.wire import protocol as P
-from daemon.client.client import read_waypoints
 from hal import config, kinematics
 from daemon.loop.settle import SETTLE_MAX_S, SettleGate
 from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds
@@ -67,19 +66,6 @@ def test_cartesian_waypoints_run_straight_lines_between_the_points():
     for t, (a, b), frac in ((2.0, (pts[0], pts[1]), 0.5), (7.0, (pts[1], pts[2]), 0.5), (4.0, (pts[0], pts[1]), 1.0)):
         x, y = kinematics.forward(path.sample(t)[0][:2], lengths)
         assert (x * 1e3, y * 1e3) == pytest.approx((a[0] + frac * (b[0] - a[0]), a[1] + frac * (b[1] - a[1])), abs=1e-6)
-
-
-def test_a_waypoint_file_reads_as_joint_or_cartesian(tmp_path):
-    joint = tmp_path / "joint.csv"
-    joint.write_text("# a joint path\nduration_s,bottom_deg,middle_deg\n0,10,-100\n4,20,-95\n\n3,15,-100\n")
-    assert read_waypoints(joint) == {"angles_deg": [[10, -100], [20, -95], [15, -100]], "durations_s": [4, 3]}
-    cart = tmp_path / "tip.csv"
-    cart.write_text("duration_s,x_mm,y_mm\n0,70,135\n5,20,150\n")
-    assert read_waypoints(cart) == {"xy_mm": [[70, 135], [20, 150]], "durations_s": [5]}
-    bad = tmp_path / "bad.csv"
-    bad.write_text("t,a,b\n0,1,2\n1,2,3\n")
-    with pytest.raises(ValueError, match="header starting with duration_s"):
-        read_waypoints(bad)
 
 
 @pytest.mark.slow(seconds=4)  # a few seconds: kept out of the fast subset

@@ -138,3 +138,19 @@ def test_refusals_carry_data_naming_the_argument(daemon):
     assert swing["data"]["angle_deg"] in (pytest.approx(math.degrees(bottom) - 45.0),
                                           pytest.approx(math.degrees(bottom) + 45.0))
     assert not lo <= swing["data"]["angle_deg"] <= hi
+
+
+@pytest.mark.parametrize("args, words", [
+    ({"positions": [-1e308, -80.0]}, "joint bottom set-point -1e+308 deg is outside its limits 85.0..175.0 deg"),
+    ({"angles_deg": [1e300, -80.0]}, "joint bottom set-point 1e+300 deg is outside"),
+    ({"xy_mm": [1e308, 1.0]}, "point (1e+308, 1.0) mm is out of reach (1e+308 mm from the base;"),
+])
+def test_a_huge_number_in_a_refusal_reads_in_a_few_digits(daemon, args, words):
+    """A mistyped exponent (``pneumactl set -- -1e308``) is refused in a line, not with its
+    300 integer digits."""
+    loop, _, srv = daemon
+    sock = dealer(srv)
+    lease = leased(loop, sock)
+    ok(loop, sock, "enable", lease=lease)
+    message = call(loop, sock, "set", args, lease)["error"]["message"]
+    assert words in message and len(message) < 200, message

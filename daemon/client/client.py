@@ -76,6 +76,21 @@ def abort_started(client: "Client", what: str) -> str:
     return f"{what} was aborted: the arm holds where it is, enabled"
 
 
+class RequestTooLarge(ValueError):
+    """A request over the daemon's message size, refused here before it is sent."""
+
+
+def too_large(cmd: str, args: dict, size: int) -> str:
+    """Why a request of ``size`` bytes is not sent: the limit, and each list of it that holds
+    more than the catalog's maximum."""
+    spec = catalog.COMMANDS.get(cmd)
+    most = {a.name: a.high for a in (spec.args if spec else ()) if a.kind == "list" and a.high is not None}
+    over = [f"{name!r} holds {len(value)} items, at most {most[name]:g}" for name, value in args.items()
+            if name in most and isinstance(value, list) and len(value) > most[name]]
+    return (f"{cmd!r} is {size} bytes, over the daemon's limit of {protocol.MAX_MESSAGE_BYTES} bytes a request: "
+            f"not sent" + (f" ({'; '.join(over)})" if over else ""))
+
+
 class KeyRefused(ConnectionError):
     """The daemon would not complete the CURVE handshake with this client."""
 
@@ -174,8 +189,11 @@ class Client(CommandMethods):
             # A DEALER with no live connection (its handshake refused) would block in send.
             if not sock.poll(limit * 1e3, zmq.POLLOUT):
                 self._unanswered(cmd, endpoint, limit)
+            request = protocol.encode_request(request_id, cmd, args, self.lease)
+            if len(request) > protocol.MAX_MESSAGE_BYTES:
+                raise RequestTooLarge(too_large(cmd, args or {}, len(request)))
             try:
-                sock.send(protocol.encode_request(request_id, cmd, args, self.lease), zmq.NOBLOCK)
+                sock.send(request, zmq.NOBLOCK)
             except zmq.Again:  # the connection went between the poll and the send: a refused handshake
                 self._unanswered(cmd, endpoint, limit)
             while True:
@@ -202,6 +220,12 @@ class Client(CommandMethods):
         if self._deferred_timeout is None:
             self._deferred_timeout = float(self.describe()["deferred_timeout_s"]) + 2.0
         return self._deferred_timeout
+
+    def joint_units(self) -> list[tuple[str, str]]:
+        """The rig's joints in order, each with the unit its positions are given in (``deg`` on a
+        rotary joint, ``mm`` on a linear one): their position fields' display units."""
+        layout = self.layout()
+        return [(j["name"], layout[f"{j['name']}.position"].display[0]) for j in self.describe()["joints"]]
 
     def layout(self, message: dict | None = None) -> CycleLayout:
         """The daemon's cycle record layout (``describe``'s ``cycle_layout``): what each column
@@ -274,15 +298,21 @@ class Client(CommandMethods):
         return Subscription(self.context, self.endpoints["telemetry"], topics, self._secure)
 
 
-def read_waypoints(path) -> dict:
+def read_waypoints(path, joints) -> dict:
     """A waypoint CSV file as ``waypoints()`` arguments. The header names the columns:
     ``duration_s`` (time from the previous point; ignored on the first row), then either
-    ``x_mm,y_mm`` (Cartesian) or one ``<joint>_deg`` column per joint, in the rig's order."""
+    ``x_mm,y_mm`` (Cartesian) or one column per joint named ``<joint>_deg`` (rotary) or
+    ``<joint>_mm`` (linear), in any order. ``joints`` is the rig's ``[(name, unit)]`` in its
+    order (unit ``deg`` or ``mm``: :meth:`Client.joint_units`); the columns are read by name
+    into ``positions`` in that order, and a name that is not a joint's (or not in its unit),
+    a joint missing or a column given twice is refused."""
     with open(path, newline="") as f:
         rows = [r for r in csv.reader(line for line in f if line.strip() and not line.startswith("#"))]
     if len(rows) < 3 or rows[0][0].strip() != "duration_s":
         raise ValueError(f"{path}: expected a header starting with duration_s and at least two points")
     columns = [c.strip() for c in rows[0][1:]]
+    if any(len(r) != len(rows[0]) for r in rows[1:]):
+        raise ValueError(f"{path}: every row needs {len(rows[0])} values, as the header names columns")
     try:
         values = [[float(v) for v in r] for r in rows[1:]]
     except ValueError as exc:
@@ -290,6 +320,20 @@ def read_waypoints(path) -> dict:
     points, durations = [v[1:] for v in values], [v[0] for v in values[1:]]
     if columns == ["x_mm", "y_mm"]:
         return {"xy_mm": points, "durations_s": durations}
-    if columns and all(c.endswith("_deg") for c in columns):
-        return {"angles_deg": points, "durations_s": durations}
-    raise ValueError(f"{path}: columns after duration_s must be x_mm,y_mm or <joint>_deg, got {','.join(columns)}")
+    order = [columns.index(name) for name in _joint_columns(path, columns, joints)]
+    return {"positions": [[p[i] for i in order] for p in points], "durations_s": durations}
+
+
+def _joint_columns(path, columns: list[str], joints) -> list[str]:
+    """The joint columns' names in the rig's order, once each of ``columns`` is checked."""
+    wanted = [f"{name}_{unit}" for name, unit in joints]
+    expected = ",".join(["duration_s", *wanted])
+    twice = sorted({c for c in columns if columns.count(c) > 1})
+    unknown = [c for c in columns if c not in wanted]
+    missing = [c for c in wanted if c not in columns]
+    for problem, names in (("given twice", twice), ("not this rig's joints", unknown), ("missing", missing)):
+        if names:
+            raise ValueError(f"{path}: column{'s' if len(names) > 1 else ''} {','.join(names)} {problem}: the "
+                             f"header must be duration_s,x_mm,y_mm or name each joint once by its unit, "
+                             f"{expected} (any order)")
+    return wanted

@@ -67,9 +67,12 @@ class CommandMethods:
         return self.call("controller.get")
 
     def waypoints(self, angles_deg=None, xy_mm=None, durations_s=(), approach_s: float | None = None,
-                  record: bool = False):
-        """A path through joint (``angles_deg``) or tip (``xy_mm``) waypoints; see read_waypoints."""
+                  record: bool = False, positions=None):
+        """A path through joint (``positions``: deg on a rotary joint, mm on a linear one;
+        ``angles_deg``) or tip (``xy_mm``) waypoints; see read_waypoints."""
         args = {"durations_s": list(durations_s), **_record(record)}
+        if positions is not None:
+            args["positions"] = [list(p) for p in positions]
         if angles_deg is not None:
             args["angles_deg"] = [list(p) for p in angles_deg]
         if xy_mm is not None:

@@ -11,29 +11,16 @@ from daemon.wire import keys
 from daemon.wire.catalog import COMMANDS
 
 from daemon.client import doctor
-from daemon.client.client import ENDPOINT_VARIABLES, Client, Interrupted, KeyRefused, RemoteError, read_waypoints
+from daemon.client.client import ENDPOINT_VARIABLES, Client, Interrupted, KeyRefused, RemoteError, RequestTooLarge
+from daemon.client.controller_cli import key_values
+from daemon.client import motion_cli
+from daemon.client.motion_cli import MOTION, NOT_ENDED, motion, option_help, with_lease
 from daemon.wire.protocol import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY
 
-
-ONE_SHOT_LEASE_S = 10.0  # a one-shot command's lease [s], renewed every second until it is handed back
-
-
-def with_lease(client: Client, fn):
-    """One-shot commands take the lease, act, and hand it back (the arm keeps its state; if
-    it stays enabled, the daemon's note on what becomes of it is printed, the first time in
-    that enabled period only). The lease is
-    renewed while the command runs: a command whose work is done beside the loop (a
-    controller built at nice 10, a plan) can take longer than any fixed lease on a busy PC,
-    and a lapsed lease trips an enabled arm. It is asked for ``ONE_SHOT_LEASE_S``, not the
-    rig's 2 s: on a loaded PC this process can be held longer than that between renewals."""
-    client.acquire_lease(ONE_SHOT_LEASE_S)
-    client.keep_lease(every_s=1.0)
-    try:
-        return fn()
-    finally:
-        released = client.release_lease()
-        if released and "unleased" in released and released["unleased"]["first"]:
-            print(f"note: {released['unleased']['note']}", file=sys.stderr)
+EXIT_STATUS = ("exit status: 0 done; 1 the daemon refused the request (the error said), or a file could not be "
+               "read or written; 2 no reply, or the key refused; 3 export/plot written from a cut recording; "
+               f"{NOT_ENDED} --wait: the reference did not end, the arm left enabled (a trip, an e-stop, a disable: "
+               "its cause said); 130 Ctrl-C (what runs on said)")
 
 
 def record(client: Client, path: str, seconds: float) -> int:
@@ -68,52 +55,8 @@ def finish_cut(path: str, exc: OSError) -> str:
                f"read it up to its last complete chunk"
 
 
-def motion(client: Client, args):
-    """A motion command (with the lease); ``--wait`` follows it to its end (and its recording)."""
-    w, record = args.what, args.record
-    if w == "set":
-        kw = {"xy_mm": args.values} if args.xy else {"positions": args.values}
-        send = lambda: client.set(duration_s=args.duration, record=record, stiffness_nm_deg=args.stiffness,  # noqa: E731
-                                  **kw)
-    elif w == "path":
-        send = lambda: client.path(args.name, args.duration, args.approach, record=record)  # noqa: E731
-    elif w == "waypoints":
-        try:
-            spec = read_waypoints(args.file)
-        except (OSError, ValueError) as exc:
-            raise SystemExit(str(exc)) from None
-        send = lambda: client.waypoints(**spec, approach_s=args.approach, record=record)  # noqa: E731
-    elif w == "steps":
-        levels = [[float(v) for v in level.split(",")] for level in args.levels]
-        holds = [float(v) for v in args.hold.split(",")]
-        holds = holds * len(levels) if len(holds) == 1 else holds
-        send = lambda: client.steps(levels, holds, record=record, key="positions")  # noqa: E731
-    else:
-        settings = {"chirp": {"f0_hz": args.f0, "f1_hz": args.f1, "duration_s": args.duration},
-                    "prbs": {"order": args.order, "bit_s": args.bit, "periods": args.periods},
-                    "multisine": {"f0_hz": args.f0, "f1_hz": args.f1, "components": args.components,
-                                  "period_s": args.period, "periods": args.periods}}[args.signal]
-        if args.input:
-            settings.update(settle_s=args.settle, band_deg=args.band)
-        excite = client.excite_input if args.input else client.excite
-        send = lambda: excite(args.signal, args.joint, args.amplitude, record=record, **settings)  # noqa: E731
-    result = with_lease(client, send)
-    if "stretched_from_s" in result:
-        print(f"note: the {result['path']} path's {result['stretched_from_s']:g} s is beyond this rig; it runs in the "
-              f"shortest it can follow, {result['duration_s']:g} s (--duration sets it)", file=sys.stderr)
-    if not args.wait:
-        return result
-    from daemon.client.progress import follow  # rich: only for the progress display
-    return {**result, **follow(client, result.get("total_s", result.get("duration_s", 0.0)), result.get("recording"))}
-
-
-def _help(cmd: str, arg: str) -> str:
-    """An option's help: its argument's line in the command catalog (bounds, unit, default)."""
-    return COMMANDS[cmd].arg(arg).help()
-
-
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.")
+    p = argparse.ArgumentParser(prog="pneumactl", description="Drive a pneumad daemon.", epilog=EXIT_STATUS)
     for name, default in (("command", DEFAULT_COMMAND), ("control", DEFAULT_CONTROL), ("telemetry", DEFAULT_TELEMETRY)):
         p.add_argument(f"--{name}", default=None, metavar="ENDPOINT",
                        help=f"the daemon's {name} endpoint (else {ENDPOINT_VARIABLES[name]}, else {default})")
@@ -127,43 +70,7 @@ def parser() -> argparse.ArgumentParser:
         sub.add_parser(name, help=COMMANDS[name].doc)
     w = sub.add_parser("watch", help="live text view")
     w.add_argument("--seconds", type=float, default=None)
-    s = sub.add_parser("set", help=COMMANDS["set"].doc)
-    motion = [s]
-    s.add_argument("values", type=float, nargs="+", help="one position per joint: deg (rotary), mm (linear)")
-    s.add_argument("--xy", action="store_true", help="values are x y in mm")
-    s.add_argument("--duration", type=float, default=0.0, help=_help("set", "duration_s"))
-    s.add_argument("--stiffness", type=float, default=None, metavar="NM_PER_DEG", help=_help("set", "stiffness_nm_deg"))
-    pa = sub.add_parser("path", help=COMMANDS["path"].doc)
-    motion.append(pa)
-    pa.add_argument("name", choices=["translation", "circle"])
-    pa.add_argument("--duration", type=float, default=None, help=_help("path", "duration_s"))
-    pa.add_argument("--approach", type=float, default=None, help=_help("path", "approach_s"))
-    wp = sub.add_parser("waypoints", help="run a path through waypoints from a CSV file")
-    motion.append(wp)
-    wp.add_argument("file", help="header duration_s,x_mm,y_mm or duration_s,<joint>_deg,...")
-    wp.add_argument("--approach", type=float, default=None, help=_help("waypoints", "approach_s"))
-    st = sub.add_parser("steps", help="a step sequence: LEVEL ... with LEVEL = comma-separated joint positions "
-                                             "[deg rotary, mm linear]")
-    motion.append(st)
-    st.add_argument("levels", nargs="+")
-    st.add_argument("--hold", default="5", help="hold time per level [s], one value or one per level (comma list)")
-    ex = sub.add_parser("excite", help="identification signal on one joint's reference (or, --input, its V_MV)")
-    motion.append(ex)
-    ex.add_argument("signal", choices=["chirp", "prbs", "multisine"])
-    ex.add_argument("joint")
-    ex.add_argument("--amplitude", type=float, default=1.0, help="[deg], or [V] with --input (default 1)")
-    ex.add_argument("--input", action="store_true",
-                    help="open loop: the signal on the joint's V_MV about the present set-point, the others held")
-    for flag, arg in (("--settle", "settle_s"), ("--band", "band_deg"), ("--components", "components"),
-                      ("--period", "period_s"), ("--f0", "f0_hz"), ("--f1", "f1_hz"), ("--duration", "duration_s"),
-                      ("--order", "order"), ("--bit", "bit_s"), ("--periods", "periods")):
-        spec = COMMANDS["excite"].arg(arg)
-        ex.add_argument(flag, type=int if spec.kind == "integer" else float,
-                        default=1 if arg == "periods" else spec.default, help=spec.help())
-    for m in motion:
-        m.add_argument("--record", action="store_true",
-                       help="the daemon records it, start to end plus 3 s, in its recording directory")
-        m.add_argument("--wait", action="store_true", help="show its progress and return when it has ended")
+    motion_cli.add_parsers(sub)
     pay = sub.add_parser("payload", help="identify a payload at the tip by torque balance (docs/estimation.md)")
     pay.add_argument("action", choices=("identify",))
     pay.add_argument("--unloaded", action="store_true",
@@ -195,18 +102,18 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("args", nargs="*", help="switch / shadow: NAME [KEY=VALUE ...]; set: KEY=VALUE ...; reload: NAME "
                                            "(a controller from the daemon's --controller-dir)")
     c.add_argument("--design", default=None, help="LTI design file (.toml or .npz) for lti and lti_dob")
-    c.add_argument("--force", action="store_true", help=f"commit: {_help('controller.commit', 'force')}")
+    c.add_argument("--force", action="store_true", help=f"commit: {option_help('controller.commit', 'force')}")
     r = sub.add_parser("record", help="record telemetry to an MCAP file (Foxglove, PlotJuggler open it)")
     r.add_argument("file")
     r.add_argument("--seconds", type=float, default=10.0)
     rs = sub.add_parser("record.start", help="the daemon records telemetry (MCAP, in its recording directory)")
-    rs.add_argument("--name", default=None, help=_help("record.start", "name"))
-    rs.add_argument("--seconds", type=float, default=None, help=_help("record.start", "seconds"))
+    rs.add_argument("--name", default=None, help=option_help("record.start", "name"))
+    rs.add_argument("--seconds", type=float, default=None, help=option_help("record.start", "seconds"))
     rt = sub.add_parser("record.stop", help="end a recording the daemon is making")
-    rt.add_argument("--name", default=None, help=_help("record.stop", "name"))
+    rt.add_argument("--name", default=None, help=option_help("record.stop", "name"))
     sub.add_parser("record.list", help=COMMANDS["record.list"].doc)
     rn = sub.add_parser("record.snapshot", help=COMMANDS["record.snapshot"].doc)
-    rn.add_argument("--name", default=None, help=_help("record.snapshot", "name"))
+    rn.add_argument("--name", default=None, help=option_help("record.snapshot", "name"))
     e = sub.add_parser("export", help="export a recording (MCAP, or .pnrec of earlier versions) to CSV")
     e.add_argument("file")
     e.add_argument("csv")
@@ -260,22 +167,29 @@ def export_or_plot(args) -> int:
 
 def replay(args) -> int:
     """``pneumactl replay``: the daemon's loop on the rig's model, in a process of its own
-    (``python -m daemon.replay``: the client never imports the loop's side). Its exit status:
+    (``python -m daemon.replay``: the client never imports the loop's side, :func:`child`). Its exit status:
     0 replayed, 1 refused (what the recording lacks, said), 2 the file cannot be read."""
     import subprocess
 
     options = [f"--{k}={v}" for k in ("config", "out", "part") if (v := getattr(args, k)) is not None]
-    return subprocess.call([sys.executable, "-m", "daemon.replay", args.file, *options])
+    return child([sys.executable, "-m", "daemon.replay", args.file, *options])
 
 
-def key_values(items) -> dict:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"expected KEY=VALUE, got {item!r}")
-        out[key] = json.loads(value)  # a number, or a JSON list with one value per joint
-    return out
+def child(argv: list[str]) -> int:
+    """Run a process of its own to its end: its exit status. A Ctrl-C reaches it too (the
+    terminal's process group), and it says what it stopped; one sent to this process alone is
+    passed on after a moment."""
+    import subprocess
+
+    proc = subprocess.Popen(argv)
+    while True:
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:
+            try:
+                return proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                proc.send_signal(signal.SIGINT)
 
 
 def main(argv=None) -> int:
@@ -296,8 +210,7 @@ def _main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args, _ = parser().parse_known_args(argv)
     if args.what == "evaluate":  # a process of its own (the daemon's loop on a virtual clock, a pool): never imported here
-        import subprocess
-        return subprocess.call([sys.executable, "-m", "evaluation", *argv[argv.index("evaluate") + 1:]])
+        return child([sys.executable, "-m", "evaluation", *argv[argv.index("evaluate") + 1:]])
     args = parser().parse_args(argv)
     if args.what == "identify" and args.source:
         return identify(None, args)
@@ -326,6 +239,9 @@ def _main(argv=None) -> int:
     except KeyRefused as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except RequestTooLarge as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except RemoteError as exc:
         print(f"error: {exc}", file=sys.stderr)
         if exc.data:
@@ -341,6 +257,10 @@ def _main(argv=None) -> int:
               f"--approach S to choose)", file=sys.stderr)
     if result is not None:
         print(json.dumps(result, indent=2))
+    if isinstance(result, dict) and result.get("ended") is False:  # --wait: `... --wait && next` goes no further
+        print(f"error: the reference did not end: the arm is {result['state']} ({result['cause'] or 'no cause given'}); "
+              f"exit {NOT_ENDED}", file=sys.stderr)
+        return NOT_ENDED
     return 0
 
 
@@ -349,9 +269,9 @@ def identify(client: Client | None, args) -> int:
     import time
     from pathlib import Path
 
-    from daemon.client import identify as ident  # scipy and matplotlib: only when identifying
     out = Path(args.out or f"identify-{args.joint}-{time.strftime('%Y%m%d-%H%M%S')}")
     try:
+        from daemon.client import identify as ident  # scipy and matplotlib: only when identifying
         source = Path(args.source) if args.source else out / "experiments.mcap"
         if client is not None:
             out.mkdir(parents=True, exist_ok=True)
@@ -361,6 +281,12 @@ def identify(client: Client | None, args) -> int:
     except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except Interrupted as exc:  # what it stopped, said where it was stopped
+        print(exc, file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:  # before the experiments or the reading, or while the figures are written
+        print(f"interrupted: identify stopped; {out} may hold part of its files", file=sys.stderr)
+        return 130
     print(json.dumps({k: report[k] for k in ("joint", "model", "rig_file", "figures", "fit_percent",
                                              "heldout_fit_percent", "wall_s")}, indent=2))
     return 0
@@ -406,7 +332,7 @@ def run(client: Client, args):
         from daemon.client.watch import watch  # rich: only for the live view
         watch(client, args.seconds)
         return None
-    if w in ("set", "path", "waypoints", "steps", "excite"):
+    if w in MOTION:
         return motion(client, args)
     if w == "record.start":
         return client.record_start(args.name, args.seconds)

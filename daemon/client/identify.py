@@ -218,11 +218,14 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
     or, a recording without any (a path, steps, waypoints, under any controller), its closed-loop
     run (:mod:`daemon.client.refit`); write the figures, the rig file and a report into ``out``;
     the report. A cut recording is refused: what is missing would be taken for the run's end."""
-    run = recording.open_run(path)
-    if run.truncated:
-        raise SystemExit(f"{run.cut_notice(str(path))}: identification fits a whole recording "
-                         f"(record the run again)")
-    found = experiments_of.experiments(run, str(path), recorded, joint)
+    try:
+        run = recording.open_run(path)
+        if run.truncated:
+            raise SystemExit(f"{run.cut_notice(str(path))}: identification fits a whole recording "
+                             f"(record the run again)")
+        found = experiments_of.experiments(run, str(path), recorded, joint)
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted: reading {path} stopped; nothing was fitted or written") from None
     if not found:
         from daemon.client.refit import refit
         return refit(run, Path(path), joint, out, population, generations, seed)
@@ -241,8 +244,12 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
     estimation, held_out = found[:-1], found[-1:]
     rig = experiments_of.rig_of(run)
     prior = experiments_of.prior_of(rig, joint)
-    result = fit_joint(estimation, prior, held_out, population=population, generations=generations, seed=seed,
-                       progress=_fit_progress(generations))
+    try:
+        result = fit_joint(estimation, prior, held_out, population=population, generations=generations, seed=seed,
+                           progress=_fit_progress(generations))
+    except KeyboardInterrupt:
+        raise Interrupted(f"interrupted: the fit of {joint} to {path} stopped; nothing was written "
+                          f"(`pneumactl identify {joint} --from {path}` fits it again)") from None
     # the prior judged on the same held-out data, the same way (only its start's held friction chosen)
     prior_fit = heldout_fit(prior, held_out[0], result.settings["step_s"], C_SPAN * prior.Fs)
     judged = {"heldout_fit_percent": result.heldout_fit_percent[0],

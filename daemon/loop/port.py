@@ -11,8 +11,9 @@ on a loaded 2-core VM) costs a cycle about the budget and one request, never ten
 The first request of a cycle is always served: an e-stop at the head of its ring never
 waits for a budget. A ring
 that is full refuses: the message is dropped and counted (``telemetry_dropped``,
-``reply_failures``), never waited for. Frames over ``protocol.MAX_MESSAGE_BYTES`` are refused
-by ZeroMQ in the messenger (the peer is disconnected) and never reach the loop.
+``reply_failures``), never waited for. Requests over ``protocol.MAX_MESSAGE_BYTES`` are answered
+``bad_message`` by the messenger, frames over ``protocol.MAX_FRAME_BYTES`` dropped by ZeroMQ there
+(the peer is disconnected): neither reaches the loop.
 
 Each request arrives with who sent it and its envelope, decoded once by the messenger
 (:mod:`daemon.wire.routed`). Which clients may connect at all is the messenger's

@@ -133,6 +133,9 @@ class Relay:
                 self._refuse(sock, envelope, body, "your key has been revoked: ask the lab for a new one",
                              {"reason": "revoked", "key": frames[-1].get("User-Id")})
                 continue
+            if len(body) > protocol.MAX_MESSAGE_BYTES:  # answered, not dropped: the client learns why
+                self._send(sock, envelope, protocol.too_large(body))
+                continue
             try:
                 request = protocol.decode_request(body)
                 command, request = self._admit(name, request, identity)

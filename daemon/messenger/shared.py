@@ -67,7 +67,7 @@ def open_socket(ctx: zmq.Context, name: str, endpoint: str, guard: Guard | None)
     if name == "telemetry":
         sock.setsockopt(zmq.SNDHWM, TELEMETRY_HWM)
     else:
-        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_MESSAGE_BYTES)
+        sock.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_FRAME_BYTES)  # up to it, over-size requests are answered
         sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
         sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
     if guard is not None:

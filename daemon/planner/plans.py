@@ -12,7 +12,7 @@ from controllers import trajectory
 from controllers.feasibility import Authority, Infeasible
 from controllers.feasibility_axis import AxisAuthority
 from daemon.wire import protocol as P
-from daemon.wire.arguments import CommandFailed, bad_args
+from daemon.wire.arguments import CommandFailed, bad_args, number_text
 from hal.interfaces import DISPLAY
 
 
@@ -61,7 +61,7 @@ class PlanContext:
 
     def text(self, j: int, value: float, digits: int = 2) -> str:
         unit, scale = self.display(j)
-        return f"{value * scale:.{digits}f} {unit}"
+        return f"{number_text(value * scale, digits)} {unit}"
 
     def require_rotary(self, argument: str) -> None:
         """bad_args naming ``argument`` (an angle or a tip point) on a rig with a linear joint."""

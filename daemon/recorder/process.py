@@ -29,6 +29,7 @@ SIGTERM, and finishes its files.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import time
@@ -101,6 +102,7 @@ def serve(child: Child, rings_dir: str, directory: str, max_mb: float, min_free_
     import zmq
 
     from daemon.recorder.archive import Archive
+    logging.basicConfig(level=logging.INFO, format="pneumad recorder %(levelname)s: %(message)s")  # the daemon's log
     stop = []  # SIGINT is ignored: the daemon ends the feed when it stops
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a file-size limit is a write error, not death

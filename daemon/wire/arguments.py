@@ -21,6 +21,15 @@ class CommandFailed(Exception):
         return type(self), (self.code, self.message, self.data)
 
 
+LARGEST_FIXED = 1e6  # beyond this a refusal shows a number in 3 significant digits, not its 300 integer digits
+
+
+def number_text(value: float, digits: int = 2) -> str:
+    """``value`` as a refusal shows it: ``digits`` after the point, or, beyond ``LARGEST_FIXED``
+    (a mistyped 1e308), 3 significant digits."""
+    return f"{value:.{digits}f}" if abs(value) < LARGEST_FIXED else f"{value:.3g}"
+
+
 def bad_args(message: str, argument: str, **data) -> CommandFailed:
     """A ``bad_args`` refusal; its data names the request's ``argument`` (a top-level name)
     and, for one element of a list, its ``index`` (a list of 0-based indices, outermost

@@ -12,7 +12,8 @@ VERSION = 1
 DEFAULT_COMMAND = "tcp://127.0.0.1:5560"  # the daemon's endpoints unless told otherwise (docs/protocol.md)
 DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
 DEFAULT_TELEMETRY = "tcp://127.0.0.1:5562"
-MAX_MESSAGE_BYTES = 64 * 1024  # larger frames are dropped by ZeroMQ before they are read
+MAX_MESSAGE_BYTES = 64 * 1024  # a larger request is answered bad_message, never read further
+MAX_FRAME_BYTES = 4 * MAX_MESSAGE_BYTES  # ZeroMQ drops a larger frame (and its peer) unread: what a peer may queue
 
 # Error codes a client can branch on.
 BAD_MESSAGE = "bad_message"  # not msgpack, not a map, or a field of the wrong type
@@ -105,6 +106,28 @@ def request_id_of(payload: bytes):
         return decode_request(payload)["id"]
     except ProtocolError as exc:
         return exc.request_id
+
+
+def too_large(payload: bytes) -> bytes:
+    """The reply to a request over ``MAX_MESSAGE_BYTES`` (up to ``MAX_FRAME_BYTES``: the
+    messenger's, never the loop's): ``bad_message`` naming both sizes, with the request's id
+    where its envelope can be read (else null)."""
+    request_id = None
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, max_buffer_size=len(payload), max_ext_len=0)
+    unpacker.feed(payload)
+    try:
+        for _ in range(unpacker.read_map_header()):
+            if unpacker.unpack() == "id":
+                found = unpacker.unpack()
+                number = isinstance(found, int) and not isinstance(found, bool)
+                short = isinstance(found, str) and len(found) <= 128
+                request_id = found if number or short else None  # the ids decode_request takes
+                break
+            unpacker.skip()
+    except Exception:  # not a msgpack map: the id stays unknown
+        pass
+    return encode_error(request_id, BAD_MESSAGE, f"the request is {len(payload)} bytes, over the daemon's limit of "
+                                                 f"{MAX_MESSAGE_BYTES} bytes: nothing was done")
 
 
 def decode_args(request: dict) -> dict:
