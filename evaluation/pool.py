@@ -29,8 +29,8 @@ def _start_worker(sources) -> None:
     is the parent's to stop the workers, with one line); the controller directories' files
     arrive executed (:class:`controllers.directory.Source` unpickles so), for their
     controllers to build."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as the parent had it when it forked them; a spawned one too
     one_blas_thread()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _work(task) -> runner.Case:
@@ -72,7 +72,12 @@ def run(rig, controllers: list[str], params: dict, plants: list[cases.Plant], re
     work = tasks(rig, controllers, params, plants, references, engine, plugins)
     start = time.monotonic()
     sources = tuple(dirs.sources.values()) if dirs is not None else ()
-    with multiprocessing.Pool(max(1, jobs or os.cpu_count()), _start_worker, (sources,)) as workers:
+    calm = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the workers start ignoring Ctrl-C, whenever it comes
+    try:
+        workers = multiprocessing.Pool(max(1, jobs or os.cpu_count()), _start_worker, (sources,))
+    finally:
+        signal.signal(signal.SIGINT, calm)
+    with workers:
         results = workers.map(_work, work, chunksize=1)
     elapsed = time.monotonic() - start
     names = [p.name for p in plants]

@@ -93,7 +93,8 @@ def test_wait_exits_non_zero_when_the_arm_leaves_enabled_before_the_end(daemon):
         assert proc.poll() is None and time.monotonic() < deadline, lines
         time.sleep(0.1)
     client.estop("test")
-    out, _ = proc.communicate(timeout=60)
+    out = proc.stdout.read()  # to its end (the process has exited); its stderr is the reader's alone
+    proc.wait(60)
     reader.join(10)
     assert proc.returncode == 4, (out, lines)
     assert json.loads(out)["state"] == "estop"
