@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import math
+import threading
 import types
 
 from controllers.base import (
@@ -84,7 +85,14 @@ class ControlLoop(LoopControls, LoopQueries):
         self.snapshot: Snapshot | None = None
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
-        self._deadline = 0.0
+        self._deadline = 0.0  # the cycle in progress's deadline, or the next one's: the cycle watchdog reads it
+        # The cycle watchdog (daemon.loop.watchdog), a thread beside this one: every transport
+        # call is made under io_lock; held is (kind, cause, controller stepping) once it wrote the
+        # safe state, until the next cycle boundary takes it (take_held); stepping, the
+        # controller whose step is running, names a step that hangs.
+        self.io_lock = threading.Lock()
+        self.held: tuple[str, str, str | None] | None = None
+        self.stepping: Controller | None = None
         # When each cycle's write began [s] (a ring covering the stale limit): a pipelined wire
         # answers the request of the cycle before, so the transport is late by the time since
         # the first request it has not answered, not since the sample it gave (the loop's own
@@ -168,6 +176,8 @@ class ControlLoop(LoopControls, LoopQueries):
                 self.supervisor.trip(f"loop stalled: woke {lateness * 1e3:.1f} ms late "
                                      f"(limit {stall_limit * 1e3:.1f} ms)")
             self._cycle(wake)
+            if self.held is not None:  # the cycle watchdog wrote the safe state meanwhile
+                self.take_held()
             done += 1
             self._deadline += period
             end = clock.now()
@@ -199,7 +209,8 @@ class ControlLoop(LoopControls, LoopQueries):
         clock, sup = self.clock, self.supervisor
         t0 = clock.now()
         try:
-            snap = self.io.read()
+            with self.io_lock:
+                snap = self.io.read()
         except TransportError as exc:
             snap = None
             sup.trip(f"transport read failed: {exc}")
@@ -288,11 +299,16 @@ class ControlLoop(LoopControls, LoopQueries):
         ff = self.feed_forward
         if ff.load is not None:
             ff.update(self.controller, ref[0])
+        self.stepping = self.controller
         try:
             u = self.controller.step(state, reference)
             check_output(u, self.actuation.width)
         except Exception as exc:  # a plugin's failure must never take the loop down
+            self.stepping = None
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
+            return
+        self.stepping = None
+        if self.held is not None:  # the watchdog wrote the safe state while it ran: not this output
             return
         self.u = ff.added(u) if ff.load is not None else list(u)  # the loop's own copy: a plugin may reuse its buffer
         judged = ref[0]
@@ -348,17 +364,20 @@ class ControlLoop(LoopControls, LoopQueries):
         p_head, p_rod, brakes = self.actuation.outputs(self.u)
         clamp = self.supervisor.clamp
         p_head, p_rod = clamp(p_head, self.p_head), clamp(p_rod, self.p_rod)
-        try:
-            self.io.write_pressures(p_head, p_rod, brakes)
-        except (TransportError, CommandError) as exc:
-            self.supervisor.trip(f"output write failed: {exc}")
-            self._write_safe()
-            return
-        self.p_head, self.p_rod = p_head, p_rod
+        with self.io_lock:
+            if self.held is None:  # else the watchdog's safe state stays: the loop writes it again below
+                try:
+                    self.io.write_pressures(p_head, p_rod, brakes)
+                    self.p_head, self.p_rod = p_head, p_rod
+                    return
+                except (TransportError, CommandError) as exc:
+                    self.supervisor.trip(f"output write failed: {exc}")
+        self._write_safe()
 
     def _write_safe(self) -> None:
         try:
-            self.io.write_safe()
+            with self.io_lock:
+                self.io.write_safe()
         except TransportError as exc:
             self.supervisor.trip(f"cannot write the safe state: {exc}")  # retried every cycle
         self.p_head, self.p_rod = list(self.io.safe_pressures[0]), list(self.io.safe_pressures[1])
