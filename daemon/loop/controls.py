@@ -29,9 +29,10 @@ class LoopControls:
         boundary: an e-stop the loop had not taken latches, a controller whose step it found
         still running is replaced as a failed one (a trip, ``hold`` in its place), another stall
         trips; then let go."""
-        with self.io_lock:
-            kind, cause, stepping = self.held
-            self.held = None
+        held = self.held
+        held.done.wait(held.patience_s)  # its write made (the loop makes no transport call till then)
+        self.held = None
+        kind, cause, stepping = held.kind, held.cause, held.stepping
         if kind == "estop":
             self.supervisor.estop("the control socket (written safe by the cycle watchdog)")
         if stepping is not None and stepping == self.controller.name:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import math
-import threading
 import types
 
 from controllers.base import (
@@ -32,6 +31,7 @@ from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
 from daemon.loop.handles import LoopHandles, LoopQueries
 from daemon.loop.view import LoopView
+from daemon.loop.watchdog import Held
 from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
 from hal import sensors
 from hal.errors import CommandError, TransportError
@@ -86,12 +86,10 @@ class ControlLoop(LoopControls, LoopQueries):
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
         self._deadline = 0.0  # the cycle in progress's deadline, or the next one's: the cycle watchdog reads it
-        # The cycle watchdog (daemon.loop.watchdog), a thread beside this one: every transport
-        # call is made under io_lock; held is (kind, cause, controller stepping) once it wrote the
-        # safe state, until the next cycle boundary takes it (take_held); stepping, the
-        # controller whose step is running, names a step that hangs.
-        self.io_lock = threading.Lock()
-        self.held: tuple[str, str, str | None] | None = None
+        # The cycle watchdog's (daemon.loop.watchdog): in_io set around each transport call, made
+        # only while held (its hold) is None; stepping names a step that hangs.
+        self.in_io = False
+        self.held: Held | None = None
         self.stepping: Controller | None = None
         # When each cycle's write began [s] (a ring covering the stale limit): a pipelined wire
         # answers the request of the cycle before, so the transport is late by the time since
@@ -198,6 +196,7 @@ class ControlLoop(LoopControls, LoopQueries):
     def shutdown(self, reason: str = "shutdown") -> None:
         """Safe outputs, then close the transport (on SIGTERM, SIGINT, or any exit)."""
         self.events.add({"kind": "shutdown", "cause": reason})
+        self.held = None  # the watchdog is stopped by now (daemon.main): the loop's own write, whatever it did
         self._write_safe()
         self._drain_events()
         self.io.transport.close()
@@ -208,12 +207,14 @@ class ControlLoop(LoopControls, LoopQueries):
     def _cycle(self, wake: float) -> None:
         clock, sup = self.clock, self.supervisor
         t0 = clock.now()
+        self.in_io = True
         try:
-            with self.io_lock:
-                snap = self.io.read()
+            snap = self.io.read() if self.held is None else None
         except TransportError as exc:
             snap = None
             sup.trip(f"transport read failed: {exc}")
+        finally:
+            self.in_io = False
         t1 = clock.now()
         if snap is not None:
             self._update_measurement(snap)
@@ -364,22 +365,27 @@ class ControlLoop(LoopControls, LoopQueries):
         p_head, p_rod, brakes = self.actuation.outputs(self.u)
         clamp = self.supervisor.clamp
         p_head, p_rod = clamp(p_head, self.p_head), clamp(p_rod, self.p_rod)
-        with self.io_lock:
-            if self.held is None:  # else the watchdog's safe state stays: the loop writes it again below
-                try:
-                    self.io.write_pressures(p_head, p_rod, brakes)
-                    self.p_head, self.p_rod = p_head, p_rod
-                    return
-                except (TransportError, CommandError) as exc:
-                    self.supervisor.trip(f"output write failed: {exc}")
+        self.in_io = True
+        try:
+            if self.held is None:  # else the watchdog's safe state stays
+                self.io.write_pressures(p_head, p_rod, brakes)
+                self.p_head, self.p_rod = p_head, p_rod
+            return
+        except (TransportError, CommandError) as exc:
+            self.supervisor.trip(f"output write failed: {exc}")
+        finally:
+            self.in_io = False
         self._write_safe()
 
     def _write_safe(self) -> None:
+        self.in_io = True
         try:
-            with self.io_lock:
+            if self.held is None:  # else the watchdog writes it
                 self.io.write_safe()
         except TransportError as exc:
             self.supervisor.trip(f"cannot write the safe state: {exc}")  # retried every cycle
+        finally:
+            self.in_io = False
         self.p_head, self.p_rod = list(self.io.safe_pressures[0]), list(self.io.safe_pressures[1])
 
     def _drain_events(self) -> None:

@@ -3,16 +3,17 @@ through the transport when the loop cannot: a cycle (a controller's step, most o
 run longer than the rig file's ``[safety] stall_after_s``, a loop that has not woken by then, or
 an e-stop the loop has not taken within ``ESTOP_GRACE_PERIODS`` periods.
 
-It costs the healthy loop nothing it does not already do but two attribute stores around the
-step (which controller is stepping) and an uncontended lock around each transport call
-(:attr:`ControlLoop.io_lock`): the watchdog reads the loop's next deadline, which the loop
-keeps anyway, and sleeps in one ``select`` on the e-stop FIFO (:mod:`daemon.wire.watchdog_link`)
-until that deadline plus the stall limit. When it acts it takes the lock (so its write never
-interleaves with the loop's reads and writes), marks the loop :attr:`ControlLoop.held` and writes
-the safe state; the loop writes the safe state instead of a command while held (under the same
-lock), and at its next cycle boundary trips (or latches the e-stop), puts the hold controller
-in place of one whose step hung, without writing that step's output, and lets go
-(:meth:`ControlLoop.take_held`). The messenger publishes the ``watchdog`` event and its log
+It costs the healthy loop a few attribute stores and loads a cycle (which controller is
+stepping; :attr:`ControlLoop.in_io` around each transport call, made only while
+:attr:`ControlLoop.held` is None): no lock, which costs about 1 us a take on this machine
+(docs/benchmarks.md). The watchdog reads the loop's next deadline, which the loop keeps anyway,
+and sleeps in one ``select`` on the e-stop FIFO (:mod:`daemon.wire.watchdog_link`) until that
+deadline plus the stall limit. When it acts it sets ``held`` first, then waits for a transport
+call of the loop's in progress to return (the GIL orders the stores, so by Dekker's rule
+either the loop sees ``held`` and makes no call, or the watchdog sees ``in_io`` and waits),
+and writes the safe state. While held the loop makes no transport call and does not write the
+step's output; at its next cycle boundary it latches the e-stop or trips, puts the hold
+controller in place of one whose step hung, and lets go (:meth:`ControlLoop.take_held`). The messenger publishes the ``watchdog`` event and its log
 line from the link meanwhile: the loop's own events wait for it to cycle again.
 
 The GIL: ``time.sleep`` and blocking I/O release it, and a pure-Python busy loop lets the
@@ -31,6 +32,7 @@ from hal.errors import TransportError
 ESTOP_GRACE_PERIODS = 3  # an e-stop the loop has not taken within this many periods: written by the watchdog
 ESTOP_GRACE_MIN_S = 0.002  # ... and at least this long [s]
 LONGEST_SLEEP_S = 0.1  # it looks at least this often, so that stop() is prompt [s]
+IO_POLL_S = 0.0002  # how often it looks whether the loop's transport call in progress has returned [s]
 
 
 class CycleWatchdog:
@@ -90,16 +92,41 @@ class CycleWatchdog:
                 f"file's [safety] stall_after_s)")
 
     def _write_safe(self, kind: str, cause: str) -> None:
-        """Hold the loop and write the safe state, under the loop's transport lock; tell the messenger."""
-        loop = self.loop
-        with loop.io_lock:
+        """Hold the loop, wait for a transport call of its own in progress to end (Dekker's rule:
+        :attr:`ControlLoop.in_io`), write the safe state, tell the messenger. Once per hold: while
+        the loop is held it makes no transport call, and the outputs are already safe."""
+        loop, held = self.loop, self.loop.held
+        if held is not None:
+            if kind == "stall":
+                held.kind = "stall"  # a stall while an e-stop's hold waits for the loop: the stall is the reason
+            return
+        stepping = loop.stepping
+        held = Held(kind, stepping.name if stepping is not None else None, self.limit_s)
+        loop.held = held
+        give_up = self.clock() + held.patience_s
+        while loop.in_io and self.clock() < give_up:
+            time.sleep(IO_POLL_S)
+        if loop.in_io:
+            cause += (f": the cycle watchdog could not write the safe state (the loop's transport call has not returned "
+                      f"in {held.patience_s * 1e3:.0f} ms)")
+        else:
             try:
                 loop.io.write_safe()
                 cause += ": the cycle watchdog wrote the safe state"
             except TransportError as exc:
                 cause += f": the cycle watchdog could not write the safe state ({exc})"
-            stepping = loop.stepping
-            if loop.held is None or loop.held[0] != "stall":  # a stall already held stays the reason
-                loop.held = (kind, cause, stepping.name if stepping is not None else None)
+        held.cause = cause
+        held.done.set()
         self.count += 1
         self.link.wrote_safe(self.count, loop.cycle, self.clock(), cause)
+
+
+class Held:
+    """The watchdog's hold on the loop (:attr:`ControlLoop.held`): why (``kind``: ``stall`` or
+    ``estop``; ``cause`` in words), the controller whose step was running (its name, or None),
+    and ``done`` once its write is made."""
+
+    def __init__(self, kind: str, stepping: str | None, patience_s: float):
+        self.kind, self.stepping, self.cause = kind, stepping, ""
+        self.patience_s = patience_s  # how long it waits for the loop's transport call [s]
+        self.done = threading.Event()
