@@ -5,6 +5,7 @@ the safe state while the step still hangs, the messenger says so (a ``watchdog``
 line), an e-stop during the hang is written at once, and when the step returns its output is
 never written and the controller is replaced as a failed one."""
 import json
+import os
 import time
 
 import pytest
@@ -12,6 +13,7 @@ import pytest
 from daemon.client.client import Client, RemoteError
 from tests.daemons import TOLERANT_STALL, real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.plugins import HANG_S
+from tests.schemas import schema
 from tests.test_timing import Events, logged
 
 PLUGINS = ("--controller-plugin", "sleeps_hung=tests.plugins:SleepsHung",
@@ -30,7 +32,7 @@ def recording_rig(tmp_path, stall_s: float) -> str:
 
 
 def hung_daemon(tmp_path, controller: str, stall_s: float, log):
-    env = {**__import__("os").environ, "PNEUMAD_TEST_HANG_MARK": str(tmp_path / "hang")}
+    env = {**os.environ, "PNEUMAD_TEST_HANG_MARK": str(tmp_path / "hang")}
     return real_daemon(tmp_path, "--config", recording_rig(tmp_path, stall_s), *PLUGINS, "--controller", controller,
                        stderr=log, env=env)
 
@@ -83,6 +85,7 @@ def test_a_hung_step_has_the_watchdog_write_the_safe_state_and_the_controller_re
             events = enabled(client, daemon)
             began = hang_began(tmp_path)
             event = events.next("watchdog", limit_s=30.0)
+            schema("telemetry", "event").validate(event)
             assert event["source"] == "messenger"
             assert f"controller {controller}'s step has run" in event["cause"]
             assert "the cycle watchdog wrote the safe state" in event["cause"]
@@ -117,6 +120,7 @@ def test_an_estop_while_the_step_hangs_is_written_by_the_watchdog_at_once_and_sa
                 client.estop("test")
             assert time.monotonic() - asked < BOUND_S
             assert answer.value.code == "loop_stalled" and answer.value.data["safe_state_written"]
+            schema("error-data").validate(answer.value.data)
             assert "the cycle watchdog wrote the safe state" in answer.value.message
             event = events.next("watchdog", limit_s=30.0)
             assert "an e-stop the loop had not taken" in event["cause"]
