@@ -5,8 +5,8 @@ an e-stop the loop has not taken within ``ESTOP_GRACE_PERIODS`` periods.
 
 It costs the healthy loop a few attribute stores and loads a cycle (which controller is
 stepping; :attr:`ControlLoop.in_io` around each transport call, made only while
-:attr:`ControlLoop.held` is None): no lock, which costs about 1 us a take on this machine
-(docs/benchmarks.md). The watchdog reads the loop's next deadline, which the loop keeps anyway,
+:attr:`ControlLoop.held` is None), 0.1 us in all: no lock, two takes of which cost 0.8 us
+(docs/benchmarks.md, "The cycle watchdog's cost"). The watchdog reads the loop's next deadline, which the loop keeps anyway,
 and sleeps in one ``select`` on the e-stop FIFO (:mod:`daemon.wire.watchdog_link`) until that
 deadline plus the stall limit. When it acts it sets ``held`` first, then waits for a transport
 call of the loop's in progress to return (the GIL orders the stores, so by Dekker's rule

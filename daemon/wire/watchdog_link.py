@@ -30,8 +30,11 @@ class WatchdogLink:
             os.mkfifo(fifo, 0o600)
             with open(shared, "wb") as f:
                 f.truncate(_SIZE)
-        # the loop's side reads the FIFO, the messenger's writes it; neither ever blocks on it
+        # the loop's side reads the FIFO, the messenger's writes it; neither ever blocks on it. The
+        # loop's side holds a write end too: with no writer (a messenger dead, not yet restarted)
+        # a FIFO reads as at its end, which select would report ready at every call
         self.fd = os.open(fifo, (os.O_RDONLY if create else os.O_WRONLY) | os.O_NONBLOCK)
+        self._writer = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK) if create else None
         fd = os.open(shared, os.O_RDWR)
         try:
             self._map = mmap.mmap(fd, _SIZE)
@@ -74,3 +77,5 @@ class WatchdogLink:
     def close(self) -> None:
         self._map.close()
         os.close(self.fd)
+        if self._writer is not None:
+            os.close(self._writer)
