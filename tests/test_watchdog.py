@@ -3,13 +3,23 @@ outputs. A real daemon on the simulated rig, through a transport that keeps ever
 time and the thread that made it (tests.plugins.RecordingTransport): the watchdog thread writes
 the safe state while the step still hangs, the messenger says so (a ``watchdog`` event, a log
 line), an e-stop during the hang is written at once, and when the step returns its output is
-never written and the controller is replaced as a failed one."""
+never written and the controller is replaced as a failed one. The same, fast, on a loop in
+this process with its watchdog and the two ends of its link (no daemon, no messenger)."""
+import dataclasses
 import json
 import os
+import threading
 import time
 
 import pytest
 
+from controllers.pid import PID
+from daemon import assembly
+from daemon.loop.clock import MonotonicClock
+from daemon.loop.safety import State
+from daemon.loop.watchdog import CycleWatchdog
+from daemon.wire.watchdog_link import WatchdogLink
+from hal import config
 from daemon.client.client import Client, RemoteError
 from tests.daemons import TOLERANT_STALL, real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.plugins import HANG_S
@@ -136,3 +146,69 @@ def test_an_estop_while_the_step_hangs_is_written_by_the_watchdog_at_once_and_sa
     check_the_hang_wrote_safe_then_nothing_else(record, began, HANG_S)
     by_watchdog = next(t for t, thread, _ in record if thread == "cycle watchdog")
     assert asked < by_watchdog < asked + BOUND_S
+
+
+class _SleepsOnce(PID):
+    """PID whose 50th step sleeps ``seconds``."""
+
+    name = "sleeps-once"
+    seconds = 0.8
+
+    def step(self, state, reference):
+        self.steps = getattr(self, "steps", 0) + 1
+        if self.steps == 50:
+            time.sleep(self.seconds)
+        return super().step(state, reference)
+
+
+def _watched_loop(tmp_path, stall_s: float):
+    """A loop on the real clock with its watchdog (the daemon's pair, without the daemon), and
+    a list of (time, thread, volts) of every write."""
+    rig = dataclasses.replace(config.load(), safety=dataclasses.replace(config.load().safety, stall_after_s=stall_s))
+    loop = assembly.build_loop(rig, MonotonicClock(spin_s=0.0), 0.001, "hold")
+    transport, written = loop.io.transport, []
+    transport._write = lambda values, write=transport._write: (
+        written.append((time.monotonic(), threading.current_thread().name, list(values))), write(values))
+    loop_side, messenger_side = WatchdogLink.create(str(tmp_path)), WatchdogLink(str(tmp_path))
+    loop.start()
+    loop.switch(_SleepsOnce(loop.context))
+    loop.enable()
+    watchdog = CycleWatchdog(loop, loop_side)
+    watchdog.start()
+    return loop, watchdog, messenger_side, written
+
+
+def test_in_process_the_watchdog_writes_safe_while_the_step_sleeps_and_the_loop_drops_the_steps_output(tmp_path):
+    loop, watchdog, link, written = _watched_loop(tmp_path, 0.2)
+    try:
+        loop.run(60)  # the 50th step sleeps 0.8 s, four times the limit
+        safe = list(loop.io.safe_volts)
+        first = next(i for i, w in enumerate(written) if w[1] == "cycle watchdog")
+        assert written[first][2] == safe and all(w[2] == safe for w in written[first:])
+        assert written[first - 1][1] != "cycle watchdog" and written[first - 1][2] != safe
+        assert written[first][0] - written[first - 1][0] < 0.2 + BOUND_S  # the limit, and the machine's slack
+        count, cycle, _, cause = link.report()
+        assert count == 1 and cycle == 49 and "controller sleeps-once's step has run" in cause
+        assert loop.state is State.FAULT and loop.controller.name == "hold"
+        assert loop.supervisor.cause.startswith("controller sleeps-once's step hung: ")
+    finally:
+        watchdog.stop()
+        loop.shutdown()
+        link.close()
+
+
+def test_in_process_an_estop_poked_while_the_step_sleeps_is_written_at_once(tmp_path):
+    loop, watchdog, link, written = _watched_loop(tmp_path, 5.0)  # only the e-stop acts
+    try:
+        poked = []
+        threading.Timer(0.3, lambda: (poked.append(time.monotonic()), link.poke())).start()  # during the sleep
+        loop.run(60)
+        by_watchdog = [w for w in written if w[1] == "cycle watchdog"]
+        assert by_watchdog and poked[0] < by_watchdog[0][0] < poked[0] + BOUND_S
+        assert by_watchdog[0][2] == list(loop.io.safe_volts)
+        assert "an e-stop the loop had not taken" in link.report()[3]
+        assert loop.state is State.ESTOP and loop.controller.name == "hold"
+    finally:
+        watchdog.stop()
+        loop.shutdown()
+        link.close()

@@ -1,8 +1,9 @@
 """The fixed-rate control loop: one cycle = read -> check -> control -> clamp -> write ->
 telemetry -> commands, on absolute deadlines (no drift).
 
-Everything here runs in one thread and does bounded work. Commands are handled at the end
-of a cycle, so whatever they change takes effect at the next cycle boundary. An overrun is
+Everything here runs in one thread (the cycle watchdog beside it: :mod:`daemon.loop.watchdog`)
+and does bounded work. Commands are handled at the end of a cycle, so whatever they change
+takes effect at the next cycle boundary. An overrun is
 counted and the loop skips ahead to the next deadline, holding the last command; it never
 bursts to catch up. The clock is injectable: on a virtual clock the same loop runs in
 lockstep with the simulator.
