@@ -184,11 +184,11 @@ def test_in_process_the_watchdog_writes_safe_while_the_step_sleeps_and_the_loop_
         loop.run(60)  # the 50th step sleeps 0.8 s, four times the limit
         safe = list(loop.io.safe_volts)
         first = next(i for i, w in enumerate(written) if w[1] == "cycle watchdog")
-        assert written[first][2] == safe and all(w[2] == safe for w in written[first:])
+        assert written[first][2] == safe and all(w[2] == safe for w in written[first:]), (first, link.report())
         assert written[first - 1][1] != "cycle watchdog" and written[first - 1][2] != safe
         assert written[first][0] - written[first - 1][0] < 0.2 + BOUND_S  # the limit, and the machine's slack
         count, cycle, _, cause = link.report()
-        assert count == 1 and cycle == 49 and "controller sleeps-once's step has run" in cause
+        assert count == 1 and cycle == 49 and "controller sleeps-once's step has run" in cause, link.report()
         assert loop.state is State.FAULT and loop.controller.name == "hold"
         assert loop.supervisor.cause.startswith("controller sleeps-once's step hung: ")
     finally:

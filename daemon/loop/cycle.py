@@ -178,18 +178,19 @@ class ControlLoop(LoopControls, LoopQueries):
             if self.held is not None:  # the cycle watchdog wrote the safe state meanwhile
                 self.take_held()
             done += 1
-            self._deadline += period
+            deadline = self._deadline + period  # stored once, below: the watchdog never sees one already missed
             end = clock.now()
             if end - wake > stall_limit:  # a cycle that ran this long held the outputs: trip and write safe now
                 self.supervisor.trip(f"loop stalled: a cycle ran {(end - wake) * 1e3:.1f} ms "
                                      f"(limit {stall_limit * 1e3:.1f} ms)")
                 self._write_safe()
                 self._drain_events()
-            if end > self._deadline:  # overrun: skip the deadlines already missed, hold the output
-                missed = int((end - self._deadline) / period) + 1
-                self._deadline += missed * period
+            if end > deadline:  # overrun: skip the deadlines already missed, hold the output
+                missed = int((end - deadline) / period) + 1
+                deadline += missed * period
                 stats.overruns += missed
                 stats.overruns_total += missed
+            self._deadline = deadline
 
     def stop(self) -> None:
         self.stop_requested = True
