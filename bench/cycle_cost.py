@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import threading
 import time
 
 from bench.common import header
@@ -30,6 +31,52 @@ def per_call_us(fn, n: int) -> float:
     for _ in range(n):
         fn()
     return (time.perf_counter() - t0) / n * 1e6
+
+
+def watchdog_guards(loop, n: int) -> None:
+    """What the cycle watchdog (daemon/loop/watchdog.py) adds to a cycle, against the lock it
+    does without: its guards as the loop runs them (in_io around the read and the write, made
+    only while held is None; the controller stepping named; the cycle boundary's look at held),
+    each minus the same calls bare, in alternation; and two takes of an uncontended lock."""
+    lock, nothing = threading.Lock(), (lambda: None)
+
+    def bare():
+        nothing(), nothing(), nothing()
+
+    def guarded():
+        loop.in_io = True
+        try:
+            if loop.held is None:
+                nothing()
+        finally:
+            loop.in_io = False
+        loop.stepping = loop.controller
+        nothing()
+        loop.stepping = None
+        if loop.held is None:
+            loop.in_io = True
+            try:
+                if loop.held is None:
+                    nothing()
+            finally:
+                loop.in_io = False
+        if loop.held is not None:
+            nothing()
+
+    def locked():
+        with lock:
+            nothing()
+        nothing()
+        with lock:
+            nothing()
+
+    added, taken = [], []
+    for _ in range(5):
+        base = per_call_us(bare, n)
+        added.append(per_call_us(guarded, n) - base)
+        taken.append(per_call_us(locked, n) - base)
+    print(f"{'  watchdog guards (median of 5, minus bare)':45s} {sorted(added)[2]:6.3f} us")
+    print(f"{'  (two lock takes instead, the same way)':45s} {sorted(taken)[2]:6.3f} us")
 
 
 def main() -> None:
@@ -71,6 +118,7 @@ def main() -> None:
         for name, fn in parts.items():
             per_call_us(fn, n // 10)  # warm
             print(f"{name:45s} {per_call_us(fn, n):6.2f} us")
+        watchdog_guards(loop, n)
         # an open-loop experiment in progress: the largest signal excite allows (a 32-sine
         # multisine) and the centring PI, instead of the reference's sample alone
         signal = Multisine([0.0], 0, 0.3, 0.05, 20.0, Multisine.MAX_COMPONENTS, 600.0)

@@ -15,6 +15,7 @@ from daemon import assembly, keys_cli
 from daemon.latency import qualify
 from daemon.loop.clock import MonotonicClock
 from daemon.loop.cycle import ControlLoop
+from daemon.loop.watchdog import CycleWatchdog
 from daemon.loop.port import DEFAULT_COMMAND, DEFAULT_CONTROL, DEFAULT_TELEMETRY, ZmqServer
 from daemon.messenger.process import MessengerError
 from daemon.planner.process import BUILD_NICE, DEFAULT_TIME_LIMIT_S
@@ -140,6 +141,8 @@ def _run_loop(args, loop: ControlLoop, server: ZmqServer) -> int:
     gc.freeze()  # start-up objects never scanned again
     gc.disable()  # and no collection inside the loop
     loop.start()
+    watchdog = CycleWatchdog(loop, server.watchdog_link)  # writes the safe state when the loop cannot
+    watchdog.start()
     log.info("pneumad %s: rig %s (%s), %s, period %.3f ms; commands %s, control %s, telemetry %s",
              "running", loop.rig.rig.name, loop.rig.origin, realtime.describe(), args.period * 1e3,
              *server.endpoints.values())
@@ -148,6 +151,7 @@ def _run_loop(args, loop: ControlLoop, server: ZmqServer) -> int:
         loop.run()
     finally:
         notifier.stopping()
+        watchdog.stop()
         loop.shutdown(stop_reason[0] if stop_reason else "exit")
         gc.enable()
         log.info("stopped (%s): safe state written", stop_reason[0] if stop_reason else "exit")

@@ -2,10 +2,12 @@
 records what was written to it, and controllers that misbehave."""
 from __future__ import annotations
 
+import collections
 import json
 import math
 import os
 import sys
+import threading
 import time
 
 from controllers.base import Controller
@@ -28,16 +30,19 @@ class RecordingTransport(SimTransport):
         transport = cls(rig, build(SimOptions, options, "transport.options"), clock)
         transport.record_to = path
         transport.writes = []
+        # and the last 20 s of writes, each with its time [s, monotonic] and the thread that wrote it
+        transport.timed = collections.deque(maxlen=20_000)
         return transport
 
     def _write(self, values):
         super()._write(values)
         self.writes.append(list(values))
         del self.writes[:-5]
+        self.timed.append((time.monotonic(), threading.current_thread().name, list(values)))
 
     def close(self):
         with open(self.record_to, "w") as f:
-            json.dump({"writes": self.writes, "safe_closed": True}, f)
+            json.dump({"writes": self.writes, "safe_closed": True, "timed": list(self.timed)}, f)
         super().close()
 
 
@@ -126,6 +131,45 @@ class SlowStep(PID):
     def step(self, state, reference):
         time.sleep(0.005)
         return super().step(state, reference)
+
+
+HANG_S = 3.0  # how long a hanging step takes [s]
+HANG_AFTER_STEPS = 500  # ... and when it comes (0.5 s after enable at 1 kHz)
+
+
+class _HangsOnce(PID):
+    """PID whose step hangs once for ``HANG_S``, at its ``HANG_AFTER_STEPS``-th step; when it
+    begins, the time [s, monotonic] is written to the file ``$PNEUMAD_TEST_HANG_MARK`` names."""
+
+    def step(self, state, reference):
+        self.steps = getattr(self, "steps", 0) + 1
+        if self.steps == HANG_AFTER_STEPS:
+            mark = os.environ.get("PNEUMAD_TEST_HANG_MARK")
+            if mark:
+                with open(mark, "w") as f:
+                    f.write(repr(time.monotonic()))
+            self.hang()
+        return super().step(state, reference)
+
+
+class SleepsHung(_HangsOnce):
+    """Its step sleeps (the GIL released, as for blocking I/O)."""
+
+    name = "sleeps_hung"
+
+    def hang(self):
+        time.sleep(HANG_S)
+
+
+class SpinsHung(_HangsOnce):
+    """Its step busy-loops in Python (the GIL taken back every switch interval)."""
+
+    name = "spins_hung"
+
+    def hang(self):
+        end = time.monotonic() + HANG_S
+        while time.monotonic() < end:
+            pass
 
 
 class _BuildsBadly(Controller):

@@ -24,6 +24,24 @@ SHADOW_COMMIT_RMS = 0.5  # a shadow run's RMS difference, as a fraction of a com
 
 
 class LoopControls:
+    def take_held(self) -> None:
+        """The cycle watchdog wrote the safe state (:mod:`daemon.loop.watchdog`); at this cycle
+        boundary: an e-stop the loop had not taken latches, a controller whose step it found
+        still running is replaced as a failed one (a trip, ``hold`` in its place), another stall
+        trips; then let go."""
+        held = self.held
+        held.done.wait(held.patience_s)  # its write made (the loop makes no transport call till then)
+        self.held = None
+        kind, cause, stepping = held.kind, held.cause, held.stepping
+        if kind == "estop":
+            self.supervisor.estop("the control socket (written safe by the cycle watchdog)")
+        if stepping is not None and stepping == self.controller.name:
+            self.replace_failed_controller(f"controller {stepping}'s step hung: {cause}")
+        elif kind == "stall":
+            self.supervisor.trip(f"loop stalled: {cause}")
+        self._write_safe()
+        self._drain_events()
+
     def enable(self) -> None:
         """IDLE -> ENABLED, the controllers reset from the state now, holding where the arm is;
         a joint outside its limits is moved back inside first (:mod:`daemon.loop.recovery`)."""

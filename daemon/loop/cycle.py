@@ -1,8 +1,9 @@
 """The fixed-rate control loop: one cycle = read -> check -> control -> clamp -> write ->
 telemetry -> commands, on absolute deadlines (no drift).
 
-Everything here runs in one thread and does bounded work. Commands are handled at the end
-of a cycle, so whatever they change takes effect at the next cycle boundary. An overrun is
+Everything here runs in one thread (the cycle watchdog beside it: :mod:`daemon.loop.watchdog`)
+and does bounded work. Commands are handled at the end of a cycle, so whatever they change
+takes effect at the next cycle boundary. An overrun is
 counted and the loop skips ahead to the next deadline, holding the last command; it never
 bursts to catch up. The clock is injectable: on a virtual clock the same loop runs in
 lockstep with the simulator.
@@ -31,6 +32,7 @@ from daemon.loop.shadow import ShadowRun
 from daemon.loop.stats import LoopStats
 from daemon.loop.handles import LoopHandles, LoopQueries
 from daemon.loop.view import LoopView
+from daemon.loop.watchdog import Held
 from daemon.wire.cycle_layout import MODE_INDEX, CycleLayout
 from hal import sensors
 from hal.errors import CommandError, TransportError
@@ -84,7 +86,12 @@ class ControlLoop(LoopControls, LoopQueries):
         self.snapshot: Snapshot | None = None
         self._filter_w = 2 * math.pi * self.rig.safety.velocity_filter_hz  # velocity low-pass [rad/s]
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
-        self._deadline = 0.0
+        self._deadline = 0.0  # the cycle in progress's deadline, or the next one's: the cycle watchdog reads it
+        # The cycle watchdog's (daemon.loop.watchdog): in_io set around each transport call, made
+        # only while held (its hold) is None; stepping names a step that hangs.
+        self.in_io = False
+        self.held: Held | None = None
+        self.stepping: Controller | None = None
         # When each cycle's write began [s] (a ring covering the stale limit): a pipelined wire
         # answers the request of the cycle before, so the transport is late by the time since
         # the first request it has not answered, not since the sample it gave (the loop's own
@@ -168,19 +175,22 @@ class ControlLoop(LoopControls, LoopQueries):
                 self.supervisor.trip(f"loop stalled: woke {lateness * 1e3:.1f} ms late "
                                      f"(limit {stall_limit * 1e3:.1f} ms)")
             self._cycle(wake)
+            if self.held is not None:  # the cycle watchdog wrote the safe state meanwhile
+                self.take_held()
             done += 1
-            self._deadline += period
+            deadline = self._deadline + period  # stored once, below: the watchdog never sees one already missed
             end = clock.now()
             if end - wake > stall_limit:  # a cycle that ran this long held the outputs: trip and write safe now
                 self.supervisor.trip(f"loop stalled: a cycle ran {(end - wake) * 1e3:.1f} ms "
                                      f"(limit {stall_limit * 1e3:.1f} ms)")
                 self._write_safe()
                 self._drain_events()
-            if end > self._deadline:  # overrun: skip the deadlines already missed, hold the output
-                missed = int((end - self._deadline) / period) + 1
-                self._deadline += missed * period
+            if end > deadline:  # overrun: skip the deadlines already missed, hold the output
+                missed = int((end - deadline) / period) + 1
+                deadline += missed * period
                 stats.overruns += missed
                 stats.overruns_total += missed
+            self._deadline = deadline
 
     def run_at(self, deadline: float) -> None:
         """One cycle woken at ``deadline`` on the loop's clock, the deadlines before it skipped as
@@ -195,6 +205,7 @@ class ControlLoop(LoopControls, LoopQueries):
     def shutdown(self, reason: str = "shutdown") -> None:
         """Safe outputs, then close the transport (on SIGTERM, SIGINT, or any exit)."""
         self.events.add({"kind": "shutdown", "cause": reason})
+        self.held = None  # the watchdog is stopped by now (daemon.main): the loop's own write, whatever it did
         self._write_safe()
         self._drain_events()
         self.io.transport.close()
@@ -205,11 +216,14 @@ class ControlLoop(LoopControls, LoopQueries):
     def _cycle(self, wake: float) -> None:
         clock, sup = self.clock, self.supervisor
         t0 = clock.now()
+        self.in_io = True
         try:
-            snap = self.io.read()
+            snap = self.io.read() if self.held is None else None
         except TransportError as exc:
             snap = None
             sup.trip(f"transport read failed: {exc}")
+        finally:
+            self.in_io = False
         t1 = clock.now()
         if snap is not None:
             self._update_measurement(snap)
@@ -295,11 +309,16 @@ class ControlLoop(LoopControls, LoopQueries):
         ff = self.feed_forward
         if ff.load is not None:
             ff.update(self.controller, ref[0])
+        self.stepping = self.controller
         try:
             u = self.controller.step(state, reference)
             check_output(u, self.actuation.width)
         except Exception as exc:  # a plugin's failure must never take the loop down
+            self.stepping = None
             self.replace_failed_controller(f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}")
+            return
+        self.stepping = None
+        if self.held is not None:  # the watchdog wrote the safe state while it ran: not this output
             return
         self.u = ff.added(u) if ff.load is not None else list(u)  # the loop's own copy: a plugin may reuse its buffer
         judged = ref[0]
@@ -355,19 +374,27 @@ class ControlLoop(LoopControls, LoopQueries):
         p_head, p_rod, brakes = self.actuation.outputs(self.u)
         clamp = self.supervisor.clamp
         p_head, p_rod = clamp(p_head, self.p_head), clamp(p_rod, self.p_rod)
+        self.in_io = True
         try:
-            self.io.write_pressures(p_head, p_rod, brakes)
+            if self.held is None:  # else the watchdog's safe state stays
+                self.io.write_pressures(p_head, p_rod, brakes)
+                self.p_head, self.p_rod = p_head, p_rod
+            return
         except (TransportError, CommandError) as exc:
             self.supervisor.trip(f"output write failed: {exc}")
-            self._write_safe()
-            return
-        self.p_head, self.p_rod = p_head, p_rod
+        finally:
+            self.in_io = False
+        self._write_safe()
 
     def _write_safe(self) -> None:
+        self.in_io = True
         try:
-            self.io.write_safe()
+            if self.held is None:  # else the watchdog writes it
+                self.io.write_safe()
         except TransportError as exc:
             self.supervisor.trip(f"cannot write the safe state: {exc}")  # retried every cycle
+        finally:
+            self.in_io = False
         self.p_head, self.p_rod = list(self.io.safe_pressures[0]), list(self.io.safe_pressures[1])
 
     def _drain_events(self) -> None:

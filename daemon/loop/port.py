@@ -32,6 +32,7 @@ from daemon.wire import protocol as P
 from daemon.loop.commands import Commands
 from daemon.wire import routed
 from daemon.messenger.process import END, STALL_S, TOPICS, Heartbeat, Messenger, create_rings
+from daemon.wire.watchdog_link import WatchdogLink
 from daemon.planner.process import Deferred
 from daemon.model.process import ModelProcess, wanted
 from daemon.recorder.process import RecorderProcess, write_metadata
@@ -98,6 +99,7 @@ class ZmqServer:
         self._rings_dir = tempfile.mkdtemp(prefix=f"{RINGS_PREFIX}{os.getpid()}-", dir=_shm_dir())
         self.rings = create_rings(self._rings_dir)
         self.heartbeat = Heartbeat(self._rings_dir, create=True)
+        self.watchdog_link = WatchdogLink.create(self._rings_dir)  # the cycle watchdog's e-stops and reports
         self.stats_banks = StatsBanks.in_directory(self._rings_dir, create=True)  # the loop's histograms
         self._doorbell_read, self._doorbell = os.pipe()  # the read end stays open for a restarted messenger
         os.set_blocking(self._doorbell, False)
@@ -304,6 +306,7 @@ class ZmqServer:
         for ring in self.rings.values():
             ring.close()
         self.heartbeat.close()
+        self.watchdog_link.close()
         os.close(self._doorbell)
         os.close(self._doorbell_read)
         shutil.rmtree(self._rings_dir, ignore_errors=True)

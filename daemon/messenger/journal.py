@@ -26,7 +26,7 @@ HELPER_DEATHS = ("messenger", "recorder", "planner", "contact", "exchange")  # (
 # Logged where they happen instead (start-up, shutdown: never in a cycle), or said by another
 # event's line: a state change to fault or estop is its trip's or e-stop's line.
 SAID_ELSEWHERE = ("plugin", "shutdown")
-ERRORS = ("trip", *HELPER_DEATHS)
+ERRORS = ("trip", "watchdog", *HELPER_DEATHS)  # watchdog: it wrote the safe state for a loop that could not
 WARNINGS = ("estop", "unleased", "lease_revoked", "loop_stalled", "tracking", "model")  # model: the arm left its model
 _SUBJECTS = ("name", "controller", "joint", "holder", "key")  # what an action is about, the first one present
 

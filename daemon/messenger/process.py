@@ -17,7 +17,9 @@ It also watches the loop: the loop counts its cycles into a shared *heartbeat*; 
 count stops for ``stall_s`` (``STALL_S``) the messenger answers for it instead of leaving clients in
 silence (``loop_stalled``: command-socket requests are refused and never reach the loop;
 control-socket requests, e-stop first, are still queued for the moment it resumes and said to
-be so), and publishes a ``loop_stalled`` event, then ``loop_resumed``. Its events share the
+be so, and whether the loop's cycle watchdog has written the safe state), and publishes a
+``loop_stalled`` event, then ``loop_resumed``; it passes every e-stop on to that watchdog too,
+and publishes a ``watchdog`` event each time it wrote the safe state (:mod:`daemon.wire.watchdog_link`). Its events share the
 ``event`` topic's ``seq`` with the loop's (later loop events are renumbered after them). Every
 event it publishes is a line of the daemon's log (:mod:`daemon.messenger.journal`), and from
 the loop's stats windows it judges the loop's timing against the rig file's ``[timing]``
@@ -58,6 +60,7 @@ from daemon.messenger.shared import (
 )
 from daemon.wire.keys import KeyFileError
 from daemon.wire.ring import Ring
+from daemon.wire.watchdog_link import WatchdogLink
 from hal.rig_sections import FlightRecorderConfig, TimingConfig
 from hal.process import Child, Helper, HelperFailed
 
@@ -224,8 +227,10 @@ def serve(child: Child, rings_dir: str, doorbell: int, stall_s: float, keys: str
     stats = StatsBanks.in_directory(rings_dir, create=False)
     stats.reclaim()
     child.ready({n: sockets[n].getsockopt_string(zmq.LAST_ENDPOINT) for n in ("command", "control", "telemetry")})
+    watchdog = WatchdogLink(rings_dir)
     Relay(sockets, rings, doorbell, Heartbeat(rings_dir), stats, cycle_layout, stall_s, guard,
-          link, feed, stream, timing=timing, flight=flight, model=model_link).run(child.parent_alive)
+          link, feed, stream, timing=timing, flight=flight, model=model_link, watchdog=watchdog).run(child.parent_alive)
+    watchdog.close()
     for helper in (link, feed, stream, model_link):
         if helper is not None:
             helper.close()

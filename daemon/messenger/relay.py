@@ -29,6 +29,7 @@ from daemon.messenger.publisher import Publisher
 from daemon.messenger.timing import TimingJudge
 from daemon.wire.flight import FlightNames
 from daemon.wire.ring import Ring
+from daemon.wire.watchdog_link import WatchdogLink
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.cycle_layout import CycleLayout
@@ -49,7 +50,10 @@ class Relay:
                  stats: StatsBanks, layout: CycleLayout, stall_s: float = STALL_S, guard: Guard | None = None, recorder: Recorder | None = None,
                  plotjuggler: PlotJugglerFeed | None = None, foxglove: FoxgloveStream | None = None,
                  timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None,
-                 model: ModelLink | None = None):
+                 model: ModelLink | None = None, watchdog: WatchdogLink | None = None):
+        self.watchdog = watchdog  # the loop's cycle watchdog: told of e-stops, its writes of the safe state published
+        self._watchdog_seen = watchdog.report() if watchdog is not None else (0, 0, 0.0, "")
+        self._owed_estops: set[int] = set()  # tokens of e-stops the loop has not answered: the watchdog's write does
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.recorder = recorder
         self.model = model  # the model process's feed and what it sends back (daemon.messenger.model_link)
@@ -112,6 +116,7 @@ class Relay:
                 if not parent_alive():
                     return
                 self.owed = {t: o for t, o in self.owed.items() if now - o[2] < OWED_LIMIT_S}
+                self._owed_estops.intersection_update(self.owed)
                 self.revocations.expire(now)
                 self.timing.expire()
                 self.journal.flush()
@@ -156,6 +161,10 @@ class Relay:
                 continue
             token = next(self._tokens)
             ring.put(token, routed.pack(identity, request))
+            if command.name == "estop" and self.watchdog is not None:
+                self.watchdog.poke()  # written safe by the watchdog if the loop does not take it at once
+                if self.stalled_since is None:
+                    self._owed_estops.add(token)
             if self.stalled_since is not None:  # a control request: kept for the loop, answered now
                 self._answer_stalled(sock, envelope, request["id"], "queued: it takes effect if the loop resumes")
             else:
@@ -248,13 +257,32 @@ class Relay:
                 del self.owed[token]
                 self._answer_stalled(sock, envelope, request_id, "taken before the stall: it runs if the loop resumes, "
                                                            "and its own reply is lost")
+        if self.watchdog is not None:
+            self._watch_watchdog()
+
+    def _watch_watchdog(self) -> None:
+        """Publish the cycle watchdog's write of the safe state (a ``watchdog`` event, a log line)."""
+        report = self.watchdog.report()
+        if report[0] != self._watchdog_seen[0]:
+            self._watchdog_seen = report
+            self._event({"kind": "watchdog", "cycle": report[1], "cause": report[3], "t_loop": report[2]})
+            for token in self._owed_estops:  # the loop cannot answer them: the watchdog's write does
+                owed = self.owed.pop(token, None)
+                if owed is not None:
+                    self._answer_stalled(owed[0], owed[1], owed[3], "written by the cycle watchdog; the loop latches "
+                                                                    "the e-stop when it cycles again")
+            self._owed_estops.clear()
 
     def _answer_stalled(self, sock: zmq.Socket, envelope: list, request_id, what: str) -> None:
         since = time.monotonic() - self._cycle_seen
+        count, cycle, t, cause = self._watchdog_seen
+        safe = count > 0 and cycle >= self._cycle and t >= self._cycle_seen - 1.0
+        said = f"; {cause}" if safe else ""
         reply = protocol.encode_error(request_id, protocol.LOOP_STALLED,
                                       f"the control loop has not cycled for {since:.1f} s (last cycle {self._cycle}); "
-                                      f"this request was {what}",
-                                      {"reason": "loop_stalled", "stalled_s": since, "cycle": self._cycle})
+                                      f"this request was {what}{said}",
+                                      {"reason": "loop_stalled", "stalled_s": since, "cycle": self._cycle,
+                                       "safe_state_written": safe})
         self._send(sock, envelope, reply)
 
     def _event(self, event: dict, source: str = "messenger") -> None:

@@ -56,7 +56,7 @@ CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/co
 MODEL = "/pneumad/model_residual"  # the model beside the arm: each joint's residual statistics (docs/model.md)
 MODEL_FIGURES = ("rms_deg", "mean_deg", "max_abs_deg", "residual_deg", "band_deg")  # per joint; residual_deg: the latest
 SAFE_STATE = "safe state"
-ERRORS = ("trip", "estop", "loop_stalled")  # event kinds logged as errors; warnings below
+ERRORS = ("trip", "estop", "loop_stalled", "watchdog")  # event kinds logged as errors; warnings below
 WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder", "recover", "model")
 _PROTOBUF = {JOINT_STATES: JointStates, LOG: Log, EVENTS: Event}
 

@@ -1,0 +1,214 @@
+"""The cycle watchdog (daemon/loop/watchdog.py): a controller step that hangs does not hold the
+outputs. A real daemon on the simulated rig, through a transport that keeps every write with its
+time and the thread that made it (tests.plugins.RecordingTransport): the watchdog thread writes
+the safe state while the step still hangs, the messenger says so (a ``watchdog`` event, a log
+line), an e-stop during the hang is written at once, and when the step returns its output is
+never written and the controller is replaced as a failed one. The same, fast, on a loop in
+this process with its watchdog and the two ends of its link (no daemon, no messenger)."""
+import dataclasses
+import json
+import os
+import threading
+import time
+
+import pytest
+
+from controllers.pid import PID
+from daemon import assembly
+from daemon.loop.clock import MonotonicClock
+from daemon.loop.safety import State
+from daemon.loop.watchdog import CycleWatchdog
+from daemon.wire.watchdog_link import WatchdogLink
+from hal import config
+from daemon.client.client import Client, RemoteError
+from tests.daemons import TOLERANT_STALL, real_daemon, tolerant_rig_text, wait_for_own_daemon
+from tests.plugins import HANG_S
+from tests.schemas import schema
+from tests.test_timing import Events, logged
+
+PLUGINS = ("--controller-plugin", "sleeps_hung=tests.plugins:SleepsHung",
+           "--controller-plugin", "spins_hung=tests.plugins:SpinsHung")
+STALL_S = 0.5  # the stall limit these rigs set [s]: well above this machine's own pauses (tens of ms)
+BOUND_S = 1.5  # the safe state must be written within this long of the hang's start, or of an e-stop [s]
+
+
+def recording_rig(tmp_path, stall_s: float) -> str:
+    text = tolerant_rig_text().replace(TOLERANT_STALL, f"stall_after_s = {stall_s}  ")
+    text = text.replace('backend = "sim"', 'backend = "tests.plugins:RecordingTransport"')
+    text = text.replace("[transport.options]\n", f"[transport.options]\nrecord_to = \"{tmp_path / 'writes.json'}\"\n")
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return str(path)
+
+
+def hung_daemon(tmp_path, controller: str, stall_s: float, log):
+    env = {**os.environ, "PNEUMAD_TEST_HANG_MARK": str(tmp_path / "hang")}
+    return real_daemon(tmp_path, "--config", recording_rig(tmp_path, stall_s), *PLUGINS, "--controller", controller,
+                       stderr=log, env=env)
+
+
+def hang_began(tmp_path, limit_s: float = 60.0) -> float:
+    """When the step began to hang [s, monotonic], once it has."""
+    deadline = time.monotonic() + limit_s
+    while not (tmp_path / "hang").exists() or not (tmp_path / "hang").read_text():
+        assert time.monotonic() < deadline, "the step never hung"
+        time.sleep(0.01)
+    return float((tmp_path / "hang").read_text())
+
+
+def writes(tmp_path) -> list[tuple[float, str, list[float]]]:
+    """Every write the daemon made (its first: the safe state, at start), after it stopped."""
+    return [tuple(w) for w in json.loads((tmp_path / "writes.json").read_text())["timed"]]
+
+
+def enabled(client: Client, daemon) -> Events:
+    wait_for_own_daemon(client, daemon)
+    events = Events(client)
+    client.acquire_lease()
+    client.keep_lease()
+    client.enable()
+    return events
+
+
+def check_the_hang_wrote_safe_then_nothing_else(record, began: float, written_by_watchdog_before: float) -> None:
+    """The watchdog's thread wrote the safe state within the bound while the step hung, and
+    every write after it is the safe state (the step's own output never reached the outputs)."""
+    safe = record[0][2]
+    first = next(i for i, (t, thread, _) in enumerate(record) if thread == "cycle watchdog" and t > began)
+    t, _, values = record[first]
+    assert values == safe and t - began < written_by_watchdog_before
+    assert t < began + HANG_S  # before the step returned
+    assert all(v == safe for _, _, v in record[first:]), "a command was written after the watchdog's safe state"
+    loop_before = [w for w in record[:first] if w[1] != "cycle watchdog"]
+    assert loop_before[-1][2] != safe  # the arm was under control until the hang
+
+
+@pytest.mark.slow(seconds=40)
+@pytest.mark.parametrize("controller", ["sleeps_hung", "spins_hung"])
+def test_a_hung_step_has_the_watchdog_write_the_safe_state_and_the_controller_replaced_once_it_returns(tmp_path,
+                                                                                                      controller):
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = hung_daemon(tmp_path, controller, STALL_S, stderr)
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            events = enabled(client, daemon)
+            began = hang_began(tmp_path)
+            event = events.next("watchdog", limit_s=30.0)
+            schema("telemetry", "event").validate(event)
+            assert event["source"] == "messenger"
+            assert f"controller {controller}'s step has run" in event["cause"]
+            assert "the cycle watchdog wrote the safe state" in event["cause"]
+            replaced = events.next("controller", limit_s=30.0)  # once the step returned
+            assert replaced["from"] == controller and replaced["to"] == "hold"
+            assert replaced["cause"].startswith(f"controller {controller}'s step hung: ")
+            status = client.status()
+            assert status["state"] == "fault" and status["controller"] == "hold"
+            assert f"controller {controller}'s step hung" in status["cause"]
+            events.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    check_the_hang_wrote_safe_then_nothing_else(writes(tmp_path), began, STALL_S + BOUND_S)
+    logged(log, ("pneumad messenger ERROR: watchdog:", f"controller {controller}'s step has run",
+                 "the cycle watchdog wrote the safe state"))
+
+
+@pytest.mark.slow(seconds=40)
+def test_an_estop_while_the_step_hangs_is_written_by_the_watchdog_at_once_and_says_so(tmp_path):
+    """The stall limit is the tolerant rigs' 5 s, longer than the hang: only the e-stop acts."""
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = hung_daemon(tmp_path, "sleeps_hung", 5.0, stderr)
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            events = enabled(client, daemon)
+            began = hang_began(tmp_path)
+            time.sleep(0.1)
+            asked = time.monotonic()
+            with pytest.raises(RemoteError) as answer:
+                client.estop("test")
+            assert time.monotonic() - asked < BOUND_S
+            assert answer.value.code == "loop_stalled" and answer.value.data["safe_state_written"]
+            schema("error-data").validate(answer.value.data)
+            assert "the cycle watchdog wrote the safe state" in answer.value.message
+            event = events.next("watchdog", limit_s=30.0)
+            assert "an e-stop the loop had not taken" in event["cause"]
+            replaced = events.next("controller", limit_s=30.0)  # once the step returned
+            assert replaced["from"] == "sleeps_hung" and replaced["to"] == "hold"
+            status = client.status()
+            assert status["state"] == "estop" and status["controller"] == "hold"
+            events.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+    record = writes(tmp_path)
+    check_the_hang_wrote_safe_then_nothing_else(record, began, HANG_S)
+    by_watchdog = next(t for t, thread, _ in record if thread == "cycle watchdog")
+    assert asked < by_watchdog < asked + BOUND_S
+
+
+class _SleepsOnce(PID):
+    """PID whose 50th step sleeps ``seconds``."""
+
+    name = "sleeps-once"
+    seconds = 0.8
+
+    def step(self, state, reference):
+        self.steps = getattr(self, "steps", 0) + 1
+        if self.steps == 50:
+            time.sleep(self.seconds)
+        return super().step(state, reference)
+
+
+def _watched_loop(tmp_path, stall_s: float):
+    """A loop on the real clock with its watchdog (the daemon's pair, without the daemon), and
+    a list of (time, thread, volts) of every write."""
+    rig = dataclasses.replace(config.load(), safety=dataclasses.replace(config.load().safety, stall_after_s=stall_s))
+    loop = assembly.build_loop(rig, MonotonicClock(spin_s=0.0), 0.001, "hold")
+    transport, written = loop.io.transport, []
+    transport._write = lambda values, write=transport._write: (
+        written.append((time.monotonic(), threading.current_thread().name, list(values))), write(values))
+    loop_side, messenger_side = WatchdogLink.create(str(tmp_path)), WatchdogLink(str(tmp_path))
+    loop.start()
+    loop.switch(_SleepsOnce(loop.context))
+    loop.enable()
+    watchdog = CycleWatchdog(loop, loop_side)
+    watchdog.start()
+    return loop, watchdog, messenger_side, written
+
+
+def test_in_process_the_watchdog_writes_safe_while_the_step_sleeps_and_the_loop_drops_the_steps_output(tmp_path):
+    loop, watchdog, link, written = _watched_loop(tmp_path, 0.2)
+    try:
+        loop.run(60)  # the 50th step sleeps 0.8 s, four times the limit
+        safe = list(loop.io.safe_volts)
+        first = next(i for i, w in enumerate(written) if w[1] == "cycle watchdog")
+        assert written[first][2] == safe and all(w[2] == safe for w in written[first:]), (first, link.report())
+        assert written[first - 1][1] != "cycle watchdog" and written[first - 1][2] != safe
+        assert written[first][0] - written[first - 1][0] < 0.2 + BOUND_S  # the limit, and the machine's slack
+        count, cycle, _, cause = link.report()
+        assert count == 1 and cycle == 49 and "controller sleeps-once's step has run" in cause, link.report()
+        assert loop.state is State.FAULT and loop.controller.name == "hold"
+        assert loop.supervisor.cause.startswith("controller sleeps-once's step hung: ")
+    finally:
+        watchdog.stop()
+        loop.shutdown()
+        link.close()
+
+
+def test_in_process_an_estop_poked_while_the_step_sleeps_is_written_at_once(tmp_path):
+    loop, watchdog, link, written = _watched_loop(tmp_path, 5.0)  # only the e-stop acts
+    try:
+        poked = []
+        threading.Timer(0.3, lambda: (poked.append(time.monotonic()), link.poke())).start()  # during the sleep
+        loop.run(60)
+        by_watchdog = [w for w in written if w[1] == "cycle watchdog"]
+        assert by_watchdog and poked[0] < by_watchdog[0][0] < poked[0] + BOUND_S
+        assert by_watchdog[0][2] == list(loop.io.safe_volts)
+        assert "an e-stop the loop had not taken" in link.report()[3]
+        assert loop.state is State.ESTOP and loop.controller.name == "hold"
+    finally:
+        watchdog.stop()
+        loop.shutdown()
+        link.close()
