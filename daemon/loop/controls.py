@@ -1,7 +1,8 @@
 """The loop's named controls: the only ways a command changes what the loop does (enable,
 disable, estop, trip, reset, hold, install, set_load, switch, set_params, shadow, commit, discard),
 each taking effect at a cycle boundary: the handlers call them at the end of a cycle; estop
-writes the safe outputs at once. The loop's own turns (a fallback taking over, an
+writes the safe outputs at once. The loop's own turns (a failed controller replaced, a
+fallback taking over for a controller that lost a joint or overran its step budget, an
 experiment's end) go through them too.
 
 A base of :class:`daemon.loop.cycle.ControlLoop`, whose state they change: kept apart from the
@@ -9,8 +10,11 @@ cycle so that each reads as one thing (ros2_control's explicit switch semantics)
 """
 from __future__ import annotations
 
+import copy
+
 from controllers.base import Controller
 from controllers.directory import provenance
+from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import JointMove, Trajectory
 from daemon.loop.open_loop import OpenLoopRun
@@ -24,6 +28,40 @@ SHADOW_COMMIT_RMS = 0.5  # a shadow run's RMS difference, as a fraction of a com
 
 
 class LoopControls:
+    def replace_failed_controller(self, cause: str) -> None:
+        """Trip to the safe state and put the hold controller in the failed one's place."""
+        failed = self.controller.name
+        self.supervisor.trip(cause)
+        hold = Hold(self.context)
+        hold.reset(self._state(), self.feed_forward.share(self.u))
+        self.controller = hold
+        self.events.add({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
+                         "params": hold.get_params()})
+
+    def fall_back(self, cause: str) -> str:
+        """Put the rig file's fallback controller in the active one's place (``hold``, which
+        repeats the output in force, where the fallback is the one replaced or none is built) and
+        hold the arm where it is: the ``[timing] policy = "hold"`` for a controller whose step is
+        over its budget. The name of the controller now active."""
+        slow, spare = self.controller.name, self._fallback
+        new = copy.deepcopy(spare) if spare is not None and spare.name != slow else Hold(self.context)
+        self.switch(new, f"fallback: {slow}: {cause}")
+        self.hold()
+        return new.name
+
+    def controller_lost(self, cause: str) -> None:
+        """The tracking rule fired: the fallback controller takes over and holds the arm where
+        it is, or (no fallback configured, or the fallback itself lost the joint) a trip."""
+        lost, spare = self.controller.name, self._fallback
+        if self.rig.safety.tracking_action == "fallback" and spare is not None and lost != spare.name:
+            self.events.add({"kind": "tracking", "controller": lost, "cause": cause,
+                             "action": "fallback", "to": spare.name})
+            self.switch(copy.deepcopy(spare), f"fallback: {lost}: {cause}")
+            self.hold()
+            return
+        self.events.add({"kind": "tracking", "controller": lost, "cause": cause, "action": "trip"})
+        self.supervisor.trip(f"controller {lost}: {cause}")
+
     def take_held(self) -> None:
         """The cycle watchdog wrote the safe state (:mod:`daemon.loop.watchdog`); at this cycle
         boundary: an e-stop the loop had not taken latches, a controller whose step it found

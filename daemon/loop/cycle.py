@@ -10,7 +10,6 @@ lockstep with the simulator.
 """
 from __future__ import annotations
 
-import copy
 import math
 import types
 
@@ -20,7 +19,6 @@ from controllers.base import (
     Reference,
     check_output,
 )
-from controllers.hold import Hold
 from controllers.trajectory import Hold as HoldPosition
 from controllers.trajectory import Trajectory
 from daemon.loop.controls import LoopControls
@@ -335,40 +333,6 @@ class ControlLoop(LoopControls, LoopQueries):
                 self.shadow_run.step(state, reference, self.feed_forward.share(self.u))
             except Exception as exc:  # the candidate's failure ends its run, nothing more
                 self._end_shadow("failed", f"{type(exc).__name__}: {exc}")
-
-    def replace_failed_controller(self, cause: str) -> None:
-        """Trip to the safe state and put the hold controller in the failed one's place."""
-        failed = self.controller.name
-        self.supervisor.trip(cause)
-        hold = Hold(self.context)
-        hold.reset(self._state(), self.feed_forward.share(self.u))
-        self.controller = hold
-        self.events.add({"kind": "controller", "from": failed, "to": "hold", "cause": cause,
-                         "params": hold.get_params()})
-
-    def fall_back(self, cause: str) -> str:
-        """Put the rig file's fallback controller in the active one's place (``hold``, which
-        repeats the output in force, where the fallback is the one replaced or none is built) and
-        hold the arm where it is: the ``[timing] policy = "hold"`` for a controller whose step is
-        over its budget. The name of the controller now active."""
-        slow, spare = self.controller.name, self._fallback
-        new = copy.deepcopy(spare) if spare is not None and spare.name != slow else Hold(self.context)
-        self.switch(new, f"fallback: {slow}: {cause}")
-        self.hold()
-        return new.name
-
-    def controller_lost(self, cause: str) -> None:
-        """The tracking rule fired: the fallback controller takes over and holds the arm where
-        it is, or (no fallback configured, or the fallback itself lost the joint) a trip."""
-        lost, spare = self.controller.name, self._fallback
-        if self.rig.safety.tracking_action == "fallback" and spare is not None and lost != spare.name:
-            self.events.add({"kind": "tracking", "controller": lost, "cause": cause,
-                             "action": "fallback", "to": spare.name})
-            self.switch(copy.deepcopy(spare), f"fallback: {lost}: {cause}")
-            self.hold()
-            return
-        self.events.add({"kind": "tracking", "controller": lost, "cause": cause, "action": "trip"})
-        self.supervisor.trip(f"controller {lost}: {cause}")
 
     def _write_command(self) -> None:
         p_head, p_rod, brakes = self.actuation.outputs(self.u)
