@@ -21,7 +21,7 @@ from hal.devices import parse_sensor
 from hal.errors import ConfigError
 from hal.identified import IDENTIFIED, JointParams, parse_models
 from hal.interfaces import LINEAR
-from hal.joints import JointConfig, parse_input
+from hal.joints import CYLINDER, JointConfig, parse_input
 from hal.rig_sections import (ArmConfig, FlightRecorderConfig, LimitsConfig, ModelWatchConfig, RigInfo, SafetyConfig,
                               TimingConfig, TransportConfig)
 from hal.schema import build, require
@@ -74,10 +74,16 @@ class RigConfig:
         self._check_arm()
         self._parse_sensors()
         self._check_channels()
-        for j in self.joints:
+        for i, j in enumerate(self.joints):
             for device, (where, _) in zip(j.pressure_outputs, j.output_channels()):
                 require(device.safe_mpa <= self.limits.max_pressure_mpa, f"{where}.safe_mpa",
                         f"{device.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
+            if j.actuation == CYLINDER:  # V_MV's range must hold 0 (the bias) inside the pressure limit
+                for where, device in (("head", j.head), ("rod", j.rod)):
+                    bias_mpa = device.offset_mpa + device.mpa_per_volt * device.bias_volts  # [2-29]
+                    require(bias_mpa < self.limits.max_pressure_mpa, f"joints[{i}].{where}.bias_volts",
+                            f"{device.bias_volts} V is {bias_mpa:.3f} MPa, not below limits.max_pressure_mpa "
+                            f"{self.limits.max_pressure_mpa}: lower the bias or raise the limit")
 
     def _check_arm(self) -> None:
         linear = [j.name for j in self.joints if j.kind == LINEAR]
