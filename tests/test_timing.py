@@ -263,6 +263,23 @@ def test_under_trip_enable_is_refused_while_degraded_and_the_trip_quotes_the_cur
     verdicts.check_enable()  # back within the limits: taken
 
 
+def test_under_trip_the_enable_command_is_refused_while_degraded_saying_why():
+    from daemon.testing.loop import call, dealer, make_loop, ok
+    loop, _, srv = make_loop(rig_text=tolerant_rig_text() + '\n[timing]\npolicy = "trip"\n', server=True)
+    try:
+        sock = dealer(srv)
+        lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+        srv.commands.timing.take(verdict(10.0, ["rate"], rate_hz=31.0))  # as the messenger's verdict would
+        refused = call(loop, sock, "enable", lease=lease)["error"]
+        assert refused["code"] == "bad_state" and refused["data"] == {"reason": "timing"}
+        assert "31 Hz" in refused["message"] and 'policy = "trip"' in refused["message"]
+        assert loop.state.value == "idle"
+        srv.commands.timing.take(verdict(15.0, []))
+        assert ok(loop, sock, "enable", lease=lease)["state"] == "enabled"
+    finally:
+        srv.close()
+
+
 @pytest.mark.slow(seconds=60)
 def test_under_trip_a_5_ms_controller_step_trips_the_enabled_arm_saying_why(tmp_path):
     with open(tmp_path / "daemon.log", "w") as stderr:
