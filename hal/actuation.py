@@ -6,6 +6,9 @@ A joint declares its actuation by the devices its rig file names (:class:`hal.jo
 - a **cylinder** joint takes one command, ``v_mv`` [V]: the manipulated variable of rig-facts §1
   [2-30..2-35]. The head chamber is commanded ``V_H = V_INI,H + V_MV``, the rod chamber held
   at ``V_L = V_INI,L``; the regulator line [2-29] turns those volts into chamber pressures [Pa].
+  Its range is the regulator's 0-10 V less the bias, its top cut where the head pressure
+  reaches the rig's ``[limits] max_pressure_mpa``: ``(p_max - offset) / slope - V_INI,H``
+  (4 V bias, 0.7 MPa: -4..3.78 V; at the regulator's own 0.9 MPa, -4..6 V).
   The constant force due to the biases is an offset the controller's integral absorbs.
 - a **muscle pair** joint (rig-facts §2) takes its two muscle pressures, ``pressure_a`` and
   ``pressure_b`` [Pa, gauge], and, where it has an MR brake, ``brake`` [N m].
@@ -25,7 +28,7 @@ from hal.config import RigConfig
 from hal.directional_valve import DirectionalValve
 from hal.interfaces import CommandInterface
 from hal.joints import CYLINDER, VALVE
-from hal.regulator import V_MAX, V_MIN
+from hal.regulator import V_MIN
 from hal.rig import PressureDrivers
 from hal.valve import ProportionalValve
 
@@ -45,6 +48,7 @@ class RigActuation:
         self._muscles = []  # (command index, joint index)
         self._direct = []  # command index of each brake and valve, in joint order
         neutral = []
+        p_limit = rig.limits.max_pressure_mpa * 1e6  # [Pa]
         for i, j in enumerate(rig.joints):
             k = len(commands)
             if j.actuation == VALVE:
@@ -56,7 +60,10 @@ class RigActuation:
             if j.actuation == CYLINDER:
                 head, rod = drivers.head[i], drivers.rod[i]  # the ITV0051 regulators
                 bias = j.head.bias_volts
-                commands.append(CommandInterface(j.name, "v_mv", "V", V_MIN - bias, V_MAX - bias))
+                # the V_MV whose head pressure the rig delivers: the regulator's span [2-29], cut at
+                # [limits] max_pressure_mpa (hal.rig.RigIO.volts_for cuts the command there)
+                commands.append(CommandInterface(j.name, "v_mv", "V", head.volts(0.0) - bias,
+                                                 head.volts(p_limit) - bias))
                 neutral.append(0.0)
                 self._cylinders.append((k, i, head, bias, rod.bias_pa))
                 continue

@@ -11,6 +11,7 @@ name (:mod:`hal.devices`).
 from __future__ import annotations
 
 import hashlib
+import math
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
@@ -21,7 +22,7 @@ from hal.devices import parse_sensor
 from hal.errors import ConfigError
 from hal.identified import IDENTIFIED, JointParams, parse_models
 from hal.interfaces import LINEAR
-from hal.joints import JointConfig, parse_input
+from hal.joints import CYLINDER, JointConfig, parse_input
 from hal.rig_sections import (ArmConfig, FlightRecorderConfig, LimitsConfig, ModelWatchConfig, RigInfo, SafetyConfig,
                               TimingConfig, TransportConfig)
 from hal.schema import build, require
@@ -74,10 +75,20 @@ class RigConfig:
         self._check_arm()
         self._parse_sensors()
         self._check_channels()
-        for j in self.joints:
+        for i, j in enumerate(self.joints):
             for device, (where, _) in zip(j.pressure_outputs, j.output_channels()):
                 require(device.safe_mpa <= self.limits.max_pressure_mpa, f"{where}.safe_mpa",
                         f"{device.safe_mpa} MPa exceeds limits.max_pressure_mpa {self.limits.max_pressure_mpa}")
+            lo, hi = j.limits
+            key = "setpoint_margin_mm" if j.kind == LINEAR else "setpoint_margin_deg"
+            require(2.0 * self.setpoint_margins[i] < hi - lo, f"safety.{key}",
+                    f"{getattr(self.safety, key)} leaves joint {j.name} no set-point inside its limits {j.shown_limits()}")
+            if j.actuation == CYLINDER:  # V_MV's range must hold 0 (the bias) inside the pressure limit
+                for where, device in (("head", j.head), ("rod", j.rod)):
+                    bias_mpa = device.offset_mpa + device.mpa_per_volt * device.bias_volts  # [2-29]
+                    require(bias_mpa < self.limits.max_pressure_mpa, f"joints[{i}].{where}.bias_volts",
+                            f"{device.bias_volts} V is {bias_mpa:.3f} MPa, not below limits.max_pressure_mpa "
+                            f"{self.limits.max_pressure_mpa}: lower the bias or raise the limit")
 
     def _check_arm(self) -> None:
         linear = [j.name for j in self.joints if j.kind == LINEAR]
@@ -137,6 +148,13 @@ class RigConfig:
                 seen[channel] = where
         clash = set(self.supply_channels()) & {c for _, c in signals}
         require(not clash, "joints", f"channel {sorted(clash)} is both a supply and a signal channel")
+
+    @property
+    def setpoint_margins(self) -> tuple[float, ...]:
+        """How far inside its limits each joint's set-points must be [rad; m on a linear joint]:
+        ``[safety] setpoint_margin_deg`` (``setpoint_margin_mm``)."""
+        return tuple(self.safety.setpoint_margin_mm * 1e-3 if j.kind == LINEAR
+                     else math.radians(self.safety.setpoint_margin_deg) for j in self.joints)
 
     def joint_params(self, joint: JointConfig) -> JointParams | None:
         """The model a joint names (``model``, else its own name), or None when there is none."""

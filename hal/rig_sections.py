@@ -70,6 +70,11 @@ class SafetyConfig:
     # 0 turns the rule off.
     tracking_error_deg: float = 10.0
     tracking_error_mm: float = 10.0
+    # A set-point (set, steps, waypoints) closer than this to a joint's limit is refused: a
+    # controller's overshoot past a set-point at the limit would trip the arm [deg; mm on a linear joint]:
+    # docs/rigs.md says what the built-in controllers overshoot (pid: 2.4 deg; the axis's: 2.7 mm)
+    setpoint_margin_deg: float = 3.0
+    setpoint_margin_mm: float = 5.0
     tracking_window_s: float = 2.0
     tracking_action: str = "trip"
     fallback_controller: str = "pid"
@@ -84,6 +89,8 @@ class SafetyConfig:
         require(1.0 <= self.unleased_grace_s <= 3600, "unleased_grace_s", "must be within 1-3600 s")
         require(0 <= self.tracking_error_deg <= 180, "tracking_error_deg", "must be within 0-180 deg (0: off)")
         require(0 <= self.tracking_error_mm <= 5000, "tracking_error_mm", "must be within 0-5000 mm (0: off)")
+        require(0 <= self.setpoint_margin_deg <= 45, "setpoint_margin_deg", "must be within 0-45 deg (0: none)")
+        require(0 <= self.setpoint_margin_mm <= 500, "setpoint_margin_mm", "must be within 0-500 mm (0: none)")
         require(0.01 <= self.tracking_window_s <= 60, "tracking_window_s", "must be within 0.01-60 s")
         require(self.tracking_action in ("trip", "fallback"), "tracking_action", 'must be "trip" or "fallback"')
         require(isinstance(self.fallback_controller, str) and bool(self.fallback_controller), "fallback_controller",

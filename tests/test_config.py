@@ -44,6 +44,8 @@ def test_file_round_trip(tmp_path):
     ('safe_mpa = 0.001          # 0 V: vent', 'safe_mpa = 1.5', r"joints\[0\]\.head\.safe_mpa: must be within"),
     ('max_pressure_mpa = 0.9', 'max_pressure_mpa = 0.0001', r"safe_mpa.*exceeds limits\.max_pressure_mpa"),
     ('max_pressure_mpa = 0.9', 'max_pressure_mpa = nan', r"limits\.max_pressure_mpa: must be finite"),
+    ('max_pressure_mpa = 0.9', 'max_pressure_mpa = 0.3',  # the 4 V bias is 0.361 MPa: V_MV could not be 0
+     r"joints\[0\]\.head\.bias_volts: 4\.0 V is 0\.361 MPa, not below limits\.max_pressure_mpa 0\.3"),
     ('elbow = -1 ', 'elbow = 0 ', r"arm\.elbow: must be \+1 or -1"),
     ('link_lengths_mm = [150.0, 150.0]', 'link_lengths_mm = [150.0]', r"1 links given for 2 joints"),
     ('bias_volts = 4.0\nsafe_mpa = 0.001          # 0 V', 'bias_volts = 11.0\nsafe_mpa = 0.001 # 0 V',

@@ -195,6 +195,91 @@ def test_under_hold_motion_is_refused_while_the_timing_is_degraded():
     verdicts.check_motion()
 
 
+def verdict(t: float, reasons: list[str], rate_hz: float = 1000.0, control_us: float = 30.0) -> dict:
+    """A ``timing.verdict`` over the 5 s window ending at ``t`` [s]."""
+    return {"degraded": bool(reasons), "reasons": reasons, "rate_hz": rate_hz, "expected_hz": 1000.0,
+            "overruns": 0, "deadlines": 5000, "control_us": control_us, "step_budget_us": 500.0, "window_s": 5.0,
+            "t": t, "since_t": t - 5.0}
+
+
+def timing_events(loop) -> list[dict]:
+    events = [e for e in loop.events.pending if e["kind"] == "timing"]
+    loop.events.pending.clear()
+    return events
+
+
+def test_a_change_of_reasons_while_degraded_is_a_new_event_with_the_current_figures():
+    """Degraded for the rate, then also for a controller over its step budget: a new event (and
+    so a log line) naming the controller with that window's figures; the same reasons again are
+    no new event, but status says the latest figures."""
+    from daemon.loop.timing import TimingVerdicts
+    from daemon.messenger.journal import line
+    from daemon.testing.loop import make_loop
+    loop, _, _ = make_loop(rig_text=tolerant_rig_text())
+    verdicts = TimingVerdicts(loop, loop.view, loop.events)
+    timing_events(loop)
+    verdicts.take(verdict(10.0, ["rate"], rate_hz=31.0))
+    first, = timing_events(loop)
+    assert first["reasons"] == ["rate"] and "31 Hz" in first["cause"] and first["controller"] is None
+    verdicts.take(verdict(11.0, ["rate"], rate_hz=450.0))
+    assert timing_events(loop) == []  # the same reasons: no new event ...
+    assert "450 Hz" in verdicts.status["cause"] and verdicts.status["since"] == 10.0  # ... but the figures now
+    verdicts.take(verdict(12.0, ["rate", "step"], rate_hz=180.0, control_us=5100.0))
+    second, = timing_events(loop)
+    schema("telemetry", "event").validate({"seq": 2, "cycle": 1, "t": 12.0, **second})
+    assert second["degraded"] and second["reasons"] == ["rate", "step"] and second["controller"] == "pid"
+    assert "180 Hz" in second["cause"] and "controller pid's step took 5100 us" in second["cause"]
+    assert "controller pid's step took 5100 us" in line(second) and verdicts.status["cause"] == second["cause"]
+    assert verdicts.status["since"] == 10.0  # still the same degraded span
+    verdicts.take(verdict(13.0, ["rate"], rate_hz=300.0))
+    dropped, = timing_events(loop)  # the step back within budget: a change too
+    assert dropped["reasons"] == ["rate"] and dropped["controller"] is None and "300 Hz" in dropped["cause"]
+    verdicts.take(verdict(14.0, []))
+    back, = timing_events(loop)
+    assert not back["degraded"] and "back within" in back["cause"]
+
+
+def test_under_trip_enable_is_refused_while_degraded_and_the_trip_quotes_the_current_verdict():
+    """Under trip, enable while degraded would be tripped at the next verdict: refused, saying
+    why; an arm enabled all the same is tripped with the figures of the verdict that tripped it,
+    naming the slow controller, not those of the first crossing."""
+    from daemon.loop.timing import TimingVerdicts
+    from daemon.testing.loop import make_loop
+    loop, _, _ = make_loop(rig_text=tolerant_rig_text() + '\n[timing]\npolicy = "trip"\n')
+    loop.run(50)
+    verdicts = TimingVerdicts(loop, loop.view, loop.events)
+    verdicts.take(verdict(10.0, ["rate"], rate_hz=31.0))
+    with pytest.raises(CommandFailed) as refused:
+        verdicts.check_enable()
+    assert refused.value.data == {"reason": "timing"} and 'policy = "trip"' in str(refused.value)
+    assert "31 Hz" in str(refused.value) and "back within" in str(refused.value)
+    loop.enable()  # the loop's own control, past the command's check: as if enabled just before the verdict came
+    loop.run(10)
+    verdicts.take(verdict(11.0, ["rate", "step"], rate_hz=180.0, control_us=5100.0))
+    cause = loop.supervisor.cause
+    assert loop.view.state.value == "fault" and "180 Hz" in cause and "controller pid's step took 5100 us" in cause
+    verdicts.take(verdict(12.0, []))
+    loop.reset()
+    verdicts.check_enable()  # back within the limits: taken
+
+
+def test_under_trip_the_enable_command_is_refused_while_degraded_saying_why():
+    from daemon.testing.loop import call, dealer, make_loop, ok
+    loop, _, srv = make_loop(rig_text=tolerant_rig_text() + '\n[timing]\npolicy = "trip"\n', server=True)
+    try:
+        sock = dealer(srv)
+        lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
+        srv.commands.timing.take(verdict(10.0, ["rate"], rate_hz=31.0))  # as the messenger's verdict would
+        refused = call(loop, sock, "enable", lease=lease)["error"]
+        assert refused["code"] == "bad_state" and refused["data"] == {"reason": "timing"}
+        assert "31 Hz" in refused["message"] and 'policy = "trip"' in refused["message"]
+        assert loop.state.value == "idle"
+        srv.commands.timing.take(verdict(15.0, []))
+        assert ok(loop, sock, "enable", lease=lease)["state"] == "enabled"
+    finally:
+        srv.close()
+
+
 @pytest.mark.slow(seconds=60)
 def test_under_trip_a_5_ms_controller_step_trips_the_enabled_arm_saying_why(tmp_path):
     with open(tmp_path / "daemon.log", "w") as stderr:

@@ -115,9 +115,11 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
 
 
 def operating_point(rig, j: int, angles_deg: list[float], band_deg: float) -> list[float]:
-    """``angles_deg`` with joint j brought inside its limits by the band and a degree to spare."""
+    """``angles_deg`` with joint j brought inside its limits by the band and a degree to spare, and
+    at least by the rig's set-point margin (``[safety] setpoint_margin_deg``: a set-point closer is refused)."""
     jc = rig.joints[j]
-    lo, hi = jc.min_angle_deg + band_deg + 1.0, jc.max_angle_deg - band_deg - 1.0
+    inside = max(band_deg + 1.0, rig.safety.setpoint_margin_deg)
+    lo, hi = jc.min_angle_deg + inside, jc.max_angle_deg - inside
     if lo > hi:
         raise SystemExit(f"joint {jc.name}'s range {jc.min_angle_deg:g}..{jc.max_angle_deg:g} deg is too narrow "
                          f"for a band of +- {band_deg:g} deg: choose a smaller --band")

@@ -286,6 +286,7 @@ class Commands(ControllerCommands):
         return {"reference": "hold"}
 
     def enable(self, args):
+        self.timing.check_enable()
         _in_state(self.loop.enable)
         return {"state": self.view.state.value, "recover": self.view.recovery()}
 

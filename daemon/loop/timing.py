@@ -2,11 +2,12 @@
 control-stage time beside it (:mod:`daemon.messenger.timing`) and sends its verdict each stats
 window as the internal command ``timing.verdict``; here, at a cycle boundary, it is kept for
 ``status`` (the field ``timing``), the active controller is named when its step is over budget,
-a ``timing`` event is raised when the verdict changes (degraded, or back within the limits),
+a ``timing`` event is raised when the verdict changes (degraded, back within the limits, or
+while degraded other reasons or another controller named: each with the window's figures),
 and the rig file's ``[timing] policy`` is applied while it is degraded: ``warn`` nothing more,
 ``hold`` a controller over its step budget replaced by the rig file's fallback controller (or
 ``hold``), a running reference stopped and the arm held where it is (motion commands refused
-meanwhile), ``trip`` an enabled arm tripped. Constant work, once a window.
+meanwhile), ``trip`` an enabled arm tripped (and ``enable`` refused meanwhile). Constant work, once a window.
 """
 from __future__ import annotations
 
@@ -26,18 +27,24 @@ class TimingVerdicts:
                        "judged_t": None, "policy": self.settings.policy, "fallback": None}
 
     def take(self, verdict: dict) -> dict:
-        """A verdict (``timing.verdict``'s arguments): kept, told when it changes, acted on."""
+        """A verdict (``timing.verdict``'s arguments): kept, told when it changes (degraded, back
+        within the limits, or while degraded other reasons or another controller named), acted on
+        with its own figures."""
         status, degraded = self.status, bool(verdict["degraded"])
-        changed = degraded != status["degraded"]
+        flipped = degraded != status["degraded"]
         over_budget = "step" in verdict.get("reasons", ())
-        status.update({key: verdict.get(key) for key in ("reasons", "rate_hz", "expected_hz", "overruns", "deadlines",
+        controller = self.view.controller.name if over_budget else None
+        changed = flipped or degraded and (list(verdict.get("reasons", ())) != status["reasons"]
+                                           or controller != status["controller"])
+        status.update({key: verdict.get(key) for key in ("rate_hz", "expected_hz", "overruns", "deadlines",
                                                           "control_us", "step_budget_us", "window_s")})
-        status.update(degraded=degraded, controller=self.view.controller.name if over_budget else None,
+        status.update(degraded=degraded, reasons=list(verdict.get("reasons", ())), controller=controller,
                       judged_t=verdict.get("t"))
-        if changed:
-            status["cause"] = self._cause(verdict, status)
+        if flipped:
             status["since"] = verdict.get("t")
             status["fallback"] = None
+        if changed or degraded:  # the figures of this window: what status, the event and a trip say
+            status["cause"] = self._cause(verdict, status)
         action = self._act(status["cause"]) if degraded else "none"
         if changed:
             self.events.add({"kind": "timing", "degraded": degraded, "cause": status["cause"], "action": action,
@@ -72,6 +79,14 @@ class TimingVerdicts:
             raise CommandFailed(P.BAD_STATE, f"the loop's timing is degraded ({self.status['cause']}); the rig file's "
                                              f"[timing] policy = \"hold\" holds the arm until it is back within its "
                                              f"limits", {"reason": "timing"})
+
+    def check_enable(self) -> None:
+        """Refuse ``enable`` (``bad_state``, reason ``timing``) while degraded under ``trip``: the
+        policy would trip the arm at the next verdict."""
+        if self.status["degraded"] and self.settings.policy == "trip":
+            raise CommandFailed(P.BAD_STATE, f"the loop's timing is degraded ({self.status['cause']}); the rig file's "
+                                             f"[timing] policy = \"trip\" would trip the arm at the next verdict: "
+                                             f"enable once it is back within its limits", {"reason": "timing"})
 
     def _cause(self, verdict: dict, status: dict) -> str:
         """The verdict in words: the figures, each against its limit."""

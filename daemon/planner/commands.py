@@ -178,8 +178,9 @@ def plan_waypoints(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
             check_limits(ctx, p)
         path = trajectory.joint_waypoints(points, durations)
     else:
-        for i, p in enumerate(points):
-            tip_angles(ctx, p, f"waypoint {i} at {p} mm: ")
+        angles = [tip_angles(ctx, p, f"waypoint {i} at {p} mm: ") + setpoint[2:] for i, p in enumerate(points)]
+        for q in angles:  # each point in reach first, then each inside the limits by the margin
+            check_limits(ctx, q)
         path = trajectory.cartesian_waypoints(ctx.link_lengths_m, ctx.elbow, ctx.n, points, durations)
     check_authority(ctx, "the waypoint path", path, shortest_for="durations_s")
     return after_approach(ctx, args, setpoint, path, "waypoints", {"points": len(points), "duration_s": path.duration})
@@ -253,12 +254,24 @@ def tip_angles(ctx: PlanContext, xy_mm, what: str = "") -> list[float]:
 
 def check_limits(ctx: PlanContext, positions: Sequence[float]) -> None:
     """A refusal naming the joint, in its unit (``angle_deg``/``limits_deg`` on a rotary joint,
-    ``position_mm``/``limits_mm`` on a linear one), unless every position [SI] is inside its limits."""
-    for j, (name, (lo, hi), q) in enumerate(zip(ctx.joint_names, ctx.limits, positions)):
-        if not lo <= q <= hi:
+    ``position_mm``/``limits_mm`` on a linear one), unless every set-point [SI] is inside its
+    limits by the rig file's margin (``margin_deg``/``margin_mm``: a controller's overshoot past a
+    set-point at a limit would trip the arm; refused rather than moved, so that the arm goes
+    nowhere its client did not ask)."""
+    margins = ctx.margins or (0.0,) * ctx.n
+    for j, (name, (lo, hi), q, margin) in enumerate(zip(ctx.joint_names, ctx.limits, positions, margins)):
+        if not lo + margin <= q <= hi - margin:
             unit, scale = ctx.display(j)
             what = "angle" if unit == "deg" else "position"
+            data = {"reason": "limits", "joint": name, f"{what}_{unit}": q * scale,
+                    f"limits_{unit}": [lo * scale, hi * scale]}
+            if lo <= q <= hi:
+                shown = round(margin * scale, 6)  # the rig file's figure, not its round trip through SI
+                raise CommandFailed(P.REFUSED, f"joint {name} set-point {ctx.text(j, q)} is within {shown:g} "
+                                               f"{unit} of its limits {lo * scale:.1f}..{hi * scale:.1f} {unit}: "
+                                               f"set-points keep {shown:g} {unit} inside (the rig file's "
+                                               f"[safety] setpoint_margin_{unit}), so "
+                                               f"{(lo + margin) * scale:.1f}..{(hi - margin) * scale:.1f} {unit}",
+                                    {**data, f"margin_{unit}": shown})
             raise CommandFailed(P.REFUSED, f"joint {name} set-point {ctx.text(j, q)} is outside its limits "
-                                           f"{lo * scale:.1f}..{hi * scale:.1f} {unit}",
-                                {"reason": "limits", "joint": name, f"{what}_{unit}": q * scale,
-                                 f"limits_{unit}": [lo * scale, hi * scale]})
+                                           f"{lo * scale:.1f}..{hi * scale:.1f} {unit}", data)

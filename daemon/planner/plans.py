@@ -27,6 +27,7 @@ class PlanContext:
     authority: Authority | None  # None when a joint has no identified model: no authority check
     muscles: tuple = ()  # hal.muscle.MuscleJoint per joint (None: a cylinder joint, it takes no stiffness)
     units: tuple[str, ...] = ()  # each joint's position unit, "rad" or "m" (default: all rad)
+    margins: tuple[float, ...] = ()  # how far inside its limits a set-point must be [rad; m] (default: none)
 
     @classmethod
     def of(cls, rig, context) -> "PlanContext":
@@ -38,7 +39,8 @@ class PlanContext:
         else:
             authority = None
         return cls(tuple(context.joint_names), tuple(j.limits for j in rig.joints), tuple(rig.arm.link_lengths_m),
-                   rig.arm.elbow, authority, tuple(context.muscles), tuple(j.position_unit for j in rig.joints))
+                   rig.arm.elbow, authority, tuple(context.muscles), tuple(j.position_unit for j in rig.joints),
+                   rig.setpoint_margins)
 
     @property
     def n(self) -> int:
