@@ -40,6 +40,7 @@ REST_DEG, REST_SPREAD_DEG, REST_S = 0.5, 0.2, 0.5  # at rest: within [deg] of th
 # the experiments' centring PI crossover [Hz] (controllers/experiment.py): at the planner's default
 # 0.03 Hz the reconstructed rig's middle joint (fast, on a weak spring) drifted out of its band (issue 32)
 CENTRE_HZ = 0.1
+LATE_SHARE = 0.01  # an experiment whose loop lost more than this share of its time to missed deadlines ran late
 
 
 @dataclass(frozen=True)
@@ -226,7 +227,7 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
         raise SystemExit(f"{path}: {len(found)} experiment(s) on {joint}: two at least are needed (one held out)")
     for e in found:
         base = e.info["time_base"]
-        if base["lost_s"] > 0.01 * len(e.y) * e.dt:
+        if ran_late(base):
             print(f"note: the loop ran late during the {e.info['signal']['signal']} (a cycle every "
                   f"{base['mean_period_s'] * 1e3:.3f} ms for {base['period_s'] * 1e3:g} ms, "
                   f"{base['stale_fraction']:.0%} of its samples stale): it is analysed on the samples' own times",
@@ -238,7 +239,7 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
                        progress=_fit_progress(generations))
     # the prior judged on the same held-out data, the same way (only its start's held friction chosen)
     prior_fit = heldout_fit(prior, held_out[0], result.settings["step_s"], C_SPAN * prior.Fs)
-    verdict = against_prior(result.heldout_fit_percent[0], prior_fit)
+    verdict = against_prior(result.heldout_fit_percent[0], prior_fit, [e.info["time_base"] for e in found])
     out.mkdir(parents=True, exist_ok=True)
     labels = [f"{e.info['signal']['signal']} ({'held out' if i == len(found) - 1 else 'fitted'})"
               for i, e in enumerate(found)]
@@ -282,15 +283,33 @@ def _fit_progress(generations: int):
     return show
 
 
-def against_prior(identified_fit: float, prior_fit: float) -> str | None:
+def ran_late(time_base: dict) -> bool:
+    """Whether an experiment's loop lost more than LATE_SHARE of its time to missed deadlines
+    (its time base, :func:`controllers.identification.data.on_the_period`: the lost share is
+    1 - period / mean period)."""
+    return 1.0 - time_base["period_s"] / time_base["mean_period_s"] > LATE_SHARE
+
+
+def against_prior(identified_fit: float, prior_fit: float, time_bases=()) -> str | None:
     """A warning when the identified model does not fit the held-out data better than the
     prior (the rig file's model) does, else None: a new model that explains data it did not
-    see no better than the old one is no reason to replace it."""
+    see no better than the old one is no reason to replace it. When the loop ran late during
+    the experiments (``time_bases``, one each), that is said first: a loaded PC's late cycles
+    and stale samples are in the data, and longer or larger experiments would not help."""
     if identified_fit > prior_fit:
         return None
+    late = [b for b in time_bases if ran_late(b)]
+    if late:
+        worst = max(late, key=lambda b: b["mean_period_s"])
+        advice = (f"the loop ran late during {len(late)} of the {len(time_bases)} experiments (at worst a cycle "
+                  f"every {worst['mean_period_s'] * 1e3:.2f} ms for {worst['period_s'] * 1e3:g} ms, "
+                  f"{worst['stale_fraction']:.0%} of its samples stale): keep the prior, and run them again with "
+                  f"the loop on time ('pneumactl doctor' says what holds it up)")
+    else:
+        advice = ("keep the prior, or run the full experiments (without --quick) or a larger --amplitude before "
+                  "using the new model")
     return (f"warning: the identified model fits the held-out data no better than the prior "
-            f"({identified_fit:.1f} % against {prior_fit:.1f} %): keep the prior, or run the full "
-            f"experiments (without --quick) or a larger --amplitude before using the new model")
+            f"({identified_fit:.1f} % against {prior_fit:.1f} %): {advice}")
 
 
 def _uncertainty(name: str, value: float) -> str:
