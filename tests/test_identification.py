@@ -271,6 +271,16 @@ def test_identify_shows_the_priors_held_out_fit_and_warns_when_the_new_model_doe
     assert identify.against_prior(97.5, 97.1) is None
     worse = identify.against_prior(96.2, 97.1)
     assert worse is not None and "96.2 % against 97.1 %" in worse and "keep the prior" in worse
+    # a loop that ran late (the time base: a cycle every 2.5 ms for 1 ms) is named as the cause,
+    # not the experiments' length; one on time (0.5 % of its time lost) is not
+    on_time = {"period_s": 0.001, "mean_period_s": 0.001005, "stale_fraction": 0.0, "lost_s": 0.05}
+    late = {"period_s": 0.001, "mean_period_s": 0.0025, "stale_fraction": 0.22, "lost_s": 9.0}
+    assert not identify.ran_late(on_time) and identify.ran_late(late)
+    assert identify.against_prior(96.2, 97.1, [on_time, on_time]) == worse
+    loaded = identify.against_prior(65.4, 68.6, [on_time, late, on_time])
+    assert "ran late during 1 of the 3" in loaded and "2.50 ms for 1 ms" in loaded and "22%" in loaded, loaded
+    assert "keep the prior" in loaded and "--quick" not in loaded
+    assert identify.against_prior(70.0, 68.6, [late]) is None
     std = {n: 0.01 for n in ("D", "K", "T_ep", "T_dly", "Fs", "Fc_ratio")}
     report = {"prior": {n: 1.0 for n in FITTED}, "params": {n: 1.0 for n in FITTED},
               "units": {n: "-" for n in FITTED}, "stated_std": std, "population_std": std,

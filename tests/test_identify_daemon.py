@@ -21,6 +21,7 @@ import pytest
 
 from bench.wires import listening
 from daemon.testing.ports import free_tcp_port
+from daemon.client import identify
 from daemon.client.client import Client
 from hal import config
 from hal.identified import IDENTIFIED
@@ -93,12 +94,18 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         assert [e["signal"] for e in report["experiments"]] == ["prbs", "chirp", "prbs"]
         assert all(e["side"] == "input" for e in report["experiments"])
         # Judged on the held-out data against the prior the daemon started from (the plant's
-        # built-in values, which this plant is not), on the same samples: the identified model
-        # must predict them better. A loaded machine's late, stale samples lower both Fits alike
-        # (quiet: ~90 % against ~75 %; beside two CPU hogs down to ~55 %), so the absolute floor
-        # only says the fit is a model of this plant at all (a failed fit is near 0 % or below).
-        assert report["warning"] is None, report["warning"]
-        assert report["heldout_fit_percent"][0] > report["prior_heldout_fit_percent"], report["heldout_fit_percent"]
+        # built-in values, which this plant is not), on the same samples: on a loop that kept its
+        # period the identified model must predict them better (quiet: ~90 % against ~75 %).
+        # A loaded machine's late cycles and stale samples are in the data (beside two CPU hogs,
+        # a cycle every 1.7-2.5 ms, a quarter of the samples stale: 65 % against 69 % seen): then
+        # the tool must judge as it reports, and a model no better must be refused naming the
+        # late loop. The absolute floor only says the fit is a model of this plant at all (a
+        # failed fit is near 0 % or below).
+        beats = report["heldout_fit_percent"][0] > report["prior_heldout_fit_percent"]
+        if not any(identify.ran_late(b) for b in report["time_base"]):
+            assert beats and report["warning"] is None, (report["warning"], report["time_base"])
+        assert report["beats_prior"] == beats and (report["warning"] is None) == beats, report["warning"]
+        assert beats or "the loop ran late" in report["warning"], report["warning"]
         assert report["heldout_fit_percent"][0] >= 50.0
         # a loop on a wire without real-time priority runs late: the analysis put each experiment
         # back on the period by its samples' times, and said how late it was

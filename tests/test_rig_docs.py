@@ -58,14 +58,28 @@ def test_every_key_a_rig_file_takes_is_named_in_the_document():
     assert all(f"`{name}`" in text for name in kinds())  # and every built-in device kind
 
 
-def axis_position(message: dict) -> float:
-    """The axis's latest position [m] in a ``state`` message: the one place that reads its shape."""
-    return message["axis.position"][-1]
+def held_at(client: Client, target_m: float, within_m: float, hold_s: float, timeout_s: float) -> dict:
+    """The cycle record once the axis has stayed within ``within_m`` of ``target_m`` [m] for
+    ``hold_s`` of the daemon's clock (the newest record, read every 20 ms); AssertionError if
+    it has not within ``timeout_s`` of wall time, with the last record, or the arm left ``enabled``."""
+    end, since, row = time.monotonic() + timeout_s, None, None
+    with client.latest() as feed:
+        while time.monotonic() < end:
+            row = feed.row(10.0)
+            assert row["mode"] == "enabled", (client.status()["cause"], row)
+            if abs(row["axis.position"] - target_m) >= within_m:
+                since = None
+            elif since is None:
+                since = row["t"]
+            elif row["t"] - since >= hold_s:
+                return row
+            time.sleep(0.02)
+    raise AssertionError(f"the axis never held {target_m * 1e3:g} +- {within_m * 1e3:g} mm for {hold_s:g} s: {row}")
 
 
 def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
     """The "Worked files" lines: the daemon on sim-axis with hold, enabled, holding for 2 s; then
-    axis_pva switched in and a move to 150 mm, where the axis then is."""
+    axis_pva switched in and a move to 150 mm, where the axis comes to rest."""
     eps = private_endpoints(tmp_path)
     daemon_line, enable, switch, move = doc_blocks.commands(DOC, "Worked files", recordings=str(tmp_path / "rec"),
                                                             endpoints=options(eps))
@@ -81,12 +95,11 @@ def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
             assert status["controller"] == "hold", status["controller"]
             for line in (switch, move):
                 done = doc_runs.run(line, tmp_path, env=endpoint_env(eps), timeout=120)
-                assert done.returncode == 0, done.explain()
-            time.sleep(1.0)  # settled within 1 mm in 0.5 s (docs/controllers.md)
-            sub = client.subscribe((b"state",))
-            got = sub.receive(10.0)
-            sub.close()
-            assert got is not None and abs(axis_position(got[1]) - 0.150) < 2e-3, got
+                assert done.returncode == 0, (client.status()["cause"], done.explain())
+            # It settles within 1 mm in 0.5 s (docs/controllers.md) on a loop that keeps its period;
+            # on a loaded PC the loop's pauses (tens of ms with the valve's command held) shake it
+            # about for longer: it must come to 150 mm and stay there, whenever that is.
+            held_at(client, 0.150, 2e-3, 0.5, timeout_s=20.0)
             status = client.status()
             assert status["state"] == "enabled" and status["controller"] == "axis_pva", status["cause"]
     finally:

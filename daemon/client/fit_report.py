@@ -9,6 +9,8 @@ import numpy as np
 
 from controllers.identification.simulate import FITTED, samples_per_step
 
+LATE_SHARE = 0.01  # an experiment whose loop lost more than this share of its time to missed deadlines ran late
+
 HELD = {"K_mdl": "not separable from the torque scale", "J": "its pole is far above the band",
         "vs": "below the angle's resolution"}  # at the prior's values (controllers.identification.fit)
 
@@ -20,15 +22,33 @@ def residual_rms(fit: float, data, step: float) -> float:
     return float((1.0 - fit / 100.0) * np.std(data.y[m::m]))
 
 
-def against_prior(identified_fit: float, prior_fit: float) -> str | None:
+def ran_late(time_base: dict) -> bool:
+    """Whether an experiment's loop lost more than LATE_SHARE of its time to missed deadlines
+    (its time base, :func:`controllers.identification.data.on_the_period`: the lost share is
+    1 - period / mean period)."""
+    return 1.0 - time_base["period_s"] / time_base["mean_period_s"] > LATE_SHARE
+
+
+def against_prior(identified_fit: float, prior_fit: float, time_bases=()) -> str | None:
     """A warning when the identified model does not fit the held-out data better than the
     prior (the rig file's model) does, else None: a new model that explains data it did not
-    see no better than the old one is no reason to replace it."""
+    see no better than the old one is no reason to replace it. When the loop ran late during
+    the experiments (``time_bases``, one each), that is said first: a loaded PC's late cycles
+    and stale samples are in the data, and longer or larger experiments would not help."""
     if identified_fit > prior_fit:
         return None
+    late = [b for b in time_bases if ran_late(b)]
+    if late:
+        worst = max(late, key=lambda b: b["mean_period_s"])
+        advice = (f"the loop ran late during {len(late)} of the {len(time_bases)} experiments (at worst a cycle "
+                  f"every {worst['mean_period_s'] * 1e3:.2f} ms for {worst['period_s'] * 1e3:g} ms, "
+                  f"{worst['stale_fraction']:.0%} of its samples stale): keep the prior, and run them again with "
+                  f"the loop on time ('pneumactl doctor' says what holds it up)")
+    else:
+        advice = ("keep the prior, or run the full experiments (without --quick) or a larger --amplitude before "
+                  "using the new model")
     return (f"warning: the identified model fits the held-out data no better than the prior "
-            f"({identified_fit:.1f} % against {prior_fit:.1f} %): keep the prior, or run the full "
-            f"experiments (without --quick) or a larger --amplitude before using the new model")
+            f"({identified_fit:.1f} % against {prior_fit:.1f} %): {advice}")
 
 
 def _uncertainty(name: str, value: float) -> str:

@@ -29,7 +29,7 @@ from daemon.recordings import reading as recording
 from daemon.wire import protocol as P
 from daemon.wire.signals import recorded
 from daemon.client.client import Client, Interrupted, RemoteError, abort_started
-from daemon.client.fit_report import against_prior, print_table, residual_rms
+from daemon.client.fit_report import against_prior, print_table, ran_late, residual_rms
 from daemon.client.routine_lease import routine_lease
 from hal import config
 from hal.identified import UNITS
@@ -238,7 +238,7 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
         raise SystemExit(f"{path}: {len(found)} experiment(s) on {joint}: two at least are needed (one held out)")
     for e in found:
         base = e.info["time_base"]
-        if base["lost_s"] > 0.01 * len(e.y) * e.dt:
+        if ran_late(base):
             print(f"note: the loop ran late during the {e.info['signal']['signal']} (a cycle every "
                   f"{base['mean_period_s'] * 1e3:.3f} ms for {base['period_s'] * 1e3:g} ms, "
                   f"{base['stale_fraction']:.0%} of its samples stale): it is analysed on the samples' own times",
@@ -256,7 +256,7 @@ def analyse(path: Path, joint: str, out: Path, population: int, generations: int
     prior_fit = heldout_fit(prior, held_out[0], result.settings["step_s"], C_SPAN * prior.Fs)
     judged = {"heldout_fit_percent": result.heldout_fit_percent[0],
               "heldout_rms_deg": residual_rms(result.heldout_fit_percent[0], held_out[0], result.settings["step_s"])}
-    verdict = against_prior(result.heldout_fit_percent[0], prior_fit)
+    verdict = against_prior(result.heldout_fit_percent[0], prior_fit, [e.info["time_base"] for e in found])
     out.mkdir(parents=True, exist_ok=True)
     labels = [f"{e.info['signal']['signal']} ({'held out' if i == len(found) - 1 else 'fitted'})"
               for i, e in enumerate(found)]
