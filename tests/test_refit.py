@@ -1,6 +1,6 @@
 """``pneumactl identify JOINT --from RECORDING`` on closed-loop recordings (daemon/client/refit.py,
 controllers/identification/closed_loop.py, docs/identification.md "From any recording"),
-against a real daemon on the simulated rig: waypoints recorded by the daemon are fitted to
+on the simulated rig: waypoints recorded as the daemon records them are fitted to
 near the simulator's plant from a stale prior (within the uncertainty the fit states), the arm
 held still is refused with the joint and what is missing, and a cut file is a clear error."""
 import json
@@ -15,13 +15,13 @@ import pytest
 from controllers.drift import band_of
 from daemon.client.client import Client
 from hal import config
+from daemon.testing.drift import swing
 from tests import doc_blocks, doc_runs
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.test_recorder import finished
 
 pytestmark = pytest.mark.slow(seconds=300)
 
-REST = (141.8, -90.0)  # where the built-in rig's joints rest at the bias pressures [deg]
 STALE = {"D": 1.5, "K": 0.7, "Fs": 1.3, "T_dly": 1.3}  # the prior the rig file gives: not the plant
 
 
@@ -37,8 +37,12 @@ def stale_rig_text() -> str:
 
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
-    """The daemon's recordings of waypoints (the arm at rest first) and of the arm held still."""
+    """Waypoints recorded as the daemon's recorder writes them, on the daemon's own loop on the
+    virtual clock (daemon/testing/drift.py: what is fitted is the plant, not how late a loaded
+    test machine ran the loop: `identify` says that apart), the arm at rest first; and the
+    daemon's recording of the arm held still."""
     tmp = tmp_path_factory.mktemp("refit")
+    swing(stale_rig_text(), 38.0, record=tmp / "waypoints.mcap")
     (tmp / "rig.toml").write_text(stale_rig_text())
     daemon, eps = real_daemon(tmp, "--config", str(tmp / "rig.toml"))
     client = Client(**eps, timeout=5.0)
@@ -49,25 +53,14 @@ def recordings(tmp_path_factory):
         client.enable()
         time.sleep(2.0)  # at rest under feedback
         client.record_start(name="still", seconds=20.0)  # (of wall time: a loaded machine's loop runs late)
-        finished(client, "still")
-        client.record_start(name="waypoints")
-        time.sleep(1.0)
-        points = [list(REST)] + [[135.0, -95.0], [148.0, -85.0], list(REST)] * 4
-        reply = client.waypoints(angles_deg=points, durations_s=[2.0] * (len(points) - 1))
-        deadline = time.monotonic() + 3.0 * reply["total_s"] + 30.0  # (a loaded machine's loop runs late)
-        while client.status()["reference_remaining_s"] > 0.0:
-            assert time.monotonic() < deadline, "the waypoints never ended"
-            time.sleep(0.2)
-        time.sleep(1.0)  # and the arm at rest after them
-        client.record_stop(name="waypoints")
-        paths = {name: finished(client, name) for name in ("still", "waypoints")}
+        still = finished(client, "still")
         status = client.status()
         assert status["state"] == "enabled" and status["trips"] == 0, status["cause"]
     finally:
         client.close()
         daemon.terminate()
         daemon.wait(10)
-    return paths
+    return {"still": still, "waypoints": str(tmp / "waypoints.mcap")}
 
 
 def identify(*args: str) -> subprocess.CompletedProcess:
