@@ -1,18 +1,19 @@
 """The model beside a linear pneumatic axis (rig-facts §5; docs/model.md): the axis's model
 (:class:`hal.axis_model.AxisModel`, the simulator's own plant, on the joint's
-``[joints.linear_axis]``) driven by the volts the loop wrote to its valve (the cycle record's ``out.<channel>``), cycle by cycle, its
-position compared with the one the loop read. The residual r = measured - predicted [mm]; the
-statistics, the band (``[model_watch] band_mm``), the verdicts and the restarts are the rotary
-watch's (:class:`controllers.drift.JointWatch`).
+``[joints.linear_axis]``) driven by the volts the loop wrote to its valve (the cycle record's
+``out.<channel>``), cycle by cycle, its position compared with the one the loop read. The
+residual r = measured - predicted [mm]; the statistics, the band (``[model_watch] band_mm``),
+the verdicts and the restarts are the rotary watch's (:class:`controllers.drift.JointWatch`).
 
 **Anchoring.** A valve commands flow, not pressure: the chambers' pressures are the integral of
 the flows since ever, so no warm-up on the commands alone finds them. The axis's transmitters
 measure them; the model starts from them, from the measured position, and from the position's
-slope over a warm-up of ``WARM_S`` (the line fitted to it: its end is the position) (the spool follows its command through it: five of its lags
-and more). From then on it runs free on the valve command, never corrected by the measurement.
-The axis integrates flow, so a start that is slightly off leaves a residual that persists (a
-chamber's mass off by its transmitter's noise moves the pneumatic spring's balance by a few
-micrometres), not one that dies out as the rotary joint's does; docs/model.md gives the figures.
+slope over a warm-up of ``WARM_S`` (the line fitted to it: its end is the position; the spool
+follows its command through it: five of its lags). From then on it runs free on the valve
+command, never corrected by the measurement. The axis integrates flow: a start slightly off
+(its velocity, or where a breakaway from stiction falls) leaves an offset that stays, where the
+rotary joint's spring lets it die out; a restart at the start of a move is the worst case
+(docs/model.md gives the figures).
 
 **Naming the cause.** Only one candidate here: a position-sensor offset (the residual a step
 since its onset, 1 mm/mm). A leak, grown friction or a lost supply have no sensitivity computed
@@ -32,7 +33,11 @@ from hal.linear_axis_facts import rest_state
 from hal.rig_sections import ModelWatchConfig
 from hal.axis_model import AxisModel
 
-WARM_S = 0.05  # [s] the warm-up: the spool's lag (2 ms) gone, and a slope of the position over it
+# [s] the warm-up: the spool's lag (2 ms) gone, and the position's slope over it. Short: a line over
+# an accelerating start lags its velocity, and the axis integrates a velocity error into an offset
+# that stays (restarted at 16 points of a swing: 0.9 mm at worst over 50 ms, 0.4 mm over 20 ms,
+# 0.11 mm over 10 ms, where the slope's noise is about 2.5 mm/s)
+WARM_S = 0.01
 AXIS_CAUSES = {"offset": ("a position-sensor offset", "offset_mm", (-100.0, 100.0))}
 
 
@@ -122,7 +127,8 @@ class AxisWatch(JointWatch):
             warm.step(previous[1])
         self._warm_samples.append((t, measured_m))
         if t - self._warm_since >= self.settle_s and len(self._warm_samples) >= 3:
-            ts, xs = np.array([s for s in self._warm_samples if s[0] > t - WARM_S - 1e-9]).T
+            recent = [s for s in self._warm_samples if s[0] > t - WARM_S - 1e-9]
+            ts, xs = np.array(recent if len(recent) >= 3 else self._warm_samples[-3:]).T
             # the line through the last WARM_S of positions: its slope the velocity, its end the
             # position (less noisy than the last sample alone)
             slope, at_end = (float(c) for c in np.polyfit(ts - ts[-1], xs, 1))
