@@ -41,8 +41,7 @@ from hal.config import JointConfig, RigConfig
 from hal.identified import identification
 from hal.rig_sections import ModelWatchConfig
 from hal.joint_model import JointModel
-from hal.joints import CYLINDER
-from hal.interfaces import LINEAR, ROTARY
+from hal.interfaces import LINEAR
 
 EPS = 0.05  # the fraction each candidate's sensitivity is simulated at [-]
 EXPLAINED = 0.8  # R^2 a candidate must reach to be named [-]
@@ -346,54 +345,3 @@ def name_cause(watch: JointWatch) -> dict:
     return {"likely": likely, "best": best, "runner_up": ranked[1] if len(ranked) > 1 else None,
             "explained": explained, "size": size, "onset_t": float(h["t"][onset]),
             "fits": {n: {"explained": f[0], "size": f[1]} for n, f in fits.items()}}
-
-
-def watched_joints(rig: RigConfig) -> list[str]:
-    """The joints a model runs beside: rotary cylinder joints on regulators with an identified
-    model, and linear axes (a cylinder on a 5/3 valve) with a transmitter on each chamber (their
-    model starts from the chambers' measured pressures: :mod:`controllers.drift_axis`). The
-    muscle joint has no model here yet."""
-    return [j.name for j in rig.joints
-            if (j.kind == ROTARY and j.actuation == CYLINDER and j.head is not None and rig.joint_params(j) is not None)
-            or (j.kind == LINEAR and j.linear_axis is not None and j.pressure_head is not None
-                and j.pressure_rod is not None)]
-
-
-class ModelWatch:
-    """Every watched joint of a rig, fed the ``state`` message's columns (layout field names:
-    docs/protocol.md "The cycle record")."""
-
-    def __init__(self, rig: RigConfig, dt: float = 0.001):
-        from controllers.drift_axis import AxisWatch  # (it builds on JointWatch, above)
-        self.config = rig.model_watch
-        kinds = {j.name: j.kind for j in rig.joints}
-        self.joints = {name: (AxisWatch if kinds[name] == LINEAR else JointWatch)(name, rig, self.config, dt)
-                       for name in watched_joints(rig)}
-        self._last_cycle: int | None = None
-        self.t = math.nan
-
-    def feed(self, columns: dict) -> dict[str, list[float]]:
-        """One ``state`` message: the residual per joint per row, in the joint's unit (NaN where
-        none). A gap in the cycles (messages lost) starts every model again."""
-        cycles = columns["cycle"]
-        if cycles and self._last_cycle is not None and cycles[0] != self._last_cycle + 1:
-            for w in self.joints.values():
-                w.restart()
-        if cycles:
-            self._last_cycle = cycles[-1]
-            self.t = columns["t"][-1]
-        return {name: w.feed_columns(columns) for name, w in self.joints.items()}
-
-    def judge(self) -> tuple[dict, list[Verdict]]:
-        """The ``model`` topic's message (each joint's statistics) and the verdicts that changed."""
-        message, verdicts = {"t": self.t, "band_deg": self.config.band_deg, "window_s": self.config.window_s,
-                             "joints": {}}, []
-        for name, w in self.joints.items():
-            stats = {**w.statistics(), f"band_{w.unit}": w.band, "band_from": w.band_from, "unit": w.unit}
-            message["joints"][name] = stats
-            rms = stats[f"rms_{w.unit}"]
-            verdict = w.judge(self.t, stats) if stats["anchored"] and math.isfinite(rms) else None
-            stats["flagged"] = w.flagged  # as judged now: the message of a drift's event says so
-            if verdict is not None:
-                verdicts.append(verdict)
-        return message, verdicts

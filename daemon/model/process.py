@@ -14,7 +14,7 @@ by the loop (a copy of a few numbers a joint) only when a status is asked for. N
 this runs in the loop's cycle.
 
 A message the feed drops (this process slower than the telemetry) is a gap in the cycles:
-the models start again from the arm (:class:`controllers.drift.ModelWatch`). It is a helper
+the models start again from the arm (:class:`controllers.drift_watch.ModelWatch`). It is a helper
 process (:class:`hal.process.Helper`) at nice 10; if it dies the loop's port starts another
 at its next look (once a second: a ``model`` event), whose models start again.
 """
@@ -38,7 +38,7 @@ def wanted(rig: RigConfig) -> list[str]:
     """The joints a model runs beside on ``rig`` (none: no model process)."""
     if not rig.model_watch.enabled:
         return []
-    from controllers.drift import watched_joints
+    from controllers.drift_watch import watched_joints
     return watched_joints(rig)
 
 
@@ -115,7 +115,7 @@ def serve(child: Child, rings_dir: str, rig: RigConfig, joints: list[str], share
     import msgpack
     import zmq
 
-    from controllers.drift import ModelWatch
+    from controllers.drift_watch import ModelWatch
 
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     watch = ModelWatch(rig)

@@ -1,14 +1,14 @@
 """Drift on the simulated rig for the model beside the arm (docs/model.md): the built-in rig with
 a drift from a time on (``[transport.options.joints.NAME]``, docs/simulator.md "Drift"), the
 real loop on a virtual clock moving the arm back and forth through waypoints, and its state
-messages fed to :class:`controllers.drift.ModelWatch` as the model process feeds them."""
+messages fed to :class:`controllers.drift_watch.ModelWatch` as the model process feeds them."""
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from controllers.drift import ModelWatch
+from controllers.drift_watch import ModelWatch
 from daemon.recordings.mcap_log import McapRecording
 from daemon.testing.loop import dealer, make_loop, ok, run_seconds
 from hal import config
