@@ -31,7 +31,7 @@ def nominal_run(seed: int, seconds: float) -> dict:
     """One nominal run with noise seed ``seed``: each joint's window RMS over the run, flags raised."""
     text = config.load().source.replace("seed = 1\n", f"seed = {seed}\n", 1)
     rig = config.parse(text)
-    from controllers.drift import ModelWatch
+    from controllers.drift_watch import ModelWatch
     model = ModelWatch(rig)
     period = 1.0 / rig.model_watch.publish_hz
     rms: dict[str, list[float]] = {name: [] for name in model.joints}

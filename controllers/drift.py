@@ -41,8 +41,7 @@ from hal.config import JointConfig, RigConfig
 from hal.identified import identification
 from hal.rig_sections import ModelWatchConfig
 from hal.joint_model import JointModel
-from hal.joints import CYLINDER
-from hal.interfaces import ROTARY
+from hal.interfaces import LINEAR
 
 EPS = 0.05  # the fraction each candidate's sensitivity is simulated at [-]
 EXPLAINED = 0.8  # R^2 a candidate must reach to be named [-]
@@ -74,9 +73,12 @@ class Verdict:
 
 
 def band_of(rig: RigConfig, joint: JointConfig) -> tuple[float, str]:
-    """The band [deg] a joint's residual RMS is judged against, and where it came from: BAND_PER_RMS
-    times the held-out residual RMS the identification that wrote the joint's model found
-    (its table's ``heldout_rms_deg``), else the rig file's ``[model_watch] band_deg``."""
+    """The band a joint's residual RMS is judged against (in its unit: deg rotary, mm linear), and
+    where it came from: BAND_PER_RMS times the held-out residual RMS the identification that wrote
+    the joint's model found (its table's ``heldout_rms_deg``), else the rig file's
+    ``[model_watch] band_deg`` (a linear axis: ``band_mm``)."""
+    if joint.kind == LINEAR:
+        return rig.model_watch.band_mm, "rig file: [model_watch] band_mm"
     rms = identification(rig.models.get(joint.model_name) or {}).get("heldout_rms_deg")
     if rms is not None:
         return BAND_PER_RMS * rms, (f"identification: {BAND_PER_RMS:g} x the held-out residual RMS {rms:.3g} deg "
@@ -87,6 +89,9 @@ def band_of(rig: RigConfig, joint: JointConfig) -> tuple[float, str]:
 class JointWatch:
     """One cylinder joint's model beside the arm, its residual history and its verdict."""
 
+    unit = "deg"  # the residual's, its statistics' and the band's
+    causes = CAUSES  # the candidates it names
+
     def __init__(self, name: str, rig: RigConfig, config: ModelWatchConfig, dt: float = 0.001):
         jc = next(j for j in rig.joints if j.name == name)
         self.name, self.config, self.dt = name, config, dt
@@ -94,7 +99,7 @@ class JointWatch:
         # simulated plant may have skipped steps) starts the model again from the arm
         self.max_steps = min(MAX_STEPS, max(1, int(rig.safety.stall_after_s / dt)))
         self.params = rig.joint_params(jc)
-        self.band_deg, self.band_from = band_of(rig, jc)
+        self.band, self.band_from = band_of(rig, jc)
         self.neutral_deg = jc.neutral_deg
         margin = 10.0  # the simulator's end stops beyond the software limits (sim_backend.options) [deg]
         self.stops = (jc.min_angle_deg - margin, jc.max_angle_deg + margin)
@@ -210,35 +215,36 @@ class JointWatch:
         """The residual over the last ``window_s`` [deg]: mean, RMS, largest |r|, and how much of
         the window the model has run for (its statistics are judged once it is full)."""
         h = self.history
+        u = self.unit
         if not h["t"]:
-            return {"anchored": self.model is not None, "mean_deg": math.nan, "rms_deg": math.nan,
-                    "max_abs_deg": math.nan, "window_fill": 0.0, "flagged": self.flagged}
+            return {"anchored": self.model is not None, f"mean_{u}": math.nan, f"rms_{u}": math.nan,
+                    f"max_abs_{u}": math.nan, "window_fill": 0.0, "flagged": self.flagged}
         now, since = h["t"][-1], h["t"][-1] - self.config.window_s
         recent = list(itertools.takewhile(lambda x: x[0] > since, zip(reversed(h["t"]), reversed(self.residual))))
         r = np.fromiter((x[1] for x in recent), float, len(recent))
         fill = min((now - self._anchored_t) / self.config.window_s, 1.0)
-        return {"anchored": True, "mean_deg": float(r.mean()), "rms_deg": float(np.sqrt(np.mean(r * r))),
-                "max_abs_deg": float(np.abs(r).max()), "window_fill": fill, "flagged": self.flagged}
+        return {"anchored": True, f"mean_{u}": float(r.mean()), f"rms_{u}": float(np.sqrt(np.mean(r * r))),
+                f"max_abs_{u}": float(np.abs(r).max()), "window_fill": fill, "flagged": self.flagged}
 
     def judge(self, t: float, stats: dict) -> Verdict | None:
         """The band's verdict at ``t`` [s] on the window's ``stats``: a Verdict when the joint
         has been outside the band for ``hold_s`` (drift, its cause named) or back inside for
         ``recover_s`` after a drift (a drift that shows only while the arm moves, grown friction,
         comes back inside while it rests)."""
-        band, hold = self.band_deg, self.config.hold_s
-        if stats["window_fill"] < 1.0 and not stats["rms_deg"] > band:
+        band, hold, rms = self.band, self.config.hold_s, stats[f"rms_{self.unit}"]
+        if stats["window_fill"] < 1.0 and not rms > band:
             return None  # a window not yet full judges only against the band's upper side
-        outside = stats["rms_deg"] > band
+        outside = rms > band
         if outside:
             self.inside_since = None
             self.outside_since = self.outside_since if self.outside_since is not None else t
             if not self.flagged and t - self.outside_since >= hold:
                 self.flagged, self._name_again_at = True, t + NAME_AGAIN_S
-                self.cause = name_cause(self)
+                self.cause = self.name_cause()
                 return Verdict(self.name, "drift", _cause_text(self, stats), self.cause)
         if self.flagged and self._name_again_at is not None and t >= self._name_again_at:
             self._name_again_at = None  # the candidates' shapes part as the drift goes on: named again, once
-            self.cause = name_cause(self)
+            self.cause = self.name_cause()
             return Verdict(self.name, "cause", _cause_text(self, stats, again=True), self.cause)
         if not outside:
             self.outside_since = None
@@ -246,23 +252,32 @@ class JointWatch:
             if self.flagged and t - self.inside_since >= self.config.recover_s:
                 self.flagged = False
                 return Verdict(self.name, "recovered",
-                               f"the residual's RMS {stats['rms_deg']:.2f} deg is back inside the band "
-                               f"{band:.3g} deg", {})
+                               f"the residual's RMS {rms:.2f} {self.unit} is back inside the band "
+                               f"{band:.3g} {self.unit}", {})
         return None
+
+    def name_cause(self) -> dict:
+        return name_cause(self)
+
+    def feed_columns(self, columns: dict) -> list[float]:
+        """A ``state`` message's rows: the commanded chamber pressures and the position."""
+        n = self.name
+        return [self.feed(t, h, r, p) for t, h, r, p in zip(
+            columns["t"], columns[f"{n}.p_head_cmd"], columns[f"{n}.p_rod_cmd"], columns[f"{n}.position"])]
 
 
 def _cause_text(watch: JointWatch, stats: dict, again: bool = False) -> str:
-    found = watch.cause or {}
-    what = (f"likely {CAUSES[found['likely']][0]} ({CAUSES[found['likely']][1]} {found['size']:.3g}, "
+    found, causes, u = watch.cause or {}, watch.causes, watch.unit
+    what = (f"likely {causes[found['likely']][0]} ({causes[found['likely']][1]} {found['size']:.3g}, "
             f"explains {100 * found['explained']:.0f} % of the residual since its onset)"
             if found.get("likely") else
-            f"cause unclear (best: {CAUSES[found['best']][0]}, explains {100 * found['explained']:.0f} %; then "
-            f"{CAUSES[found['runner_up']][0] if found.get('runner_up') else 'none'})"
+            f"cause unclear (best: {causes[found['best']][0]}, explains {100 * found['explained']:.0f} %; then "
+            f"{causes[found['runner_up']][0] if found.get('runner_up') else 'none'})"
             if found.get("best") else "cause unclear")
     if again:
         return f"named again on {watch.t_since_onset():.0f} s of the drift: {what}"
-    return (f"the arm left its model: residual RMS {stats['rms_deg']:.2f} deg (mean {stats['mean_deg']:+.2f} deg) "
-            f"over {watch.config.window_s:g} s, band {watch.band_deg:.3g} deg; {what}")
+    return (f"the arm left its model: residual RMS {stats[f'rms_{u}']:.2f} {u} (mean {stats[f'mean_{u}']:+.2f} {u}) "
+            f"over {watch.config.window_s:g} s, band {watch.band:.3g} {u}; {what}")
 
 
 def name_cause(watch: JointWatch) -> dict:
@@ -273,7 +288,7 @@ def name_cause(watch: JointWatch) -> dict:
     h = watch.history
     if len(r) < 10 or not watch._snapshots:
         return {"likely": None, "best": None, "explained": 0.0, "size": math.nan, "onset_t": math.nan}
-    quiet = np.flatnonzero(np.abs(r) <= ONSET_FRACTION * watch.band_deg)
+    quiet = np.flatnonzero(np.abs(r) <= ONSET_FRACTION * watch.band)
     onset = int(quiet[-1]) + 1 if len(quiet) else 0
     onset = max(min(onset, len(r) - 5), 0)
     first = watch._count - len(r)  # samples are counted from 1 at the anchor: history[i] is sample first + i + 1
@@ -330,50 +345,3 @@ def name_cause(watch: JointWatch) -> dict:
     return {"likely": likely, "best": best, "runner_up": ranked[1] if len(ranked) > 1 else None,
             "explained": explained, "size": size, "onset_t": float(h["t"][onset]),
             "fits": {n: {"explained": f[0], "size": f[1]} for n, f in fits.items()}}
-
-
-def watched_joints(rig: RigConfig) -> list[str]:
-    """The joints a model runs beside: rotary cylinder joints on regulators with an identified
-    model (the muscle and the linear axis have no model here yet)."""
-    return [j.name for j in rig.joints if j.kind == ROTARY and j.actuation == CYLINDER and j.head is not None
-            and rig.joint_params(j) is not None]
-
-
-class ModelWatch:
-    """Every watched joint of a rig, fed the ``state`` message's columns (layout field names:
-    docs/protocol.md "The cycle record")."""
-
-    def __init__(self, rig: RigConfig, dt: float = 0.001):
-        self.config = rig.model_watch
-        self.joints = {name: JointWatch(name, rig, self.config, dt) for name in watched_joints(rig)}
-        self._last_cycle: int | None = None
-        self.t = math.nan
-
-    def feed(self, columns: dict) -> dict[str, list[float]]:
-        """One ``state`` message: the residual per joint per row [deg] (NaN where none). A gap
-        in the cycles (messages lost) starts every model again."""
-        cycles = columns["cycle"]
-        if cycles and self._last_cycle is not None and cycles[0] != self._last_cycle + 1:
-            for w in self.joints.values():
-                w.restart()
-        if cycles:
-            self._last_cycle = cycles[-1]
-            self.t = columns["t"][-1]
-        out = {}
-        for name, w in self.joints.items():
-            out[name] = [w.feed(t, h, r, p) for t, h, r, p in zip(
-                columns["t"], columns[f"{name}.p_head_cmd"], columns[f"{name}.p_rod_cmd"], columns[f"{name}.position"])]
-        return out
-
-    def judge(self) -> tuple[dict, list[Verdict]]:
-        """The ``model`` topic's message (each joint's statistics) and the verdicts that changed."""
-        message, verdicts = {"t": self.t, "band_deg": self.config.band_deg, "window_s": self.config.window_s,
-                             "joints": {}}, []
-        for name, w in self.joints.items():
-            stats = {**w.statistics(), "band_deg": w.band_deg, "band_from": w.band_from}
-            message["joints"][name] = stats
-            verdict = w.judge(self.t, stats) if stats["anchored"] and math.isfinite(stats["rms_deg"]) else None
-            stats["flagged"] = w.flagged  # as judged now: the message of a drift's event says so
-            if verdict is not None:
-                verdicts.append(verdict)
-        return message, verdicts

@@ -27,7 +27,7 @@ kg, s), the valve command in volts at the edge:
   ``F_f = (Fc + (Fs - Fc) exp(-(v / vs)^2)) sgn(v)`` (Olsson et al., Eur. J. Control 4, 1998)
   and stiction at rest up to Fs; inelastic end stops at 0 and the stroke.
 
-The time stepping is :mod:`sim_backend.axis_model`; the linearisation and a controller's figures
+The time stepping is :mod:`hal.axis_model`; the linearisation and a controller's figures
 are :mod:`hal.linear_axis_facts`.
 """
 from __future__ import annotations

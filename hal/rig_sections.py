@@ -145,10 +145,12 @@ class ModelWatchConfig:
     is run on the commands the loop wrote, and the residual (measured minus predicted position)
     judged. Its RMS over the last ``window_s`` above ``band_deg`` for ``hold_s`` is drift: a
     ``model`` event naming the joint and the likely cause. ``band_deg`` is the rig's own: what
-    its model's error is on the arm (the simulator's is its noise, about 0.05 deg)."""
+    its model's error is on the arm (the simulator's is its noise, about 0.05 deg); ``band_mm``
+    a linear axis's."""
 
     enabled: bool = True  # run the model beside the loop (a process of its own)
     band_deg: float = 1.0  # the residual's RMS over window_s beyond this is drift [deg]
+    band_mm: float = 1.0  # ... on a linear axis [mm]
     window_s: float = 2.0  # the residual's statistics are over this window [s]
     hold_s: float = 0.5  # outside the band this long before the event [s]
     recover_s: float = 10.0  # back inside the band this long after a drift before the event saying so [s]
@@ -157,6 +159,7 @@ class ModelWatchConfig:
 
     def __post_init__(self):
         require(self.band_deg > 0, "band_deg", "must be > 0")
+        require(self.band_mm > 0, "band_mm", "must be > 0")
         require(0.1 <= self.window_s <= 60.0, "window_s", "must be within 0.1-60 s")
         require(0.0 <= self.hold_s <= 60.0, "hold_s", "must be within 0-60 s")
         require(0.0 <= self.recover_s <= 3600.0, "recover_s", "must be within 0-3600 s")

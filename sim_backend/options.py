@@ -32,6 +32,7 @@ class SimJointOptions:
     friction_scale: float = 1.0  # Fs and Fc of [2-45] times this [-]
     sensor_offset_deg: float = 0.0  # the potentiometer reads this much above the angle [deg] ...
     offset_ramp_s: float = 1.0  # ... reached over this long (a step reads as a jump the speed limit trips on) [s]
+    sensor_offset_mm: float = 0.0  # a linear joint's potentiometer reads this much beyond its position [mm] (same ramp)
     regulator_gain: float = 1.0  # both regulators' output pressure times this [-]
 
     def __post_init__(self):
@@ -43,13 +44,14 @@ class SimJointOptions:
         require(0 < self.friction_scale <= 100, "friction_scale", "must be within (0, 100]")
         require(abs(self.sensor_offset_deg) <= 90, "sensor_offset_deg", "must be within +-90 deg")
         require(self.offset_ramp_s >= 0, "offset_ramp_s", "must be >= 0")
+        require(abs(self.sensor_offset_mm) <= 100, "sensor_offset_mm", "must be within +-100 mm")
         require(0 < self.regulator_gain <= 2, "regulator_gain", "must be within (0, 2]")
 
     @property
     def drifts(self) -> bool:
         """Whether any drift is asked for."""
         return bool(self.leak) or self.friction_scale != 1.0 or self.sensor_offset_deg != 0.0 \
-            or self.regulator_gain != 1.0
+            or self.regulator_gain != 1.0 or self.sensor_offset_mm != 0.0
 
     def drift_words(self) -> str:
         """The drifts asked for, in words ("" for none): what ``pneumad --check`` says."""
@@ -57,6 +59,7 @@ class SimJointOptions:
         said += [f"friction x{self.friction_scale:g}"] if self.friction_scale != 1.0 else []
         said += [f"a potentiometer offset of {self.sensor_offset_deg:g} deg"] if self.sensor_offset_deg else []
         said += [f"regulator gain {self.regulator_gain:g}"] if self.regulator_gain != 1.0 else []
+        said += [f"a position sensor offset of {self.sensor_offset_mm:g} mm"] if self.sensor_offset_mm else []
         return f"{', '.join(said)} from {self.fault_at_s:g} s of the plant's clock" if said else ""
 
 

@@ -1,5 +1,5 @@
 """The linear pneumatic servo axis (rig-facts §5: hal.linear_axis, hal.linear_axis_facts,
-sim_backend.axis_model): the orifice flow law, the parameters' table, what the physics must keep
+hal.axis_model): the orifice flow law, the parameters' table, what the physics must keep
 (pressures between atmosphere and supply, a closed chamber's p V^n, the valve's null holding the
 piston), the fixed-step integration against scipy's solve_ivp on the continuous model, the
 linearisation against the nonlinear model's small-signal response, the steady motion against
@@ -31,7 +31,7 @@ from hal.linear_axis import (
     spool_of,
 )
 from hal.linear_axis_facts import balance_pressure, facts, linearise, null_spool, null_volts, rest_state, steady_motion
-from sim_backend.axis_model import AxisModel
+from hal.axis_model import AxisModel
 from tests import doc_blocks
 
 H = 1e-3

@@ -12,7 +12,8 @@ import pytest
 
 from daemon.client.client import Client
 from daemon.recordings.reading import open_run
-from daemon.testing.drift import DRIFTS, drifted_rig
+from daemon.testing.drift import AXIS_DRIFTS, DRIFTS, axis_rig, drifted_rig
+from hal import config
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
 from tests.test_journal import journal_line, next_event
@@ -79,3 +80,45 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
     recorded = run.messages["model"]
     assert recorded and any(m["joints"]["middle"]["flagged"] for m in recorded)
     assert any(m.get("kind") == "model" and m.get("joint") == "middle" for m in run.messages["event"])
+
+
+def test_on_the_linear_axis_the_model_topic_status_and_event_are_in_mm(tmp_path):
+    """sim-axis (stall-tolerant): the model beside the axis publishes its residual in mm within the
+    band, the status field says the band_mm in force, and a position sensor reading 2 mm off is
+    a ``model`` event naming an offset in mm."""
+    rig = tmp_path / "sim-axis.toml"
+    text = axis_rig(AXIS_DRIFTS["offset"], at_s=ONSET_S).replace("stall_after_s = 0.05\n", "stall_after_s = 5.0\n")
+    assert "stall_after_s = 5.0" in text
+    rig.write_text(text)
+    log = tmp_path / "daemon.log"
+    with open(log, "w") as stderr:
+        daemon, eps = real_daemon(tmp_path, "--config", str(rig), "--log-level", "INFO", stderr=stderr)
+    try:
+        with Client(**eps, timeout=20.0) as client:
+            wait_for_own_daemon(client, daemon)
+            sub = client.subscribe((b"event", b"model"))
+            time.sleep(0.3)
+            model = None
+            deadline = time.monotonic() + ONSET_S
+            while model is None or model["joints"]["axis"]["window_fill"] < 1.0:
+                got = sub.receive(1.0)
+                model = got[1] if got is not None and got[0] == "model" else model
+                assert time.monotonic() < deadline, "no full model window"
+            schema("telemetry", "model").validate(model)
+            axis = model["joints"]["axis"]
+            assert axis["unit"] == "mm" and axis["band_mm"] == 0.2 and "rms_deg" not in axis
+            assert axis["rms_mm"] < 0.2 / 3 and not axis["flagged"] and len(axis["residual_mm"]) > 0, axis
+            status = client.status()
+            schema("results", "status").validate(status)
+            said = status["model"]["joints"]["axis"]
+            assert said["unit"] == "mm" and said["band_mm"] == 0.2 and said["drift"] is False, said
+            event = next_event(sub, "model", action="drift", limit_s=60.0)
+            assert event["joint"] == "axis" and event["likely"] == "offset", event
+            assert "position-sensor offset" in event["cause"] and "mm" in event["cause"]
+            journal_line(log, "WARNING", "model", event)
+            said = client.status()["model"]["joints"]["axis"]
+            assert said["drift"] is True and said["cause"] == "offset" and abs(said["size"] - 2.0) < 0.3, said
+            sub.close()
+    finally:
+        daemon.terminate()
+        daemon.wait(10)

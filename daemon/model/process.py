@@ -3,7 +3,8 @@
 The messenger hands it every ``state`` message as it leaves the loop's ring (a ZeroMQ PUSH on
 a private ipc socket in the rings' directory, ``MODEL_FEED``: the messenger binds, this process
 connects, as the recorder's feed), the same columns subscribers get. Here each cylinder joint's
-identified model runs on the pressures the loop commanded (:mod:`controllers.drift`); at the
+identified model runs on the pressures the loop commanded (:mod:`controllers.drift`), a linear
+axis's on the volts its valve was given (:mod:`controllers.drift_axis`); at the
 rig file's ``[model_watch] publish_hz`` the residual since the last message and its window's
 statistics go back to the messenger (``MODEL_OUT``) as the ``model`` topic, which it publishes,
 streams to Foxglove (``/pneumad/model``) and hands to the recorder; a joint that leaves its
@@ -13,7 +14,7 @@ by the loop (a copy of a few numbers a joint) only when a status is asked for. N
 this runs in the loop's cycle.
 
 A message the feed drops (this process slower than the telemetry) is a gap in the cycles:
-the models start again from the arm (:class:`controllers.drift.ModelWatch`). It is a helper
+the models start again from the arm (:class:`controllers.drift_watch.ModelWatch`). It is a helper
 process (:class:`hal.process.Helper`) at nice 10; if it dies the loop's port starts another
 at its next look (once a second: a ``model`` event), whose models start again.
 """
@@ -24,19 +25,20 @@ import math
 import signal
 
 from hal.config import RigConfig
+from hal.interfaces import LINEAR
 from hal.process import Child, Helper, HelperFailed, SharedMemory
 from hal.seqlock import try_read, write_locked
 from daemon.wire.helper_links import EVENT, MODEL_FEED, MODEL_FEED_HWM, MODEL_OUT, MODEL_TOPIC, endpoint
 
 CAUSES = ("", "offset", "leak_head", "leak_rod", "gain", "friction")  # a status's cause, by index (controllers.drift)
-NUMBERS = ("anchored", "rms_deg", "mean_deg", "drift", "since_t", "cause", "size")  # a joint's status numbers
+NUMBERS = ("anchored", "rms", "mean", "drift", "since_t", "cause", "size")  # a joint's status numbers (rms, mean: its unit's)
 
 
 def wanted(rig: RigConfig) -> list[str]:
     """The joints a model runs beside on ``rig`` (none: no model process)."""
     if not rig.model_watch.enabled:
         return []
-    from controllers.drift import watched_joints
+    from controllers.drift_watch import watched_joints
     return watched_joints(rig)
 
 
@@ -50,8 +52,9 @@ class ModelProcess:
     def __init__(self, rings_dir: str, rig: RigConfig, joints: list[str]):
         from controllers.drift import band_of
         self.joints, self.band_deg = joints, rig.model_watch.band_deg
-        # each joint's band and where it came from (the identification's, else the rig file's)
+        # each joint's band and where it came from (the identification's, else the rig file's), and its unit
         self.bands = {j.name: band_of(rig, j) for j in rig.joints if j.name in joints}
+        self.units = {j.name: "mm" if j.kind == LINEAR else "deg" for j in rig.joints if j.name in joints}
         self._shared = _shared(len(joints))
         self._proc = Helper("daemon.model.process:serve", (rings_dir, rig, joints, self._shared),
                             name="the model process", pass_fds=(self._shared.fd,), nice=10)
@@ -75,8 +78,8 @@ class ModelProcess:
 
     def status(self) -> dict:
         """The status field ``model``: per joint, whether its model runs (``anchored``), the
-        residual's RMS and mean over the window [deg], the band in force [deg] and where it came
-        from, whether it has drifted out of it, since when [s, the loop's clock], and the likely
+        residual's RMS and mean over the window and the band in force (in the joint's unit: deg
+        rotary, ``_mm`` on a linear axis) and where the band came from, whether it has drifted out of it, since when [s, the loop's clock], and the likely
         cause (null: none named)."""
         found = try_read(self._shared.seq, self._shared.values, tries=200)
         values = found[1] if found is not None else [math.nan] * len(self._shared.values)
@@ -85,9 +88,10 @@ class ModelProcess:
             v = dict(zip(NUMBERS, values[k * len(NUMBERS):(k + 1) * len(NUMBERS)]))
             drift = v["drift"] == 1.0
             cause = int(v["cause"]) if v["cause"] == v["cause"] else 0
-            joints[name] = {"anchored": v["anchored"] == 1.0, "rms_deg": _number(v["rms_deg"]),
-                            "mean_deg": _number(v["mean_deg"]), "band_deg": self.bands[name][0],
-                            "band_from": self.bands[name][1], "drift": drift,
+            u = self.units[name]
+            joints[name] = {"anchored": v["anchored"] == 1.0, f"rms_{u}": _number(v["rms"]),
+                            f"mean_{u}": _number(v["mean"]), f"band_{u}": self.bands[name][0],
+                            "band_from": self.bands[name][1], "unit": u, "drift": drift,
                             "since_t": _number(v["since_t"]) if drift else None,
                             "cause": (CAUSES[cause] or None) if drift and 0 <= cause < len(CAUSES) else None,
                             "size": _number(v["size"]) if drift and cause else None}
@@ -111,7 +115,7 @@ def serve(child: Child, rings_dir: str, rig: RigConfig, joints: list[str], share
     import msgpack
     import zmq
 
-    from controllers.drift import ModelWatch
+    from controllers.drift_watch import ModelWatch
 
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     watch = ModelWatch(rig)
@@ -148,7 +152,7 @@ def serve(child: Child, rings_dir: str, rig: RigConfig, joints: list[str], share
         message, verdicts = watch.judge()
         seq += 1
         for name, stats in message["joints"].items():
-            stats["residual_deg"] = [x if x == x else None for x in residuals[name]]
+            stats[f"residual_{stats['unit']}"] = [x if x == x else None for x in residuals[name]]
             residuals[name] = []
         message.update(seq=seq, first_cycle=first_cycle)
         first_cycle = None
@@ -175,7 +179,7 @@ def _status_row(watch, message: dict, joints: list[str], since: dict[str, float]
     for name in joints:
         stats, w = message["joints"][name], watch.joints[name]
         cause = (w.cause or {}).get("likely") if w.flagged else None
-        row += [float(stats["anchored"]), stats["rms_deg"], stats["mean_deg"], float(w.flagged),
+        row += [float(stats["anchored"]), stats[f"rms_{w.unit}"], stats[f"mean_{w.unit}"], float(w.flagged),
                 since.get(name, math.nan), float(CAUSES.index(cause)) if cause else 0.0,
                 (w.cause or {}).get("size", math.nan) if cause else math.nan]
     return row

@@ -54,7 +54,7 @@ SENSORS = "/pneumad/sensors"
 TRACKED = ("position", "setpoint", "error", "velocity")  # a joint's tracking channel's quantities
 CONTROLLER, LOOP, CONTACT = "/pneumad/controller", "/pneumad/loop", "/pneumad/contact_estimate"
 MODEL = "/pneumad/model_residual"  # the model beside the arm: each joint's residual statistics (docs/model.md)
-MODEL_FIGURES = ("rms_deg", "mean_deg", "max_abs_deg", "residual_deg", "band_deg")  # per joint; residual_deg: the latest
+MODEL_FIGURES = ("rms", "mean", "max_abs", "residual", "band")  # per joint, in its unit (_deg, _mm); residual: the latest
 SAFE_STATE = "safe state"
 ERRORS = ("trip", "estop", "loop_stalled", "watchdog")  # event kinds logged as errors; warnings below
 WARNINGS = ("tracking", "experiment", "unleased", "lease_revoked", "messenger", "recorder", "recover", "model")
@@ -98,6 +98,8 @@ class ChannelFields:
         self.sensors = [f.name for f in others if not f.owner]  # the rig's, by name
         self.inputs = {j: [(f.name, f.quantity) for f in others if f.owner == j] for j in self.joints}  # a joint's
         self.outputs = [(f.name, f.quantity[4:]) for f in layout.of_group("output")]
+        # the unit of each joint's model residual (docs/model.md): mm on a linear axis, deg on a rotary joint
+        self.model_unit = {j: "mm" if layout[f"{j}.position"].unit == "m" else "deg" for j in self.joints}
 
     def effort(self, joint: str) -> tuple[str, str] | None:
         """A joint's (first, second) commanded chamber pressure fields, if it commands pressures."""
@@ -149,10 +151,10 @@ def json_schemas(describe: dict) -> dict[str, dict]:
         CONTACT: _obj({"t": _TIME, "frame": {"type": "integer"}, "age_s": _NUMBER,
                        "contact": {"type": ["object", "null"]}}, "the array sensor's contact estimate"),
         MODEL: _obj({"t": _TIME, "band_deg": _NUMBER,
-                     "joints": _obj({j: _obj({**_numbers(*MODEL_FIGURES)["properties"], "drift": {"type": "boolean"}})
-                                     for j in fields.joints})},
+                     "joints": _obj({j: _obj({**_numbers(*(f"{k}_{fields.model_unit[j]}" for k in MODEL_FIGURES))[
+                                     "properties"], "drift": {"type": "boolean"}}) for j in fields.joints})},
                     "the model beside the arm: each joint's residual (measured - predicted) over the last window "
-                    "[deg], the latest residual, the band (the rig file's; each joint's in force), whether the joint has "
+                    "[deg; a linear axis: mm, its _mm keys], the latest residual, the band (the rig file's; each joint's in force), whether the joint has "
                     "drifted out of it"),
     })
     return schemas
@@ -330,9 +332,11 @@ class Frames:
         t = m.get("t", 0.0)
         joints = {}
         for name, j in (m.get("joints") or {}).items():
-            latest = [r for r in j.get("residual_deg") or () if r is not None]
-            joints[name] = {**{k: j.get(k) for k in MODEL_FIGURES[:3]}, "residual_deg": latest[-1] if latest else None,
-                            "band_deg": j.get("band_deg"), "drift": bool(j.get("flagged"))}
+            u = j.get("unit", "deg")
+            latest = [r for r in j.get(f"residual_{u}") or () if r is not None]
+            joints[name] = {**{f"{k}_{u}": j.get(f"{k}_{u}") for k in MODEL_FIGURES[:3]},
+                            f"residual_{u}": latest[-1] if latest else None,
+                            f"band_{u}": j.get(f"band_{u}"), "drift": bool(j.get("flagged"))}
         return [(MODEL, ns(t), json_bytes({"t": t, "band_deg": m.get("band_deg"), "joints": joints}))]
 
     def event(self, m: dict) -> list[tuple[str, int, bytes]]:
