@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 from daemon.client.client import ENDPOINT_VARIABLES, Client
@@ -76,3 +77,19 @@ def wait_for_own_daemon(client: Client, daemon: subprocess.Popen, limit_s: float
             assert time.monotonic() < deadline, f"pneumad did not answer within {limit_s} s"
     assert answer["pid"] == daemon.pid, f"another daemon answered: {answer} (ours: pid {daemon.pid})"
     return answer
+
+
+@contextmanager
+def answering_daemon(tmp_path):
+    """A real daemon (:func:`real_daemon`) that has answered, and a client of it: ``(client,
+    endpoints, tmp_path)``; the daemon stopped on the way out (a module fixture's body)."""
+    proc, eps = real_daemon(tmp_path)
+    client = Client(**eps, timeout=5.0)
+    try:
+        wait_for_own_daemon(client, proc)
+        yield client, eps, tmp_path
+    finally:
+        client.close()
+        proc.terminate()
+        proc.wait(10)
+

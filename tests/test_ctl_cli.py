@@ -12,23 +12,15 @@ import time
 import pytest
 
 from daemon.client.client import Client
-from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
+from tests.daemons import answering_daemon, endpoint_env, real_daemon, wait_for_own_daemon
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    tmp_path = tmp_path_factory.mktemp("ctl")
-    proc, eps = real_daemon(tmp_path)
-    client = Client(**eps, timeout=5.0)
-    try:
-        wait_for_own_daemon(client, proc)
-        yield client, eps, tmp_path
-    finally:
-        client.close()
-        proc.terminate()
-        proc.wait(10)
+    with answering_daemon(tmp_path_factory.mktemp("ctl")) as served:
+        yield served
 
 
 def pneumactl(eps, cwd, *args: str) -> subprocess.CompletedProcess:

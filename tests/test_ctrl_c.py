@@ -17,7 +17,7 @@ import pytest
 from bench.common import child_process
 from daemon.client.client import Client
 from daemon.recordings import mcap_log
-from tests.daemons import endpoint_env, real_daemon, running, wait_for_own_daemon
+from tests.daemons import answering_daemon, endpoint_env, running
 from tests.doc_runs import restore_sigint
 
 pytestmark = pytest.mark.slow
@@ -25,16 +25,8 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    tmp_path = tmp_path_factory.mktemp("ctrl-c")
-    proc, eps = real_daemon(tmp_path)
-    client = Client(**eps, timeout=5.0)
-    try:
-        wait_for_own_daemon(client, proc)
-        yield client, eps, tmp_path
-    finally:
-        client.close()
-        proc.terminate()
-        proc.wait(10)
+    with answering_daemon(tmp_path_factory.mktemp("ctrl-c")) as served:
+        yield served
 
 
 def interrupted(eps, tmp_path, *args: str, when) -> subprocess.CompletedProcess:
