@@ -56,7 +56,10 @@ def check(rig, controllers: list[str], params: dict, references: list[str] | Non
     why = ""
     if engine != "loop":
         try:
-            why = fast.refusal(runner.make_loop(runner.evaluation_rig(rig, plant, True), "hold", None, None))
+            loop = runner.make_loop(runner.evaluation_rig(rig, plant, True), "hold", None, None)
+            why = fast.refusal(loop)
+            if not why:
+                fast.FastLoop(loop, 1).compile()  # here: the workers, forked after it, have it compiled
         except ConfigError as exc:  # no compiled plant for this rig
             if engine == "fast":
                 raise

@@ -18,10 +18,11 @@ import numpy as np
 
 from controllers.base import JointState, Reference, check_output
 from evaluation import kernel as K
+from evaluation import reference_samples, twin_run, twin_state
 from hal.potentiometer import RDC506
 
-_SAMPLES: dict = {}  # (reference key, t0) -> its samples cycle by cycle: shared by a worker's cases on it
 _NOISE: dict = {}  # (generator state, count) -> its draws: the controllers compared on one plant and path share them
+BLOCK = 4096  # cycles a compiled call runs: the reference is sampled for them beforehand
 WHAT = {"position": 0, "first": 1, "second": 2, "force": 3, "supply_pressure": 4, "supply": 5, "constant": 5}
 
 
@@ -46,8 +47,9 @@ def refusal(loop) -> str:
 class FastLoop:
     """The loop's state taken over after its set-up; :meth:`run` cycles it."""
 
-    def __init__(self, loop, cycles: int):
-        """``cycles``: how many cycles at most will run (the noise is drawn for them beforehand)."""
+    def __init__(self, loop, cycles: int, key=None):
+        """``cycles``: how many cycles at most will run (the noise is drawn for them beforehand);
+        ``key`` names the reference in force (:meth:`set_trajectory`)."""
         why = refusal(loop)
         if why:
             raise ValueError(f"the fast engine needs {why}")
@@ -61,7 +63,7 @@ class FastLoop:
         self.pressures = loop.snapshot.pressures
         self.u = list(loop.u)
         self.cause = ""
-        self.samples = None  # a reference's samples kept across cases (set_trajectory)
+        self.samples = None if key is None else reference_samples.kept(key, self.t0)  # a reference's samples kept across cases
         n = self.n
         J = np.zeros((n, K.J_WIDTH))
         pairs = {i: (ih, ir) for i, _, ih, _, ir in io._pairs}
@@ -97,6 +99,8 @@ class FastLoop:
         self.noise = _noise(transport._rng, len(transport.inputs) * (cycles + 1)) if G[K.G_SIGMA] > 0 else np.zeros(1)
         self.plant = (arm._coef, arm._buf, arm._state, arm._k, np.zeros(n))
         self.U, self.A = np.zeros(self.width + n), np.zeros(2 * n)
+        self.twin: twin_state.Twin | None = None  # the controller's compiled twin, once taken
+        self.out = np.zeros(self.width)  # its step's output
 
     def set_trajectory(self, trajectory, key=None) -> None:
         """As :meth:`daemon.loop.controls.LoopControls.set_trajectory`: from the next cycle on.
@@ -106,38 +110,50 @@ class FastLoop:
         compared on one plant and path sample it once."""
         self.trajectory, self.t0 = trajectory, self.now + self.period
         self.reference = trajectory.sample(0.0)
-        self.samples = None
-        if key is not None:
-            if (key, self.t0) not in _SAMPLES:
-                while len(_SAMPLES) >= 2:
-                    del _SAMPLES[next(iter(_SAMPLES))]
-                _SAMPLES[(key, self.t0)] = []
-            self.samples = _SAMPLES[(key, self.t0)]
+        self.samples = None if key is None else reference_samples.kept(key, self.t0)
 
     def run(self, cycles: int, log: np.ndarray | None = None) -> bool:
         """``cycles`` cycles (each logged as reference, angles, output into ``log``'s rows when
-        given); False after a trip (its cause in :attr:`cause`)."""
+        given); False after a trip (its cause in :attr:`cause`). A built-in controller steps
+        compiled (:mod:`evaluation.twin_run`) from its second step on; the rest in Python."""
+        L = np.zeros((0, 2 * self.n + self.width)) if log is None else log
+        self.K[K.K_LOG] = -1  # the first row is this run's first cycle: logged from the second call on
+        self._first_t = self.deadline
+        samples = self.samples if self.samples is not None else reference_samples.Samples()
+        done, ok = 0, True
+        while ok and done < cycles:
+            if self.twin is None:
+                count = 1 if twin_state.supported(self.controller) else cycles - done
+                ok = self._python(done, count, samples, log is not None, L)
+                self.twin = twin_state.after_first_step(self.controller) if ok and count == 1 else None
+            else:
+                count = min(BLOCK, cycles - done)
+                ok = self._compiled(done, count, samples, log is not None, L)
+            done += count
+        if ok:
+            K.log_row(self.J, self.K, self.U, L)
+        return ok
+
+    def _python(self, start: int, cycles: int, samples: reference_samples.Samples, logged: bool, L: np.ndarray) -> bool:
+        """Cycles ``start``.. of this run with the controller's Python step."""
         J, C, O, G, Kc, noise, U, A = self.J, self.C, self.O, self.G, self.K, self.noise, self.U, self.A
         coef, buf, state, k, tau = self.plant
         cycle, step, width, n, period = K.cycle, self.controller.step, self.width, self.n, self.period
         trajectory, t0, stiffness, pressures = self.trajectory, self.t0, self.stiffness, self.pressures
-        L = np.zeros((0, 2 * n + width)) if log is None else log
-        Kc[K.K_LOG] = -1  # the first row is this run's first cycle: logged from the second call on
-        deadline, commands, references, samples = self.deadline, range(width), range(n), self.samples
-        kept = len(samples) if samples is not None else 0
+        deadline, commands, references = self.deadline, range(width), range(n)
+        kept, rows = len(samples.rows), samples.rows
         written, logging, last = K.K_WRITE, K.K_LOG, self.now
-        for i in range(cycles):
+        for i in range(start, start + cycles):
             now = deadline
             outcome = cycle(now, J, C, O, G, Kc, noise, coef, buf, state, k, tau, U, A, L)
             if outcome:
                 self._trip(outcome)
                 break
             if i < kept:
-                ref = samples[i]
+                ref = rows[i]
             else:
                 ref = trajectory.sample(now - t0)
-                if samples is not None:
-                    samples.append(ref)
+                samples.sampled(ref, now + period)
             both = A.tolist()
             q = ref[0]
             try:
@@ -152,16 +168,46 @@ class FastLoop:
                 U[width + j] = q[j]
             if i == 0:
                 Kc[written] = 1  # from the next call on, the kernel writes the output
-                if log is not None:
+                if logged:
                     Kc[logging] = 0
             deadline += period
             last = now
         else:
-            K.log_row(J, Kc, U, L)
             self.deadline, self.now, self.reference, self.u = deadline, last, ref, list(u)
             return True
         self.deadline, self.now = deadline, last
         return False
+
+    def _compiled(self, start: int, cycles: int, samples: reference_samples.Samples, logged: bool, L: np.ndarray) -> bool:
+        """Cycles ``start``.. of this run with the controller's compiled twin: the reference
+        sampled for them first (the same times: the same sums of the period)."""
+        period = self.period
+        samples.extend(start + cycles, self.trajectory, self.t0, self._first_t, period)
+        refs = samples.angles[start:start + cycles]
+        coef, buf, state, k, tau = self.plant
+        tw = self.twin
+        done, outcome, now, last = twin_run.run(tw.kind, tw.dob, self.deadline, period, refs, start == 0, logged, self.J,
+                                          self.C, self.O, self.G, self.K, self.noise, coef, buf, state, k, tau,
+                                          self.U, self.A, L, *tw.arrays(), tw.LIM, self.out)
+        if done:
+            self.now, self.reference, self.u = last, samples.rows[start + done - 1], self.out.tolist()
+        self.deadline = now
+        if outcome == twin_run.NOT_FINITE:
+            self.cause = f"controller {self.controller.name} failed: ValueError: returned {self.out.tolist()!r}: " \
+                         f"expected {self.width} finite values"
+        elif outcome:
+            self._trip(outcome)
+        return not outcome
+
+    def compile(self) -> None:
+        """Compile the twins' loop (:mod:`evaluation.twin_run`) now, running no cycle: done once
+        before a pool forks its workers, which then inherit it (else each compiles it, about 15 s
+        on a fresh install, or loads it from numba's cache)."""
+        tw = twin_state.placeholder(self.n)
+        coef, buf, state, k, tau = self.plant
+        twin_run.run(tw.kind, tw.dob, self.deadline, self.period, np.zeros((0, self.n)), False, False, self.J, self.C,
+                     self.O, self.G, self.K, self.noise, coef, buf, state, k, tau, self.U, self.A,
+                     np.zeros((0, 2 * self.n + self.width)), *tw.arrays(), tw.LIM, self.out)
 
     def _trip(self, outcome: int) -> None:
         code, i = divmod(outcome, 16)

@@ -123,11 +123,12 @@ class LoopEngine:
         return True
 
 
-def engine_for(loop: ControlLoop, cycles: int, engine: str):
-    """``fast`` (refused where it does not apply: ValueError), ``loop``, or ``auto`` (fast where it applies)."""
+def engine_for(loop: ControlLoop, cycles: int, engine: str, key=None):
+    """``fast`` (refused where it does not apply: ValueError), ``loop``, or ``auto`` (fast where
+    it applies); ``key`` names the reference in force (the fast engine's sample sharing)."""
     if engine == "loop" or (engine == "auto" and fast.refusal(loop)):
         return LoopEngine(loop)
-    return fast.FastLoop(loop, cycles)
+    return fast.FastLoop(loop, cycles, key)
 
 
 def run_case(rig: config.RigConfig, controller: str, plant: cases.Plant, name: str, path: trajectory.Trajectory,
@@ -147,7 +148,7 @@ def run_case(rig: config.RigConfig, controller: str, plant: cases.Plant, name: s
     loop.set_trajectory(move, "approach")
     before = round((move.duration + SETTLE_S) / loop.period)
     moving, after = round(path.duration / loop.period), round(HOLD_S / loop.period)
-    runs = engine_for(loop, before + moving + after, engine)
+    runs = engine_for(loop, before + moving + after, engine, ("approach", tuple(move.q0), tuple(start), move.duration))
     if not runs.run(before):
         case.tripped = f"before the reference: {runs.cause}"
         return case

@@ -133,6 +133,16 @@ class SlowStep(PID):
         return super().step(state, reference)
 
 
+class BiasedPID(PID):
+    """The built-in PID with 0.2 V more on every output: a lab's variant of a built-in, whose own
+    step the evaluation must run (not the built-in's compiled twin)."""
+
+    name = "biased_pid"
+
+    def step(self, state, reference):
+        return [min(u + 0.2, hi) for u, hi in zip(super().step(state, reference), self.u_hi)]
+
+
 HANG_S = 3.0  # how long a hanging step takes [s]
 HANG_AFTER_STEPS = 500  # ... and when it comes (0.5 s after enable at 1 kHz)
 

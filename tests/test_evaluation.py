@@ -89,7 +89,7 @@ def daemon_loop_log(controller: str, plant: cases.Plant, path) -> tuple[np.ndarr
     a time): approach, settle, the path and its hold, each cycle's reference, angles and output."""
     loop = virtual_loop(runner.evaluation_rig(RIG, plant, compiled=False), "hold")
     loop.start()
-    loop.switch(registry.build(controller, loop.context))
+    loop.switch(registry.build(controller, loop.context, None, runner.construction_options(controller)))
     loop.enable()
     start = path.sample(0.0)[0]
     move_s = runner.approach_duration(loop, start)
@@ -107,19 +107,22 @@ def daemon_loop_log(controller: str, plant: cases.Plant, path) -> tuple[np.ndarr
 
 
 @pytest.mark.slow(seconds=8)
-@pytest.mark.parametrize("controller", ["pid", "smc_dob"])
+@pytest.mark.parametrize("controller", cases.BUILTINS)
 def test_the_fast_engine_gives_the_daemons_loop_numbers(controller):
     """One case (the steps, the nominal plant with the rig's sensor noise) through the fast engine
-    and through the daemon's own loop on its virtual clock: the same reference, angles and output
+    (every built-in's step compiled from its second cycle on, evaluation/twin_steps.py) and
+    through the daemon's own loop on its virtual clock: the same reference, angles and output
     every cycle, to the last bit, hence the same figures."""
     path = cases.reference(RIG, CONTEXT, "steps")
     expected, cause = daemon_loop_log(controller, cases.Plant("nominal"), path)
     logs = []
-    case = runner.run_case(RIG, controller, cases.Plant("nominal"), "steps", path, engine="fast", log_out=logs)
+    options = runner.construction_options(controller)
+    case = runner.run_case(RIG, controller, cases.Plant("nominal"), "steps", path, options=options, engine="fast",
+                           log_out=logs)
     assert cause == case.tripped == ""
     assert logs[0].shape == expected.shape
     assert np.array_equal(logs[0], expected)
-    reference = runner.run_case(RIG, controller, cases.Plant("nominal"), "steps", path, engine="loop")
+    reference = runner.run_case(RIG, controller, cases.Plant("nominal"), "steps", path, options=options, engine="loop")
     for field in ("tip_max_mm", "tip_rms_mm", "joint_max_deg", "joint_rms_deg", "at_limit_pct", "motion_v_s",
                   "sign_changes_per_s", "settle_s", "final_deg"):
         assert getattr(case, field) == pytest.approx(getattr(reference, field), rel=1e-12, nan_ok=True), field
@@ -140,6 +143,33 @@ def test_a_trip_ends_the_case_in_both_engines_with_the_loops_cause(plugin, cause
     assert fast.tripped == loop.tripped
     assert cause in fast.tripped
     assert math.isnan(fast.tip_max_mm)
+
+
+@pytest.mark.slow(seconds=6)
+def test_a_builtin_that_trips_on_its_compiled_step_trips_as_in_the_loop():
+    """A PID tuned far too hard (Kp 10000 V/rad, Ti 0.05 s) on a plant with 1.41x the gain and
+    three times the dead time: both engines trip on the same joint, speed and cycle."""
+    path = cases.reference(RIG, CONTEXT, "steps")
+    params, plant = {"Kp": [1e4, 1e4], "Ti": [0.05, 0.05]}, cases.Plant("unstable", (1.41, 1.41), 0.7, 3.0)
+    fast = runner.run_case(RIG, "pid", plant, "steps", path, params, engine="fast")
+    loop = runner.run_case(RIG, "pid", plant, "steps", path, params, engine="loop")
+    assert "deg/s, over its 60.0 deg/s limit" in fast.tripped
+    assert fast.tripped == loop.tripped
+
+
+@pytest.mark.slow(seconds=8)
+def test_a_subclass_of_a_builtin_runs_its_own_step_in_the_fast_engine():
+    """A lab's PID variant (0.2 V added to each output) is not taken for the built-in's compiled
+    twin: its case equals the daemon's loop's to the last bit, and differs from the PID's."""
+    path = cases.reference(RIG, CONTEXT, "steps")
+    mine, pid = [], []
+    runner.run_case(RIG, "tests.plugins:BiasedPID", cases.Plant("nominal"), "steps", path, engine="fast",
+                    log_out=mine)
+    expected, cause = daemon_loop_log("tests.plugins:BiasedPID", cases.Plant("nominal"), path)
+    runner.run_case(RIG, "pid", cases.Plant("nominal"), "steps", path, engine="fast", log_out=pid)
+    assert cause == ""
+    assert np.array_equal(mine[0], expected)
+    assert not np.array_equal(mine[0], pid[0])
 
 
 def evaluate(*args, cwd, path=()):
