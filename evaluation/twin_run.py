@@ -3,6 +3,11 @@
 check, the command and reference kept for the next write) inside one compiled call, so a case
 costs no Python a cycle. The references' angles are sampled beforehand, by the trajectory's
 own Python ``sample``, a block of cycles at a time (:meth:`evaluation.fast.FastLoop.run`).
+
+numba caches the compiled loop keyed on this file alone: after editing what it calls
+(:mod:`evaluation.twin_steps`, :mod:`evaluation.kernel`, :mod:`sim_backend.compiled_plant`) in
+a checkout, delete ``evaluation/__pycache__/twin_run.*.nbi`` (an installed upgrade replaces
+every file, so its cache is rebuilt).
 """
 from __future__ import annotations
 
