@@ -47,6 +47,20 @@ class SimJointOptions:
         require(abs(self.sensor_offset_mm) <= 100, "sensor_offset_mm", "must be within +-100 mm")
         require(0 < self.regulator_gain <= 2, "regulator_gain", "must be within (0, 2]")
 
+    def misplaced(self, linear: bool) -> str:
+        """The first key set here that a joint of this kind has no use for ("" for none): a
+        rotary joint's (its model, angles, chambers, regulators) on a linear axis, a linear
+        one's (its position, its sensor's offset in mm) on a rotary joint. Read by each
+        plant, so a drift that would do nothing is refused rather than ignored."""
+        rotary_only = ("model", "neutral_angle_deg", "initial_angle_deg", "leak", "friction_scale",
+                       "sensor_offset_deg", "regulator_gain")
+        linear_only = ("initial_position_mm", "sensor_offset_mm")
+        default = SimJointOptions()
+        for key in rotary_only if linear else linear_only:
+            if getattr(self, key) != getattr(default, key):
+                return key
+        return ""
+
     @property
     def drifts(self) -> bool:
         """Whether any drift is asked for."""

@@ -5,7 +5,8 @@ from hal import config
 from hal.errors import ConfigError
 from hal.rig import RigIO
 from hal.transport import create_transport
-from daemon.testing.simrig import make_rig
+from daemon.testing.drift import drifted_rig
+from daemon.testing.simrig import make_rig, sim_of
 
 BASE = config.load("sim").source
 
@@ -96,6 +97,22 @@ def test_unknown_backend_is_refused():
 def test_bad_sim_options_name_the_key(options, message):
     with pytest.raises(ConfigError, match=message):
         make_rig(options.replace("[transport.options.joints", "\n[transport.options.joints"))
+
+
+@pytest.mark.parametrize("rig, drift, message", [
+    ("sim", "sensor_offset_mm = 2.0", r"joints\.bottom\.sensor_offset_mm: a linear joint's option; bottom is a rotary"),
+    ("sim", "initial_position_mm = 100.0", r"joints\.bottom\.initial_position_mm: a linear joint's option"),
+    ("sim-axis", "sensor_offset_deg = 2.0", r"joints\.axis\.sensor_offset_deg: a rotary joint's option; axis is a linear"),
+    ("sim-axis", 'leak = "head"', r"joints\.axis\.leak: a rotary joint's option"),
+    ("sim-axis", "friction_scale = 1.5", r"joints\.axis\.friction_scale: a rotary joint's option"),
+])
+def test_a_drift_the_joints_kind_has_no_use_for_is_refused_not_ignored(rig, drift, message):
+    """A drift that would do nothing (a linear axis's sensor offset in mm on a rotary joint, or a
+    rotary joint's on the axis) is refused with the key, where it was silently accepted."""
+    text = drifted_rig(drift, "axis", 1.0, config.load("sim-axis").source) if rig == "sim-axis" \
+        else drifted_rig(drift, "bottom", 1.0)
+    with pytest.raises(ConfigError, match=message):
+        sim_of(config.parse(text))
 
 
 def test_mapping_checked_against_the_transports_channels():
