@@ -37,6 +37,8 @@ def lowest_while_enabled(loop, seconds: float) -> float:
 @pytest.mark.slow(seconds=20)
 def test_a_set_point_at_the_axis_limit_is_refused_naming_the_margin_and_one_at_the_margin_runs(axis):
     loop, _, sock, lease = axis
+    joint = ok(loop, sock, "describe")["joints"][0]  # a client reads the range it may ask for
+    assert (joint["position_unit"], joint["setpoint_range"]) == ("mm", [15.0, 185.0])
     for position in (10.0, 14.9):  # the limit (a step there overshot and tripped), and inside the margin
         refused = call(loop, sock, "set", {"positions": [position], "duration_s": 0.0}, lease)
         assert refused["error"]["code"] == "refused", refused
@@ -62,6 +64,10 @@ def test_a_set_point_near_a_rotary_limit_is_refused_naming_the_margin_and_one_at
         lease = ok(loop, sock, "lease.acquire", {"ttl_s": 60.0})["lease"]
         ok(loop, sock, "enable", lease=lease)
         run_seconds(loop, 0.5)
+        described = ok(loop, sock, "describe")
+        schema("results", "describe").validate(described)
+        assert [(j["position_unit"], j["setpoint_range"]) for j in described["joints"]] == \
+            [("deg", pytest.approx([88.0, 172.0])), ("deg", pytest.approx([-157.0, -43.0]))]
         refused = call(loop, sock, "set", {"angles_deg": [174.0, -62.0], "duration_s": 5.0}, lease)
         assert refused["error"]["code"] == "refused"
         assert refused["error"]["message"] == (

@@ -47,6 +47,7 @@ from daemon.loop.lease import Lease
 from daemon.loop.timing import TimingVerdicts
 from daemon.planner.process import Deferred, Preparer
 from daemon.loop.safety import State
+from hal.interfaces import DISPLAY
 
 VERSION = "0.1.0"
 log = logging.getLogger("pneumad")
@@ -231,7 +232,7 @@ class Commands(ControllerCommands):
             "rig": {"name": rig.rig.name, "description": rig.rig.description, "origin": rig.origin, "hash": rig.hash,
                     "source": rig.source},
             "period_s": view.period,
-            "joints": [self._describe_joint(j) for j in rig.joints],
+            "joints": [self._describe_joint(j, margin) for j, margin in zip(rig.joints, rig.setpoint_margins)],
             "command_interfaces": [c.describe() for c in view.command_interfaces],
             "cycle_layout": view.layout.describe(),
             "cycle_layout_id": view.layout.id,
@@ -255,11 +256,17 @@ class Commands(ControllerCommands):
             "security": self.security,
         }
 
-    def _describe_joint(self, j) -> dict:
-        """A joint as ``describe`` gives it: limits, actuation, its commands' ranges, safe state."""
+    def _describe_joint(self, j, margin: float) -> dict:
+        """A joint as ``describe`` gives it: limits, the range its set-points may take (its limits
+        less the rig file's set-point ``margin`` [SI], in the unit people read it in), actuation,
+        its commands' ranges, safe state."""
         commands = [c for c in self.view.command_interfaces if c.joint == j.name]
+        unit, scale = DISPLAY[j.position_unit]
+        lo, hi = j.limits
         joint = {"name": j.name, "min_angle_deg": j.min_angle_deg, "max_angle_deg": j.max_angle_deg,
-                 "max_speed_deg_s": j.max_speed_deg_s, "actuation": j.actuation, "chambers": list(j.chambers),
+                 "max_speed_deg_s": j.max_speed_deg_s, "position_unit": unit,
+                 "setpoint_range": [round((lo + margin) * scale, 9), round((hi - margin) * scale, 9)],
+                 "actuation": j.actuation, "chambers": list(j.chambers),
                  "commands": [c.name for c in commands],
                  "setpoints": ["angle", "stiffness"] if j.muscles is not None else ["angle"],
                  "safe_mpa": [d.safe_mpa for d in j.pressure_outputs]}
