@@ -4,6 +4,7 @@ noise (Fit stated); on a rig file whose model differs it shows where the two par
 without what a replay needs is refused with what is missing."""
 import json
 import shutil
+import signal
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ from daemon.replay.run import Refused, missing, parted, replay
 from daemon.testing.drift import drifted_rig, swing
 from hal import config
 from tests import doc_blocks, doc_runs
+from tests.doc_runs import restore_sigint
 
 pytestmark = pytest.mark.slow(seconds=60)
 
@@ -131,3 +133,17 @@ def test_parting_is_the_first_time_the_difference_stays_beyond_the_limit():
     d = np.where((t > 0.5) & (t < 0.6), 2.0, 0.0) + np.where(t > 1.2, 1.5, 0.0)  # a blip, then for good
     assert parted(t, d, 1.0) == pytest.approx(1.201, abs=1e-3)
     assert parted(t, d * 0.5, 1.0) is None
+
+
+def test_ctrl_c_during_a_replay_ends_it_with_one_line_and_no_report(recorded, tmp_path):
+    """A replay interrupted once it says it is replaying (the model's run takes seconds): exit
+    130, one line saying what stopped, no traceback, no report.json."""
+    proc = subprocess.Popen([sys.executable, "-m", "daemon.replay", str(recorded), "--out", str(tmp_path / "out")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=restore_sigint)
+    first = proc.stderr.readline()  # the line it prints before the model's run starts
+    assert first.startswith(f"replaying {recorded.name} on the recorded rig's model"), first
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, (out, err)
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("interrupted: the replay stopped")
+    assert not (tmp_path / "out" / "report.json").exists()

@@ -1,6 +1,6 @@
 """``python -m daemon.replay RUN.mcap [--config RIG] [--out DIR] [--part X]``: what ``pneumactl
 replay`` runs (daemon/replay/run.py). Exit status 0: replayed; 1: refused (what is missing
-said); 2: the file cannot be read; 3: replayed, from a cut file (said)."""
+said); 2: the file cannot be read; 3: replayed, from a cut file (said); 130: stopped by Ctrl-C."""
 from __future__ import annotations
 
 import argparse
@@ -28,6 +28,8 @@ def main(argv=None) -> int:
     except (OSError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    print(f"replaying {path.name} on the {'given' if args.config else 'recorded'} rig's model (Ctrl-C stops it)",
+          file=sys.stderr, flush=True)
     try:
         result = replay(run, rig_text, args.part)
     except Refused as exc:
@@ -52,4 +54,9 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        print("interrupted: the replay stopped; its figures and report.json are written only once it has run "
+              "(a file being written when it stopped may be incomplete)", file=sys.stderr)
+        sys.exit(130)
