@@ -12,7 +12,7 @@
 The batch's flush, the internals sample and the sample's sending (with the contact
 estimate) each have a cycle of their own in every batch (its 10th, 3rd and 6th), so no cycle
 carries two of them: the cycles that carry them are where the p99 of the cycle's compute time
-lives (docs/benchmarks.md, "Session of 2026-11-27 (fifth)"). A sample carries the cycle and
+lives (docs/benchmarks.md, "The cycles that carry telemetry"). A sample carries the cycle and
 time it was taken at.
 Every message carries a per-topic ``seq`` so a subscriber can count what it missed.
 

@@ -193,9 +193,9 @@ def json_bytes(message: dict) -> bytes:
     stream). JSON has no NaN or infinity (RFC 8259) and the viewers parse it strictly
     (Foxglove's ``JSON.parse``): a number that is not finite is written ``null``, as orjson
     writes it. orjson, not the standard library: a recording writes five JSON messages a cycle,
-    and the standard encoder was half a recording's cost (docs/benchmarks.md, "A recording's
-    JSON through orjson"). What orjson refuses (a key that is not a string, an integer past
-    64 bits) goes the standard way."""
+    and the standard encoder was half a recording's cost (docs/benchmarks.md, "The recorder").
+    What orjson refuses (a key that is not a string, an integer past 64 bits) goes the standard
+    way."""
     try:
         return orjson.dumps(message)
     except orjson.JSONEncodeError:
