@@ -221,7 +221,7 @@ def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_w
                                                                                       monkeypatch):
     """The build runs in a worker process: whatever it does there, the loop keeps its
     controller and its period, the request gets a clear refusal and the next switch works."""
-    loop, _, sock, lease = enabled
+    loop, captured, sock, lease = enabled
     preparer = loop.server.commands.preparer
     preparer.warm().result(timeout=120)  # a worker up and warm: the limit below times the build alone
     if plugin == "HangsWhenBuilt":
@@ -232,9 +232,28 @@ def test_a_build_that_kills_hangs_or_cannot_return_is_refused_and_the_next_one_w
     # The failed worker's replacement, spawned and warm (however long that takes on a busy
     # machine) before the next switch is timed by the loop's cycles.
     preparer.warm().result(timeout=120)
+    if plugin != "UnsendableWhenBuilt":  # the worker is replaced, and the event says who ended it
+        replaced = planner_event(loop, captured, preparer.health()["restarts"])
+        assert ("stopped by the daemon with SIGKILL" in replaced) == (plugin == "HangsWhenBuilt"), replaced
+        assert "from outside the daemon" not in replaced, replaced
     assert loop.controller.name == "pid" and loop.state.value == "enabled"
     assert ok(loop, sock, "controller.switch", {"name": "smc"}, lease)["active"] == "smc"
     assert loop.stats.overruns_total == 0
+
+
+def planner_event(loop, captured, restart: int, limit_s: float = 180.0) -> str:
+    """The cause of the ``planner`` event of the worker's ``restart``-th replacement, the loop
+    run until it looks (the replacement's warm-up beside two CPU hogs: however long it takes).
+    The session's worker is shared: an earlier test's replacements are not this one's."""
+    end = time.monotonic() + limit_s
+    while True:
+        causes = [m["cause"] for m in captured.of("event") if m["kind"] == "planner"]
+        mine = [c for c in causes if c.endswith(f"(restart {restart})")]
+        if mine:
+            return mine[0]
+        assert time.monotonic() < end, f"no planner event for restart {restart}: {causes}"
+        loop.run(100)  # the loop looks every 100 cycles
+        time.sleep(0.02)
 
 
 def test_a_worker_that_dies_while_idle_is_reported_and_replaced_warm_before_the_next_request(enabled):
@@ -248,13 +267,9 @@ def test_a_worker_that_dies_while_idle_is_reported_and_replaced_warm_before_the_
     before = ok(loop, sock, "status")["helpers"]["planner"]
     assert before["running"]
     os.kill(before["pid"], signal.SIGKILL)
-    end = time.monotonic() + 180.0  # a worker's warm-up beside two CPU hogs: seconds, however long it takes
-    while preparer.health()["restarts"] == before["restarts"] or not preparer.health()["running"]:
-        assert time.monotonic() < end, "the dead worker was not replaced"
-        time.sleep(0.05)
-    loop.run(100)  # the loop's next look
-    event = next(m for m in captured.of("event") if m["kind"] == "planner")
-    assert "died while idle (exit code -9)" in event["cause"] and "started and warmed" in event["cause"]
+    cause = planner_event(loop, captured, before["restarts"] + 1)
+    assert "died while idle (exit code -9: SIGKILL from outside the daemon)" in cause, cause
+    assert "started and warmed" in cause and "stopped by the daemon" not in cause, cause
     after = ok(loop, sock, "status")["helpers"]["planner"]
     assert after["running"] and after["pid"] != before["pid"] and after["restarts"] == before["restarts"] + 1
     assert after["last_exit_code"] == -signal.SIGKILL
@@ -276,11 +291,12 @@ def test_a_daemon_logs_a_planner_worker_that_died_and_the_next_request_works(tmp
             sub = client.subscribe((b"event",))
             time.sleep(0.3)  # the subscription reaches the publisher
             before = client.status()["helpers"]["planner"]
+            assert before["running"]  # warmed before the daemon said it was ready: idle now
             os.kill(before["pid"], signal.SIGKILL)
             end = time.monotonic() + 180.0  # a warm-up beside two CPU hogs: however long it takes
             while (got := sub.receive(1.0)) is None or got[1]["kind"] != "planner":
                 assert time.monotonic() < end, "no planner event"
-            assert "died while idle (exit code -9)" in got[1]["cause"]
+            assert "died while idle (exit code -9: SIGKILL from outside the daemon)" in got[1]["cause"]
             after = client.status()["helpers"]["planner"]
             assert after["running"] and after["restarts"] == 1 and after["pid"] != before["pid"]
             client.acquire_lease()
@@ -289,7 +305,8 @@ def test_a_daemon_logs_a_planner_worker_that_died_and_the_next_request_works(tmp
     finally:
         daemon.terminate()
         daemon.wait(10)
-    assert "pneumad messenger ERROR: planner: the planner worker died while idle (exit code -9); another was " \
+    assert "pneumad messenger ERROR: planner: the planner worker died while idle (exit code -9: SIGKILL from " \
+           "outside the daemon); another was " \
            "started and warmed (restart 1)" in log.read_text()
 
 

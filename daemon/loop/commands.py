@@ -280,11 +280,13 @@ class Commands(ControllerCommands):
     def estop(self, args):
         """Latch the e-stop. Never refused for its arguments: the messenger passes on only ``who``,
         a string of at most 64 characters (a value that was not a string: its repr; anything else
-        sent beside it is dropped). The key that sent it is recorded first."""
+        sent beside it is dropped). The key that sent it is recorded first. ``written_by``: the
+        loop wrote the safe state (the messenger answers ``watchdog`` for an e-stop the cycle
+        watchdog wrote before the loop took it: daemon.messenger.relay)."""
         said = args.get("who", "")
         who = f"{self.client.name} ({said})" if self.client.name and said else self.client.name or said
         self.loop.estop(who)
-        return {"state": self.view.state.value}
+        return {"state": self.view.state.value, "written_by": "loop"}
 
     def abort(self, args):
         """Stop any path or move and hold the present position; a plan being prepared is

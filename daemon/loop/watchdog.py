@@ -14,7 +14,8 @@ either the loop sees ``held`` and makes no call, or the watchdog sees ``in_io`` 
 and writes the safe state. While held the loop makes no transport call and does not write the
 step's output; at its next cycle boundary it latches the e-stop or trips, puts the hold
 controller in place of one whose step hung, and lets go (:meth:`ControlLoop.take_held`). The messenger publishes the ``watchdog`` event and its log
-line from the link meanwhile: the loop's own events wait for it to cycle again.
+line from the link meanwhile (the loop's own events wait for it to cycle again), and answers
+the e-stops it wrote as done: a loop merely late (a busy PC) has not stalled.
 
 The GIL: ``time.sleep`` and blocking I/O release it, and a pure-Python busy loop lets the
 watchdog in every ``sys.getswitchinterval()`` (``pneumad run --gil-switch-us``, 5 ms); a C
@@ -73,17 +74,24 @@ class CycleWatchdog:
                     estop = (loop.cycle, now)
             if estop is not None and now - estop[1] >= self.estop_grace_s:
                 if loop.cycle - estop[0] < 2:  # no whole cycle since: the loop has not taken it
-                    self._write_safe("estop", f"an e-stop the loop had not taken after {(now - estop[1]) * 1e3:.0f} ms"
-                                              f"{self._stepping_words()}")
+                    self._write_safe("estop", self._estop_cause(now - estop[1], now - loop._deadline))
                 estop = None
             due = loop._deadline
             if due != tripped_due and now - due > self.limit_s:
                 tripped_due = due
                 self._write_safe("stall", self._stall_cause(now - due))
 
-    def _stepping_words(self) -> str:
+    def _estop_cause(self, waited_s: float, late_s: float) -> str:
+        """An e-stop not taken in time, and where the loop was: a step running, or late (a PC
+        busy with other work wakes it late), neither of which is a stall until ``limit_s``."""
         stepping = self.loop.stepping
-        return f" (controller {stepping.name}'s step running)" if stepping is not None else ""
+        if stepping is not None:
+            where = f"controller {stepping.name}'s step running"
+        elif late_s > 0:
+            where = f"the loop {late_s * 1e3:.1f} ms behind its deadline"
+        else:
+            where = "the loop waiting for its next cycle"
+        return f"an e-stop the loop had not taken after {waited_s * 1e3:.0f} ms ({where})"
 
     def _stall_cause(self, late_s: float) -> str:
         stepping, limit = self.loop.stepping, self.limit_s
@@ -106,19 +114,21 @@ class CycleWatchdog:
         give_up = self.clock() + held.patience_s
         while loop.in_io and self.clock() < give_up:
             time.sleep(IO_POLL_S)
+        written = False
         if loop.in_io:
             cause += (f": the cycle watchdog could not write the safe state (the loop's transport call has not returned "
                       f"in {held.patience_s * 1e3:.0f} ms)")
         else:
             try:
                 loop.io.write_safe()
+                written = True
                 cause += ": the cycle watchdog wrote the safe state"
             except TransportError as exc:
                 cause += f": the cycle watchdog could not write the safe state ({exc})"
         held.cause = cause
         held.done.set()
         self.count += 1
-        self.link.wrote_safe(self.count, loop.cycle, self.clock(), cause)
+        self.link.wrote_safe(self.count, loop.cycle, self.clock(), cause, written)
 
 
 class Held:

@@ -19,7 +19,8 @@ silence (``loop_stalled``: command-socket requests are refused and never reach t
 control-socket requests, e-stop first, are still queued for the moment it resumes and said to
 be so, and whether the loop's cycle watchdog has written the safe state), and publishes a
 ``loop_stalled`` event, then ``loop_resumed``; it passes every e-stop on to that watchdog too,
-and publishes a ``watchdog`` event each time it wrote the safe state (:mod:`daemon.wire.watchdog_link`). Its events share the
+publishes a ``watchdog`` event each time it acted, and answers done (``written_by: watchdog``) the
+e-stops its write of the safe state was for (:mod:`daemon.wire.watchdog_link`). Its events share the
 ``event`` topic's ``seq`` with the loop's (later loop events are renumbered after them). Every
 event it publishes is a line of the daemon's log (:mod:`daemon.messenger.journal`), and from
 the loop's stats windows it judges the loop's timing against the rig file's ``[timing]``

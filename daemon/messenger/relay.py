@@ -29,7 +29,7 @@ from daemon.messenger.publisher import Publisher
 from daemon.messenger.timing import TimingJudge
 from daemon.wire.flight import FlightNames
 from daemon.wire.ring import Ring
-from daemon.wire.watchdog_link import WatchdogLink
+from daemon.wire.watchdog_link import NONE, WatchdogLink
 from daemon.messenger.plotjuggler import PlotJugglerFeed
 from daemon.wire.loop_stats import StatsBanks
 from daemon.wire.cycle_layout import CycleLayout
@@ -52,7 +52,7 @@ class Relay:
                  timing: TimingConfig | None = None, flight: FlightRecorderConfig | None = None,
                  model: ModelLink | None = None, watchdog: WatchdogLink | None = None):
         self.watchdog = watchdog  # the loop's cycle watchdog: told of e-stops, its writes of the safe state published
-        self._watchdog_seen = watchdog.report() if watchdog is not None else (0, 0, 0.0, "")
+        self._watchdog_seen = watchdog.report() if watchdog is not None else NONE
         self._owed_estops: set[int] = set()  # tokens of e-stops the loop has not answered: the watchdog's write does
         self.sockets, self.rings, self.doorbell, self.heartbeat = sockets, rings, doorbell, heartbeat
         self.recorder = recorder
@@ -261,23 +261,33 @@ class Relay:
             self._watch_watchdog()
 
     def _watch_watchdog(self) -> None:
-        """Publish the cycle watchdog's write of the safe state (a ``watchdog`` event, a log line)."""
+        """Publish the cycle watchdog's act (a ``watchdog`` event, a log line). The e-stops that
+        came before its write of the safe state are done: answered so now, whether the loop is
+        late or stuck in a step (a stall is for the messenger's own watch to say, at
+        ``stall_s``); the loop latches them when it cycles, and its own replies are dropped."""
         report = self.watchdog.report()
-        if report[0] != self._watchdog_seen[0]:
-            self._watchdog_seen = report
-            self._event({"kind": "watchdog", "cycle": report[1], "cause": report[3], "t_loop": report[2]})
-            for token in self._owed_estops:  # the loop cannot answer them: the watchdog's write does
-                owed = self.owed.pop(token, None)
-                if owed is not None:
-                    self._answer_stalled(owed[0], owed[1], owed[3], "written by the cycle watchdog; the loop latches "
-                                                                    "the e-stop when it cycles again")
-            self._owed_estops.clear()
+        if report.count == self._watchdog_seen.count:
+            return
+        self._watchdog_seen = report
+        self._event({"kind": "watchdog", "cycle": report.cycle, "cause": report.cause, "t_loop": report.t})
+        if not report.written:  # not done: the loop's own reply says when it is
+            return
+        for token in list(self._owed_estops):
+            owed = self.owed.get(token)
+            if owed is None:
+                self._owed_estops.discard(token)
+            elif owed[2] <= report.t:  # came before the write
+                del self.owed[token]
+                self._owed_estops.discard(token)
+                self._send(owed[0], owed[1], protocol.encode_result(owed[3], {"state": "estop",
+                                                                              "written_by": "watchdog"}))
 
     def _answer_stalled(self, sock: zmq.Socket, envelope: list, request_id, what: str) -> None:
         since = time.monotonic() - self._cycle_seen
-        count, cycle, t, cause = self._watchdog_seen
-        safe = count > 0 and cycle >= self._cycle and t >= self._cycle_seen - 1.0
-        said = f"; {cause}" if safe else ""
+        report = self._watchdog_seen
+        during = report.count > 0 and report.cycle >= self._cycle and report.t >= self._cycle_seen - 1.0
+        safe = during and report.written
+        said = f"; {report.cause}" if during else ""
         reply = protocol.encode_error(request_id, protocol.LOOP_STALLED,
                                       f"the control loop has not cycled for {since:.1f} s (last cycle {self._cycle}); "
                                       f"this request was {what}{said}",

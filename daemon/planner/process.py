@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import os
 import queue
+import signal
 import socket
 import threading
 import time
@@ -40,6 +41,7 @@ from multiprocessing.connection import Connection, wait
 from hal.process import Child, Helper, HelperFailed
 
 DEFAULT_TIME_LIMIT_S = 30.0  # a build slower than this is taken as hung and its worker stopped
+REAP_S = 1.0  # a worker whose socket closed is waited for this long to be reaped before it is killed [s]
 BUILD_NICE = 10  # the worker's priority for every job but the warm-up
 
 
@@ -147,7 +149,7 @@ class Preparer:
             if self._woken in ready:
                 self._woken.recv(4096)
             if self._worker is not None and self._worker.conn in ready:  # idle, it never speaks: it ended
-                self._replace("the planner worker died while idle")
+                self._replace("the planner worker died while idle", dead=True)
 
     def _run(self, future: Future, function: Callable, args: tuple) -> None:
         try:
@@ -157,24 +159,28 @@ class Preparer:
         except PreparationFailed as exc:
             future.set_exception(exc)  # the request's refusal first; then the replacement
             if self._worker is not None:
-                self._replace(f"the planner worker was stopped: {exc}")
+                overran = self._worker.overran
+                self._replace(f"the planner worker {'was stopped' if overran else 'died on a job'}: {exc}",
+                              dead=not overran)
             return
         except Exception as exc:  # the job itself would not pickle: refused, the worker is fine
             future.set_exception(exc)
             return
         if ok:
+            self._worker.warm = self._worker.warm or function is _warm  # before the result: whoever waited sees it warm
             future.set_result(value)
-            self._worker.warm = self._worker.warm or function is _warm
         else:
             future.set_exception(value)
 
-    def _replace(self, cause: str) -> None:
-        """Stop the worker and start another, warmed, at once (the next job waits for it)."""
-        code = self._worker.ended()
+    def _replace(self, cause: str, dead: bool) -> None:
+        """Stop the worker (``dead``: it ended by itself, or by a signal from outside) and start
+        another, warmed, at once (the next job waits for it). The cause says whether the
+        daemon's own SIGKILL ended it, so an outside kill is never taken for a stop of ours."""
+        code, ours = self._worker.ended(dead)
         self._worker = None
         self.restarts += 1
         self.last_exit_code = code
-        cause = f"{cause} (exit code {code})"
+        cause = f"{cause} ({_how_it_ended(code, ours)})"
         try:
             self._worker = _Worker(self._cpus, self.time_limit_s)
             ok, value = self._worker.call(_warm, (), self.time_limit_s, self.sources)
@@ -196,6 +202,7 @@ class _Worker:
         ours, theirs = socket.socketpair()
         self.conn = Connection(ours.detach())
         self.warm = False  # its warm-up done
+        self.overran = False  # a job of its outlasted its time limit: the daemon stops it
         self._process = Helper("daemon.planner.process:serve", (theirs.fileno(),), name="the preparation worker",
                                pass_fds=(theirs.fileno(),), nice=0, cpus=cpus)
         try:
@@ -217,6 +224,7 @@ class _Worker:
         try:
             self.conn.send((sources, function, args))  # (a job that will not pickle raises here, not as EOF or OSError)
             if not self.conn.poll(time_limit_s):
+                self.overran = True
                 raise PreparationFailed(f"the preparation took longer than {time_limit_s:g} s and was stopped; "
                                         f"nothing was applied (a PC busy with other work: pneumad run "
                                         f"--prepare-limit-s)")
@@ -227,15 +235,34 @@ class _Worker:
                                     f"after {time.monotonic() - started:.1f} s; nothing was applied; "
                                     f"a new worker takes the next request") from None
 
-    def ended(self) -> int | None:
-        """Make sure it has ended (SIGKILL); its exit code."""
+    def ended(self, dead: bool) -> tuple[int | None, bool]:
+        """Make sure it has ended: one that is ``dead`` (its socket closed) is given up to
+        ``REAP_S`` to be reaped, then any still alive gets SIGKILL. Its exit code, and whether
+        the daemon's SIGKILL ended it."""
+        deadline = time.monotonic() + (REAP_S if dead else 0.0)
+        while self._process.alive and time.monotonic() < deadline:
+            time.sleep(0.01)
+        ours = self._process.alive
         code = self._process.kill()
         self.conn.close()
-        return code
+        return code, ours
 
     def stop(self) -> None:
         self._process.kill()
         self.conn.close()
+
+
+def _how_it_ended(code: int | None, ours: bool) -> str:
+    """A worker's end in words: the daemon's SIGKILL, another's signal, or its own exit."""
+    if ours:
+        return f"stopped by the daemon with SIGKILL, exit code {code}"
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"exit code {code}: {name} from outside the daemon"
+    return f"exit code {code}"
 
 
 # -- in the worker process ----------------------------------------------------------------

@@ -104,7 +104,11 @@ def make_loop(rig_text: str | None = None, server: bool = False, controller: str
     send = captured if srv is None else (lambda topic, payload: (captured(topic, payload), srv.publish(topic, payload)))
     loop = virtual_loop(rig, controller, send, plugins, srv.stats_banks if srv is not None else None)
     if srv is not None:
-        srv.attach(loop, preparer or shared_preparer())
+        if preparer is None:
+            preparer = shared_preparer()
+            while preparer.check() is not None:  # an earlier test's replaced worker: not this loop's event
+                pass
+        srv.attach(loop, preparer)
     captured.follow(loop, beside_messenger=srv is not None)
     loop.start()
     return loop, captured, srv

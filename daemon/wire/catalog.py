@@ -72,7 +72,7 @@ COMMANDS: dict[str, Command] = {c.name: c for c in (
     Command("enable", "loop", "idle -> enabled, holding the present position", ("state", "recover"), lease=True,
             errors=(P.BAD_STATE,)),
     Command("disable", "loop", "to idle, safe outputs", _STATE, sockets=BOTH, lease=True),
-    Command("estop", "loop", "latch the e-stop: safe outputs this cycle", _STATE, (
+    Command("estop", "loop", "latch the e-stop: safe outputs this cycle", ("state", "written_by"), (
         Arg("who", "string", "who stops it (first 64 characters kept)", high=64),), sockets=BOTH, strict=False),
     Command("abort", "loop", "stop any reference, hold the present position", ("reference",), sockets=BOTH),
     Command("reset", "loop", "fault/estop -> idle", _STATE, lease=True, errors=(P.BAD_STATE,)),

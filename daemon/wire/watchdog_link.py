@@ -4,10 +4,11 @@ other, in the rings' directory:
 - ``estop``, a FIFO: the messenger writes a byte for every e-stop it passes to the loop, so
   that the watchdog, asleep in a ``select`` on it, writes the safe state at once when the loop
   does not take the e-stop itself within a few periods (a step that hangs);
-- ``watchdog``, shared memory: each time the watchdog wrote the safe state, its count, the
-  loop's cycle count then, the time [s, monotonic] and the cause in words (written before the
-  count, which the messenger polls), so the messenger publishes the ``watchdog`` event and
-  says so in its ``loop_stalled`` answers while the loop itself cannot.
+- ``watchdog``, shared memory: each time the watchdog acted, its count, the loop's cycle
+  count then, the time [s, monotonic], whether the safe state was written and the cause in
+  words (written before the count, which the messenger polls), so the messenger publishes the
+  ``watchdog`` event, answers the e-stops the write was for and says so in its
+  ``loop_stalled`` answers while the loop itself cannot.
 
 The loop's side creates both (:meth:`WatchdogLink.create`) before the messenger starts, and
 keeps the FIFO's read end open, so the messenger's non-blocking open of its write end never
@@ -17,10 +18,28 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+from typing import NamedTuple
 
 _HEAD = struct.Struct("<QQd")  # count, cycle, t
+_WRITTEN = _HEAD.size  # one byte: 1 if the safe state was written
+_CAUSE = _WRITTEN + 1
 _CAUSE_BYTES = 480
-_SIZE = _HEAD.size + _CAUSE_BYTES
+_SIZE = _CAUSE + _CAUSE_BYTES
+
+
+class Report(NamedTuple):
+    """The watchdog's last act (count 0: none yet): the loop's cycle count and the time [s,
+    monotonic] then, the cause in words, and whether the safe state was written (False: the
+    cause says why it could not be)."""
+
+    count: int
+    cycle: int
+    t: float
+    cause: str
+    written: bool
+
+
+NONE = Report(0, 0, 0.0, "", False)
 
 
 class WatchdogLink:
@@ -53,11 +72,11 @@ class WatchdogLink:
         except BlockingIOError:
             pass
 
-    def report(self) -> tuple[int, int, float, str]:
-        """(count, cycle, t, cause) of the watchdog's last write of the safe state (count 0: none)."""
+    def report(self) -> Report:
+        """The watchdog's last act (count 0: none)."""
         count, cycle, t = _HEAD.unpack_from(self._map, 0)
-        cause = bytes(self._map[_HEAD.size:_SIZE]).rstrip(b"\0").decode("utf-8", "replace")
-        return count, cycle, t, cause
+        cause = bytes(self._map[_CAUSE:_SIZE]).rstrip(b"\0").decode("utf-8", "replace")
+        return Report(count, cycle, t, cause, self._map[_WRITTEN] == 1)
 
     # -- the watchdog's side ----------------------------------------------------------------
     def drain(self) -> None:
@@ -68,10 +87,11 @@ class WatchdogLink:
         except BlockingIOError:
             pass
 
-    def wrote_safe(self, count: int, cycle: int, t: float, cause: str) -> None:
-        """Say the safe state was written: the cause first, the count last."""
+    def wrote_safe(self, count: int, cycle: int, t: float, cause: str, written: bool) -> None:
+        """Say the watchdog acted (``written``: the safe state was written): the cause first, the count last."""
         text = cause.encode("utf-8")[:_CAUSE_BYTES]
-        self._map[_HEAD.size:_SIZE] = text + b"\0" * (_CAUSE_BYTES - len(text))
+        self._map[_WRITTEN] = 1 if written else 0
+        self._map[_CAUSE:_SIZE] = text + b"\0" * (_CAUSE_BYTES - len(text))
         _HEAD.pack_into(self._map, 0, count, cycle, t)
 
     def close(self) -> None:
