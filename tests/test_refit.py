@@ -83,8 +83,9 @@ def test_a_recorded_path_is_fitted_near_the_simulators_plant_within_the_stated_u
     truth = config.load().joint_models["bottom"]
     found, std = report["params"], report["stated_std"]
     # the noise is the potentiometer's (0.5 mV: RMS about 0.04 deg), and the fit's stated 1 sigma
-    # (the Jacobian's scaled for correlated residuals, the population's spread and the model's
-    # own approximations) is what it makes of it: each parameter the run settles within 2 of it
+    # (the Jacobian's scaled for correlated residuals, the population's spread, the lag/dead-time
+    # ridge's optima the data cannot tell apart and the model's own approximations) is what it
+    # makes of it: each parameter the run settles within 2 of it
     # (searched as logarithms: a relative sigma; the dead time in s). Waypoints 2 s apart do
     # not settle the regulator's lag against the dead time: the report names what they leave
     # unsettled, and the two's sum, the lag a slow path sees, within 2 sigma or the fit's

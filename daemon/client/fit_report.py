@@ -60,9 +60,10 @@ def _uncertainty(name: str, value: float) -> str:
 
 def print_table(report: dict) -> None:
     """The parameters against the prior, with the uncertainty the fit states (1 sigma: the
-    Jacobian's, scaled for the residuals' correlation, and the final population's spread, in
-    quadrature) and that spread alone (how far apart fits the data rates alike are); then the
-    held-out Fit beside the prior's, and a warning when the new model does not beat it."""
+    Jacobian's, scaled for the residuals' correlation, the final population's spread, the
+    lag/dead-time ridge's and the model's own error, in quadrature) and the population's
+    spread alone (how far apart fits the data rates alike are); then the held-out Fit beside
+    the prior's, and a warning when the new model does not beat it."""
     print(f"{'parameter':>9} {'prior':>11} {'identified':>11} {'1 sigma':>8} {'spread':>8}  unit", file=sys.stderr)
     for n in FITTED:
         key = n if n != "Fc" else "Fc_ratio"
