@@ -85,23 +85,24 @@ def test_a_recorded_path_is_fitted_near_the_simulators_plant_within_the_stated_u
     # the noise is the potentiometer's (0.5 mV: RMS about 0.04 deg), and the fit's stated 1 sigma
     # (the Jacobian's scaled for correlated residuals, the population's spread, the lag/dead-time
     # ridge's optima the data cannot tell apart and the model's own approximations) is what it
-    # makes of it: each parameter the run settles within 2 of it
+    # makes of it: each parameter the run settles within 3 of it (up to six settled parameters each
+    # held within 2 would miss one in five runs by chance alone; within 3, about one in a hundred)
     # (searched as logarithms: a relative sigma; the dead time in s). Waypoints 2 s apart do
     # not settle the regulator's lag against the dead time: the report names what they leave
-    # unsettled, and the two's sum, the lag a slow path sees, within 2 sigma or the fit's
+    # unsettled, and the two's sum, the lag a slow path sees, within 3 sigma or the fit's
     # mechanics step of 5 ms. The damping shows in every swing: always settled
     unsettled = set(report["closed_loop"]["unsettled"])
     assert {"T_ep", "T_dly"} & unsettled and "D" not in unsettled, report["closed_loop"]
     for name in {"D", "K", "T_ep", "Fs"} - unsettled:
         miss = math.log(found[name] / getattr(truth, name))
-        assert abs(miss) <= 2.0 * std[name], (name, found, std)
+        assert abs(miss) <= 3.0 * std[name], (name, found, std)
     if "T_dly" not in unsettled:
-        assert abs(found["T_dly"] - truth.T_dly) <= 2.0 * std["T_dly"], (found, std)
+        assert abs(found["T_dly"] - truth.T_dly) <= 3.0 * std["T_dly"], (found, std)
     if not {"Fs", "Fc_ratio"} & unsettled:
-        assert abs(found["Fc"] / found["Fs"] - truth.Fc / truth.Fs) <= 2.0 * std["Fc_ratio"], (found, std)
+        assert abs(found["Fc"] / found["Fs"] - truth.Fc / truth.Fs) <= 3.0 * std["Fc_ratio"], (found, std)
     lag = found["T_ep"] + found["T_dly"]
     lag_std = math.hypot(std["T_ep"] * found["T_ep"], std["T_dly"])
-    assert abs(lag - (truth.T_ep + truth.T_dly)) <= max(2.0 * lag_std, 0.005), (found, std)
+    assert abs(lag - (truth.T_ep + truth.T_dly)) <= max(3.0 * lag_std, 0.005), (found, std)
     # judged on the run's held-out end, it explains what the stale prior does not (the thesis's
     # fits: 66-90 %; here 90-99 %, the less where a loaded machine ran the loop late)
     assert report["heldout_fit_percent"][0] > 85.0 and report["beats_prior"], report
