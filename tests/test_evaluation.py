@@ -305,8 +305,8 @@ def test_the_documents_evaluate_lines_run(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     lines = {}
     for doc, section in (("docs/controllers.md", "Judging a controller before it touches the arm: `pneumactl evaluate`"),
-                         ("docs/benchmarks.md", "Evaluations: `pneumactl evaluate` (the loop's cycle compiled around "
-                                                "the controller)")):
+                         ("docs/benchmarks.md", "Evaluations: `pneumactl evaluate` (the loop's cycle and the "
+                                                "built-ins' steps compiled)")):
         for command in doc_blocks.commands(doc, section, match="^pneumactl evaluate "):
             lines.setdefault(command.text, command)
     assert len(lines) >= 3
