@@ -29,6 +29,7 @@ from daemon.testing.simrig import DT, make_rig
 from hal import config
 from hal.errors import ConfigError
 from tests.daemons import real_daemon, wait_for_own_daemon
+from tests.schemas import schema
 
 
 # A busy loop that ends with the test's process (an interrupted run leaves none spinning), at nice
@@ -204,6 +205,14 @@ def test_a_step_beyond_the_stroke_limits_or_the_valves_flow_is_refused_in_mm():
     assert math.isclose(plan.trajectory.peak, 0.005, rel_tol=0.05)
     with pytest.raises(CommandFailed, match=r"joint axis at 185\.0 mm \+- 10\.0 mm \(amplitude_mm\) leaves its limits"):
         PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_mm": 10.0}, [0.185])
+    # inside the limits but within the set-point margin of one: refused as a set-point there is
+    with pytest.raises(CommandFailed, match=r"joint axis at 170\.0 mm \+- 1[0-9]\.[0-9] mm \(amplitude_mm\) comes within 5 mm "
+                                            r"of its limits 10\.0\.\.190\.0 mm: references keep 5 mm inside \(the rig "
+                                            r"file's \[safety\] setpoint_margin_mm\), so 15\.0\.\.185\.0 mm") as refused:
+        PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_mm": 18.0}, [0.170])
+    assert refused.value.data["margin_mm"] == 5.0 and refused.value.data["argument"] == "amplitude_mm"
+    schema("error-data").validate(refused.value.data)
+    assert PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_mm": 10.0}, [0.170]).trajectory
     with pytest.raises(CommandFailed, match=r"joint axis is linear: give the reference side's amplitude as "
                                             r"amplitude_mm"):
         PLANNERS["excite"](ctx, {"signal": "chirp", "joint": "axis", "amplitude_deg": 1.0}, [0.1])

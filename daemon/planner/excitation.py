@@ -47,7 +47,7 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                        f"amplitude as {key}", other if other in args else key)
     amplitude = _number(args, key) / scale
     excitation = signal_of(args, signal, setpoint, j, amplitude, MAX_DURATION_S)
-    _check_band(ctx, j, setpoint[j], excitation.peak, key)
+    _check_band(ctx, j, setpoint[j], excitation.peak, key, ctx.margins[j] if ctx.margins else 0.0)
     check_authority(ctx, f"the {signal}", excitation,
                     "lower the amplitude" + (" or the top frequency" if signal != "prbs" else ""))
     excitation.definition = {"side": "reference", "signal": signal, "joint": joint,
@@ -56,13 +56,25 @@ def plan_excite(ctx: PlanContext, args: dict, setpoint: list[float]) -> Plan:
                                      "duration_s": excitation.duration}, tuple(setpoint))
 
 
-def _check_band(ctx: PlanContext, j: int, centre: float, half: float, argument: str) -> None:
-    """A limits refusal in the joint's unit unless centre +- half [SI] is inside its limits."""
+def _check_band(ctx: PlanContext, j: int, centre: float, half: float, argument: str, margin: float = 0.0) -> None:
+    """A limits refusal in the joint's unit unless centre +- half [SI] is inside its limits by
+    ``margin`` [SI]: a reference excitation keeps the set-points' margin (a controller's overshoot
+    past a reference at a limit would trip the arm, as past a set-point there)."""
     lo, hi = ctx.limits[j]
-    if lo <= centre - half and centre + half <= hi:
+    if lo + margin <= centre - half and centre + half <= hi - margin:
         return
     unit, scale = ctx.display(j)
     what = "angle" if unit == "deg" else "position"
+    if lo <= centre - half and centre + half <= hi:
+        shown = round(margin * scale, 6)
+        raise CommandFailed(P.REFUSED, f"joint {ctx.joint_names[j]} at {ctx.text(j, centre, 1)} +- "
+                                       f"{ctx.text(j, half, 1)} ({argument}) comes within {shown:g} {unit} of its "
+                                       f"limits {lo * scale:.1f}..{hi * scale:.1f} {unit}: references keep {shown:g} "
+                                       f"{unit} inside (the rig file's [safety] setpoint_margin_{unit}), so "
+                                       f"{(lo + margin) * scale:.1f}..{(hi - margin) * scale:.1f} {unit}",
+                            {"reason": "limits", "argument": argument, "joint": ctx.joint_names[j],
+                             f"{what}_{unit}": _outermost(centre, half, lo, hi) * scale,
+                             f"limits_{unit}": [lo * scale, hi * scale], f"margin_{unit}": shown})
     raise CommandFailed(P.REFUSED, f"joint {ctx.joint_names[j]} at {ctx.text(j, centre, 1)} +- "
                                    f"{ctx.text(j, half, 1)} ({argument}) leaves its limits "
                                    f"{lo * scale:.1f}..{hi * scale:.1f} {unit}",
