@@ -30,9 +30,7 @@ class SimAxisRig:
         self._options: list[SimJointOptions] = []
         for j in rig.joints:
             jo = options.joints.get(j.name, SimJointOptions())
-            if jo.misplaced(linear=True):
-                raise ConfigError(f"transport.options.joints.{j.name}.{jo.misplaced(linear=True)}: a rotary joint's "
-                                  f"option; {j.name} is a linear axis (docs/simulator.md, Drift)")
+            jo.check_kind(j.name, linear=True)
             nominal = j.linear_axis or AxisParams()
             try:
                 params = AxisParams.from_table({**dataclasses.asdict(nominal), **jo.overrides})

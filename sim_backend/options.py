@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from hal.errors import ConfigError
 from hal.schema import require
 from sim_backend.muscle_plant import MusclePlantOptions
 
@@ -47,19 +48,20 @@ class SimJointOptions:
         require(abs(self.sensor_offset_mm) <= 100, "sensor_offset_mm", "must be within +-100 mm")
         require(0 < self.regulator_gain <= 2, "regulator_gain", "must be within (0, 2]")
 
-    def misplaced(self, linear: bool) -> str:
-        """The first key set here that a joint of this kind has no use for ("" for none): a
-        rotary joint's (its model, angles, chambers, regulators) on a linear axis, a linear
-        one's (its position, its sensor's offset in mm) on a rotary joint. Read by each
-        plant, so a drift that would do nothing is refused rather than ignored."""
+    def check_kind(self, joint: str, linear: bool) -> None:
+        """ConfigError naming the first key set here that a joint of this kind has no use for: a
+        rotary joint's (its model, angles, chambers, regulators) on a linear axis, a linear one's
+        (its position, its sensor's offset in mm) on a rotary joint. Called by each plant, so a
+        drift that would do nothing is refused rather than ignored."""
         rotary_only = ("model", "neutral_angle_deg", "initial_angle_deg", "leak", "friction_scale",
                        "sensor_offset_deg", "regulator_gain")
         linear_only = ("initial_position_mm", "sensor_offset_mm")
         default = SimJointOptions()
         for key in rotary_only if linear else linear_only:
             if getattr(self, key) != getattr(default, key):
-                return key
-        return ""
+                owner, kind = ("a rotary joint's", "a linear axis") if linear else ("a linear joint's", "a rotary joint")
+                raise ConfigError(f"transport.options.joints.{joint}.{key}: {owner} option; {joint} is {kind} "
+                                  f"(docs/simulator.md, Drift)")
 
     @property
     def drifts(self) -> bool:

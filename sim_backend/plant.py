@@ -44,9 +44,7 @@ class SimArm:
         self._drifts: list[SimJointOptions | None] = []  # each joint's drift (docs/simulator.md "Drift")
         for jc in rig.joints:
             jo = options.joints.get(jc.name, SimJointOptions())
-            if jo.misplaced(linear=False):
-                raise ConfigError(f"transport.options.joints.{jc.name}.{jo.misplaced(linear=False)}: a linear joint's "
-                                  f"option; {jc.name} is a rotary joint (docs/simulator.md, Drift)")
+            jo.check_kind(jc.name, linear=False)
             model = jo.model or jc.model_name
             if model not in rig.joint_models:
                 raise ConfigError(f"transport.options.joints.{jc.name}.model: no identified model {model!r} "

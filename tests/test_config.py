@@ -5,7 +5,7 @@ from hal import config
 from hal.errors import ConfigError
 from hal.rig import RigIO
 from hal.transport import create_transport
-from daemon.testing.drift import drifted_rig
+from daemon.testing.drift import axis_rig, drifted_rig
 from daemon.testing.simrig import make_rig, sim_of
 
 BASE = config.load("sim").source
@@ -109,8 +109,7 @@ def test_bad_sim_options_name_the_key(options, message):
 def test_a_drift_the_joints_kind_has_no_use_for_is_refused_not_ignored(rig, drift, message):
     """A drift that would do nothing (a linear axis's sensor offset in mm on a rotary joint, or a
     rotary joint's on the axis) is refused with the key, where it was silently accepted."""
-    text = drifted_rig(drift, "axis", 1.0, config.load("sim-axis").source) if rig == "sim-axis" \
-        else drifted_rig(drift, "bottom", 1.0)
+    text = axis_rig(drift, 1.0) if rig == "sim-axis" else drifted_rig(drift, "bottom", 1.0)
     with pytest.raises(ConfigError, match=message):
         sim_of(config.parse(text))
 
