@@ -160,7 +160,7 @@ class FastLoop:
                 u = step(JointState(now, both[:n], both[n:], pressures), Reference(q, ref[1], ref[2], stiffness))
                 check_output(u, width)
             except Exception as exc:  # as the loop: a failing controller trips
-                self.cause = f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}"
+                self._failed(exc)
                 break
             for c in commands:
                 U[c] = u[c]
@@ -193,8 +193,10 @@ class FastLoop:
             self.now, self.reference, self.u = last, samples.rows[start + done - 1], self.out.tolist()
         self.deadline = now
         if outcome == twin_run.NOT_FINITE:
-            self.cause = f"controller {self.controller.name} failed: ValueError: returned {self.out.tolist()!r}: " \
-                         f"expected {self.width} finite values"
+            try:
+                check_output(self.out.tolist(), self.width)  # raises: the loop's own words for that output
+            except ValueError as exc:
+                self._failed(exc)
         elif outcome:
             self._trip(outcome)
         return not outcome
@@ -208,6 +210,10 @@ class FastLoop:
         twin_run.run(tw.kind, tw.dob, self.deadline, self.period, np.zeros((0, self.n)), False, False, self.J, self.C,
                      self.O, self.G, self.K, self.noise, coef, buf, state, k, tau, self.U, self.A,
                      np.zeros((0, 2 * self.n + self.width)), *tw.arrays(), tw.LIM, self.out)
+
+    def _failed(self, exc: Exception) -> None:
+        """The cause of a trip by a failing step, in the loop's words."""
+        self.cause = f"controller {self.controller.name} failed: {type(exc).__name__}: {exc}"
 
     def _trip(self, outcome: int) -> None:
         code, i = divmod(outcome, 16)
