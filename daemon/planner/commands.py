@@ -266,12 +266,8 @@ def check_limits(ctx: PlanContext, positions: Sequence[float]) -> None:
             data = {"reason": "limits", "joint": name, f"{what}_{unit}": q * scale,
                     f"limits_{unit}": [lo * scale, hi * scale]}
             if lo <= q <= hi:
-                shown = round(margin * scale, 6)  # the rig file's figure, not its round trip through SI
-                raise CommandFailed(P.REFUSED, f"joint {name} set-point {ctx.text(j, q)} is within {shown:g} "
-                                               f"{unit} of its limits {lo * scale:.1f}..{hi * scale:.1f} {unit}: "
-                                               f"set-points keep {shown:g} {unit} inside (the rig file's "
-                                               f"[safety] setpoint_margin_{unit}), so "
-                                               f"{(lo + margin) * scale:.1f}..{(hi - margin) * scale:.1f} {unit}",
+                words, shown = ctx.margin_words(j, margin, "set-points")
+                raise CommandFailed(P.REFUSED, f"joint {name} set-point {ctx.text(j, q)} is within {words}",
                                     {**data, f"margin_{unit}": shown})
             raise CommandFailed(P.REFUSED, f"joint {name} set-point {ctx.text(j, q)} is outside its limits "
                                            f"{lo * scale:.1f}..{hi * scale:.1f} {unit}", data)

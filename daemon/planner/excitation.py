@@ -66,12 +66,9 @@ def _check_band(ctx: PlanContext, j: int, centre: float, half: float, argument: 
     unit, scale = ctx.display(j)
     what = "angle" if unit == "deg" else "position"
     if lo <= centre - half and centre + half <= hi:
-        shown = round(margin * scale, 6)
+        words, shown = ctx.margin_words(j, margin, "references")
         raise CommandFailed(P.REFUSED, f"joint {ctx.joint_names[j]} at {ctx.text(j, centre, 1)} +- "
-                                       f"{ctx.text(j, half, 1)} ({argument}) comes within {shown:g} {unit} of its "
-                                       f"limits {lo * scale:.1f}..{hi * scale:.1f} {unit}: references keep {shown:g} "
-                                       f"{unit} inside (the rig file's [safety] setpoint_margin_{unit}), so "
-                                       f"{(lo + margin) * scale:.1f}..{(hi - margin) * scale:.1f} {unit}",
+                                       f"{ctx.text(j, half, 1)} ({argument}) comes within {words}",
                             {"reason": "limits", "argument": argument, "joint": ctx.joint_names[j],
                              f"{what}_{unit}": _outermost(centre, half, lo, hi) * scale,
                              f"limits_{unit}": [lo * scale, hi * scale], f"margin_{unit}": shown})

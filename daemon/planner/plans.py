@@ -65,6 +65,18 @@ class PlanContext:
         unit, scale = self.display(j)
         return f"{number_text(value * scale, digits)} {unit}"
 
+    def margin_words(self, j: int, margin: float, kept: str) -> tuple[str, float]:
+        """What a refusal within joint j's set-point ``margin`` [SI] of its limits says after "within"
+        ("3 deg of its limits 85.0..175.0 deg: set-points keep 3 deg inside (...), so 88.0..172.0 deg"),
+        ``kept`` naming what keeps it, and the margin in the joint's unit (the rig file's figure,
+        not its round trip through SI)."""
+        lo, hi = self.limits[j]
+        unit, scale = self.display(j)
+        shown = round(margin * scale, 6)
+        return (f"{shown:g} {unit} of its limits {lo * scale:.1f}..{hi * scale:.1f} {unit}: {kept} keep {shown:g} "
+                f"{unit} inside (the rig file's [safety] setpoint_margin_{unit}), so {(lo + margin) * scale:.1f}.."
+                f"{(hi - margin) * scale:.1f} {unit}"), shown
+
     def require_rotary(self, argument: str) -> None:
         """bad_args naming ``argument`` (an angle or a tip point) on a rig with a linear joint."""
         linear = [name for j, name in enumerate(self.joint_names) if self.unit(j) != "rad"]
