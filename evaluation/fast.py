@@ -63,7 +63,8 @@ class FastLoop:
         self.pressures = loop.snapshot.pressures
         self.u = list(loop.u)
         self.cause = ""
-        self.samples = None if key is None else reference_samples.kept(key, self.t0)  # a reference's samples kept across cases
+        # a reference's samples kept across cases
+        self.samples = None if key is None else reference_samples.kept(key, self.t0)
         n = self.n
         J = np.zeros((n, K.J_WIDTH))
         pairs = {i: (ih, ir) for i, _, ih, _, ir in io._pairs}
@@ -178,7 +179,8 @@ class FastLoop:
         self.deadline, self.now = deadline, last
         return False
 
-    def _compiled(self, start: int, cycles: int, samples: reference_samples.Samples, logged: bool, L: np.ndarray) -> bool:
+    def _compiled(self, start: int, cycles: int, samples: reference_samples.Samples, logged: bool,
+                  L: np.ndarray) -> bool:
         """Cycles ``start``.. of this run with the controller's compiled twin: the reference
         sampled for them first (the same times: the same sums of the period)."""
         period = self.period
@@ -186,9 +188,9 @@ class FastLoop:
         refs = samples.angles[start:start + cycles]
         coef, buf, state, k, tau = self.plant
         tw = self.twin
-        done, outcome, now, last = twin_run.run(tw.kind, tw.dob, self.deadline, period, refs, start == 0, logged, self.J,
-                                          self.C, self.O, self.G, self.K, self.noise, coef, buf, state, k, tau,
-                                          self.U, self.A, L, *tw.arrays(), tw.LIM, self.out)
+        done, outcome, now, last = twin_run.run(tw.kind, tw.dob, self.deadline, period, refs, start == 0, logged,
+                                                self.J, self.C, self.O, self.G, self.K, self.noise, coef, buf, state,
+                                                k, tau, self.U, self.A, L, *tw.arrays(), tw.LIM, self.out)
         if done:
             self.now, self.reference, self.u = last, samples.rows[start + done - 1], self.out.tolist()
         self.deadline = now

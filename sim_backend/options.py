@@ -59,7 +59,8 @@ class SimJointOptions:
         default = SimJointOptions()
         for key in rotary_only if linear else linear_only:
             if getattr(self, key) != getattr(default, key):
-                owner, kind = ("a rotary joint's", "a linear axis") if linear else ("a linear joint's", "a rotary joint")
+                owner, kind = ("a rotary joint's", "a linear axis") if linear else \
+                    ("a linear joint's", "a rotary joint")
                 raise ConfigError(f"transport.options.joints.{joint}.{key}: {owner} option; {joint} is {kind} "
                                   f"(docs/simulator.md, Drift)")
 
