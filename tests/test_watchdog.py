@@ -207,7 +207,7 @@ def test_in_process_an_estop_poked_while_the_step_sleeps_is_written_at_once(tmp_
     loop, watchdog, link, written = _watched_loop(tmp_path, 5.0)  # only the e-stop acts
     try:
         poked = []
-        threading.Timer(0.3, lambda: (poked.append(time.monotonic()), link.poke())).start()  # during the sleep
+        threading.Timer(0.3, lambda: (poked.append(time.monotonic()), link.pass_estop())).start()  # during the sleep
         loop.run(60)
         by_watchdog = [w for w in written if w[1] == "cycle watchdog"]
         assert by_watchdog and poked[0] < by_watchdog[0][0] < poked[0] + BOUND_S
@@ -218,6 +218,42 @@ def test_in_process_an_estop_poked_while_the_step_sleeps_is_written_at_once(tmp_
         watchdog.stop()
         loop.shutdown()
         link.close()
+
+
+def test_in_process_an_estop_the_loop_took_before_the_watchdog_heard_it_is_not_latched_again(tmp_path):
+    """On a loaded PC the FIFO's byte can reach the watchdog after the loop took the e-stop and
+    was reset; the loop then late by more than the grace: nothing is written, nothing latches
+    (it was latched again, after the reset, and refused the next enable)."""
+    rig = dataclasses.replace(config.load(), safety=dataclasses.replace(config.load().safety, stall_after_s=5.0))
+    loop = assembly.build_loop(rig, MonotonicClock(spin_s=0.0), 0.001, "hold")
+    loop_side, messenger_side = WatchdogLink.create(str(tmp_path)), WatchdogLink(str(tmp_path))
+    watchdog = CycleWatchdog(loop, loop_side)
+    try:
+        loop.start()
+        loop.enable()
+        loop.run(20)
+        messenger_side.pass_estop()
+        loop.estop("the operator")  # the loop takes it at once; the watchdog's thread has not run yet
+        loop.run(5)
+        loop.reset()
+        loop.run(5)
+        assert loop.state is State.IDLE
+        watchdog.start()  # hears the byte now, then the loop does not cycle for 20 grace periods
+        time.sleep(20 * watchdog.estop_grace_s)
+        assert loop.held is None and loop_side.report().count == 0, loop_side.report()
+        loop.run(5)
+        loop.enable()
+        assert loop.state is State.ENABLED
+        messenger_side.pass_estop()  # and one it does not take is still written, once the grace is up
+        time.sleep(20 * watchdog.estop_grace_s)
+        assert loop.held is not None and "an e-stop the loop had not taken" in loop_side.report().cause
+        loop.run(2)
+        assert loop.state is State.ESTOP
+    finally:
+        watchdog.stop()
+        loop.shutdown()
+        loop_side.close()
+        messenger_side.close()
 
 
 def _reply(sock, limit_s: float = 30.0) -> dict:

@@ -11,6 +11,7 @@ cycle so that each reads as one thing (ros2_control's explicit switch semantics)
 from __future__ import annotations
 
 import copy
+import time
 
 from controllers.base import Controller
 from controllers.directory import provenance
@@ -98,7 +99,8 @@ class LoopControls:
         self.supervisor.disable()
 
     def estop(self, who: str = "") -> None:
-        """Latch the e-stop and write the safe outputs now, in this very cycle."""
+        """Latch the e-stop (a request's) and write the safe outputs now, in this very cycle."""
+        self.estop_taken_at = time.monotonic()  # the cycle watchdog's: this e-stop is taken
         self.supervisor.estop(who)
         self._write_safe()
         self._drain_events()

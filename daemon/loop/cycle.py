@@ -86,10 +86,12 @@ class ControlLoop(LoopControls, LoopQueries):
         self.stats_period = 1.0  # [s] window of the 'stats' telemetry
         self._deadline = 0.0  # the cycle in progress's deadline, or the next one's: the cycle watchdog reads it
         # The cycle watchdog's (daemon.loop.watchdog): in_io set around each transport call, made
-        # only while held (its hold) is None; stepping names a step that hangs.
+        # only while held (its hold) is None; stepping names a step that hangs; an e-stop passed
+        # after estop_taken_at is one the loop has not taken.
         self.in_io = False
         self.held: Held | None = None
         self.stepping: Controller | None = None
+        self.estop_taken_at = 0.0  # when it last took an e-stop from the socket [s, time.monotonic]
         # When each cycle's write began [s] (a ring covering the stale limit): a pipelined wire
         # answers the request of the cycle before, so the transport is late by the time since
         # the first request it has not answered, not since the sample it gave (the loop's own

@@ -1,7 +1,8 @@
 """The cycle watchdog: a thread beside the loop's, in its process, that writes the safe state
 through the transport when the loop cannot: a cycle (a controller's step, most often) that has
 run longer than the rig file's ``[safety] stall_after_s``, a loop that has not woken by then, or
-an e-stop the loop has not taken within ``ESTOP_GRACE_PERIODS`` periods.
+an e-stop the loop has not taken within ``ESTOP_GRACE_PERIODS`` periods of the messenger passing
+it (the time the link carries, held against :attr:`ControlLoop.estop_taken_at`).
 
 It costs the healthy loop a few attribute stores and loads a cycle (which controller is
 stepping; :attr:`ControlLoop.in_io` around each transport call, made only while
@@ -37,10 +38,11 @@ IO_POLL_S = 0.0002  # how often it looks whether the loop's transport call in pr
 
 
 class CycleWatchdog:
-    def __init__(self, loop, link: WatchdogLink, clock=time.monotonic):
+    def __init__(self, loop, link: WatchdogLink):
         """Watch ``loop`` (a :class:`~daemon.loop.cycle.ControlLoop` on a monotonic clock) and
-        hear e-stops through ``link``."""
-        self.loop, self.link, self.clock = loop, link, clock
+        hear e-stops through ``link``. Its times are ``time.monotonic``'s, as the other
+        processes' it compares them with."""
+        self.loop, self.link, self.clock = loop, link, time.monotonic
         self.limit_s = loop.rig.safety.stall_after_s
         self.estop_grace_s = max(ESTOP_GRACE_PERIODS * loop.period, ESTOP_GRACE_MIN_S)
         self.count = 0  # safe states written
@@ -55,27 +57,31 @@ class CycleWatchdog:
         self._thread.join(timeout=2 * LONGEST_SLEEP_S + 1.0)
 
     def _run(self) -> None:
-        loop, fd = self.loop, self.link.fd
+        loop, link, fd = self.loop, self.link, self.link.fd
         tripped_due = None  # the deadline it last tripped for: once per stall
-        estop = None  # (the loop's cycle count, when) an e-stop came and is not yet seen taken
+        heard = False  # an e-stop's byte came, and the loop was not yet seen to take it
         while not self._stopped:
             now = self.clock()
             due = loop._deadline  # the cycle in progress's, or the next one's
             wake = due + self.limit_s if due != tripped_due else now + LONGEST_SLEEP_S
-            if estop is not None:
-                wake = min(wake, estop[1] + self.estop_grace_s)
+            if heard:
+                wake = min(wake, link.estop_passed_at() + self.estop_grace_s)
             ready, _, _ = select.select((fd,), (), (), min(max(wake - now, 0.0), LONGEST_SLEEP_S))
             if self._stopped:
                 return
             now = self.clock()
             if ready:
-                self.link.drain()
-                if estop is None:
-                    estop = (loop.cycle, now)
-            if estop is not None and now - estop[1] >= self.estop_grace_s:
-                if loop.cycle - estop[0] < 2:  # no whole cycle since: the loop has not taken it
-                    self._write_safe("estop", self._estop_cause(now - estop[1], now - loop._deadline))
-                estop = None
+                link.drain()
+                heard = True
+            if heard:
+                # the last e-stop passed against the last the loop took: the byte may be heard
+                # after the loop took its e-stop (and was reset since), which must not latch again
+                passed = link.estop_passed_at()
+                if passed <= loop.estop_taken_at:
+                    heard = False
+                elif now - passed >= self.estop_grace_s:
+                    self._write_safe("estop", self._estop_cause(now - passed, now - loop._deadline))
+                    heard = False
             due = loop._deadline
             if due != tripped_due and now - due > self.limit_s:
                 tripped_due = due

@@ -160,11 +160,11 @@ class Relay:
                 self._answer_stalled(sock, envelope, request["id"], "refused without reaching the loop: nothing was done")
                 continue
             token = next(self._tokens)
-            ring.put(token, routed.pack(identity, request))
             if command.name == "estop" and self.watchdog is not None:
-                self.watchdog.poke()  # written safe by the watchdog if the loop does not take it at once
+                self.watchdog.pass_estop()  # written safe by the watchdog if the loop does not take it at once
                 if self.stalled_since is None:
                     self._owed_estops.add(token)
+            ring.put(token, routed.pack(identity, request))
             if self.stalled_since is not None:  # a control request: kept for the loop, answered now
                 self._answer_stalled(sock, envelope, request["id"], "queued: it takes effect if the loop resumes")
             else:

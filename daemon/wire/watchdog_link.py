@@ -3,7 +3,10 @@ other, in the rings' directory:
 
 - ``estop``, a FIFO: the messenger writes a byte for every e-stop it passes to the loop, so
   that the watchdog, asleep in a ``select`` on it, writes the safe state at once when the loop
-  does not take the e-stop itself within a few periods (a step that hangs);
+  does not take the e-stop itself within a few periods (a step that hangs); and, in the shared
+  memory below, when it passed the last one [s, monotonic, the same clock in every process],
+  which the watchdog holds against when the loop last took one: the FIFO's byte may reach the
+  watchdog after the loop has taken its e-stop, and even reset since (a loaded PC);
 - ``watchdog``, shared memory: each time the watchdog acted, its count, the loop's cycle
   count then, the time [s, monotonic], whether the safe state was written and the cause in
   words (written before the count, which the messenger polls), so the messenger publishes the
@@ -18,10 +21,13 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+import time
 from typing import NamedTuple
 
 _HEAD = struct.Struct("<QQd")  # count, cycle, t
-_WRITTEN = _HEAD.size  # one byte: 1 if the safe state was written
+_PASSED = struct.Struct("<d")  # when the messenger last passed an e-stop to the loop [s, monotonic]
+_PASSED_AT = _HEAD.size
+_WRITTEN = _PASSED_AT + _PASSED.size  # one byte: 1 if the safe state was written
 _CAUSE = _WRITTEN + 1
 _CAUSE_BYTES = 480
 _SIZE = _CAUSE + _CAUSE_BYTES
@@ -65,8 +71,10 @@ class WatchdogLink:
         return cls(directory, create=True)
 
     # -- the messenger's side ---------------------------------------------------------------
-    def poke(self) -> None:
-        """An e-stop went to the loop: wake the watchdog (a full FIFO has woken it already)."""
+    def pass_estop(self) -> None:
+        """An e-stop goes to the loop (said before it is queued for it): note when, and wake the
+        watchdog (a full FIFO has woken it already)."""
+        _PASSED.pack_into(self._map, _PASSED_AT, time.monotonic())
         try:
             os.write(self.fd, b"!")
         except BlockingIOError:
@@ -79,6 +87,14 @@ class WatchdogLink:
         return Report(count, cycle, t, cause, self._map[_WRITTEN] == 1)
 
     # -- the watchdog's side ----------------------------------------------------------------
+    def estop_passed_at(self) -> float:
+        """When the messenger last passed an e-stop to the loop [s, monotonic; 0.0: never]. Read
+        until two reads agree: the messenger's process may be writing it."""
+        last = None
+        while (now := _PASSED.unpack_from(self._map, _PASSED_AT)[0]) != last:
+            last = now
+        return now
+
     def drain(self) -> None:
         """Empty the FIFO (the pokes so far are answered by one look)."""
         try:
