@@ -76,7 +76,7 @@ def main() -> None:
     finally:
         server.close()
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 if __name__ == "__main__":

@@ -67,7 +67,7 @@ def leased_daemon(*options: str, timeout: float = 10.0):
             client.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 def wait_answering(client: Client, daemon: subprocess.Popen, limit_s: float = 60.0) -> None:

@@ -51,7 +51,7 @@ def run(rig_text: str, seconds: float) -> tuple[dict, dict | None]:
         return window, last
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 def main(argv=None) -> int:

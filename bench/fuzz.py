@@ -339,7 +339,7 @@ def main() -> None:
         trips = Client(**eps).status()["trips"]
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     print(f"daemon died: {0 if alive else 1}; trips: {trips}")
     for state, tally, busy, quiet, during in results:
         print(f"-- arm {state}: frames {tally.frames} in {busy:.0f} s, replies {tally.replies}, "

@@ -139,7 +139,7 @@ def main() -> None:
             fox[1].close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     report(args, stats, ct_result, rtt, effects, healthy)
     print(f"transport counters        : {transport['counters'] or 'none'} over {transport['reads']} reads")
     print(f"trips during the run      : {trips.line()}")

@@ -179,7 +179,7 @@ def main() -> None:
         report = soak(daemon.pid, eps, args.seconds, args.kill_every)
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     for key, value in report.items():
         print(f"{key:28s} {value}")
 

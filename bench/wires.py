@@ -75,7 +75,7 @@ def start_peer(command: list[str], ready: Callable[[], bool] | None, timeout_s: 
 
 def stop_peer(proc: subprocess.Popen, hard: bool = False) -> None:
     proc.kill() if hard else proc.terminate()
-    proc.wait(10)
+    proc.wait(60)
     proc.stdout.close()
 
 

@@ -91,5 +91,5 @@ def answering_daemon(tmp_path):
     finally:
         client.close()
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)
 

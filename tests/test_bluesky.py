@@ -56,7 +56,7 @@ def setup(tmp_path_factory):
         rig.close()
         server.close()
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 @pytest.fixture(autouse=True)

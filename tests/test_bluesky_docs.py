@@ -167,7 +167,7 @@ def lab(tmp_path_factory):
                 pass
         for process in processes:
             process.terminate()
-            process.wait(10)
+            process.wait(60)
         log.close()
 
 

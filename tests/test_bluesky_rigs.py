@@ -56,7 +56,7 @@ def test_a_rig_with_an_array_sensor_reads_its_contact_estimate(tmp_path):
         rig.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     assert seen and seen[0][0] > 0.0 and abs(seen[0][1]) < 0.1, seen  # a force [N] at a centre on the pad [m]
     assert rig.contact_force_n.source == f"pneumad://{rig.link.rig_name}/contact/force_n"
 
@@ -159,6 +159,6 @@ def test_a_queue_runs_plans_across_two_daemons_into_tiled(tmp_path):
         for process in reversed(processes):
             process.terminate()
             try:
-                process.wait(10)
+                process.wait(60)
             except subprocess.TimeoutExpired:
                 process.kill()

@@ -96,4 +96,4 @@ def test_an_estop_mid_scan_suspends_the_plan_and_reset_and_enable_resume_it_to_t
         if rig is not None:
             rig.close()
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)

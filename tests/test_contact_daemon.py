@@ -53,7 +53,7 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
                             stop=enough)
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     for message in messages:
         validate.validate(message)
     frames = [m["frame"] for m in messages]
@@ -149,7 +149,7 @@ def test_a_contact_process_that_stalls_or_dies_marks_its_estimate_not_valid_and_
             subscription.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     contacts = [m for topic, m in seen if topic == "contact"]
     for m in contacts:
         validate.validate(m)

@@ -68,7 +68,7 @@ def test_a_linear_axis_takes_its_waypoints_in_mm(tmp_path):
             assert client.status()["joints"]["axis"]["setpoint"] == pytest.approx(120.0)
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)
 
 
 def test_wait_exits_non_zero_when_the_arm_leaves_enabled_before_the_end(daemon):

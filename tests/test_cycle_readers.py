@@ -149,7 +149,7 @@ def test_a_field_a_rig_adds_reaches_every_reader(tmp_path, monkeypatch):
             mcap_log.record(client, str(path), 0.5)
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     columns = reading.load(path)
     assert "oil_temperature" in columns and columns.layout["oil_temperature"].unit == "K"
     assert abs(float(columns["oil_temperature"][-1]) - 338.15) < 1.0

@@ -142,7 +142,7 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         assert out.returncode == 1 and "outside" in out.stderr
 
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=60) == 0
         assert notify_socket.wait_for("STOPPING=1", limit=3)
     finally:
         if proc.poll() is None:
@@ -180,7 +180,7 @@ def test_a_daemon_a_test_started_ends_with_the_tests_process_and_leaves_the_safe
                 except TimeoutError:
                     assert time.monotonic() < deadline, "the daemon never answered"
         spawner.kill()
-        spawner.wait(10)
+        spawner.wait(60)
         deadline = time.monotonic() + 30.0
         while running(pid):
             assert time.monotonic() < deadline, "the daemon outlived the process that started it"
@@ -280,7 +280,7 @@ def test_a_recording_that_runs_out_of_disk_ends_with_a_clear_error(tmp_path):
         assert json.loads(status.stdout)["trips"] == 0
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 def test_the_units_command_lines_are_ones_pneumad_accepts():

@@ -73,4 +73,4 @@ def test_the_payload_and_identify_lines_run_against_a_daemon(tmp_path):
                     assert status["load"]["mass_kg"] == pytest.approx(0.1), status["load"]
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)

@@ -83,9 +83,9 @@ def run_pair(peer: doc_blocks.Command, daemon_line: str, values: dict, cwd, hold
     finally:
         if daemon is not None:
             daemon.send_signal(signal.SIGTERM)
-            daemon.wait(timeout=20)
+            daemon.wait(timeout=60)
         proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=20)
+        proc.wait(timeout=60)
 
 
 def pair_up(commands: list[doc_blocks.Command]) -> list[tuple[doc_blocks.Command, doc_blocks.Command]]:

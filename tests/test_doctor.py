@@ -70,7 +70,7 @@ def test_the_doctor_examines_this_machine_and_the_running_daemon_and_fails_on_a_
         done = doc_runs.run(line, tmp_path, env=env, timeout=300)
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     assert code == 1
     rt = findings["real-time scheduling"]
     assert rt["status"] == "warn" and "the running daemon's loop: SCHED_OTHER 0" in rt["found"]

@@ -25,4 +25,4 @@ def test_a_second_daemon_on_a_running_ones_ipc_endpoints_refuses_to_start_naming
             assert client.ping()["daemon"]["pid"] == first.pid  # the first still answers on its endpoints
     finally:
         first.terminate()
-        first.wait(10)
+        first.wait(60)

@@ -43,7 +43,7 @@ def daemon(tmp_path_factory):
         client.close()
         sub.close()
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)
 
 
 def raw_call(client: Client, eps: dict, cmd: str, args: dict, control: bool) -> dict:

@@ -51,7 +51,7 @@ def fox(tmp_path_factory):
             yield client, port
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 def joint_states(fc: FoxgloveClient, count: int, others: list | None = None, limit_s: float = 60.0) -> list:
@@ -265,7 +265,7 @@ def test_a_viewer_offering_only_the_older_subprotocol_is_refused_and_the_log_say
         assert "foxglove.sdk.v1" in line and "foxglove.websocket.v1" in line and "Lichtblick 1.22.1" in line
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 def test_foxglove_listens_on_loopback_unless_insecure():

@@ -171,7 +171,7 @@ def test_the_child_dies_with_its_parent_when_the_parent_is_killed():
         child = int(parent.stdout.readline())
         assert running(child)
         parent.send_signal(signal.SIGKILL)
-        parent.wait(10)
+        parent.wait(60)
         assert _wait_gone(child)
     finally:
         if parent.poll() is None:

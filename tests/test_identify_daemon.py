@@ -84,7 +84,7 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         finally:
             client.close()
             daemon.terminate()
-            daemon.wait(10)
+            daemon.wait(60)
         out = work / "identified"
         assert {p.name for p in out.iterdir()} >= {"rig.toml", "report.json", "experiments.mcap", "bode-bottom.png",
                                                    "time-bottom.png"}
@@ -149,6 +149,6 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         finally:
             client.close()
             daemon.terminate()
-            daemon.wait(10)
+            daemon.wait(60)
     finally:
         stop_peer(peer)

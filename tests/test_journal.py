@@ -77,7 +77,7 @@ def test_a_real_daemons_trips_estops_resets_enables_and_lease_changes_are_lines_
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     for event in (acquired, lapsed, enabled, reset, switched, estop, disabled, trip):
         validate.validate(event)
     assert (acquired["action"], lapsed["action"]) == ("acquire", "expire")
@@ -155,7 +155,7 @@ def test_a_storm_of_estops_and_resets_from_a_client_is_bounded_in_the_daemons_lo
             time.sleep(1.5)  # the messenger's next look says what it held back
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     text = log.read_text()
     lines = [line for line in text.splitlines() if re.match(r"pneumad messenger \w+: (estop|state): ", line)]
     assert len(lines) <= BURST + RATE_PER_S * (took + 2.0) + 2, (len(lines), took)

@@ -57,4 +57,4 @@ def test_a_reload_that_removes_a_key_reaches_subscribers_with_its_event_and_one_
             sub.close()
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)

@@ -75,7 +75,7 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     run = open_run(Path(started["file"]))
     recorded = run.messages["model"]
     assert recorded and any(m["joints"]["middle"]["flagged"] for m in recorded)
@@ -121,4 +121,4 @@ def test_on_the_linear_axis_the_model_topic_status_and_event_are_in_mm(tmp_path)
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)

@@ -79,5 +79,5 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
             assert client.status()["trips"] == 0
     finally:
         daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=10)
+        daemon.wait(timeout=60)
         stop_peer(peer)

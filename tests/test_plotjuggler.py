@@ -56,7 +56,7 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
     finally:
         sub.close()
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     series = [{} for _ in rows]
     for row, out in zip(rows, series):
         flatten("", row, out)

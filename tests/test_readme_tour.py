@@ -126,7 +126,7 @@ def test_the_readme_keys_example_runs_as_written(tmp_path):
         assert json.loads(done.stdout)["daemon"]["pid"] == daemon.pid  # bash exec'd pneumad: the same process
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 @pytest.fixture(scope="module")
@@ -140,7 +140,7 @@ def tour(tmp_path_factory):
         yield tmp_path, work, daemon, eps
     finally:
         daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=10)
+        daemon.wait(timeout=60)
 
 
 def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tour):

@@ -39,7 +39,7 @@ def start(tmp_path, *options):
 def stop(daemon, client):
     client.close()
     daemon.terminate()
-    daemon.wait(10)
+    daemon.wait(60)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +50,7 @@ def shared(tmp_path_factory):
     client.close()
     yield daemon, eps
     daemon.terminate()
-    daemon.wait(10)
+    daemon.wait(60)
 
 
 @pytest.fixture

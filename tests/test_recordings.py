@@ -336,7 +336,7 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
                              cwd=root, capture_output=True, text=True, timeout=120)
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     assert out.returncode == 0, out.stderr
     assert "bottom: step 5 deg, overshoot" in out.stdout
     data = recording.load(tmp_path / "step.mcap")

@@ -59,7 +59,7 @@ def recordings(tmp_path_factory):
     finally:
         client.close()
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     return {"still": still, "waypoints": str(tmp / "waypoints.mcap")}
 
 

@@ -44,7 +44,7 @@ def lab(tmp_path_factory):
         yield proc, eps, files
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)
 
 
 def client(eps, key_file, timeout=10.0) -> Client:

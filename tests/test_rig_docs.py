@@ -105,7 +105,7 @@ def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
     finally:
         daemon.send_signal(signal.SIGTERM)
         try:
-            daemon.wait(timeout=20)
+            daemon.wait(timeout=60)
         except subprocess.TimeoutExpired:
             daemon.kill()
             daemon.wait()

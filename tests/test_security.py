@@ -40,7 +40,7 @@ def lab(tmp_path_factory):
         yield proc, eps, files
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)
 
 
 def client(eps, key_file=None, server_key_file=None, timeout=3.0) -> Client:

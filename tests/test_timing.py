@@ -2,6 +2,7 @@
 deadlines and control-stage time over the rig file's ``[timing]`` window, and the loop raises
 a ``timing`` event, keeps a ``status`` field and applies the policy (warn, hold, trip), naming a
 controller whose step is over its budget (daemon/messenger/timing.py, daemon/loop/timing.py)."""
+import contextlib
 import os
 import signal
 import subprocess
@@ -128,7 +129,7 @@ def test_under_warn_a_5_ms_controller_step_is_an_event_naming_it_a_status_field_
             assert os.path.getsize(figure) > 10_000
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     line = logged(log, ("pneumad messenger WARNING: timing: degraded (", "controller slow_step's step took"))
     assert line.endswith(f"[cycle {degraded['cycle']}, messenger]")
     logged(log, ("pneumad messenger INFO: timing: recovered (",))
@@ -170,7 +171,7 @@ def test_under_hold_a_5_ms_controller_step_is_replaced_by_the_fallback_and_the_r
             events.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     logged(log, ("pneumad messenger", "slow_step", "pid", "over its budget of 500 us"))
 
 
@@ -301,14 +302,15 @@ def test_under_trip_a_5_ms_controller_step_trips_the_enabled_arm_saying_why(tmp_
             events.close()
     finally:
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
 
 
 @pytest.mark.slow(seconds=90)
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs a CPU for the loop and one for the rest")
 def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_rate_it_achieved(tmp_path):
     """A --no-rt daemon on a loaded PC, made so on purpose: its loop pinned to one CPU and put
-    below everything there (SCHED_IDLE), and a busy process (nice 19) on that CPU. The loop
+    at the lowest priority there (nice 19: it still cycles now and then beside other load, where
+    SCHED_IDLE beside CPU hogs stopped it for good), and a busy process on that CPU. The loop
     cannot keep its 1 kHz; the verdict says degraded, with the rate it achieved, and the start
     line says it runs without real-time scheduling."""
     cpu = max(os.sched_getaffinity(0))
@@ -321,8 +323,8 @@ def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_ra
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             events = Events(client)
-            os.sched_setscheduler(daemon.pid, os.SCHED_IDLE, os.sched_param(0))  # the loop's thread (the main one)
-            hog = subprocess.Popen([sys.executable, "-c", f"import os\nos.sched_setaffinity(0, {{{cpu}}})\nos.nice(19)\n"
+            os.setpriority(os.PRIO_PROCESS, daemon.pid, 19)  # the loop's thread (the main one)
+            hog = subprocess.Popen([sys.executable, "-c", f"import os\nos.sched_setaffinity(0, {{{cpu}}})\n"
                                                           "while True: pass"])
             deadline = time.monotonic() + 90.0
             while not ((timing := client.status()["timing"])["degraded"] and "rate" in timing["reasons"]):
@@ -337,8 +339,10 @@ def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_ra
         if hog is not None:
             hog.send_signal(signal.SIGKILL)
             hog.wait()
+        with contextlib.suppress(PermissionError):  # its stop at nice 19 beside other load would take long
+            os.setpriority(os.PRIO_PROCESS, daemon.pid, 0)
         daemon.terminate()
-        daemon.wait(10)
+        daemon.wait(60)
     logged(log, ("pneumad WARNING: this PC: no real-time scheduling (--no-rt) on CPUs", "the loop's timing is at risk"))
     logged(log, ("pneumad messenger WARNING: timing: degraded (the loop ran at",))
 
