@@ -42,7 +42,7 @@ class CycleWatchdog:
         """Watch ``loop`` (a :class:`~daemon.loop.cycle.ControlLoop` on a monotonic clock) and
         hear e-stops through ``link``. Its times are ``time.monotonic``'s, as the other
         processes' it compares them with."""
-        self.loop, self.link, self.clock = loop, link, time.monotonic
+        self.loop, self.link = loop, link
         self.limit_s = loop.rig.safety.stall_after_s
         self.estop_grace_s = max(ESTOP_GRACE_PERIODS * loop.period, ESTOP_GRACE_MIN_S)
         self.count = 0  # safe states written
@@ -61,7 +61,7 @@ class CycleWatchdog:
         tripped_due = None  # the deadline it last tripped for: once per stall
         heard = False  # an e-stop's byte came, and the loop was not yet seen to take it
         while not self._stopped:
-            now = self.clock()
+            now = time.monotonic()
             due = loop._deadline  # the cycle in progress's, or the next one's
             wake = due + self.limit_s if due != tripped_due else now + LONGEST_SLEEP_S
             if heard:
@@ -69,7 +69,7 @@ class CycleWatchdog:
             ready, _, _ = select.select((fd,), (), (), min(max(wake - now, 0.0), LONGEST_SLEEP_S))
             if self._stopped:
                 return
-            now = self.clock()
+            now = time.monotonic()
             if ready:
                 link.drain()
                 heard = True
@@ -117,8 +117,8 @@ class CycleWatchdog:
         stepping = loop.stepping
         held = Held(kind, stepping.name if stepping is not None else None, self.limit_s)
         loop.held = held
-        give_up = self.clock() + held.patience_s
-        while loop.in_io and self.clock() < give_up:
+        give_up = time.monotonic() + held.patience_s
+        while loop.in_io and time.monotonic() < give_up:
             time.sleep(IO_POLL_S)
         written = False
         if loop.in_io:
@@ -134,7 +134,7 @@ class CycleWatchdog:
         held.cause = cause
         held.done.set()
         self.count += 1
-        self.link.wrote_safe(self.count, loop.cycle, self.clock(), cause, written)
+        self.link.wrote_safe(self.count, loop.cycle, time.monotonic(), cause, written)
 
 
 class Held:

@@ -96,7 +96,7 @@ class WatchdogLink:
         return now
 
     def drain(self) -> None:
-        """Empty the FIFO (the pokes so far are answered by one look)."""
+        """Empty the FIFO (the e-stops passed so far are answered by one look)."""
         try:
             while os.read(self.fd, 64):
                 pass
