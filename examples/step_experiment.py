@@ -40,9 +40,12 @@ def main() -> int:
         target = [math.degrees(here[f"{j}.position"]) for j in joints]
         target[0] += args.step_deg
         with Client(**endpoints, timeout=5.0) as listener:  # its own client: a client's sockets serve one thread
-            recorder = threading.Thread(target=mcap_log.record, args=(listener, path, args.seconds))
+            started = threading.Event()
+            recorder = threading.Thread(target=mcap_log.record, args=(listener, path, args.seconds),
+                                        kwargs={"started": started})
             recorder.start()  # records while the step runs
-            threading.Event().wait(1.0)
+            started.wait(10.0)  # once the daemon publishes to the recording
+            threading.Event().wait(0.5)  # and half a second of rest before the step
             c.set(angles_deg=target)  # a step: no duration
             recorder.join()
         c.disable()

@@ -100,7 +100,7 @@ def test_an_edited_plugin_is_reloaded_shadowed_and_committed_without_a_restart(d
     assert switched["active"] == "lab_pd" and client.controller()["source"] == first
     path.write_text(VERSION_2)
     sub = client.subscribe((b"event",))
-    time.sleep(0.3)  # the subscription reaches the publisher
+    sub.wait_until_heard()
     line, = doc_blocks.commands(DOC, RELOAD, match="reload")  # pneumactl controller reload lab_pd
     done = doc_runs.run(line, work, env)
     assert done.returncode == 0, done.explain()

@@ -73,7 +73,7 @@ def test_an_estop_and_a_stalled_loop_each_write_the_seconds_before_them_named_in
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event",))
-            time.sleep(0.3)
+            sub.wait_until_heard()
             client.acquire_lease(30.0)  # (a loaded machine lets a 2 s lease lapse: not what is tested here)
             client.keep_lease()
             client.enable()
@@ -121,7 +121,7 @@ def test_a_transport_gone_stale_trips_and_its_flight_file_holds_the_seconds_befo
             with Client(**eps, timeout=20.0) as client:
                 wait_for_own_daemon(client, daemon)
                 sub = client.subscribe((b"event",))
-                time.sleep(0.3)
+                sub.wait_until_heard()
                 client.acquire_lease(30.0)  # (a loaded machine lets a 2 s lease lapse: not what is tested here)
                 client.keep_lease()
                 client.enable()
@@ -147,7 +147,7 @@ def test_a_storm_of_estops_writes_one_file_while_it_lasts_and_no_more_files_than
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event",))
-            time.sleep(0.3)
+            sub.wait_until_heard()
             client.acquire_lease(30.0)  # (a loaded machine lets a 2 s lease lapse: not what is tested here)
             client.keep_lease()
             names = []

@@ -289,7 +289,7 @@ def test_a_daemon_logs_a_planner_worker_that_died_and_the_next_request_works(tmp
         with Client(**eps, timeout=10.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event",))
-            time.sleep(0.3)  # the subscription reaches the publisher
+            sub.wait_until_heard()
             before = client.status()["helpers"]["planner"]
             assert before["running"]  # warmed before the daemon said it was ready: idle now
             os.kill(before["pid"], signal.SIGKILL)

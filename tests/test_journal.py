@@ -51,7 +51,7 @@ def test_a_real_daemons_trips_estops_resets_enables_and_lease_changes_are_lines_
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event",))
-            time.sleep(0.3)  # the subscription reaches the publisher
+            sub.wait_until_heard()
             client.acquire_lease(5.0)  # and never renewed
             client.enable()
             acquired = next_event(sub, "lease", action="acquire")

@@ -202,7 +202,7 @@ def test_a_pause_of_the_loop_longer_than_the_lease_is_not_its_holders_silence(tm
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event",))
-            time.sleep(0.3)  # the subscription reaches the publisher
+            sub.wait_until_heard()
             ttl = client.acquire_lease()["ttl_s"]
             client.keep_lease()
             client.enable()
@@ -237,7 +237,7 @@ def test_a_client_keeps_its_lease_while_it_records_and_fits_beside_two_cpu_hogs(
         with Client(**eps, timeout=20.0) as client, Client(**eps, timeout=20.0) as listener:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event",))
-            time.sleep(0.3)
+            sub.wait_until_heard()
             client.acquire_lease()
             client.keep_lease()
             client.enable()

@@ -224,7 +224,7 @@ def test_a_killed_exchange_worker_is_an_event_a_log_line_and_restarted_and_the_a
             with Client(**eps, timeout=10.0) as client:
                 wait_for_own_daemon(client, daemon)
                 sub = client.subscribe((b"event",))
-                time.sleep(0.3)  # the subscription reaches the publisher
+                sub.wait_until_heard()
                 before = client.status()["helpers"]["exchange"]
                 assert before["running"] and before["restarts"] == 0
                 client.acquire_lease()

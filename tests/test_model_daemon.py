@@ -38,7 +38,7 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event", b"model"))
-            time.sleep(0.3)  # the subscription reaches the publisher
+            sub.wait_until_heard()
             started = client.record_start(name="drift")
             model = None
             deadline = time.monotonic() + ONSET_S
@@ -97,7 +97,7 @@ def test_on_the_linear_axis_the_model_topic_status_and_event_are_in_mm(tmp_path)
         with Client(**eps, timeout=20.0) as client:
             wait_for_own_daemon(client, daemon)
             sub = client.subscribe((b"event", b"model"))
-            time.sleep(0.3)
+            sub.wait_until_heard()
             model = None
             deadline = time.monotonic() + ONSET_S
             while model is None or model["joints"]["axis"]["window_fill"] < 1.0:

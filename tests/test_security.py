@@ -106,7 +106,7 @@ def test_an_observer_reads_and_may_estop_but_never_takes_the_lease(lab):
         try:
             alice.enable()
             sub = alice.subscribe((b"event",))
-            time.sleep(0.3)
+            sub.wait_until_heard()
             bob.estop("panel")
             status = alice.status()
             assert status["state"] == "estop" and status["cause"] == "e-stop from bob (panel)"

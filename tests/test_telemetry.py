@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import msgpack
@@ -13,6 +14,7 @@ import zmq
 
 from bench.common import child_process
 from daemon import assembly
+from daemon.client.feeds import Subscription
 from daemon.messenger.process import MessengerError
 from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
@@ -330,3 +332,64 @@ def test_rings_a_killed_daemon_left_behind_are_reclaimed_by_the_next_one(tmp_pat
         (d / "command").write_bytes(b"\0" * 64)
     assert reclaim_stale_rings(str(tmp_path)) == [stale.name]
     assert not stale.exists() and live.exists() and other.exists()
+
+
+class StatsAndEvents:
+    """A real ZeroMQ publisher made by the test: every 20 ms a ``stats`` message, then an
+    ``event`` of the same ``seq`` (as the daemon's loop publishes both on one socket)."""
+
+    def __init__(self, endpoint: str, stats: bool = True):
+        self.pub = zmq.Context.instance().socket(zmq.PUB)
+        self.pub.setsockopt(zmq.LINGER, 0)
+        self.pub.bind(endpoint)
+        self.stop, self.stats = threading.Event(), stats
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        seq = 0
+        while not self.stop.wait(0.02):
+            seq += 1
+            if self.stats:
+                self.pub.send_multipart([b"stats", msgpack.packb({"seq": seq})])
+            self.pub.send_multipart([b"event", msgpack.packb({"seq": seq, "kind": "test"})])
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(5)
+        self.pub.close()
+
+
+def test_a_subscription_heard_by_its_publisher_gets_what_is_published_after(tmp_path):
+    """ZeroMQ drops what a publisher sends before a new subscription reaches it, and cannot say
+    when one has: wait_until_heard takes the first ``stats`` message (subscribed last) as the
+    sign. The event published right after that message is received; a stats message is never
+    handed to a subscriber that did not ask for it; a publisher without stats is a clear error."""
+    endpoint = f"ipc://{tmp_path}/telemetry"
+    pub = StatsAndEvents(endpoint)
+    context = zmq.Context.instance()
+    try:
+        both = Subscription(context, endpoint, (b"stats", b"event"))  # stats given first: subscribed last all the same
+        both.wait_until_heard(limit_s=20.0)
+        got = [both.receive(5.0)]
+        while got[-1][0] != "stats":  # (events the publisher had the subscription for a little earlier)
+            got.append(both.receive(5.0))
+        assert both.receive(5.0) == ("event", {"seq": got[-1][1]["seq"], "kind": "test"})
+        both.close()
+        events = Subscription(context, endpoint, (b"event",))
+        events.wait_until_heard(limit_s=20.0)
+        got = [events.receive(5.0) for _ in range(20)]
+        assert {topic for topic, _ in got} == {"event"}
+        assert [m["seq"] for _, m in got] == list(range(got[0][1]["seq"], got[0][1]["seq"] + 20))
+        events.close()
+    finally:
+        pub.close()
+    quiet = StatsAndEvents(f"ipc://{tmp_path}/quiet", stats=False)
+    try:
+        events = Subscription(context, f"ipc://{tmp_path}/quiet", (b"event",))
+        with pytest.raises(TimeoutError, match=r"no stats message from the daemon within 0\.5 s"):
+            events.wait_until_heard(limit_s=0.5)
+        assert events.receive(5.0)[0] == "event"  # what came meanwhile is kept
+        events.close()
+    finally:
+        quiet.close()

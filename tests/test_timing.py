@@ -45,7 +45,7 @@ class Events:
         self.sub = client.subscribe((b"event",))
         self.seen: list[dict] = []
         self.taken: set[int] = set()
-        time.sleep(0.3)  # the subscription reaches the publisher
+        self.sub.wait_until_heard()
 
     def next(self, kind: str, limit_s: float = 90.0, **fields) -> dict:
         deadline = time.monotonic() + limit_s

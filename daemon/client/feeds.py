@@ -3,10 +3,13 @@ counted by sequence), and the newest cycle record one brings, read by field name
 daemon's cycle record layout (:meth:`daemon.client.client.Client.layout`)."""
 from __future__ import annotations
 
+import collections
 import time
 
 import msgpack
 import zmq
+
+HEARD_TOPIC = b"stats"  # published once a second: Subscription.wait_until_heard's sign
 
 
 class LatestState:
@@ -57,17 +60,56 @@ class Subscription:
         if secure is not None:
             secure(self.sock)
         self.sock.setsockopt(zmq.RCVHWM, 100000)
-        for topic in topics:
+        self.topics = tuple(bytes(t) for t in topics)
+        for topic in sorted(self.topics, key=lambda t: t == HEARD_TOPIC):  # stats last: wait_until_heard
             self.sock.setsockopt(zmq.SUBSCRIBE, topic)
         self.sock.connect(endpoint)
         self.last_seq: dict[bytes, int] = {}
         self.lost = 0
+        self._held: collections.deque = collections.deque()  # messages read while waiting to be heard
+
+    def wait_until_heard(self, limit_s: float = 30.0) -> None:
+        """Return once the daemon's publisher has this subscription. A ZeroMQ publisher drops
+        what it sends before a new subscription reaches it and cannot say when one has (the
+        "slow joiner"), so an event published just after ``subscribe`` can be missed. The
+        subscriptions travel in order on the connection, and ``stats`` (once a second) is
+        subscribed last: its first message proves the others arrived. Messages read meanwhile
+        are kept for :meth:`receive`; ``stats`` is dropped again unless it was asked for.
+        TimeoutError after ``limit_s`` (the daemon's loop publishes no ``stats`` while stalled)."""
+        wanted = any(HEARD_TOPIC.startswith(t) for t in self.topics)
+        if not wanted:
+            self.sock.setsockopt(zmq.SUBSCRIBE, HEARD_TOPIC)
+        deadline = time.monotonic() + limit_s
+        try:
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0.0:
+                    raise TimeoutError(f"no stats message from the daemon within {limit_s:g} s: "
+                                       "the subscription may not have reached its publisher")
+                if not self.sock.poll(left * 1e3):
+                    continue
+                frames = self.sock.recv_multipart()
+                if frames[0] == HEARD_TOPIC and not wanted:
+                    return
+                self._held.append(frames)
+                if frames[0] == HEARD_TOPIC:
+                    return
+        finally:
+            if not wanted:
+                self.sock.setsockopt(zmq.UNSUBSCRIBE, HEARD_TOPIC)
 
     def receive(self, timeout: float = 1.0):
         """The next (topic, message), or None after ``timeout`` seconds."""
-        if not self.sock.poll(timeout * 1e3):
-            return None
-        topic, payload = self.sock.recv_multipart()
+        deadline = time.monotonic() + timeout
+        while True:
+            if self._held:
+                topic, payload = self._held.popleft()
+            elif not self.sock.poll(max(deadline - time.monotonic(), 0.0) * 1e3):
+                return None
+            else:
+                topic, payload = self.sock.recv_multipart()
+            if any(topic.startswith(t) for t in self.topics):  # not a stats message wait_until_heard dropped
+                break
         message = msgpack.unpackb(payload, raw=False)
         seq = message.get("seq")
         last = self.last_seq.get(topic)

@@ -87,12 +87,12 @@ def run_experiments(client: Client, joint: str, path: Path, plan: Plan, amplitud
     j = names.index(joint)
     prior = experiments_of.prior_of(rig, joint)
     with routine_lease(client):  # handed back at the end, Ctrl-C included (a lapsed one trips the enabled arm)
-        stop = threading.Event()
-        recorder = threading.Thread(target=mcap_log.record, args=(client, str(path), math.inf, None, stop),
+        stop, heard = threading.Event(), threading.Event()
+        recorder = threading.Thread(target=mcap_log.record, args=(client, str(path), math.inf, None, stop, heard),
                                     name="identify-record", daemon=True)
         recorder.start()
         try:
-            time.sleep(0.5)  # the subscription reaches the publisher
+            heard.wait(mcap_log.HEARD_LIMIT_S + 5.0)  # the recording has the subscription
             here = setpoints_deg(client, names)
             target = operating_point(rig, j, at_deg or here, band_deg)
             if any(abs(a - b) > 0.01 for a, b in zip(target, here)):

@@ -48,6 +48,7 @@ from daemon.wire.cycle_layout import MODES, CycleLayout
 
 PROFILE = ""  # no ROS profile: plain JSON messages
 CHUNK_BYTES = 256 * 1024  # about half a second of state at 1 kHz
+HEARD_LIMIT_S = 5.0  # record() waits this long at most for its subscription to be heard [s]
 TOPICS = ("state", "stats", "event", "internals", "contact", "model", "gap")
 NAN = float("nan")
 
@@ -187,18 +188,26 @@ class McapRecording:
         self._writer.finish()
 
 
-def record(client, path, seconds: float, progress=None, stop=None) -> tuple[int, int]:
+def record(client, path, seconds: float, progress=None, stop=None, started=None) -> tuple[int, int]:
     """Record a daemon's telemetry for ``seconds`` (or until the event ``stop`` is set) through
     ``client`` (a :class:`daemon.client.client.Client`) to ``path``; (messages, messages lost). An
     OSError (a full disk) propagates, the file readable up to its last complete chunk (and
     finished so by :func:`daemon.recordings.mcap_repair.repair`).
     ``progress(elapsed_s, messages, lost)`` is called after every message or idle half second.
+    The recording starts once the daemon's publisher has the subscription (the first ``stats``
+    message: :meth:`Subscription.wait_until_heard`, at most ``HEARD_LIMIT_S``); the event
+    ``started`` is then set, for a caller that sends what is to be recorded from another thread.
     Ctrl-C ends it early with the file finished, then raises KeyboardInterrupt: in the main
     thread it is taken between two messages (within half a second), never inside a record's
     bytes, which would leave a chunk that cannot be read."""
     describe, controller = client.describe(), client.controller()
     sub = client.subscribe((b"state", b"stats", b"event", b"internals", b"contact"))
-    time.sleep(0.2)  # let the subscription reach the publisher
+    try:
+        sub.wait_until_heard(HEARD_LIMIT_S)
+    except TimeoutError:  # a loop stalled publishes no stats: what comes is recorded, from when it comes
+        pass
+    if started is not None:
+        started.set()
     interrupted = threading.Event()
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, lambda *_: interrupted.set()) if in_main else None
