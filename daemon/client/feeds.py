@@ -89,9 +89,8 @@ class Subscription:
                 if not self.sock.poll(left * 1e3):
                     continue
                 frames = self.sock.recv_multipart()
-                if frames[0] == HEARD_TOPIC and not wanted:
-                    return
-                self._held.append(frames)
+                if wanted or frames[0] != HEARD_TOPIC:
+                    self._held.append(frames)
                 if frames[0] == HEARD_TOPIC:
                     return
         finally:
@@ -100,16 +99,12 @@ class Subscription:
 
     def receive(self, timeout: float = 1.0):
         """The next (topic, message), or None after ``timeout`` seconds."""
-        deadline = time.monotonic() + timeout
-        while True:
-            if self._held:
-                topic, payload = self._held.popleft()
-            elif not self.sock.poll(max(deadline - time.monotonic(), 0.0) * 1e3):
-                return None
-            else:
-                topic, payload = self.sock.recv_multipart()
-            if any(topic.startswith(t) for t in self.topics):  # not a stats message wait_until_heard dropped
-                break
+        if self._held:
+            topic, payload = self._held.popleft()
+        elif not self.sock.poll(timeout * 1e3):
+            return None
+        else:  # (a stats message still queued once wait_until_heard unsubscribed: ZeroMQ drops it)
+            topic, payload = self.sock.recv_multipart()
         message = msgpack.unpackb(payload, raw=False)
         seq = message.get("seq")
         last = self.last_seq.get(topic)
