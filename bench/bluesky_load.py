@@ -20,6 +20,7 @@ import msgpack
 
 from bench.common import header, spawn_daemon, stats_subscriber
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 
 
 def window(sub, seconds: float) -> dict:
@@ -76,7 +77,7 @@ def main() -> None:
     finally:
         server.close()
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 if __name__ == "__main__":

@@ -67,7 +67,7 @@ def leased_daemon(*options: str, timeout: float = 10.0):
             client.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(daemons.STOP_WAIT_S)
 
 
 def wait_answering(client: Client, daemon: subprocess.Popen, limit_s: float = 60.0) -> None:

@@ -22,6 +22,7 @@ import zmq
 
 from bench.common import header, secure, spawn_daemon, stats_subscriber
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 
 
 def run(rig_text: str, seconds: float) -> tuple[dict, dict | None]:
@@ -51,7 +52,7 @@ def run(rig_text: str, seconds: float) -> tuple[dict, dict | None]:
         return window, last
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def main(argv=None) -> int:

@@ -34,6 +34,7 @@ import zmq
 
 from bench.command_cases import CASES
 from bench.common import header, spawn_daemon, stats_subscriber
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import protocol as P
 from daemon.client.client import Client, RemoteError
 
@@ -339,7 +340,7 @@ def main() -> None:
         trips = Client(**eps).status()["trips"]
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     print(f"daemon died: {0 if alive else 1}; trips: {trips}")
     for state, tally, busy, quiet, during in results:
         print(f"-- arm {state}: frames {tally.frames} in {busy:.0f} s, replies {tally.replies}, "

@@ -40,6 +40,7 @@ import zmq
 from bench import cyclictest
 from bench.common import Trips, header, percentiles, secure, spawn_daemon, stats_subscriber, with_keys
 from daemon.client.client import Client, RemoteError
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.ports import free_tcp_port
 
 
@@ -139,7 +140,7 @@ def main() -> None:
             fox[1].close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     report(args, stats, ct_result, rtt, effects, healthy)
     print(f"transport counters        : {transport['counters'] or 'none'} over {transport['reads']} reads")
     print(f"trips during the run      : {trips.line()}")

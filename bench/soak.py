@@ -26,6 +26,7 @@ import zmq
 
 from bench.common import header, spawn_daemon
 from daemon.client.client import Client, RemoteError
+from daemon.testing.daemons import STOP_WAIT_S
 
 KILL_SHADOW_S = 5.0  # a gap this soon after a messenger kill is the kill's
 
@@ -179,7 +180,7 @@ def main() -> None:
         report = soak(daemon.pid, eps, args.seconds, args.kill_every)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     for key, value in report.items():
         print(f"{key:28s} {value}")
 

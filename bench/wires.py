@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 from daemon import assembly
 from daemon.loop.clock import MonotonicClock, VirtualClock
 from daemon.loop.cycle import ControlLoop
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.ports import free_tcp_port
 from hal import config
 
@@ -75,7 +76,7 @@ def start_peer(command: list[str], ready: Callable[[], bool] | None, timeout_s: 
 
 def stop_peer(proc: subprocess.Popen, hard: bool = False) -> None:
     proc.kill() if hard else proc.terminate()
-    proc.wait(60)
+    proc.wait(STOP_WAIT_S)
     proc.stdout.close()
 
 

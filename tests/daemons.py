@@ -91,5 +91,5 @@ def answering_daemon(tmp_path):
     finally:
         client.close()
         proc.terminate()
-        proc.wait(60)
+        proc.wait(daemons.STOP_WAIT_S)
 

@@ -26,6 +26,7 @@ from daemon.loop.recovery import Recovery
 from daemon.loop.settle import SettleGate
 from daemon.planner.commands import PLANNERS
 from daemon.planner.plans import PlanContext
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire.arguments import CommandFailed
 from daemon.testing.simrig import DT, make_rig
 from hal import config
@@ -170,10 +171,10 @@ def test_both_controllers_take_steps_and_a_trajectory_in_mm_beside_two_cpu_hogs(
     finally:
         if daemon is not None:
             daemon.terminate()
-            daemon.wait(60)
+            daemon.wait(STOP_WAIT_S)
         for hog in hogs:
             hog.kill()
-            hog.wait(60)
+            hog.wait(STOP_WAIT_S)
     for name, figures in found.items():  # docs/controllers.md: rise 0.06-0.36 s, overshoot 2-6 %
         for step in figures["steps"]:
             assert not math.isnan(step["settled_s"]), (name, figures)  # within the hold

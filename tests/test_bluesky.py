@@ -31,6 +31,7 @@ from tiled.server import SimpleTiledServer  # noqa: E402
 from daemon.client.bluesky import plans  # noqa: E402
 from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client, RemoteError  # noqa: E402
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import real_daemon, wait_for_own_daemon  # noqa: E402
 
 # slow: each test's share of the file's ~160 s on a 2-core machine (tests/conftest.py orders files by the sum)
@@ -56,7 +57,7 @@ def setup(tmp_path_factory):
         rig.close()
         server.close()
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 @pytest.fixture(autouse=True)

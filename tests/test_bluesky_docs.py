@@ -35,6 +35,7 @@ if extras.missing("bluesky"):
 from tiled.client import from_uri  # noqa: E402
 
 from daemon.client.client import Client  # noqa: E402
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import keys  # noqa: E402
 from tests.daemons import free_tcp_ports, real_daemon, wait_for_own_daemon  # noqa: E402
 
@@ -167,7 +168,7 @@ def lab(tmp_path_factory):
                 pass
         for process in processes:
             process.terminate()
-            process.wait(60)
+            process.wait(STOP_WAIT_S)
         log.close()
 
 

@@ -28,6 +28,7 @@ from tiled.server import SimpleTiledServer  # noqa: E402
 from daemon.client.bluesky import plans  # noqa: E402
 from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.client import Client  # noqa: E402
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import free_tcp_ports, real_daemon, tolerant_rig_text, wait_for_own_daemon  # noqa: E402
 
 # slow: each test's share of the file's ~80 s on a 2-core machine (tests/conftest.py orders files by the sum)
@@ -56,7 +57,7 @@ def test_a_rig_with_an_array_sensor_reads_its_contact_estimate(tmp_path):
         rig.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     assert seen and seen[0][0] > 0.0 and abs(seen[0][1]) < 0.1, seen  # a force [N] at a centre on the pad [m]
     assert rig.contact_force_n.source == f"pneumad://{rig.link.rig_name}/contact/force_n"
 
@@ -159,6 +160,6 @@ def test_a_queue_runs_plans_across_two_daemons_into_tiled(tmp_path):
         for process in reversed(processes):
             process.terminate()
             try:
-                process.wait(60)
+                process.wait(STOP_WAIT_S)
             except subprocess.TimeoutExpired:
                 process.kill()

@@ -20,6 +20,7 @@ from bluesky import RunEngine  # noqa: E402
 from daemon.client.bluesky.device import PneumadRig  # noqa: E402
 from daemon.client.bluesky.suspend import suspender  # noqa: E402
 from daemon.client.client import Client  # noqa: E402
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import real_daemon, wait_for_own_daemon  # noqa: E402
 
 pytestmark = [pytest.mark.slow(seconds=40), pytest.mark.bluesky]
@@ -96,4 +97,4 @@ def test_an_estop_mid_scan_suspends_the_plan_and_reset_and_enable_resume_it_to_t
         if rig is not None:
             rig.close()
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)

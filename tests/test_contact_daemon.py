@@ -16,6 +16,7 @@ import pytest
 
 from daemon.recordings import mcap_log, reading as recording
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from hal import config
 from hal.taxel_array import PAD_M, TAXELS
 from sim_backend.contact_patch import Impact, ImpactReplay
@@ -53,7 +54,7 @@ def test_the_contact_topic_carries_the_sensor_processs_estimates_of_the_simulate
                             stop=enough)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     for message in messages:
         validate.validate(message)
     frames = [m["frame"] for m in messages]
@@ -149,7 +150,7 @@ def test_a_contact_process_that_stalls_or_dies_marks_its_estimate_not_valid_and_
             subscription.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     contacts = [m for topic, m in seen if topic == "contact"]
     for m in contacts:
         validate.validate(m)

@@ -12,6 +12,7 @@ import time
 import pytest
 
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import answering_daemon, endpoint_env, real_daemon, wait_for_own_daemon
 
 pytestmark = pytest.mark.slow
@@ -68,7 +69,7 @@ def test_a_linear_axis_takes_its_waypoints_in_mm(tmp_path):
             assert client.status()["joints"]["axis"]["setpoint"] == pytest.approx(120.0)
     finally:
         proc.terminate()
-        proc.wait(60)
+        proc.wait(STOP_WAIT_S)
 
 
 def test_wait_exits_non_zero_when_the_arm_leaves_enabled_before_the_end(daemon):
@@ -86,7 +87,7 @@ def test_wait_exits_non_zero_when_the_arm_leaves_enabled_before_the_end(daemon):
         time.sleep(0.1)
     client.estop("test")
     out = proc.stdout.read()  # to its end (the process has exited); its stderr is the reader's alone
-    proc.wait(60)
+    proc.wait(STOP_WAIT_S)
     reader.join(10)
     assert proc.returncode == 4, (out, lines)
     assert json.loads(out)["state"] == "estop"

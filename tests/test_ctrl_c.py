@@ -17,6 +17,7 @@ import pytest
 from bench.common import child_process
 from daemon.client.client import Client
 from daemon.recordings import mcap_log
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import answering_daemon, endpoint_env, running
 from tests.doc_runs import restore_sigint
 
@@ -43,7 +44,7 @@ def interrupted(eps, tmp_path, *args: str, when) -> subprocess.CompletedProcess:
         assert time.monotonic() < deadline, ("the command never reached the point to interrupt", lines)
         time.sleep(0.1)
     proc.send_signal(signal.SIGINT)
-    proc.wait(60)
+    proc.wait(STOP_WAIT_S)
     reader.join(10)  # stderr read to its end by the reader alone
     out = proc.stdout.read()
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, "".join(lines))

@@ -19,6 +19,7 @@ from daemon.client import plots
 from daemon.client.client import Client
 from daemon.client.watch import View, line
 from daemon.recordings import mcap_log, reading
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.loop import make_loop, ok, run_seconds
 from hal import config
 from tests import device_plugin
@@ -149,7 +150,7 @@ def test_a_field_a_rig_adds_reaches_every_reader(tmp_path, monkeypatch):
             mcap_log.record(client, str(path), 0.5)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     columns = reading.load(path)
     assert "oil_temperature" in columns and columns.layout["oil_temperature"].unit == "K"
     assert abs(float(columns["oil_temperature"][-1]) - 338.15) < 1.0

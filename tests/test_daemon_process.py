@@ -16,6 +16,7 @@ import pytest
 from daemon.recordings import reading as recording
 from daemon.client.client import Client
 from daemon.service.notify import Notifier
+from daemon.testing.daemons import STOP_WAIT_S
 from hal import config
 from tests.daemons import running, tolerant_rig, tolerant_rig_text, wait_for_own_daemon
 from tests.schemas import schema
@@ -142,7 +143,7 @@ def test_daemon_lifecycle_notify_sigterm_and_cli(tmp_path, notify_socket):
         assert out.returncode == 1 and "outside" in out.stderr
 
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=60) == 0
+        assert proc.wait(STOP_WAIT_S) == 0
         assert notify_socket.wait_for("STOPPING=1", limit=3)
     finally:
         if proc.poll() is None:
@@ -180,7 +181,7 @@ def test_a_daemon_a_test_started_ends_with_the_tests_process_and_leaves_the_safe
                 except TimeoutError:
                     assert time.monotonic() < deadline, "the daemon never answered"
         spawner.kill()
-        spawner.wait(60)
+        spawner.wait(STOP_WAIT_S)
         deadline = time.monotonic() + 30.0
         while running(pid):
             assert time.monotonic() < deadline, "the daemon outlived the process that started it"
@@ -280,7 +281,7 @@ def test_a_recording_that_runs_out_of_disk_ends_with_a_clear_error(tmp_path):
         assert json.loads(status.stdout)["trips"] == 0
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def test_the_units_command_lines_are_ones_pneumad_accepts():

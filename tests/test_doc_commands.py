@@ -10,6 +10,7 @@ import pytest
 
 from daemon.client import payload_routine
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from hal import config
 from tests import doc_blocks, doc_runs
 from tests.daemons import endpoint_env, real_daemon, wait_for_own_daemon
@@ -73,4 +74,4 @@ def test_the_payload_and_identify_lines_run_against_a_daemon(tmp_path):
                     assert status["load"]["mass_kg"] == pytest.approx(0.1), status["load"]
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)

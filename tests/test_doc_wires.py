@@ -16,6 +16,7 @@ import pytest
 
 from bench.wires import listening
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.ports import free_tcp_port
 from tests import doc_blocks, doc_runs
 from tests.daemons import endpoint_env, private_endpoints, wait_for_own_daemon
@@ -83,9 +84,9 @@ def run_pair(peer: doc_blocks.Command, daemon_line: str, values: dict, cwd, hold
     finally:
         if daemon is not None:
             daemon.send_signal(signal.SIGTERM)
-            daemon.wait(timeout=60)
+            daemon.wait(STOP_WAIT_S)
         proc.send_signal(signal.SIGTERM)
-        proc.wait(timeout=60)
+        proc.wait(STOP_WAIT_S)
 
 
 def pair_up(commands: list[doc_blocks.Command]) -> list[tuple[doc_blocks.Command, doc_blocks.Command]]:

@@ -15,6 +15,7 @@ import pytest
 
 from daemon.client.client import Client
 from daemon.service import host
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import keys
 from tests import doc_blocks, doc_runs
 from tests.daemons import endpoint_env, private_endpoints, real_daemon, wait_for_own_daemon
@@ -70,7 +71,7 @@ def test_the_doctor_examines_this_machine_and_the_running_daemon_and_fails_on_a_
         done = doc_runs.run(line, tmp_path, env=env, timeout=300)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     assert code == 1
     rt = findings["real-time scheduling"]
     assert rt["status"] == "warn" and "the running daemon's loop: SCHED_OTHER 0" in rt["found"]

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import real_daemon, wait_for_own_daemon
 
 
@@ -25,4 +26,4 @@ def test_a_second_daemon_on_a_running_ones_ipc_endpoints_refuses_to_start_naming
             assert client.ping()["daemon"]["pid"] == first.pid  # the first still answers on its endpoints
     finally:
         first.terminate()
-        first.wait(60)
+        first.wait(STOP_WAIT_S)

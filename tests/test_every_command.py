@@ -13,6 +13,7 @@ import pytest
 import zmq
 
 from bench.command_cases import CASES, prepare
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import protocol as P
 from daemon.client.client import Client
 from tests.schemas import schema
@@ -43,7 +44,7 @@ def daemon(tmp_path_factory):
         client.close()
         sub.close()
         proc.terminate()
-        proc.wait(60)
+        proc.wait(STOP_WAIT_S)
 
 
 def raw_call(client: Client, eps: dict, cmd: str, args: dict, control: bool) -> dict:

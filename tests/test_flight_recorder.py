@@ -19,6 +19,7 @@ from bench.wires import listening
 from daemon.client.client import Client
 from daemon.recorder.flight import KEEP_MARGIN_S, MAX_FILES_PER_HOUR, MEMORY_CAP_BYTES, FlightRecorder
 from daemon.recordings import mcap_log
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.loop import dealer, make_loop, ok
 from daemon.testing.ports import free_tcp_port
 from daemon.wire.flight import FlightNames, Window
@@ -104,7 +105,7 @@ def test_an_estop_and_a_stalled_loop_each_write_the_seconds_before_them_named_in
             assert_holds_the_seconds_before(done["file"], trip, tmp_path)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 @pytest.mark.slow(seconds=40)
@@ -133,7 +134,7 @@ def test_a_transport_gone_stale_trips_and_its_flight_file_holds_the_seconds_befo
                 assert_holds_the_seconds_before(done["file"], trip, tmp_path, after=False)
         finally:
             daemon.terminate()
-            daemon.wait(60)
+            daemon.wait(STOP_WAIT_S)
     finally:
         stop_peer(server)
 
@@ -172,7 +173,7 @@ def test_a_storm_of_estops_writes_one_file_while_it_lasts_and_no_more_files_than
             assert sorted(files) == sorted(set(names[:-1]))
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 @pytest.mark.slow(seconds=20)
@@ -192,7 +193,7 @@ def test_a_snapshot_writes_the_held_seconds_on_request(tmp_path):
             assert t[0] <= asked["from_t"] + 0.1 and t[-1] == pytest.approx(asked["to_t"])
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def test_events_close_together_share_a_flight_file_and_only_trips_estops_and_stalls_name_one():

@@ -32,6 +32,7 @@ from daemon.recordings.channels import (
     json_schemas,
     ns,
 )
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.foxglove_client import FoxgloveClient, protobuf_class
 from daemon.testing.loop import dealer, make_loop, ok
 from hal.errors import ConfigError
@@ -51,7 +52,7 @@ def fox(tmp_path_factory):
             yield client, port
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def joint_states(fc: FoxgloveClient, count: int, others: list | None = None, limit_s: float = 60.0) -> list:
@@ -265,7 +266,7 @@ def test_a_viewer_offering_only_the_older_subprotocol_is_refused_and_the_log_say
         assert "foxglove.sdk.v1" in line and "foxglove.websocket.v1" in line and "Lichtblick 1.22.1" in line
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def test_foxglove_listens_on_loopback_unless_insecure():

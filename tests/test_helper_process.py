@@ -13,6 +13,7 @@ import pytest
 
 from hal.process import Helper, HelperFailed, SharedMemory
 from tests.daemons import running
+from daemon.testing.daemons import STOP_WAIT_S
 
 HERE = "tests.test_helper_process"
 
@@ -171,7 +172,7 @@ def test_the_child_dies_with_its_parent_when_the_parent_is_killed():
         child = int(parent.stdout.readline())
         assert running(child)
         parent.send_signal(signal.SIGKILL)
-        parent.wait(60)
+        parent.wait(STOP_WAIT_S)
         assert _wait_gone(child)
     finally:
         if parent.poll() is None:

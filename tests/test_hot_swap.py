@@ -12,6 +12,7 @@ import pytest
 
 from controllers import lti_design
 from daemon.planner.process import BUILD_NICE, Preparer
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import protocol as P
 from tests import plugins
 from daemon.client.client import Client
@@ -304,7 +305,7 @@ def test_a_daemon_logs_a_planner_worker_that_died_and_the_next_request_works(tmp
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     assert "pneumad messenger ERROR: planner: the planner worker died while idle (exit code -9: SIGKILL from " \
            "outside the daemon); another was " \
            "started and warmed (restart 1)" in log.read_text()

@@ -20,6 +20,7 @@ from importlib import resources
 import pytest
 
 from bench.wires import listening
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.ports import free_tcp_port
 from daemon.client import identify
 from daemon.client.client import Client
@@ -84,7 +85,7 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         finally:
             client.close()
             daemon.terminate()
-            daemon.wait(60)
+            daemon.wait(STOP_WAIT_S)
         out = work / "identified"
         assert {p.name for p in out.iterdir()} >= {"rig.toml", "report.json", "experiments.mcap", "bode-bottom.png",
                                                    "time-bottom.png"}
@@ -149,6 +150,6 @@ def test_the_readme_identify_lines_over_modbus_write_a_rig_file_and_figures_the_
         finally:
             client.close()
             daemon.terminate()
-            daemon.wait(60)
+            daemon.wait(STOP_WAIT_S)
     finally:
         stop_peer(peer)

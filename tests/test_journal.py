@@ -10,6 +10,7 @@ import pytest
 
 from daemon.client.client import Client, RemoteError
 from daemon.messenger.journal import BURST, RATE_PER_S, Journal
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import real_daemon, wait_for_own_daemon
 from tests.schemas import schema
 
@@ -77,7 +78,7 @@ def test_a_real_daemons_trips_estops_resets_enables_and_lease_changes_are_lines_
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     for event in (acquired, lapsed, enabled, reset, switched, estop, disabled, trip):
         validate.validate(event)
     assert (acquired["action"], lapsed["action"]) == ("acquire", "expire")
@@ -155,7 +156,7 @@ def test_a_storm_of_estops_and_resets_from_a_client_is_bounded_in_the_daemons_lo
             time.sleep(1.5)  # the messenger's next look says what it held back
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     text = log.read_text()
     lines = [line for line in text.splitlines() if re.match(r"pneumad messenger \w+: (estop|state): ", line)]
     assert len(lines) <= BURST + RATE_PER_S * (took + 2.0) + 2, (len(lines), took)

@@ -10,6 +10,7 @@ import time
 import pytest
 
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import keys
 from tests.daemons import real_daemon
 
@@ -57,4 +58,4 @@ def test_a_reload_that_removes_a_key_reaches_subscribers_with_its_event_and_one_
             sub.close()
     finally:
         proc.terminate()
-        proc.wait(60)
+        proc.wait(STOP_WAIT_S)

@@ -16,6 +16,7 @@ from daemon.client.client import Client
 from daemon.recordings import mcap_log
 from daemon.loop.commands import Commands
 from daemon.loop.safety import State
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.loop import call, dealer, make_loop, ok, run_seconds, shared_preparer
 from daemon.wire import protocol as P
 from daemon.wire.keys import OPERATOR, Identity
@@ -180,7 +181,7 @@ def test_a_one_shot_pneumactl_command_keeps_the_lease_while_its_work_outlasts_it
             assert not status["lease_held"]  # handed back
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def lease_events(sub, limit_s: float = 1.0) -> list[dict]:
@@ -218,7 +219,7 @@ def test_a_pause_of_the_loop_longer_than_the_lease_is_not_its_holders_silence(tm
             assert [e["action"] for e in events if e["kind"] == "lease"] == ["acquire"], events
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 HOG = "while True: pass"
@@ -266,4 +267,4 @@ def test_a_client_keeps_its_lease_while_it_records_and_fits_beside_two_cpu_hogs(
             hog.kill()
             hog.wait()
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)

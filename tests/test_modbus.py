@@ -13,6 +13,7 @@ from pymodbus.client import ModbusTcpClient
 
 from bench.wires import listening
 from daemon.client.client import Client, RemoteError
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.ports import free_tcp_port
 from hal import config
 from hal.errors import TransportError
@@ -160,7 +161,7 @@ def test_a_daemon_killed_hard_leaves_no_worker_writing_over_the_dead_man():
         holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(port)], stdout=subprocess.PIPE, text=True)
         worker = int(holder.stdout.readline())
         holder.kill()
-        holder.wait(60)
+        holder.wait(STOP_WAIT_S)
         out = subprocess.run([sys.executable, "-m", "daemon.main", "safe-state", "--transport", "modbus",  # a busy
                               "--transport-option", f"port={port}", "--transport-option", "open_timeout_s=60"],  # start
                              capture_output=True, text=True, timeout=120)
@@ -259,7 +260,7 @@ def test_a_killed_exchange_worker_is_an_event_a_log_line_and_restarted_and_the_a
                 sub.close()
         finally:
             daemon.terminate()
-            daemon.wait(60)
+            daemon.wait(STOP_WAIT_S)
     finally:
         stop_peer(proc)
     assert "pneumad messenger ERROR: exchange: the modbus exchange worker exited (code -9) and was restarted " \

@@ -12,6 +12,7 @@ import pytest
 
 from daemon.client.client import Client
 from daemon.recordings.reading import open_run
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.drift import AXIS_DRIFTS, DRIFTS, axis_rig, drifted_rig
 from hal import config
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
@@ -75,7 +76,7 @@ def test_a_drifting_potentiometer_is_a_model_event_a_journal_line_a_status_field
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     run = open_run(Path(started["file"]))
     recorded = run.messages["model"]
     assert recorded and any(m["joints"]["middle"]["flagged"] for m in recorded)
@@ -121,4 +122,4 @@ def test_on_the_linear_axis_the_model_topic_status_and_event_are_in_mm(tmp_path)
             sub.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)

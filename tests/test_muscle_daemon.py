@@ -11,6 +11,7 @@ import time
 import pytest
 
 from daemon.client.client import Client, RemoteError
+from daemon.testing.daemons import STOP_WAIT_S
 from hal import config
 from tests import doc_blocks, doc_runs
 from tests.daemons import endpoint_env, private_endpoints, wait_for_own_daemon
@@ -79,5 +80,5 @@ def test_the_readme_muscle_section_runs_against_a_daemon_behind_the_serial_wire(
             assert client.status()["trips"] == 0
     finally:
         daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=60)
+        daemon.wait(STOP_WAIT_S)
         stop_peer(peer)

@@ -10,6 +10,7 @@ import zmq
 
 from daemon.client.client import Client
 from daemon.loop.port import ZmqServer
+from daemon.testing.daemons import STOP_WAIT_S
 from hal.errors import ConfigError
 from tests.daemons import real_daemon, wait_for_own_daemon
 
@@ -56,7 +57,7 @@ def test_rows_carry_their_own_time_one_per_cycle(tmp_path):
     finally:
         sub.close()
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     series = [{} for _ in rows]
     for row, out in zip(rows, series):
         flatten("", row, out)

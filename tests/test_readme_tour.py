@@ -28,6 +28,7 @@ import pytest
 
 from daemon.recordings import mcap_log
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from tests import doc_blocks, doc_runs
 from tests.daemons import (endpoint_env, free_tcp_ports, private_endpoints, tolerant_rig_text,
                            wait_for_own_daemon)
@@ -126,7 +127,7 @@ def test_the_readme_keys_example_runs_as_written(tmp_path):
         assert json.loads(done.stdout)["daemon"]["pid"] == daemon.pid  # bash exec'd pneumad: the same process
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 @pytest.fixture(scope="module")
@@ -140,7 +141,7 @@ def tour(tmp_path_factory):
         yield tmp_path, work, daemon, eps
     finally:
         daemon.send_signal(signal.SIGTERM)
-        daemon.wait(timeout=60)
+        daemon.wait(STOP_WAIT_S)
 
 
 def test_the_tours_pneumactl_reaches_the_tests_own_daemon(tour):

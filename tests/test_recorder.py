@@ -19,6 +19,7 @@ from bench.common import child_process
 from daemon.recorder.archive import LEFT_CAUSE
 from daemon.recordings import mcap_log, reading as recording
 from daemon.client.client import Client, RemoteError
+from daemon.testing.daemons import STOP_WAIT_S
 from tests.daemons import real_daemon, wait_for_own_daemon
 from tests.schemas import schema
 
@@ -39,7 +40,7 @@ def start(tmp_path, *options):
 def stop(daemon, client):
     client.close()
     daemon.terminate()
-    daemon.wait(60)
+    daemon.wait(STOP_WAIT_S)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def shared(tmp_path_factory):
     client.close()
     yield daemon, eps
     daemon.terminate()
-    daemon.wait(60)
+    daemon.wait(STOP_WAIT_S)
 
 
 @pytest.fixture

@@ -18,6 +18,7 @@ from controllers.trajectory import JointMove
 from daemon.client.client import Client
 from daemon.client.ctl import main
 from daemon.recordings import mcap_log, mcap_repair, reading as recording
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.loop import dealer, make_loop, ok
 
 
@@ -336,7 +337,7 @@ def test_the_example_step_experiment_records_and_plots_against_a_real_daemon(tmp
                              cwd=root, capture_output=True, text=True, timeout=120)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     assert out.returncode == 0, out.stderr
     assert "bottom: step 5 deg, overshoot" in out.stdout
     data = recording.load(tmp_path / "step.mcap")

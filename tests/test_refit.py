@@ -15,6 +15,7 @@ import pytest
 from controllers.drift import band_of
 from daemon.client.client import Client
 from hal import config
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.drift import swing
 from tests import doc_blocks, doc_runs
 from tests.daemons import real_daemon, tolerant_rig_text, wait_for_own_daemon
@@ -59,7 +60,7 @@ def recordings(tmp_path_factory):
     finally:
         client.close()
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     return {"still": still, "waypoints": str(tmp / "waypoints.mcap")}
 
 

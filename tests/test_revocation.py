@@ -16,6 +16,7 @@ import pytest
 import zmq
 
 from daemon.client.client import Client, RemoteError
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import keys
 from daemon.wire import protocol as P
 from tests.daemons import endpoint_env, real_daemon
@@ -44,7 +45,7 @@ def lab(tmp_path_factory):
         yield proc, eps, files
     finally:
         proc.terminate()
-        proc.wait(60)
+        proc.wait(STOP_WAIT_S)
 
 
 def client(eps, key_file, timeout=10.0) -> Client:

@@ -12,6 +12,7 @@ import subprocess
 import time
 
 from daemon.client.client import Client
+from daemon.testing.daemons import STOP_WAIT_S
 from hal import config, rig_sections
 from hal.devices import kinds, sensor_kind
 from hal.directional_valve import DirectionalValveConfig
@@ -105,7 +106,7 @@ def test_the_axis_starts_and_holds_as_the_document_says(tmp_path):
     finally:
         daemon.send_signal(signal.SIGTERM)
         try:
-            daemon.wait(timeout=60)
+            daemon.wait(STOP_WAIT_S)
         except subprocess.TimeoutExpired:
             daemon.kill()
             daemon.wait()

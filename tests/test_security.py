@@ -11,6 +11,7 @@ import time
 import pytest
 import zmq
 
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire import keys, routed
 from daemon.wire import protocol as P
 from daemon.client.client import Client, KeyRefused, RemoteError
@@ -40,7 +41,7 @@ def lab(tmp_path_factory):
         yield proc, eps, files
     finally:
         proc.terminate()
-        proc.wait(60)
+        proc.wait(STOP_WAIT_S)
 
 
 def client(eps, key_file=None, server_key_file=None, timeout=3.0) -> Client:

@@ -6,6 +6,7 @@ import pytest
 
 from bench.soak import soak
 from tests.daemons import real_daemon
+from daemon.testing.daemons import STOP_WAIT_S
 
 pytestmark = pytest.mark.slow
 
@@ -19,7 +20,7 @@ def test_a_short_soak_loses_nothing_outside_the_messenger_kills_and_trips_nothin
         report = soak(daemon.pid, eps, seconds=12.0, kill_every=4.0, min_kills=2)
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     assert report["trips"] == 0, report["trip_causes"]
     assert report["kills"] >= 2 and report["messenger_restarts"] == report["kills"]
     assert report["healthy_gaps_outside_kills"] == [0, 0, 0], report

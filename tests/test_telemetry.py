@@ -18,6 +18,7 @@ from daemon.client.feeds import Subscription
 from daemon.messenger.process import MessengerError
 from daemon.loop.port import ZmqServer
 from tests.daemons import real_daemon, running
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.loop import dealer, make_loop, ok
 from daemon.wire import protocol
 from daemon.wire.cycle_layout import MODES
@@ -254,7 +255,7 @@ def test_the_messenger_dies_with_the_daemon(tmp_path):
     try:
         messenger = _wait_for_child(daemon.pid, "daemon.messenger.process")
         daemon.send_signal(signal.SIGKILL)
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
         end = time.monotonic() + 30.0  # its end is waited for: a busy machine schedules it late
         while running(messenger) and time.monotonic() < end:
             time.sleep(0.05)
@@ -295,7 +296,7 @@ def test_stopping_the_whole_process_group_still_publishes_the_shutdown(tmp_path)
                 if topic == b"event":
                     kinds.append(msgpack.unpackb(payload, raw=False)["kind"])
         assert "shutdown" in kinds
-        assert daemon.wait(60) == 0
+        assert daemon.wait(STOP_WAIT_S) == 0
     finally:
         sub.close()
         if daemon.poll() is None:

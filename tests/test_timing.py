@@ -14,6 +14,7 @@ import pytest
 from daemon.client import plot_marks, plots, progress, watch
 from daemon.client.client import Client, RemoteError
 from daemon.recordings import reading
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.wire.arguments import CommandFailed
 from daemon.messenger.timing import judge
 from hal.rig_sections import TimingConfig
@@ -129,7 +130,7 @@ def test_under_warn_a_5_ms_controller_step_is_an_event_naming_it_a_status_field_
             assert os.path.getsize(figure) > 10_000
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     line = logged(log, ("pneumad messenger WARNING: timing: degraded (", "controller slow_step's step took"))
     assert line.endswith(f"[cycle {degraded['cycle']}, messenger]")
     logged(log, ("pneumad messenger INFO: timing: recovered (",))
@@ -171,7 +172,7 @@ def test_under_hold_a_5_ms_controller_step_is_replaced_by_the_fallback_and_the_r
             events.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     logged(log, ("pneumad messenger", "slow_step", "pid", "over its budget of 500 us"))
 
 
@@ -302,7 +303,7 @@ def test_under_trip_a_5_ms_controller_step_trips_the_enabled_arm_saying_why(tmp_
             events.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
 
 
 @pytest.mark.slow(seconds=90)
@@ -342,7 +343,7 @@ def test_a_no_rt_loop_starved_of_its_cpu_says_its_timing_is_degraded_with_the_ra
         with contextlib.suppress(PermissionError):  # its stop at nice 19 beside other load would take long
             os.setpriority(os.PRIO_PROCESS, daemon.pid, 0)
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     logged(log, ("pneumad WARNING: this PC: no real-time scheduling (--no-rt) on CPUs", "the loop's timing is at risk"))
     logged(log, ("pneumad messenger WARNING: timing: degraded (the loop ran at",))
 

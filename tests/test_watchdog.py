@@ -21,6 +21,7 @@ from daemon.loop.clock import MonotonicClock
 from daemon.loop.port import ZmqServer
 from daemon.loop.safety import State
 from daemon.loop.watchdog import CycleWatchdog
+from daemon.testing.daemons import STOP_WAIT_S
 from daemon.testing.loop import PRIVATE, dealer
 from daemon.wire import protocol as P
 from daemon.wire.watchdog_link import WatchdogLink
@@ -113,7 +114,7 @@ def test_a_hung_step_has_the_watchdog_write_the_safe_state_and_the_controller_re
             events.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     check_the_hang_wrote_safe_then_nothing_else(writes(tmp_path), began, STALL_S + BOUND_S)
     logged(log, ("pneumad messenger ERROR: watchdog:", f"controller {controller}'s step has run",
                  "the cycle watchdog wrote the safe state"))
@@ -146,7 +147,7 @@ def test_an_estop_while_the_step_hangs_is_written_by_the_watchdog_at_once_and_sa
             events.close()
     finally:
         daemon.terminate()
-        daemon.wait(60)
+        daemon.wait(STOP_WAIT_S)
     record = writes(tmp_path)
     check_the_hang_wrote_safe_then_nothing_else(record, began, HANG_S)
     by_watchdog = next(t for t, thread, _ in record if thread == "cycle watchdog")

@@ -8,6 +8,10 @@ import sys
 from pathlib import Path
 
 ENDPOINTS = ("command", "control", "telemetry")
+# How long a test or bench waits for a process it started to stop [s]: about 1 s when quiet,
+# over 10 s beside two CPU hogs and a suite's other daemons (the lab PC's unit gives its
+# real-time daemon TimeoutStopSec=5s).
+STOP_WAIT_S = 60.0
 # ``python -c LAUNCH PARENT_PID MODULE ARGS...``: have Linux send this process SIGTERM when the
 # thread that started it ends (hal.process.die_with_parent; an exec keeps it), then become
 # ``python -m MODULE ARGS...``, the same pid. A test run killed or interrupted (an xdist worker
